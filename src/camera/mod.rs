@@ -1,0 +1,269 @@
+//! Camera models over *bearings*: pixel → unit ray and ray → pixel (or a reason it cannot be).
+//!
+//! PnP, MI refinement, rectification and the simulator only ever see [`CameraModel`], so they do not
+//! care which lens is fitted. Pixel coordinates follow OpenCV: the centre of the top-left pixel is
+//! (0, 0).
+
+mod equidistant;
+mod mei;
+
+pub use equidistant::Equidistant;
+pub use mei::Mei;
+
+use nalgebra::{Point2, Unit, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Why a ray or pixel has no counterpart under the model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum Reject {
+    /// The ray lies outside the part of the sphere the model maps one-to-one (behind the mirror).
+    #[error("ray outside the model's field of view")]
+    OutsideFov,
+    /// The distortion polynomial folds over beyond this radius: the mapping is not invertible.
+    #[error("beyond the distortion's monotonic range")]
+    DistortionFold,
+    /// Iterative undistortion did not converge.
+    #[error("undistortion did not converge")]
+    NoConvergence,
+    /// The pixel is outside the sensor.
+    #[error("pixel outside the image")]
+    OutsideImage,
+    /// Zero-length ray or non-finite input.
+    #[error("degenerate input")]
+    Degenerate,
+}
+
+/// Maximum Newton iterations for undistortion; convergence is quadratic, 20 is ample.
+pub(crate) const UNDISTORT_MAX_ITER: usize = 30;
+/// Undistortion convergence threshold on the normalised-plane residual.
+pub(crate) const UNDISTORT_TOL: f64 = 1e-15;
+
+/// A central camera model.
+pub trait CameraModel: Send + Sync + std::fmt::Debug {
+    /// Image width in pixels.
+    fn width(&self) -> u32;
+    /// Image height in pixels.
+    fn height(&self) -> u32;
+    /// Project a camera-frame point (or direction) to a pixel. Pixels outside the sensor are
+    /// returned, not rejected: use [`CameraModel::in_image`] for that.
+    fn project(&self, p_cam: &Vector3<f64>) -> Result<Point2<f64>, Reject>;
+    /// Unit bearing of a pixel.
+    fn unproject(&self, px: &Point2<f64>) -> Result<Unit<Vector3<f64>>, Reject>;
+    /// Largest angle from the optical axis the lens sees (half the field of view), radians.
+    fn max_theta(&self) -> f64;
+
+    /// Whether a pixel lies on the sensor (pixel centres from 0 to size−1, half a pixel margin).
+    fn in_image(&self, px: &Point2<f64>) -> bool {
+        px.x >= -0.5
+            && px.y >= -0.5
+            && px.x <= self.width() as f64 - 0.5
+            && px.y <= self.height() as f64 - 0.5
+    }
+
+    /// Whether a pixel sees the scene: on the sensor, invertible, and inside the image circle.
+    fn is_valid_pixel(&self, px: &Point2<f64>) -> bool {
+        self.in_image(px)
+            && self
+                .unproject(px)
+                .map(|b| b.z.clamp(-1.0, 1.0).acos() <= self.max_theta())
+                .unwrap_or(false)
+    }
+
+    /// Project a camera-frame point only if it is seen: inside the field of view and on the sensor.
+    fn project_visible(&self, p_cam: &Vector3<f64>) -> Result<Point2<f64>, Reject> {
+        let n = p_cam.norm();
+        if !(n > 0.0) {
+            return Err(Reject::Degenerate);
+        }
+        if (p_cam.z / n).clamp(-1.0, 1.0).acos() > self.max_theta() {
+            return Err(Reject::OutsideFov);
+        }
+        let px = self.project(p_cam)?;
+        if self.in_image(&px) {
+            Ok(px)
+        } else {
+            Err(Reject::OutsideImage)
+        }
+    }
+
+    /// Validity mask (255 = valid) of the image circle, row-major `width × height`.
+    fn valid_mask(&self) -> Vec<u8> {
+        let (w, h) = (self.width() as usize, self.height() as usize);
+        let mut m = vec![0u8; w * h];
+        for v in 0..h {
+            for u in 0..w {
+                if self.is_valid_pixel(&Point2::new(u as f64, v as f64)) {
+                    m[v * w + u] = 255;
+                }
+            }
+        }
+        m
+    }
+}
+
+/// Any supported camera, as loaded from an intrinsics file. Serialises as the native TOML table
+/// (`model = "mei" | "equidistant"`, then the parameters).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "model", rename_all = "kebab-case")]
+pub enum Camera {
+    /// Mei / unified omnidirectional model (OpenCV `cv::omnidir`).
+    Mei(Mei),
+    /// Equidistant fisheye (OpenCV `cv::fisheye`).
+    Equidistant(Equidistant),
+}
+
+impl Camera {
+    /// The model as a trait object.
+    pub fn model(&self) -> &dyn CameraModel {
+        match self {
+            Camera::Mei(m) => m,
+            Camera::Equidistant(m) => m,
+        }
+    }
+}
+
+impl CameraModel for Camera {
+    fn width(&self) -> u32 {
+        self.model().width()
+    }
+    fn height(&self) -> u32 {
+        self.model().height()
+    }
+    fn project(&self, p: &Vector3<f64>) -> Result<Point2<f64>, Reject> {
+        self.model().project(p)
+    }
+    fn unproject(&self, px: &Point2<f64>) -> Result<Unit<Vector3<f64>>, Reject> {
+        self.model().unproject(px)
+    }
+    fn max_theta(&self) -> f64 {
+        self.model().max_theta()
+    }
+}
+
+/// Solve the 2×2 linear system `J·d = r` (row-major J); `None` if singular.
+#[inline]
+pub(crate) fn solve2(j: [f64; 4], r: [f64; 2]) -> Option<[f64; 2]> {
+    let det = j[0] * j[3] - j[1] * j[2];
+    if det.abs() < 1e-300 || !det.is_finite() {
+        return None;
+    }
+    Some([
+        (j[3] * r[0] - j[1] * r[1]) / det,
+        (j[0] * r[1] - j[2] * r[0]) / det,
+    ])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn kitti() -> Mei {
+        Mei {
+            width: 1400,
+            height: 1400,
+            fx: 1336.32,
+            fy: 1335.79,
+            cx: 716.94,
+            cy: 705.76,
+            skew: 0.0,
+            xi: 2.2134,
+            k1: 0.0168,
+            k2: 1.6549,
+            p1: 4.22e-4,
+            p2: 4.25e-4,
+            fov_deg: None,
+        }
+    }
+
+    fn check_round_trip(cam: &dyn CameraModel, step: usize) -> usize {
+        let mut n = 0;
+        for v in (0..cam.height()).step_by(step) {
+            for u in (0..cam.width()).step_by(step) {
+                let px = Point2::new(u as f64 + 0.25, v as f64 + 0.75);
+                if let Ok(b) = cam.unproject(&px) {
+                    let back = cam.project(&b).expect("unprojected ray must project");
+                    assert!((back - px).norm() < 1e-6, "{px:?} -> {back:?}");
+                    n += 1;
+                }
+            }
+        }
+        n
+    }
+
+    #[test]
+    fn mei_round_trip_kitti_xi_above_2() {
+        let n = check_round_trip(&kitti(), 37);
+        assert!(n > 1000, "only {n} pixels valid");
+    }
+
+    #[test]
+    fn mei_round_trip_beyond_90_degrees() {
+        // ξ < 1 omnidir lens: a ray at θ = 100° must map and come back.
+        let cam = Mei {
+            width: 1280,
+            height: 960,
+            fx: 700.0,
+            fy: 702.0,
+            cx: 640.0,
+            cy: 480.0,
+            skew: 0.5,
+            xi: 0.9,
+            k1: -0.2,
+            k2: 0.05,
+            p1: 1e-4,
+            p2: -2e-4,
+            fov_deg: None,
+        };
+        let th = 100f64.to_radians();
+        let ray = Vector3::new(th.sin() * 0.6, th.sin() * 0.8, th.cos());
+        let px = cam.project(&ray).unwrap();
+        let b = cam.unproject(&px).unwrap();
+        assert!((b.into_inner() - ray).norm() < 1e-9);
+        check_round_trip(&cam, 41);
+    }
+
+    #[test]
+    fn equidistant_round_trip_beyond_90_degrees() {
+        let cam = Equidistant {
+            width: 2448,
+            height: 2048,
+            fx: 780.0,
+            fy: 780.0,
+            cx: 1224.0,
+            cy: 1024.0,
+            alpha: 0.0,
+            k1: 0.01,
+            k2: -0.002,
+            k3: 0.0005,
+            k4: -0.0001,
+            fov_deg: Some(185.0),
+            cache: Default::default(),
+        };
+        for deg in [0.0, 30.0, 89.0, 91.0, 92.5] {
+            let th = f64::to_radians(deg);
+            let ray = Vector3::new(th.sin() * 0.8, -th.sin() * 0.6, th.cos());
+            let px = cam.project(&ray).unwrap();
+            let b = cam.unproject(&px).unwrap();
+            assert!((b.into_inner() - ray).norm() < 1e-9, "θ={deg}");
+        }
+        check_round_trip(&cam, 53);
+    }
+
+    #[test]
+    fn mei_rejects_behind_mirror() {
+        let cam = kitti();
+        // ξ > 1: rays with z_s < −1/ξ fold back and must be rejected.
+        assert_eq!(
+            cam.project(&Vector3::new(0.1, 0.0, -1.0)),
+            Err(Reject::OutsideFov)
+        );
+    }
+
+    #[test]
+    fn pinhole_is_mei_with_zero_xi() {
+        let cam = Mei::pinhole(640, 480, 500.0, 500.0, 320.0, 240.0);
+        let px = cam.project(&Vector3::new(1.0, -0.5, 2.0)).unwrap();
+        assert!((px.x - 570.0).abs() < 1e-12 && (px.y - 115.0).abs() < 1e-12);
+        assert!(cam.project(&Vector3::new(0.0, 0.0, -1.0)).is_err());
+    }
+}

@@ -1,0 +1,92 @@
+//! Command line (contracts §6). Each command's handler lives in its own file; this module only
+//! parses arguments, dispatches, and turns errors into one stderr line and an exit code.
+
+mod gps;
+mod project;
+mod rectify;
+mod simulate;
+mod tile;
+mod validate;
+
+use crate::error::Error;
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+
+/// infraloc: localize a smart-infrastructure fisheye camera in an AV prior map.
+#[derive(Debug, Parser)]
+#[command(name = "infraloc", version, about, propagate_version = true)]
+pub struct Cli {
+    /// The command to run.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// Subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Generate a simulated scene directory (contracts §5).
+    Simulate(simulate::Args),
+    /// Project points through a camera model: CSV x,y,z → CSV u,v on stdout.
+    Project(project::Args),
+    /// Perspective rectification with cv::omnidir RECTIFY_PERSPECTIVE semantics.
+    Rectify(rectify::Args),
+    /// Tile cache operations.
+    #[command(subcommand)]
+    Tile(tile::Command),
+    /// GPS tools.
+    #[command(subcommand)]
+    Gps(gps::Command),
+    /// Check a configuration file: prints "config OK" or the problem (exit 78).
+    Validate(validate::Args),
+}
+
+/// Run the CLI with the process arguments; returns the exit code.
+pub fn main() -> i32 {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => 0,
+        Err(e) => {
+            eprintln!("infraloc: {e}");
+            e.exit_code()
+        }
+    }
+}
+
+/// Dispatch a parsed command.
+pub fn run(cli: Cli) -> Result<(), Error> {
+    match cli.command {
+        Command::Simulate(a) => simulate::run(a),
+        Command::Project(a) => project::run(a),
+        Command::Rectify(a) => rectify::run(a),
+        Command::Tile(c) => tile::run(c),
+        Command::Gps(c) => gps::run(c),
+        Command::Validate(a) => validate::run(a),
+    }
+}
+
+/// Parse `A,B,C` into numbers, naming the flag on error.
+#[allow(dead_code)] // used by rectify, landing with the foundation work
+pub(crate) fn parse_list<const N: usize>(flag: &str, s: &str) -> Result<[f64; N], Error> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|t| t.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| {
+            Error::Invalid(format!(
+                "{flag} {s:?}: expected {N} comma-separated numbers"
+            ))
+        })?;
+    v.try_into().map_err(|_| {
+        Error::Invalid(format!(
+            "{flag} {s:?}: expected {N} comma-separated numbers"
+        ))
+    })
+}
+
+/// Default config path of the installed service.
+pub const DEFAULT_CONFIG: &str = "/etc/infraloc/infraloc.toml";
+
+#[allow(dead_code)]
+fn default_config() -> PathBuf {
+    PathBuf::from(DEFAULT_CONFIG)
+}

@@ -1,0 +1,366 @@
+//! The TOML configuration: kebab-case keys, unknown keys rejected, relative paths resolved against
+//! the config file's directory. [`Config::check`] returns semantic warnings that do not stop the
+//! node but that a technician should see (`infraloc validate`).
+
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Whole configuration file.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", deny_unknown_fields)]
+pub struct Config {
+    /// Camera intrinsics and frame source.
+    #[serde(default)]
+    pub camera: CameraConfig,
+    /// GNSS receiver / position prior.
+    #[serde(default)]
+    pub gps: GpsConfig,
+    /// Map tile cache.
+    #[serde(default)]
+    pub map: MapConfig,
+    /// Where results go.
+    #[serde(default)]
+    pub output: OutputConfig,
+}
+
+/// Where frames come from.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FrameSourceKind {
+    /// An image file or a directory of images (replay, tests, simulated scenes).
+    #[default]
+    File,
+    /// A V4L2 device (`/dev/videoN`).
+    V4l2,
+    /// A GigE Vision / USB3 Vision camera through Aravis (cargo feature `aravis`).
+    Aravis,
+}
+
+/// `[camera]`: intrinsics (a file, or the inline `[camera.intrinsics]` table) and frame source.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
+pub struct CameraConfig {
+    /// Intrinsics file: OpenCV FileStorage, Kalibr camchain, KITTI-360 MEI YAML or TOML table.
+    pub intrinsics_file: Option<PathBuf>,
+    /// Inline intrinsics (the native form), used when no file is given.
+    pub intrinsics: Option<Camera>,
+    /// Frame source kind.
+    pub source: FrameSourceKind,
+    /// For `source = "file"`: an image, or a directory whose images are read in name order.
+    pub frames: Option<PathBuf>,
+    /// For `v4l2`: device path; for `aravis`: camera id (empty = first found).
+    pub device: Option<String>,
+    /// Frames captured per localization (their temporal median removes traffic).
+    pub frame_count: u32,
+    /// Spacing between captured frames, milliseconds.
+    pub frame_interval_ms: u64,
+    /// Frames discarded after opening while exposure settles.
+    pub settle_frames: u32,
+    /// Per-frame timeout, milliseconds.
+    pub timeout_ms: u64,
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        CameraConfig {
+            intrinsics_file: None,
+            intrinsics: None,
+            source: FrameSourceKind::File,
+            frames: None,
+            device: None,
+            frame_count: 5,
+            frame_interval_ms: 1000,
+            settle_frames: 5,
+            timeout_ms: 2000,
+        }
+    }
+}
+
+/// Where the position prior comes from.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum GpsSourceKind {
+    /// A recorded NMEA 0183 log file.
+    #[default]
+    NmeaFile,
+    /// A live receiver on a serial port.
+    Serial,
+    /// No receiver: use `fallback-wgs84` (a surveyed position).
+    Fixed,
+}
+
+/// `[gps]`: receiver and position-prior settings.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
+pub struct GpsConfig {
+    /// Source kind.
+    pub source: GpsSourceKind,
+    /// For `nmea-file`: the log.
+    pub path: Option<PathBuf>,
+    /// For `serial`: the device, e.g. `/dev/ttyACM0`.
+    pub device: Option<String>,
+    /// For `serial`: baud rate.
+    pub baud: u32,
+    /// Averaging window for the position prior, seconds of fixes.
+    pub window_s: f64,
+    /// How long to wait for a fix before falling back, seconds.
+    pub timeout_s: f64,
+    /// Surveyed position `[lat, lon]` used when no fix arrives (or with `source = "fixed"`).
+    pub fallback_wgs84: Option<[f64; 2]>,
+    /// 1-σ horizontal uncertainty of the fallback position, metres.
+    pub fallback_sigma_m: f64,
+}
+
+impl Default for GpsConfig {
+    fn default() -> Self {
+        GpsConfig {
+            source: GpsSourceKind::NmeaFile,
+            path: None,
+            device: None,
+            baud: 9600,
+            window_s: 30.0,
+            timeout_s: 120.0,
+            fallback_wgs84: None,
+            fallback_sigma_m: 5.0,
+        }
+    }
+}
+
+/// `[map]`: the local tile cache.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
+pub struct MapConfig {
+    /// Tile cache directory (contracts §3).
+    pub tiles: PathBuf,
+    /// A tile covers a position if the position is at least this far inside it, metres.
+    pub search_margin_m: f64,
+}
+
+impl Default for MapConfig {
+    fn default() -> Self {
+        MapConfig {
+            tiles: PathBuf::from("tiles"),
+            search_margin_m: 30.0,
+        }
+    }
+}
+
+/// `[output]`: where results are written.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
+pub struct OutputConfig {
+    /// Pose file for the detection pipeline (contracts §4).
+    pub pose: PathBuf,
+    /// Optional report JSON.
+    pub report: Option<PathBuf>,
+    /// Optional overlay PNG.
+    pub overlay: Option<PathBuf>,
+}
+
+impl Default for OutputConfig {
+    fn default() -> Self {
+        OutputConfig {
+            pose: PathBuf::from("pose.json"),
+            report: None,
+            overlay: None,
+        }
+    }
+}
+
+impl Config {
+    /// Parse TOML text. `origin` names the source in errors.
+    pub fn parse(text: &str, origin: &Path) -> Result<Config> {
+        toml::from_str(text).map_err(|e| {
+            // toml's message spans several lines with a source excerpt; keep one line.
+            let msg = e.message().trim().to_string();
+            let at = e
+                .span()
+                .map(|s| {
+                    let line = text[..s.start.min(text.len())].matches('\n').count() + 1;
+                    format!("line {line}: ")
+                })
+                .unwrap_or_default();
+            Error::config(origin, format!("{at}{msg}"))
+        })
+    }
+
+    /// Read a config file and resolve its relative paths against the file's directory.
+    pub fn load(path: &Path) -> Result<Config> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::config(path, e.to_string()))?;
+        let mut cfg = Config::parse(&text, path)?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        cfg.resolve_paths(base);
+        Ok(cfg)
+    }
+
+    /// Make every relative path absolute against `base`.
+    pub fn resolve_paths(&mut self, base: &Path) {
+        let fix = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        };
+        self.camera.intrinsics_file.as_mut().map(fix);
+        self.camera.frames.as_mut().map(fix);
+        self.gps.path.as_mut().map(fix);
+        fix(&mut self.map.tiles);
+        fix(&mut self.output.pose);
+        self.output.report.as_mut().map(fix);
+        self.output.overlay.as_mut().map(fix);
+    }
+
+    /// Hard errors a parsed config can still have (missing required combinations). Exit 78.
+    pub fn validate(&self, origin: &Path) -> Result<()> {
+        let c = &self.camera;
+        if c.intrinsics_file.is_none() && c.intrinsics.is_none() {
+            return Err(Error::config(
+                origin,
+                "[camera]: set intrinsics-file or an inline [camera.intrinsics] table",
+            ));
+        }
+        if c.intrinsics_file.is_some() && c.intrinsics.is_some() {
+            return Err(Error::config(
+                origin,
+                "[camera]: intrinsics-file and [camera.intrinsics] are both set; keep one",
+            ));
+        }
+        if c.source == FrameSourceKind::File && c.frames.is_none() {
+            return Err(Error::config(
+                origin,
+                "[camera] source = \"file\" needs frames",
+            ));
+        }
+        if c.source != FrameSourceKind::File
+            && c.device.is_none()
+            && c.source == FrameSourceKind::V4l2
+        {
+            return Err(Error::config(
+                origin,
+                "[camera] source = \"v4l2\" needs device",
+            ));
+        }
+        if c.frame_count == 0 {
+            return Err(Error::config(
+                origin,
+                "[camera] frame-count must be at least 1",
+            ));
+        }
+        let g = &self.gps;
+        match g.source {
+            GpsSourceKind::NmeaFile if g.path.is_none() => {
+                return Err(Error::config(
+                    origin,
+                    "[gps] source = \"nmea-file\" needs path",
+                ))
+            }
+            GpsSourceKind::Serial if g.device.is_none() => {
+                return Err(Error::config(
+                    origin,
+                    "[gps] source = \"serial\" needs device",
+                ))
+            }
+            GpsSourceKind::Fixed if g.fallback_wgs84.is_none() => {
+                return Err(Error::config(
+                    origin,
+                    "[gps] source = \"fixed\" needs fallback-wgs84",
+                ))
+            }
+            _ => {}
+        }
+        if let Some([lat, lon]) = g.fallback_wgs84 {
+            if !(lat.abs() <= 90.0 && lon.abs() <= 180.0) {
+                return Err(Error::config(
+                    origin,
+                    format!("[gps] fallback-wgs84 = [{lat}, {lon}] is not a WGS84 position"),
+                ));
+            }
+        }
+        if !(g.window_s > 0.0 && g.timeout_s >= 0.0 && g.fallback_sigma_m > 0.0) {
+            return Err(Error::config(
+                origin,
+                "[gps] window-s and fallback-sigma-m must be > 0, timeout-s >= 0",
+            ));
+        }
+        if !(self.map.search_margin_m >= 0.0) {
+            return Err(Error::config(origin, "[map] search-margin-m must be >= 0"));
+        }
+        Ok(())
+    }
+
+    /// Semantic warnings: legal but probably not what was meant.
+    pub fn check(&self) -> Vec<String> {
+        let mut w = Vec::new();
+        if self.camera.frame_count < 3 {
+            w.push(format!(
+                "[camera] frame-count = {}: fewer than 3 frames cannot remove traffic by median",
+                self.camera.frame_count
+            ));
+        }
+        if self.gps.window_s < 5.0 {
+            w.push(format!(
+                "[gps] window-s = {}: a short window averages little GPS noise",
+                self.gps.window_s
+            ));
+        }
+        if self.gps.source != GpsSourceKind::Fixed && self.gps.fallback_wgs84.is_none() {
+            w.push("[gps] no fallback-wgs84: without a fix the node cannot localize".into());
+        }
+        if self.map.search_margin_m > 500.0 {
+            w.push(format!(
+                "[map] search-margin-m = {} m is larger than any tile is likely to be",
+                self.map.search_margin_m
+            ));
+        }
+        w
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_key_is_a_config_error_naming_the_key() {
+        let e = Config::parse("[camera]\nframe-cont = 3\n", Path::new("x.toml")).unwrap_err();
+        assert_eq!(e.exit_code(), crate::error::EXIT_CONFIG);
+        let s = e.to_string();
+        assert!(s.contains("frame-cont") && s.contains("line 2"), "{s}");
+        assert!(!s.contains('\n'));
+    }
+
+    #[test]
+    fn inline_intrinsics_parse() {
+        let t = r#"
+[camera]
+frames = "frames"
+[camera.intrinsics]
+model = "mei"
+width = 640
+height = 480
+fx = 300.0
+fy = 300.0
+cx = 320.0
+cy = 240.0
+xi = 1.1
+k1 = -0.1
+[gps]
+source = "fixed"
+fallback-wgs84 = [42.0, -83.0]
+"#;
+        let c = Config::parse(t, Path::new("x.toml")).unwrap();
+        c.validate(Path::new("x.toml")).unwrap();
+        assert!(matches!(c.camera.intrinsics, Some(Camera::Mei(ref m)) if m.xi == 1.1));
+        // Unknown key inside the inline camera table is rejected too.
+        let bad = t.replace("k1 = -0.1", "k9 = -0.1");
+        assert!(Config::parse(&bad, Path::new("x.toml")).is_err());
+    }
+
+    #[test]
+    fn missing_intrinsics_fails_validation() {
+        let c = Config::parse("[camera]\nframes = \"f\"\n", Path::new("x.toml")).unwrap();
+        let e = c.validate(Path::new("x.toml")).unwrap_err();
+        assert!(e.to_string().contains("intrinsics"));
+    }
+}

@@ -1,0 +1,1 @@
+//! Scene simulator: seeded intersection world, LiDAR and satellite layers, fisheye frames, GPS.
