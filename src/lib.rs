@@ -18,7 +18,9 @@ pub mod error;
 pub mod geo;
 pub mod gnss;
 pub mod map;
+pub mod persist;
 pub mod pose;
+pub mod posefile;
 pub mod sim;
 
 pub use error::{Error, Result};
