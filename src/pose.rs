@@ -152,8 +152,13 @@ impl CamFromMap {
             rows[0][0], rows[0][1], rows[0][2], rows[1][0], rows[1][1], rows[1][2], rows[2][0],
             rows[2][1], rows[2][2],
         );
-        // Files carry ~15 significant digits; project back onto SO(3) so downstream maths is exact.
-        let r = Rotation3::from_matrix_eps(&m, 1e-12, 100, Rotation3::identity());
+        // Keep an already-orthonormal matrix bit-exact (UTM-sized translations turn a 1e-12
+        // rotation change into micrometres of centre shift); project anything else onto SO(3).
+        let r = if (m.transpose() * m - Matrix3::identity()).norm() < 1e-12 {
+            Rotation3::from_matrix_unchecked(m)
+        } else {
+            Rotation3::from_matrix_eps(&m, 1e-15, 0, Rotation3::identity())
+        };
         Self::new(r, Vector3::new(t[0], t[1], t[2]))
     }
 }
