@@ -17,6 +17,7 @@ pub mod config;
 pub mod error;
 pub mod geo;
 pub mod gnss;
+pub mod localize;
 pub mod map;
 pub mod persist;
 pub mod pose;
