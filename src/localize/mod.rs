@@ -1,4 +1,5 @@
 //! Localization: initialization (matching + PnP) and refinement (mutual information).
 
+pub mod matching;
 pub mod pnp;
 pub mod poly;
