@@ -315,8 +315,8 @@ pub fn sweep(search: &SearchField, nominal: &NominalField, p: &SweepParams) -> V
             }
             search.fft.forward(&mut mask, &mut scratch);
             let mut local = vec![Complex32::new(0.0, 0.0); n * n];
-            for i in 0..n * n {
-                local[i] = search.energy[i] * mask[i].conj();
+            for ((l, e), m) in local.iter_mut().zip(&search.energy).zip(&mask) {
+                *l = e * m.conj();
             }
             search.fft.inverse(&mut local, &mut scratch);
             // Pyramid level whose step is closest to (not finer than half) the template step.
@@ -366,8 +366,8 @@ pub fn sweep(search: &SearchField, nominal: &NominalField, p: &SweepParams) -> V
                     continue;
                 }
                 search.fft.forward(&mut buf, &mut scratch);
-                for i in 0..n * n {
-                    buf[i] = search.spec[i] * buf[i].conj();
+                for (b, s) in buf.iter_mut().zip(&search.spec) {
+                    *b = s * b.conj();
                 }
                 search.fft.inverse(&mut buf, &mut scratch);
                 let mut top = Candidate {
