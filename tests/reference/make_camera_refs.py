@@ -72,7 +72,7 @@ def unit(theta_deg, az_deg):
 
 
 def camera_points():
-    """Camera-frame points: (x, y, z) rows, plus the zero vector (degenerate)."""
+    """Camera-frame points: (x, y, z) rows (write_set appends the degenerate zero vector)."""
     pts = []
     for rng in RANGES:
         for th in THETAS:
@@ -267,14 +267,23 @@ def equidistant_refs(cam, pts_world, rvec, tvec):
 def write_set(name, cam, kind):
     pts_cam = camera_points()
     R, _ = cv2.Rodrigues(RVEC)
+    refs = mei_refs if kind == "mei" else equidistant_refs
+    zero = np.zeros(3)
+    # Rays beyond 95 deg that the model maps to pixels far off any sensor (xi < 1 near z = -xi: the
+    # image radius grows without bound) are dropped: there the result is ill-conditioned for any
+    # implementation (a 1e-16 change of the ray moves the pixel by more than the tolerance).
+    rows = refs(cam, pts_cam, zero, zero)
+    far = 2 * max(cam["w"], cam["h"])
+    c0 = np.array([cam["K"][0, 2], cam["K"][1, 2]])
+    keep = np.array([not r[0] or np.hypot(float(r[0]) - c0[0], float(r[1]) - c0[1]) < far
+                     for r in rows])
+    pts_cam = pts_cam[keep]
     # Map-frame points: X_w = R^T (X_c - t). The backward axis ray (theta = 180 deg) is left out of
     # the map set because R X_w + t recomputes it only to rounding, i.e. with an arbitrary
     # azimuth: ill-conditioned for any implementation.
     on_back_axis = (pts_cam[:, 0] == 0) & (pts_cam[:, 1] == 0) & (pts_cam[:, 2] < 0)
     pts_map = np.array([R.T @ (p - TVEC) for p in pts_cam[~on_back_axis]])
-    refs = mei_refs if kind == "mei" else equidistant_refs
-    zero = np.zeros(3)
-    sets = [("cam", np.vstack([pts_cam, zero]), np.zeros(3), zero), ("map", pts_map, RVEC, TVEC)]
+    sets = [("cam", np.vstack([pts_cam, zero]), zero, zero), ("map", pts_map, RVEC, TVEC)]
     for frame, pts, rvec, tvec in sets:
         rows = refs(cam, pts, rvec, tvec)
         if frame == "cam":
