@@ -160,7 +160,9 @@ impl Camera {
             ),
         };
         if w == 0 || h == 0 {
-            return Err(format!("image size {w}×{h}: width and height must be positive"));
+            return Err(format!(
+                "image size {w}×{h}: width and height must be positive"
+            ));
         }
         for (name, v) in &named {
             if !v.is_finite() {
@@ -332,7 +334,11 @@ mod tests {
         let mut cam = Mei::pinhole(1000, 1000, 400.0, 400.0, 500.0, 500.0);
         cam.k1 = -0.3;
         let fold = (1.0f64 / 0.9).sqrt().atan();
-        assert!((cam.max_theta() - fold).abs() < 1e-12, "{}", cam.max_theta());
+        assert!(
+            (cam.max_theta() - fold).abs() < 1e-12,
+            "{}",
+            cam.max_theta()
+        );
         let ray = |deg: f64| Vector3::new(deg.to_radians().sin(), 0.0, deg.to_radians().cos());
         assert!(cam.project(&ray(46.0)).is_ok());
         assert_eq!(cam.project(&ray(47.0)), Err(Reject::DistortionFold));

@@ -34,7 +34,12 @@ pub struct Args {
 pub fn run(a: Args) -> Result<()> {
     let cam = load_camera(&a.camera)?;
     // Pose file (contracts §4) or a simulator truth.json: only the rotation and translation are used.
-    let pose = a.pose.as_deref().map(read_pose).transpose()?.map(|p| p.pose);
+    let pose = a
+        .pose
+        .as_deref()
+        .map(read_pose)
+        .transpose()?
+        .map(|p| p.pose);
     let text = std::fs::read_to_string(&a.points).map_err(|e| Error::io(&a.points, e))?;
     let points = parse_points(&text, &a.points)?;
     let mut out = String::with_capacity(points.len() * 40);
@@ -113,10 +118,15 @@ mod tests {
     fn header_detected_and_errors_name_line() {
         let p = Path::new("pts.csv");
         let v = parse_points("x,y,z\n1,2,3\n\n4, 5 ,6,99\n", p).unwrap();
-        assert_eq!(v, vec![Vector3::new(1.0, 2.0, 3.0), Vector3::new(4.0, 5.0, 6.0)]);
+        assert_eq!(
+            v,
+            vec![Vector3::new(1.0, 2.0, 3.0), Vector3::new(4.0, 5.0, 6.0)]
+        );
         let v = parse_points("1,2,3\n", p).unwrap();
         assert_eq!(v.len(), 1);
-        let e = parse_points("x,y,z\n1,2,3\n1,a,3\n", p).unwrap_err().to_string();
+        let e = parse_points("x,y,z\n1,2,3\n1,a,3\n", p)
+            .unwrap_err()
+            .to_string();
         assert_eq!(e, "pts.csv: line 3: y is not a number in \"1,a,3\"");
         let e = parse_points("1,2\n", p).unwrap_err().to_string();
         assert_eq!(e, "pts.csv: line 1: expected x,y,z, found 2 field(s)");
