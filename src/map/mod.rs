@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 
 pub mod cache;
 pub mod geotiff;
+pub mod import;
 
 /// A coordinate reference system of map data.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
