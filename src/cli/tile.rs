@@ -11,7 +11,7 @@ use std::path::PathBuf;
 pub enum Command {
     /// Build CACHE/TILE_ID/ from GeoTIFFs (georeference from their tags) or PNG/TIFF + world
     /// files (.pgw/.tfw/.wld, centre-of-pixel convention; found beside the image if not given).
-    Import(ImportArgs),
+    Import(Box<ImportArgs>),
 }
 
 /// Arguments of `tile import`.
@@ -56,7 +56,7 @@ pub fn run(c: Command) -> Result<()> {
     }
 }
 
-fn import(a: ImportArgs) -> Result<()> {
+fn import(a: Box<ImportArgs>) -> Result<()> {
     import_with(&a)
 }
 
