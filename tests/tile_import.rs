@@ -156,7 +156,7 @@ fn import_png_with_world_files_matches_gdal() {
     // The manifest records where the data came from.
     let manifest = std::fs::read_to_string(td.join("tile.toml")).unwrap();
     assert!(
-        manifest.contains("sat.png + sibling world file"),
+        manifest.contains("sat.png + world file ") && manifest.contains("sat.pgw"),
         "{manifest}"
     );
     // And the tile is found from a WGS84 position inside it.

@@ -160,8 +160,9 @@ fn decode(path: &Path) -> Result<Image> {
     })
 }
 
-/// Read one source raster and its georeference in `crs`. Returns the image and its grid.
-pub fn read_source(src: Source<'_>, crs: Crs, flag: &str) -> Result<(Image, GeoGrid)> {
+/// Read one source raster and its georeference in `crs`. Returns the image, its grid and a
+/// description of where the georeference came from (for provenance).
+pub fn read_source(src: Source<'_>, crs: Crs, flag: &str) -> Result<(Image, GeoGrid, String)> {
     let img = decode(src.image)?;
     if let Some(g) = img.grid {
         if let Some(w) = src.world {
@@ -177,7 +178,8 @@ pub fn read_source(src: Source<'_>, crs: Crs, flag: &str) -> Result<(Image, GeoG
                 format!("GeoTIFF CRS is {} but --crs is {crs}", g.crs),
             ));
         }
-        return Ok((img, g));
+        let what = format!("{} (GeoTIFF)", src.image.display());
+        return Ok((img, g, what));
     }
     let world = match src.world {
         Some(w) => w.to_path_buf(),
@@ -193,15 +195,8 @@ pub fn read_source(src: Source<'_>, crs: Crs, flag: &str) -> Result<(Image, GeoG
     };
     let text = std::fs::read_to_string(&world).map_err(|e| Error::io(&world, e))?;
     let grid = parse_world_file(&text, &world, crs, img.width, img.height)?;
-    Ok((img, grid))
-}
-
-fn describe(src: Source<'_>, img: &Image) -> String {
-    match (img.grid.is_some(), src.world) {
-        (true, _) => format!("{} (GeoTIFF)", src.image.display()),
-        (false, Some(w)) => format!("{} + {}", src.image.display(), w.display()),
-        (false, None) => format!("{} + sibling world file", src.image.display()),
-    }
+    let what = format!("{} + world file {}", src.image.display(), world.display());
+    Ok((img, grid, what))
 }
 
 /// Build a tile from its sources. `crs` must be a WGS84 UTM EPSG code; every GeoTIFF source must
@@ -215,13 +210,13 @@ pub fn import_tile(
     control_points: Option<&Path>,
 ) -> Result<(Tile, Provenance)> {
     geo::check_crs(crs).map_err(|e| Error::Invalid(format!("--crs: {e}")))?;
-    let (si, sg) = read_source(satellite, crs, "--satellite")?;
-    let (ri, rg) = read_source(reflectivity, crs, "--reflectivity")?;
-    let (hi, hg) = read_source(height, crs, "--height")?;
+    let (si, sg, sd) = read_source(satellite, crs, "--satellite")?;
+    let (ri, rg, rd) = read_source(reflectivity, crs, "--reflectivity")?;
+    let (hi, hg, hd) = read_source(height, crs, "--height")?;
     let mut sources = vec![
-        format!("satellite: {}", describe(satellite, &si)),
-        format!("reflectivity: {}", describe(reflectivity, &ri)),
-        format!("height: {}", describe(height, &hi)),
+        format!("satellite: {sd}"),
+        format!("reflectivity: {rd}"),
+        format!("height: {hd}"),
     ];
     let sat = geotiff::raster_rgb8(si, sg, satellite.image)?;
     let refl = geotiff::raster_gray8(ri, rg, reflectivity.image)?;
