@@ -283,6 +283,18 @@ fn find_tile_picks_the_covering_tile_or_names_the_nearest() {
         e.contains(&format!("nearest tile \"b\" is {want:.1} m away")),
         "{e} (want {want:.1})"
     );
+    // The other side of the world: no meaningless transverse-Mercator distance, but the
+    // great-circle one, to the nearer tile "b". pyproj.Geod(ellps="WGS84").inv from b's centre
+    // (45.146336°N, 13.729342°E) to 45°N 100°E: 6 438 647.3 m; the sphere is within 0.5 %.
+    let e = err_of(find_tile(dir.path(), 45.0, 100.0, 1.0));
+    let metres: f64 = e
+        .split("nearest tile \"b\" is ")
+        .nth(1)
+        .and_then(|r| r.split(" m away").next())
+        .unwrap_or_else(|| panic!("{e}"))
+        .parse()
+        .unwrap();
+    assert!((metres / 6_438_647.3 - 1.0).abs() < 5e-3, "{e}");
     // An empty cache says so.
     let empty = tempfile::tempdir().unwrap();
     let e = err_of(find_tile(empty.path(), 45.0, 15.5, 1.0));
