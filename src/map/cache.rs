@@ -641,7 +641,7 @@ pub fn find_tile(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<
     let where_ = format!("lat {lat:.7}, lon {lon:.7}");
     Err(match nearest {
         None => Error::input(cache_dir, format!("no tiles in the cache (looking for {where_})")),
-        Some((dist, id, inside)) if dist <= 0.0 => Error::input(
+        Some((0.0, id, inside)) => Error::input(
             cache_dir,
             format!(
                 "no tile covers {where_} with a {margin_m} m margin; nearest tile {id:?} has it only {inside:.1} m inside its edge"
