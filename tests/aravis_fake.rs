@@ -175,6 +175,89 @@ fn fake_gige_camera_mono8_region_exposure() {
 }
 
 #[test]
+fn fake_gige_camera_mono16_and_bayer() {
+    let _lock = CAMERA_LOCK.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(_cam) = start_fake_camera() else {
+        return;
+    };
+    let grab = |format: &str| {
+        let mut src = AravisSource::new(
+            Some(ADDRESS),
+            AravisSettings {
+                pixel_format: Some(format.into()),
+                region: Some([0, 0, 256, 128]),
+                exposure_us: Some(UNIT_EXPOSURE_US),
+                gain_db: Some(0.0),
+            },
+        );
+        let cap = capture(&mut src, &settings(1), &SystemClock::default())
+            .unwrap_or_else(|e| panic!("{format}: {e}"));
+        cap.frames.into_iter().next().unwrap()
+    };
+
+    // Mono16: the fake camera writes (256·(x + y + f)) mod 65535 little-endian; gray is its
+    // high byte. Taking the low byte (or big-endian) would give 0 or garbage everywhere.
+    let f = grab("Mono16");
+    assert_eq!(f.image.dimensions(), (256, 128));
+    for (x, y, p) in f.image.enumerate_pixels() {
+        let v16 = (256 * (x as u64 + y as u64 + f.sequence)) % 65535;
+        assert_eq!(p[0] as u64, v16 >> 8, "Mono16 pixel ({x},{y}) frame {}", f.sequence);
+    }
+
+    // Bayer: the fake camera mosaics one colour image (a colour map of x + y + f) with the
+    // requested layout. Decoded with the matching pattern, layouts must give the same gray
+    // image (after shifting by the frame-id difference along x); a layout decoded with the
+    // wrong pattern gives a different luma (R and B weights differ by 0.185).
+    //
+    // Aravis 0.8.26's fake camera fills BayerGR8 and BayerGB8 per the GenICam PFNC layouts but
+    // swaps R and B for BayerRG8 and BayerBG8 (its BayerRG8 buffer has B at (0,0); see
+    // arv_fake_camera_diagonal_ramp in arvfakecamera.c). So: GR ≈ GB (both right), RG ≈ BG
+    // (both swapped the same way), and RG differs from GR. Our pattern layouts themselves are
+    // checked against their PFNC names in convert.rs.
+    let gray: Vec<_> = ["BayerRG8", "BayerBG8", "BayerGR8", "BayerGB8"]
+        .iter()
+        .map(|name| {
+            let f = grab(name);
+            assert_eq!(f.image.dimensions(), (256, 128), "{name}");
+            (*name, f)
+        })
+        .collect();
+    let compare = |a: usize, b: usize| {
+        let ((na, fa), (nb, fb)) = (&gray[a], &gray[b]);
+        let shift = fa.sequence as i64 - fb.sequence as i64;
+        let (mut n, mut sum, mut worst) = (0u64, 0u64, 0u8);
+        for y in 1..127u32 {
+            for x in 1..255u32 {
+                let xb = x as i64 + shift;
+                // Away from the borders and from the colour map's wrap at index 255.
+                let idx = (x as u64 + y as u64 + fa.sequence) % 255;
+                if !(2..253).contains(&xb) || !(3..252).contains(&idx) {
+                    continue;
+                }
+                let d = fa.image.get_pixel(x, y)[0].abs_diff(fb.image.get_pixel(xb as u32, y)[0]);
+                worst = worst.max(d);
+                sum += d as u64;
+                n += 1;
+            }
+        }
+        assert!(n > 10_000, "{na} vs {nb}: only {n} comparable pixels");
+        let mean = sum as f64 / n as f64;
+        eprintln!("{na} vs {nb}: mean |diff| {mean:.2}, worst {worst} over {n} px");
+        (mean, worst)
+    };
+    let (rg, bg, gr, gb) = (0, 1, 2, 3);
+    let (mean, worst) = compare(gr, gb);
+    assert!(mean < 0.5 && worst <= 3, "GR8 vs GB8 disagree");
+    let (mean, worst) = compare(rg, bg);
+    assert!(mean < 0.5 && worst <= 3, "RG8 vs BG8 disagree");
+    let (mean, _) = compare(rg, gr);
+    assert!(
+        mean > 10.0,
+        "RG8 now agrees with GR8: the fake camera's R/B swap is fixed; update this test"
+    );
+}
+
+#[test]
 fn fake_gige_camera_absent_then_error_names_it() {
     let _lock = CAMERA_LOCK.lock().unwrap_or_else(|e| e.into_inner());
     // No fake camera running: a loopback address where nothing answers.
