@@ -39,7 +39,10 @@ fn bench(c: &mut Criterion) {
     g.bench_function("network_rayon", |b| {
         b.iter(|| temporal_median(black_box(&frames)).unwrap())
     });
-    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
     g.bench_function("network_1_thread", |b| {
         b.iter(|| one.install(|| temporal_median(black_box(&frames)).unwrap()))
     });

@@ -172,7 +172,9 @@ impl CameraConfig {
         }
         if let Some([_, _, w, h]) = self.region {
             if w == 0 || h == 0 {
-                return err(format!("region width and height must be positive, got {w}x{h}"));
+                return err(format!(
+                    "region width and height must be positive, got {w}x{h}"
+                ));
             }
         }
         if let Some(e) = self.exposure_us {
@@ -478,23 +480,39 @@ fallback-wgs84 = [42.0, -83.0]
             let c = Config::parse(&t, Path::new("x.toml")).unwrap();
             c.validate(Path::new("x.toml")).map(|_| c)
         };
-        let c = ok("source = \"aravis\"\ndevice = \"Basler-123\"\npixel-format = \"BayerRG8\"\n\
+        let c = ok(
+            "source = \"aravis\"\ndevice = \"Basler-123\"\npixel-format = \"BayerRG8\"\n\
                     region = [8, 4, 640, 480]\nexposure-us = 2500.0\ngain-db = 6.0\n\
-                    retry-attempts = 5\nretry-backoff-ms = 200\n")
+                    retry-attempts = 5\nretry-backoff-ms = 200\n",
+        )
         .unwrap();
         assert_eq!(c.camera.region, Some([8, 4, 640, 480]));
         assert_eq!(c.camera.retry_attempts, 5);
-        let c = ok("source = \"v4l2\"\ndevice = \"/dev/video0\"\npixel-format = \"YUYV\"\n\
-                    resolution = [1280, 720]\n")
+        let c = ok(
+            "source = \"v4l2\"\ndevice = \"/dev/video0\"\npixel-format = \"YUYV\"\n\
+                    resolution = [1280, 720]\n",
+        )
         .unwrap();
         assert_eq!(c.camera.resolution, Some([1280, 720]));
 
         // Each mistake is a config error (exit 78) naming the key.
         for (extra, key) in [
-            ("source = \"v4l2\"\ndevice = \"/dev/video0\"\npixel-format = \"Mono8\"\n", "pixel-format = \"Mono8\""),
-            ("source = \"aravis\"\npixel-format = \"YUYV\"\n", "pixel-format = \"YUYV\""),
-            ("source = \"v4l2\"\ndevice = \"/dev/video0\"\nregion = [0, 0, 8, 8]\n", "region"),
-            ("source = \"aravis\"\nresolution = [640, 480]\n", "resolution"),
+            (
+                "source = \"v4l2\"\ndevice = \"/dev/video0\"\npixel-format = \"Mono8\"\n",
+                "pixel-format = \"Mono8\"",
+            ),
+            (
+                "source = \"aravis\"\npixel-format = \"YUYV\"\n",
+                "pixel-format = \"YUYV\"",
+            ),
+            (
+                "source = \"v4l2\"\ndevice = \"/dev/video0\"\nregion = [0, 0, 8, 8]\n",
+                "region",
+            ),
+            (
+                "source = \"aravis\"\nresolution = [640, 480]\n",
+                "resolution",
+            ),
             ("source = \"aravis\"\nexposure-us = -1.0\n", "exposure-us"),
             ("source = \"aravis\"\nregion = [0, 0, 0, 8]\n", "region"),
             ("frames = \"f\"\nretry-attempts = 0\n", "retry-attempts"),

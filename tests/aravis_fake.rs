@@ -37,11 +37,13 @@ fn find_fake_camera() -> Option<PathBuf> {
     let root = env!("CARGO_MANIFEST_DIR");
     let known = [
         PathBuf::from("/opt/aravis-tools/usr/bin").join(BINARY),
-        PathBuf::from(root).join("target/aravis-tools/usr/bin").join(BINARY),
+        PathBuf::from(root)
+            .join("target/aravis-tools/usr/bin")
+            .join(BINARY),
     ];
-    let on_path = std::env::var_os("PATH")
+    let on_path: Vec<PathBuf> = std::env::var_os("PATH")
         .map(|p| std::env::split_paths(&p).map(|d| d.join(BINARY)).collect())
-        .unwrap_or_else(Vec::new);
+        .unwrap_or_default();
     known.into_iter().chain(on_path).find(|p| p.is_file())
 }
 
@@ -201,7 +203,12 @@ fn fake_gige_camera_mono16_and_bayer() {
     assert_eq!(f.image.dimensions(), (256, 128));
     for (x, y, p) in f.image.enumerate_pixels() {
         let v16 = (256 * (x as u64 + y as u64 + f.sequence)) % 65535;
-        assert_eq!(p[0] as u64, v16 >> 8, "Mono16 pixel ({x},{y}) frame {}", f.sequence);
+        assert_eq!(
+            p[0] as u64,
+            v16 >> 8,
+            "Mono16 pixel ({x},{y}) frame {}",
+            f.sequence
+        );
     }
 
     // Bayer: the fake camera mosaics one colour image (a colour map of x + y + f) with the
@@ -268,7 +275,8 @@ fn fake_gige_camera_absent_then_error_names_it() {
         .unwrap_err()
         .to_string();
     assert!(
-        e.starts_with("capture: camera aravis:127.0.0.1: ") && e.ends_with("[device absent; gave up after 2 attempts]"),
+        e.starts_with("capture: camera aravis:127.0.0.1: ")
+            && e.ends_with("[device absent; gave up after 2 attempts]"),
         "{e}"
     );
     assert!(!e.contains('\n'), "{e}");

@@ -47,10 +47,16 @@ pub fn genicam_to_gray(
     data: &[u8],
 ) -> Result<GrayImage, GrabError> {
     let bayer = |p| {
-        convert::bayer8(Geometry::packed(width, height, 1).padded(x_padding), data, p)
+        convert::bayer8(
+            Geometry::packed(width, height, 1).padded(x_padding),
+            data,
+            p,
+        )
     };
     let image = match format {
-        PixelFormat::MONO_8 => convert::gray8(Geometry::packed(width, height, 1).padded(x_padding), data),
+        PixelFormat::MONO_8 => {
+            convert::gray8(Geometry::packed(width, height, 1).padded(x_padding), data)
+        }
         PixelFormat::MONO_16 => {
             convert::gray16le(Geometry::packed(width, height, 2).padded(x_padding), data)
         }
@@ -119,14 +125,14 @@ impl AravisSource {
 
     /// Apply the settings; a refused setting is [`Fault::Unsupported`] naming the feature.
     fn configure(&self, cam: &Camera) -> Result<(), GrabError> {
-        let refused =
-            |what: String, e: aravis::glib::Error| GrabError::new(Fault::Unsupported, format!("{what}: {e}"));
+        let refused = |what: String, e: aravis::glib::Error| {
+            GrabError::new(Fault::Unsupported, format!("{what}: {e}"))
+        };
         let s = &self.settings;
         if let Some(name) = &s.pixel_format {
-            let (_, f) = FORMATS
-                .iter()
-                .find(|(n, _)| n == name)
-                .ok_or_else(|| GrabError::new(Fault::Unsupported, format!("pixel format {name}")))?;
+            let (_, f) = FORMATS.iter().find(|(n, _)| n == name).ok_or_else(|| {
+                GrabError::new(Fault::Unsupported, format!("pixel format {name}"))
+            })?;
             cam.set_pixel_format(*f)
                 .map_err(|e| refused(format!("pixel format {name}"), e))?;
         }
@@ -154,7 +160,8 @@ impl AravisSource {
         }
         if let Some(db) = s.gain_db {
             let _ = cam.set_gain_auto(Auto::Off);
-            cam.set_gain(db).map_err(|e| refused(format!("gain {db} dB"), e))?;
+            cam.set_gain(db)
+                .map_err(|e| refused(format!("gain {db} dB"), e))?;
         }
         cam.set_acquisition_mode(AcquisitionMode::Continuous)
             .map_err(|e| refused("continuous acquisition".into(), e))?;
@@ -264,9 +271,15 @@ mod tests {
             mono8.extend(row.map(|p| p[0]));
             mono8.extend([0xEE; 3]);
         }
-        assert_eq!(genicam_to_gray(PixelFormat::MONO_8, 8, 4, 3, &mono8).unwrap(), img);
+        assert_eq!(
+            genicam_to_gray(PixelFormat::MONO_8, 8, 4, 3, &mono8).unwrap(),
+            img
+        );
         let mono16: Vec<u8> = img.pixels().flat_map(|p| [0x11, p[0]]).collect();
-        assert_eq!(genicam_to_gray(PixelFormat::MONO_16, 8, 4, 0, &mono16).unwrap(), img);
+        assert_eq!(
+            genicam_to_gray(PixelFormat::MONO_16, 8, 4, 0, &mono16).unwrap(),
+            img
+        );
         let e = genicam_to_gray(PixelFormat::RGB_8_PACKED, 8, 4, 0, &[0; 96]).unwrap_err();
         assert_eq!(e.fault, Fault::Unsupported);
         assert!(e.detail.contains("Mono8, Mono16, BayerRG8"), "{}", e.detail);

@@ -161,9 +161,15 @@ mod tests {
     #[test]
     fn missing_empty_and_corrupt() {
         let dir = tempfile::tempdir().unwrap();
-        let e = FileSource::new(&dir.path().join("nope")).open().unwrap_err();
+        let e = FileSource::new(&dir.path().join("nope"))
+            .open()
+            .unwrap_err();
         assert_eq!(e.fault, Fault::Absent);
-        assert!(e.detail.contains("No such file or directory"), "{}", e.detail);
+        assert!(
+            e.detail.contains("No such file or directory"),
+            "{}",
+            e.detail
+        );
 
         let e = FileSource::new(dir.path()).open().unwrap_err();
         assert_eq!(e.fault, Fault::Absent);

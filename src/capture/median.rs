@@ -44,10 +44,12 @@ pub fn temporal_median(frames: &[GrayImage]) -> Result<GrayImage> {
         return Ok(out);
     }
     let planes: Vec<&[u8]> = frames.iter().map(|f| f.as_raw().as_slice()).collect();
-    out.par_chunks_exact_mut(w).enumerate().for_each(|(y, dst)| {
-        let rows: Vec<&[u8]> = planes.iter().map(|p| &p[y * w..(y + 1) * w]).collect();
-        median_row(&rows, dst);
-    });
+    out.par_chunks_exact_mut(w)
+        .enumerate()
+        .for_each(|(y, dst)| {
+            let rows: Vec<&[u8]> = planes.iter().map(|p| &p[y * w..(y + 1) * w]).collect();
+            median_row(&rows, dst);
+        });
     Ok(out)
 }
 

@@ -234,9 +234,10 @@ pub struct Capture {
 pub fn source_from_config(c: &CameraConfig) -> Result<Box<dyn FrameSource>> {
     match c.source {
         FrameSourceKind::File => {
-            let path = c.frames.as_ref().ok_or_else(|| {
-                Error::Invalid("[camera] source = \"file\" needs frames".into())
-            })?;
+            let path = c
+                .frames
+                .as_ref()
+                .ok_or_else(|| Error::Invalid("[camera] source = \"file\" needs frames".into()))?;
             Ok(Box::new(FileSource::new(path)))
         }
         #[cfg(feature = "v4l")]
@@ -265,7 +266,9 @@ pub fn capture(
     clock: &dyn Clock,
 ) -> Result<Capture> {
     if settings.frame_count == 0 {
-        return Err(Error::Invalid("capture: frame-count must be at least 1".into()));
+        return Err(Error::Invalid(
+            "capture: frame-count must be at least 1".into(),
+        ));
     }
     let mut session = Session {
         source,
@@ -449,7 +452,10 @@ mod tests {
     fn settles_then_spaces_frames_and_takes_median() {
         let clock = FakeClock::default();
         // Two settle frames (99 — must not appear), then 5 frames with one outlier.
-        let mut src = scripted(&clock, vec![Ok(99), Ok(99), Ok(10), Ok(200), Ok(12), Ok(11), Ok(13)]);
+        let mut src = scripted(
+            &clock,
+            vec![Ok(99), Ok(99), Ok(10), Ok(200), Ok(12), Ok(11), Ok(13)],
+        );
         let cap = capture(&mut src, &settings(5, 2, 3), &clock).unwrap();
         let seq: Vec<u64> = cap.frames.iter().map(|f| f.sequence).collect();
         assert_eq!(seq, [10, 200, 12, 11, 13]);
@@ -480,7 +486,10 @@ mod tests {
         let mut src = scripted(
             &clock,
             vec![
-                Err(GrabError::new(Fault::Corrupt, "corrupt frame: bad huffman code")),
+                Err(GrabError::new(
+                    Fault::Corrupt,
+                    "corrupt frame: bad huffman code",
+                )),
                 Err(GrabError::new(Fault::Timeout, "no frame within 500 ms")),
                 Ok(42),
             ],

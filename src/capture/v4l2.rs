@@ -168,7 +168,10 @@ impl V4l2Source {
         if let Some([w, h]) = self.want_size.filter(|s| *s != [fmt.width, fmt.height]) {
             return Err(GrabError::new(
                 Fault::Unsupported,
-                format!("driver refused {w}x{h}, offers {}x{}", fmt.width, fmt.height),
+                format!(
+                    "driver refused {w}x{h}, offers {}x{}",
+                    fmt.width, fmt.height
+                ),
             ));
         }
         Ok((got, fmt.width, fmt.height, fmt.stride as usize))
@@ -300,7 +303,9 @@ mod tests {
                 max_backoff: Duration::from_secs(1),
             },
         };
-        let e = capture(&mut src, &settings, &NoWait).unwrap_err().to_string();
+        let e = capture(&mut src, &settings, &NoWait)
+            .unwrap_err()
+            .to_string();
         assert_eq!(
             e,
             format!(
