@@ -6,6 +6,7 @@
 
 mod equidistant;
 mod mei;
+pub mod rectify;
 
 pub use equidistant::Equidistant;
 pub use mei::Mei;
