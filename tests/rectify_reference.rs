@@ -80,7 +80,9 @@ fn run_case(name: &str) -> (f32, usize, i32, usize) {
     let mut compared = 0;
     for i in 0..w * h {
         if rx[i] >= 0.0 && ry[i] >= 0.0 && rx[i] <= sw - 1.0 && ry[i] <= sh - 1.0 {
-            max_map = max_map.max((mx[i] - rx[i]).abs()).max((my[i] - ry[i]).abs());
+            max_map = max_map
+                .max((mx[i] - rx[i]).abs())
+                .max((my[i] - ry[i]).abs());
             compared += 1;
         }
     }
@@ -103,7 +105,10 @@ fn run_case(name: &str) -> (f32, usize, i32, usize) {
 
 fn check(name: &str, min_compared: usize) {
     let (max_map, compared, max_img, _) = run_case(name);
-    assert!(compared >= min_compared, "{name}: only {compared} pixels compared");
+    assert!(
+        compared >= min_compared,
+        "{name}: only {compared} pixels compared"
+    );
     assert!(max_map <= MAP_TOL, "{name}: map differs by {max_map} px");
     assert!(max_img <= IMAGE_TOL, "{name}: image differs by {max_img}");
 }
@@ -146,6 +151,13 @@ fn bad_arguments_are_one_line_errors() {
     };
     assert!(run(&["--size", "10", "--k", "1,1,1,1"]).contains("--size"));
     assert!(run(&["--size", "10,10", "--k", "1,1,x,1"]).contains("--k"));
-    assert!(run(&["--size", "10,10", "--k", "1,1,1,1", "--rotation", "0,0,0,0,0,0,0,0,0"])
-        .contains("singular"));
+    assert!(run(&[
+        "--size",
+        "10,10",
+        "--k",
+        "1,1,1,1",
+        "--rotation",
+        "0,0,0,0,0,0,0,0,0"
+    ])
+    .contains("singular"));
 }

@@ -56,7 +56,9 @@ pub fn run(a: Args) -> Result<()> {
         None => Matrix3::identity(),
     };
     if !(p.iter().chain(r.iter()).all(|v| v.is_finite())) {
-        return Err(Error::Invalid("--k / --rotation: values must be finite".into()));
+        return Err(Error::Invalid(
+            "--k / --rotation: values must be finite".into(),
+        ));
     }
 
     let cam = load_camera(&a.camera)?;
@@ -100,15 +102,14 @@ fn load_camera(path: &Path) -> Result<Camera> {
 /// Read an image as gray u8. Colour is converted like `cv::cvtColor(…, COLOR_RGB2GRAY)`:
 /// Y = 0.299 R + 0.587 G + 0.114 B in OpenCV's 14-bit fixed point.
 fn load_gray(path: &Path) -> Result<(Vec<u8>, usize, usize)> {
-    let img = image::open(path).map_err(|e| Error::input(path, format!("cannot read image: {e}")))?;
+    let img =
+        image::open(path).map_err(|e| Error::input(path, format!("cannot read image: {e}")))?;
     let (w, h) = (img.width() as usize, img.height() as usize);
     let gray = match img {
         image::DynamicImage::ImageLuma8(g) => g.into_raw(),
-        other if other.color().has_color() => other
-            .to_rgb8()
-            .pixels()
-            .map(|p| bt601_gray(p.0))
-            .collect(),
+        other if other.color().has_color() => {
+            other.to_rgb8().pixels().map(|p| bt601_gray(p.0)).collect()
+        }
         other => other.to_luma8().into_raw(),
     };
     Ok((gray, w, h))
@@ -130,7 +131,8 @@ fn write_maps(path: &Path, map: &RectifyMap) -> Result<()> {
     let f = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
     let mut w = std::io::BufWriter::new(f);
     for v in map.map_x.iter().chain(&map.map_y) {
-        w.write_all(&v.to_le_bytes()).map_err(|e| Error::io(path, e))?;
+        w.write_all(&v.to_le_bytes())
+            .map_err(|e| Error::io(path, e))?;
     }
     w.flush().map_err(|e| Error::io(path, e))
 }
