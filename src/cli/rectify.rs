@@ -41,7 +41,7 @@ const MAX_SIDE: f64 = 32767.0;
 /// Run `rectify`.
 pub fn run(a: Args) -> Result<()> {
     let [w, h] = parse_list::<2>("--size", &a.size)?;
-    let valid_side = |v: f64| v >= 1.0 && v <= MAX_SIDE && v.fract() == 0.0;
+    let valid_side = |v: f64| (1.0..=MAX_SIDE).contains(&v) && v.fract() == 0.0;
     if !(valid_side(w) && valid_side(h)) {
         return Err(Error::Invalid(format!(
             "--size {:?}: expected two whole numbers from 1 to {MAX_SIDE}",
