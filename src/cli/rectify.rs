@@ -3,7 +3,8 @@
 
 use super::parse_list;
 use crate::camera::rectify::{perspective_map, GrayView, RectifyMap, RemapTable};
-use crate::camera::{Camera, CameraModel};
+use crate::camera::import::load_camera;
+use crate::camera::CameraModel;
 use crate::error::{Error, Result};
 use nalgebra::Matrix3;
 use std::io::Write;
@@ -12,7 +13,7 @@ use std::path::{Path, PathBuf};
 /// Arguments of `rectify`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Camera intrinsics file.
+    /// Camera intrinsics file (OpenCV FileStorage, Kalibr camchain, KITTI-360 MEI YAML or TOML).
     #[arg(long, value_name = "CAM")]
     pub camera: PathBuf,
     /// Input image (gray or colour; colour is converted with BT.601 weights like OpenCV).
@@ -86,17 +87,6 @@ pub fn run(a: Args) -> Result<()> {
         write_maps(path, &map)?;
     }
     Ok(())
-}
-
-/// Temporary intrinsics reader (native TOML form only) until `camera::import::load_camera` lands.
-fn load_camera(path: &Path) -> Result<Camera> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    toml::from_str::<Camera>(&text).map_err(|e| {
-        Error::input(
-            path,
-            format!("not a camera table: {}", e.message().replace('\n', " ")),
-        )
-    })
 }
 
 /// Read an image as gray u8. Colour is converted like `cv::cvtColor(…, COLOR_RGB2GRAY)`:
