@@ -2,8 +2,8 @@
 //! `cv::omnidir::initUndistortRectifyMap(…, RECTIFY_PERSPECTIVE)` semantics (contracts §6).
 
 use super::parse_list;
-use crate::camera::rectify::{perspective_map, GrayView, RectifyMap, RemapTable};
 use crate::camera::import::load_camera;
+use crate::camera::rectify::{perspective_map, GrayView, RectifyMap, RemapTable};
 use crate::camera::CameraModel;
 use crate::error::{Error, Result};
 use nalgebra::Matrix3;
