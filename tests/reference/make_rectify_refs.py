@@ -7,6 +7,7 @@ cv2.fisheye.initUndistortRectifyMap for the equidistant case) with CV_32FC1 maps
 
 Writes tests/data/rectify/<case>/:
   camera.toml  the camera in infraloc's native TOML form (same numbers as K, D, xi below)
+  camera.yaml  (Mei cases) the same camera written by cv2.FileStorage (OpenCV FileStorage YAML)
   case.json    the `infraloc rectify` arguments: size [W, H], k [fx, fy, cx, cy], rotation (9, row-major)
   map.f32      map_x then map_y, float32 little-endian, W*H each (the --map-out layout)
   out.png      the rectified gray image (8-bit PNG)
@@ -91,6 +92,13 @@ def main():
                 f'cx = {c["cx"]!r}\ncy = {c["cy"]!r}\nskew = {c["skew"]!r}\nxi = {c["xi"]!r}\n'
                 f'k1 = {c["d"][0]!r}\nk2 = {c["d"][1]!r}\np1 = {c["d"][2]!r}\np2 = {c["d"][3]!r}\n')
         write_case(c, toml, mx, my, gray)
+        fs = cv2.FileStorage(os.path.join(OUT, c["name"], "camera.yaml"), cv2.FILE_STORAGE_WRITE)
+        fs.write("image_width", w)
+        fs.write("image_height", h)
+        fs.write("camera_matrix", k)
+        fs.write("distortion_coefficients", d)
+        fs.write("xi", xi)
+        fs.release()
 
     c = FISHEYE
     k = np.array([[c["fx"], c["alpha"] * c["fx"], c["cx"]], [0.0, c["fy"], c["cy"]],
