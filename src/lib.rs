@@ -17,8 +17,11 @@ pub mod config;
 pub mod error;
 pub mod geo;
 pub mod gnss;
+pub mod localize;
 pub mod map;
+pub mod persist;
 pub mod pose;
+pub mod posefile;
 pub mod sim;
 
 pub use error::{Error, Result};
