@@ -90,7 +90,7 @@ impl Appearance {
     /// (tyre marks, oil drips, wet gutters, dirt on paint).
     pub fn visible(&self, w: &World, s: &Surface, x: f64, y: f64) -> f64 {
         let stain = self.v_stain.fbm(x, y, 2);
-        let asphalt = 0.17 + 0.035 * stain + 0.02 * self.v_agg.at(x, y);
+        let asphalt = 0.17 + 0.025 * stain + 0.03 * self.v_agg.fbm(x, y, 2);
         let dirt = 1.0 - 0.25 * smoothstep(0.0, 0.6, self.v_dirt.at(x, y));
         let mut a = match s.mat {
             Material::Asphalt => asphalt,

@@ -12,7 +12,6 @@ pub mod layers;
 pub mod noise;
 pub mod render;
 pub mod solids;
-mod tmgeo;
 pub mod world;
 
 use crate::camera::{Camera, CameraModel, Equidistant, Mei};
@@ -275,7 +274,8 @@ fn traffic(w: &World, rng: &mut ChaCha8Rng, vehicles: usize, pedestrians: usize)
         out.push(Mover {
             approach: i,
             l,
-            s: rng.random_range(a.s_cw - 2.0..70.0),
+            // Denser near the junction, where queues form and the camera looks.
+            s: a.s_cw - 4.0 + 70.0 * rng.random::<f64>().powi(2),
             v: if inbound { -speed } else { speed },
             along_l: false,
             range: (a.s_cw - 6.0, 75.0),
@@ -442,7 +442,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         sats: if hard { (6, 10) } else { (9, 14) },
     };
     let c_map = pose.center();
-    let to_wgs = |x: f64, y: f64| tmgeo::map_to_wgs84(crs, x, y);
+    let to_wgs = |x: f64, y: f64| crate::geo::map_to_wgs84(crs, x, y);
     let fixes = gps::track(&mut rng, [c_map.x, c_map.y, c_map.z], &gm, to_wgs)?;
     let start = gps::UtcStart {
         year: 2026,
@@ -515,32 +515,34 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
 }
 
 impl Scene {
-    /// truth.json content (contracts §5).
+    /// truth.json content (contracts §5): a full `infraloc.pose.v1` document of the true pose
+    /// (so every pose reader accepts it) plus control points, GPS truth, seed and settings.
     pub fn truth_json(&self) -> serde_json::Value {
-        let p = &self.pose;
-        let c = p.center();
-        let (y, pi, r) = p.yaw_pitch_roll();
         let s = &self.start;
-        serde_json::json!({
-            "schema": "infraloc.truth.v1",
-            "crs": self.crs.to_string(),
-            "tile_id": self.tile.id,
-            "timestamp_utc": format!("{:04}-{:02}-{:02}T{:02}:{:02}:{:02}Z", s.year, s.month, s.day,
-                s.sec_of_day / 3600, (s.sec_of_day / 60) % 60, s.sec_of_day % 60),
-            "camera_center": [c.x, c.y, c.z],
-            "rotation_cam_from_map": p.rotation_rows(),
-            "translation_cam_from_map": [p.translation.x, p.translation.y, p.translation.z],
-            "rvec_cam_from_map": [p.rvec().x, p.rvec().y, p.rvec().z],
-            "quaternion_map_from_cam_xyzw": p.quaternion_map_from_cam_xyzw(),
-            "yaw_pitch_roll_deg": [y.to_degrees(), pi.to_degrees(), r.to_degrees()],
-            "intrinsics": self.camera_true,
-            "intrinsics_given": self.camera_given,
-            "control_points": self.control_points,
-            "gps_truth_wgs84": self.gps_truth_wgs84,
-            "seed": self.settings.seed,
-            "settings": self.settings,
-            "acquisition": self.acquisition,
-        })
+        let stamp = format!(
+            "{:04}-{:02}-{:02}T{:02}:{:02}:{:02}Z",
+            s.year,
+            s.month,
+            s.day,
+            s.sec_of_day / 3600,
+            (s.sec_of_day / 60) % 60,
+            s.sec_of_day % 60
+        );
+        let mut pf = crate::posefile::PoseFile::new(&self.pose, self.crs, &self.tile.id, stamp);
+        pf.intrinsics = serde_json::to_value(&self.camera_true).unwrap_or_default();
+        pf.stages = vec![serde_json::json!({ "name": "truth" })];
+        let extra = [
+            ("intrinsics_given", serde_json::to_value(&self.camera_given)),
+            ("control_points", serde_json::to_value(&self.control_points)),
+            ("gps_truth_wgs84", serde_json::to_value(self.gps_truth_wgs84)),
+            ("seed", serde_json::to_value(self.settings.seed)),
+            ("settings", serde_json::to_value(self.settings)),
+            ("acquisition", serde_json::to_value(&self.acquisition)),
+        ];
+        for (k, v) in extra {
+            pf.extra.insert(k.into(), v.unwrap_or_default());
+        }
+        serde_json::to_value(&pf).unwrap_or_default()
     }
 
     /// Width and height of the frames.

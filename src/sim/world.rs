@@ -845,7 +845,7 @@ impl World {
                 return mk(Material::Drain, r.age);
             }
         }
-        let crack_on = self.f_crack_mask.at(x, y) > 0.15 && self.f_crack.at(x, y).abs() < 0.012;
+        let crack_on = self.f_crack_mask.at(x, y) > 0.25 && self.f_crack.fbm(x, y, 3).abs() < 0.008;
         if crack_on {
             return mk(Material::Crack, 0.0);
         }
@@ -984,13 +984,15 @@ mod tests {
             }
             // Walking out along the bisector of corner 0 crosses a curb: a 10–20 cm step.
             let a0 = w.approaches[0].angle + 0.5 * w.corners[0].gap;
-            let (mut prev, mut step) = (w.height(0.0, 0.0), 0.0f64);
-            for i in 1..4000 {
-                let r = i as f64 * 0.01;
-                let h = w.height(r * a0.cos(), r * a0.sin()) - w.grad[0] * r * a0.cos() - w.grad[1] * r * a0.sin();
-                step = step.max(h - prev);
-                prev = h;
-            }
+            let hs: Vec<f64> = (0..4000)
+                .map(|i| {
+                    let r = i as f64 * 0.01;
+                    let (x, y) = (r * a0.cos(), r * a0.sin());
+                    w.height(x, y) - w.base(x, y)
+                })
+                .collect();
+            // Largest rise over 4 cm (the face is a 2 cm ramp).
+            let step = hs.windows(5).map(|v| v[4] - v[0]).fold(0.0f64, f64::max);
             assert!(step > 0.09 && step < 0.21, "seed {seed}: step {step}");
         }
     }
