@@ -29,7 +29,11 @@ fn data(name: &str) -> PathBuf {
 
 fn project(camera: &Path, points: &Path, pose: Option<&Path>) -> std::process::Output {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_infraloc"));
-    cmd.arg("project").arg("--camera").arg(camera).arg("--points").arg(points);
+    cmd.arg("project")
+        .arg("--camera")
+        .arg(camera)
+        .arg("--points")
+        .arg(points);
     if let Some(p) = pose {
         cmd.arg("--pose").arg(p);
     }
@@ -64,13 +68,20 @@ fn check(set: &str, camera: &str, frame: &str) -> Vec<(String, f64, usize)> {
     let got = parse_uv(&String::from_utf8(out.stdout).unwrap(), false);
     let want_text = std::fs::read_to_string(data(&format!("{set}.uv_{frame}.csv"))).unwrap();
     let want = parse_uv(&want_text, true);
-    assert_eq!(got.len(), want.len(), "{set} {frame}: one output line per point");
+    assert_eq!(
+        got.len(),
+        want.len(),
+        "{set} {frame}: one output line per point"
+    );
     let mut stats: Vec<(String, f64, usize)> = Vec::new();
     for (i, ((g, _), (w, kind))) in got.iter().zip(&want).enumerate() {
         let err = match (g, w) {
             (Some(g), Some(w)) => (g[0] - w[0]).hypot(g[1] - w[1]),
             (None, None) => 0.0,
-            _ => panic!("{set} {frame} row {}: got {g:?}, reference ({kind}) {w:?}", i + 2),
+            _ => panic!(
+                "{set} {frame} row {}: got {g:?}, reference ({kind}) {w:?}",
+                i + 2
+            ),
         };
         assert!(
             err <= TOL_PX,
@@ -99,9 +110,15 @@ fn project_matches_opencv_camera_and_map_frames() {
             // Every Mei set is checked against OpenCV on most points, every fisheye set against
             // both OpenCV (θ < 90°) and numpy (θ ≥ 90°).
             let count = |k: &str| stats.iter().find(|s| s.0 == k).map_or(0, |s| s.2);
-            assert!(count("opencv") > 200, "{set} {frame}: too few OpenCV references");
+            assert!(
+                count("opencv") > 200,
+                "{set} {frame}: too few OpenCV references"
+            );
             if set.starts_with("fisheye") || set.starts_with("kalibr") {
-                assert!(count("numpy") > 100, "{set} {frame}: too few θ ≥ 90° references");
+                assert!(
+                    count("numpy") > 100,
+                    "{set} {frame}: too few θ ≥ 90° references"
+                );
             }
         }
     }
@@ -133,9 +150,16 @@ fn round_trip_over_the_valid_image() {
             }
         }
         let share = n as f64 / ((GRID + 1) * (GRID + 1)) as f64;
-        eprintln!("{set:18} round trip: {n} pixels ({:.0}%), max |Δ| = {max:.3e} px", share * 100.0);
+        eprintln!(
+            "{set:18} round trip: {n} pixels ({:.0}%), max |Δ| = {max:.3e} px",
+            share * 100.0
+        );
         assert!(max <= TOL_PX, "{set}: round trip {max:e} px");
-        assert!(share > 0.25, "{set}: only {:.1}% of the image valid", share * 100.0);
+        assert!(
+            share > 0.25,
+            "{set}: only {:.1}% of the image valid",
+            share * 100.0
+        );
     }
 }
 
@@ -147,7 +171,11 @@ fn opencv_reads_our_yaml() {
         let cam = load_camera(&data(camera)).unwrap();
         let path = dir.path().join(format!("{set}.yaml"));
         std::fs::write(&path, to_opencv_yaml(&cam)).unwrap();
-        assert_eq!(load_camera(&path).unwrap(), cam, "{set}: our own round trip");
+        assert_eq!(
+            load_camera(&path).unwrap(),
+            cam,
+            "{set}: our own round trip"
+        );
         let script = r#"
 import sys, cv2
 fs = cv2.FileStorage(sys.argv[1], cv2.FILE_STORAGE_READ)
@@ -202,7 +230,11 @@ print(fs.getNode("model").string(), *[repr(float(v)) for v in vals])
                 e.k4,
             ],
         };
-        let want_model = if matches!(cam, Camera::Mei(_)) { "mei" } else { "equidistant" };
+        let want_model = if matches!(cam, Camera::Mei(_)) {
+            "mei"
+        } else {
+            "equidistant"
+        };
         assert_eq!(model, want_model, "{set}");
         assert_eq!(v, want, "{set}: cv2 read different values");
     }
@@ -217,7 +249,10 @@ fn errors_name_file_key_and_line() {
     let out = project(&cam, &data("omni_calib.points_cam.csv"), None);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1));
-    assert!(err.contains("nosize.yaml: missing key image_width"), "{err}");
+    assert!(
+        err.contains("nosize.yaml: missing key image_width"),
+        "{err}"
+    );
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
 
     let pts = dir.path().join("pts.csv");

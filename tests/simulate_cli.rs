@@ -27,7 +27,10 @@ fn files(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
             if p.is_dir() {
                 stack.push(p);
             } else {
-                out.insert(p.strip_prefix(dir).unwrap().to_path_buf(), std::fs::read(&p).unwrap());
+                out.insert(
+                    p.strip_prefix(dir).unwrap().to_path_buf(),
+                    std::fs::read(&p).unwrap(),
+                );
             }
         }
     }
@@ -43,7 +46,14 @@ fn two_runs_give_identical_bytes_and_the_directory_loads() {
     simulate(&b, &args);
     let (fa, fb) = (files(&a), files(&b));
     let names: Vec<_> = fa.keys().map(|p| p.display().to_string()).collect();
-    for want in ["infraloc.toml", "camera.yaml", "frames/000.png", "gps.nmea", "truth.json", "tiles/sim-0011/tile.toml"] {
+    for want in [
+        "infraloc.toml",
+        "camera.yaml",
+        "frames/000.png",
+        "gps.nmea",
+        "truth.json",
+        "tiles/sim-0011/tile.toml",
+    ] {
         assert!(names.iter().any(|n| n == want), "missing {want}: {names:?}");
     }
     assert_eq!(fa.keys().collect::<Vec<_>>(), fb.keys().collect::<Vec<_>>());
@@ -58,9 +68,13 @@ fn two_runs_give_identical_bytes_and_the_directory_loads() {
     let cam = load_camera(cfg.camera.intrinsics_file.as_ref().unwrap()).unwrap();
     let truth: serde_json::Value = serde_json::from_slice(&fa[Path::new("truth.json")]).unwrap();
     // Easy: the intrinsics handed over are the true ones.
-    let true_cam: infraloc::camera::Camera = serde_json::from_value(truth["intrinsics"].clone()).unwrap();
+    let true_cam: infraloc::camera::Camera =
+        serde_json::from_value(truth["intrinsics"].clone()).unwrap();
     assert_eq!(cam, true_cam);
-    let [lat, lon] = [truth["gps_truth_wgs84"][0].as_f64().unwrap(), truth["gps_truth_wgs84"][1].as_f64().unwrap()];
+    let [lat, lon] = [
+        truth["gps_truth_wgs84"][0].as_f64().unwrap(),
+        truth["gps_truth_wgs84"][1].as_f64().unwrap(),
+    ];
     let tref = find_tile(&cfg.map.tiles, lat, lon, cfg.map.search_margin_m).unwrap();
     let tile = load_tile(&tref.dir).unwrap();
     assert_eq!(tile.reflectivity.grid.width, 1200);

@@ -406,7 +406,10 @@ fn matrix(n: &Node, key: &str, ctx: &Ctx) -> Result<(usize, usize, Vec<f64>)> {
             .map_err(|_| ctx.err(format!("{key}.{what}: {s:?} is not a non-negative integer")))
     };
     let (r, c) = (int(rows, "rows")?, int(cols, "cols")?);
-    let channels = match dt.trim().trim_end_matches(|ch: char| ch.is_ascii_alphabetic()) {
+    let channels = match dt
+        .trim()
+        .trim_end_matches(|ch: char| ch.is_ascii_alphabetic())
+    {
         "" => 1,
         digits => int(digits, "dt")?,
     };
@@ -704,21 +707,21 @@ fn kalibr(root: &Node, ctx: &Ctx, camera: Option<&str>) -> Result<Camera> {
 
 /// The native TOML table (serde of [`Camera`]), at top level or under `[camera.intrinsics]`.
 fn toml_camera(text: &str, ctx: &Ctx) -> Result<Camera> {
-    let one_line = |e: toml::de::Error| ctx.err(e.to_string().replace('\n', " ").trim().to_string());
+    let one_line =
+        |e: toml::de::Error| ctx.err(e.to_string().replace('\n', " ").trim().to_string());
     let table: toml::Table = toml::from_str(text).map_err(one_line)?;
-    let value = match table.get("camera") {
-        Some(toml::Value::Table(cam)) => match cam.get("intrinsics") {
-            Some(v) => v.clone(),
-            None if cam.contains_key("intrinsics-file") => {
-                return Err(ctx.err(
+    let value =
+        match table.get("camera") {
+            Some(toml::Value::Table(cam)) => match cam.get("intrinsics") {
+                Some(v) => v.clone(),
+                None if cam.contains_key("intrinsics-file") => return Err(ctx.err(
                     "camera.intrinsics-file: this config points to an intrinsics file; pass that \
                      file instead",
-                ))
-            }
-            None => return Err(ctx.err("missing table [camera.intrinsics]")),
-        },
-        _ => toml::Value::Table(table),
-    };
+                )),
+                None => return Err(ctx.err("missing table [camera.intrinsics]")),
+            },
+            _ => toml::Value::Table(table),
+        };
     if let toml::Value::Table(t) = &value {
         if !t.contains_key("model") {
             return Err(ctx.err("missing key model (\"mei\" or \"equidistant\")"));
@@ -837,9 +840,15 @@ distortion_coefficients: !!opencv-matrix
         let e = err(&OPENCV_YAML.replace("image_width: 1280\n", ""));
         assert!(e.starts_with("test.yaml: missing key image_width"), "{e}");
         let e = err(&OPENCV_YAML.replace("   rows: 3\n", "   rows: 2\n"));
-        assert!(e.contains("camera_matrix: declared 2×3 but data holds 9"), "{e}");
+        assert!(
+            e.contains("camera_matrix: declared 2×3 but data holds 9"),
+            "{e}"
+        );
         let e = err(&OPENCV_YAML.replace("0.0117,", "0.0117, 0.5,"));
-        assert!(e.contains("distortion_coefficients: declared 1×4 but data holds 5"), "{e}");
+        assert!(
+            e.contains("distortion_coefficients: declared 1×4 but data holds 5"),
+            "{e}"
+        );
         let e = err(&OPENCV_YAML.replace("1.0533861712345678", "abc"));
         assert!(e.contains("xi.data: \"abc\""), "{e}");
         let e = err(&OPENCV_YAML.replace("xi:", "xj:"));
@@ -916,7 +925,10 @@ cam1:
         let Camera::Mei(m) = parse(KALIBR).unwrap() else {
             panic!()
         };
-        assert_eq!((m.xi, m.fx, m.fy, m.cx, m.cy), (0.9, 500.0, 501.0, 640.5, 480.5));
+        assert_eq!(
+            (m.xi, m.fx, m.fy, m.cx, m.cy),
+            (0.9, 500.0, 501.0, 640.5, 480.5)
+        );
         assert_eq!([m.k1, m.k2, m.p1, m.p2], [-0.1, 0.02, 0.001, -0.002]);
         let c = parse_camera_named(KALIBR, Path::new(P), Some("cam1")).unwrap();
         let Camera::Equidistant(e) = c else { panic!() };
@@ -924,21 +936,32 @@ cam1:
         let e = parse_camera_named(KALIBR, Path::new(P), Some("cam7"))
             .unwrap_err()
             .to_string();
-        assert!(e.contains("\"cam7\" not in camchain (has cam0, cam1)"), "{e}");
+        assert!(
+            e.contains("\"cam7\" not in camchain (has cam0, cam1)"),
+            "{e}"
+        );
         let e = err(&KALIBR.replace("camera_model: omni", "camera_model: ds"));
-        assert!(e.contains("cam0.camera_model: \"ds\" is not supported"), "{e}");
+        assert!(
+            e.contains("cam0.camera_model: \"ds\" is not supported"),
+            "{e}"
+        );
         let e = err(&KALIBR.replace("  resolution: [1280, 960]\n", ""));
         assert!(e.ends_with("missing key cam0.resolution"), "{e}");
         let e = err(&KALIBR.replace("640.5, 480.5]", "640.5]"));
-        assert!(e.contains("cam0.intrinsics: camera_model omni needs 5"), "{e}");
+        assert!(
+            e.contains("cam0.intrinsics: camera_model omni needs 5"),
+            "{e}"
+        );
     }
 
     #[test]
     fn kalibr_pinhole_radtan_is_mei_xi_0() {
-        let t = KALIBR.replace("camera_model: omni", "camera_model: pinhole").replace(
-            "[0.9, 500.0, 501.0, 640.5, 480.5]",
-            "[500.0, 501.0, 640.5, 480.5]",
-        );
+        let t = KALIBR
+            .replace("camera_model: omni", "camera_model: pinhole")
+            .replace(
+                "[0.9, 500.0, 501.0, 640.5, 480.5]",
+                "[500.0, 501.0, 640.5, 480.5]",
+            );
         let Camera::Mei(m) = parse(&t).unwrap() else {
             panic!()
         };
@@ -970,7 +993,10 @@ projection_parameters:
         let Camera::Mei(m) = parse(KITTI).unwrap() else {
             panic!()
         };
-        assert_eq!((m.xi, m.k1, m.k2, m.p1, m.p2), (2.2134, 0.0168, 1.6549, 4.22e-4, 4.25e-4));
+        assert_eq!(
+            (m.xi, m.k1, m.k2, m.p1, m.p2),
+            (2.2134, 0.0168, 1.6549, 4.22e-4, 4.25e-4)
+        );
         assert_eq!((m.fx, m.fy, m.cx, m.cy), (1336.32, 1335.79, 716.94, 705.76));
         let e = err(&KITTI.replace("   p2: 4.25e-4\n", ""));
         assert!(e.ends_with("missing key distortion_parameters.p2"), "{e}");
@@ -984,7 +1010,10 @@ projection_parameters:
                     cx = 716.94\ncy = 705.76\nxi = 2.2134\nk1 = 0.0168\nk2 = 1.6549\n\
                     p1 = 4.22e-4\np2 = 4.25e-4\n";
         let a = parse(body).unwrap();
-        let b = parse(&format!("[camera]\nsource = \"file\"\n[camera.intrinsics]\n{body}")).unwrap();
+        let b = parse(&format!(
+            "[camera]\nsource = \"file\"\n[camera.intrinsics]\n{body}"
+        ))
+        .unwrap();
         assert_eq!(a, b);
         assert_eq!(a, parse(KITTI).unwrap());
         let e = err(&body.replace("xi = 2.2134\n", ""));
@@ -1025,7 +1054,10 @@ projection_parameters:
     #[test]
     fn selector_split_only_when_not_a_file() {
         let (f, s) = split_selector(Path::new("/nonexistent/chain.yaml#cam1"));
-        assert_eq!((f, s.as_deref()), (PathBuf::from("/nonexistent/chain.yaml"), Some("cam1")));
+        assert_eq!(
+            (f, s.as_deref()),
+            (PathBuf::from("/nonexistent/chain.yaml"), Some("cam1"))
+        );
         let (f, s) = split_selector(Path::new("/nonexistent/chain.yaml"));
         assert_eq!((f, s), (PathBuf::from("/nonexistent/chain.yaml"), None));
     }

@@ -160,7 +160,9 @@ impl Camera {
             ),
         };
         if w == 0 || h == 0 {
-            return Err(format!("image size {w}×{h}: width and height must be positive"));
+            return Err(format!(
+                "image size {w}×{h}: width and height must be positive"
+            ));
         }
         for (name, v) in &named {
             if !v.is_finite() {

@@ -127,7 +127,9 @@ pub fn parse_pose(text: &str, origin: &Path) -> Result<CamFromMap> {
     }
     let k: Keys = serde_json::from_str(text).map_err(|e| Error::input(origin, e.to_string()))?;
     let r = nalgebra::Matrix3::from_fn(|i, j| k.rotation_cam_from_map[i][j]);
-    let orth = (r.transpose() * r - nalgebra::Matrix3::identity()).abs().max();
+    let orth = (r.transpose() * r - nalgebra::Matrix3::identity())
+        .abs()
+        .max();
     let det = r.determinant();
     if !(orth <= ROTATION_TOLERANCE) || !(det > 0.0) {
         return Err(Error::input(
@@ -138,10 +140,7 @@ pub fn parse_pose(text: &str, origin: &Path) -> Result<CamFromMap> {
         ));
     }
     if k.translation_cam_from_map.iter().any(|v| !v.is_finite()) {
-        return Err(Error::input(
-            origin,
-            "translation_cam_from_map: not finite",
-        ));
+        return Err(Error::input(origin, "translation_cam_from_map: not finite"));
     }
     // Project onto SO(3) starting from the file's own matrix: it is already orthonormal to the
     // digits given, so this leaves it as is instead of converging from the identity to ~1e-12
@@ -164,10 +163,15 @@ mod tests {
     fn header_detected_and_errors_name_line() {
         let p = Path::new("pts.csv");
         let v = parse_points("x,y,z\n1,2,3\n\n4, 5 ,6,99\n", p).unwrap();
-        assert_eq!(v, vec![Vector3::new(1.0, 2.0, 3.0), Vector3::new(4.0, 5.0, 6.0)]);
+        assert_eq!(
+            v,
+            vec![Vector3::new(1.0, 2.0, 3.0), Vector3::new(4.0, 5.0, 6.0)]
+        );
         let v = parse_points("1,2,3\n", p).unwrap();
         assert_eq!(v.len(), 1);
-        let e = parse_points("x,y,z\n1,2,3\n1,a,3\n", p).unwrap_err().to_string();
+        let e = parse_points("x,y,z\n1,2,3\n1,a,3\n", p)
+            .unwrap_err()
+            .to_string();
         assert_eq!(e, "pts.csv: line 3: y is not a number in \"1,a,3\"");
         let e = parse_points("1,2\n", p).unwrap_err().to_string();
         assert_eq!(e, "pts.csv: line 1: expected x,y,z, found 2 field(s)");
@@ -185,7 +189,10 @@ mod tests {
         assert!((x - Vector3::new(1.0, 3.0, 3.0)).norm() < 1e-15);
         let bad = ok.replace("[0,0,-1]", "[0,0,-2]");
         let e = parse_pose(&bad, p).unwrap_err().to_string();
-        assert!(e.starts_with("pose.json: rotation_cam_from_map is not a rotation"), "{e}");
+        assert!(
+            e.starts_with("pose.json: rotation_cam_from_map is not a rotation"),
+            "{e}"
+        );
         let e = parse_pose(r#"{"rotation_cam_from_map":[[1,0,0],[0,1,0],[0,0,1]]}"#, p)
             .unwrap_err()
             .to_string();

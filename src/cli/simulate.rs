@@ -125,7 +125,10 @@ pub fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
             .save(&p)
             .map_err(|e| Error::Invalid(format!("{}: {e}", p.display())))?;
     }
-    write(&dir.join("camera.yaml"), crate::camera::import::to_opencv_yaml(&scene.camera_given))?;
+    write(
+        &dir.join("camera.yaml"),
+        crate::camera::import::to_opencv_yaml(&scene.camera_given),
+    )?;
     write(&dir.join("gps.nmea"), &scene.nmea)?;
     let s = &scene.settings;
     let provenance = Provenance {
@@ -153,6 +156,8 @@ pub fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
     let text = toml::to_string(&cfg).map_err(|e| Error::Invalid(format!("infraloc.toml: {e}")))?;
     write(
         &dir.join("infraloc.toml"),
-        format!("# Written by `infraloc simulate`: localizes this scene with no other flags.\n{text}"),
+        format!(
+            "# Written by `infraloc simulate`: localizes this scene with no other flags.\n{text}"
+        ),
     )
 }

@@ -28,6 +28,7 @@ pub struct Appearance {
     // Visible (camera).
     v_stain: Field,
     v_agg: Field,
+    v_grain: Field,
     v_grass: Field,
     v_wet: Field,
     v_streak: Field,
@@ -57,6 +58,7 @@ impl Appearance {
             l_drive: f(3, 25.0),
             v_stain: f(4, 6.0),
             v_agg: f(5, 0.25),
+            v_grain: f(13, 0.012),
             v_grass: f(6, 1.2),
             v_wet: f(7, 4.0),
             v_streak: f(8, 1.5),
@@ -75,8 +77,12 @@ impl Appearance {
             Material::Asphalt => asphalt,
             Material::Patch => asphalt - 2.0 + 3.0 * s.wear,
             Material::Crack => 15.0,
-            Material::PaintWhite => asphalt + (LIDAR_PAINT_WHITE - asphalt) * (1.0 - s.wear).powf(1.3),
-            Material::PaintYellow => asphalt + (LIDAR_PAINT_YELLOW - asphalt) * (1.0 - s.wear).powf(1.3),
+            Material::PaintWhite => {
+                asphalt + (LIDAR_PAINT_WHITE - asphalt) * (1.0 - s.wear).powf(1.3)
+            }
+            Material::PaintYellow => {
+                asphalt + (LIDAR_PAINT_YELLOW - asphalt) * (1.0 - s.wear).powf(1.3)
+            }
             Material::Manhole => 48.0 + 10.0 * s.wear,
             Material::Drain => 30.0,
             Material::Curb => 70.0,
@@ -90,7 +96,9 @@ impl Appearance {
     /// (tyre marks, oil drips, wet gutters, dirt on paint).
     pub fn visible(&self, w: &World, s: &Surface, x: f64, y: f64) -> f64 {
         let stain = self.v_stain.fbm(x, y, 2);
-        let asphalt = 0.17 + 0.025 * stain + 0.03 * self.v_agg.fbm(x, y, 2);
+        // Stains (metres), texture (decimetres) and aggregate grain (about a centimetre).
+        let asphalt =
+            0.17 + 0.025 * stain + 0.02 * self.v_agg.fbm(x, y, 2) + 0.03 * self.v_grain.at(x, y);
         let dirt = 1.0 - 0.25 * smoothstep(0.0, 0.6, self.v_dirt.at(x, y));
         let mut a = match s.mat {
             Material::Asphalt => asphalt,
@@ -101,8 +109,12 @@ impl Appearance {
             Material::Manhole => 0.11 + 0.04 * (((x + y) * 25.0).sin() > 0.0) as u8 as f64,
             Material::Drain => 0.04,
             Material::Curb => 0.42,
-            Material::Sidewalk => 0.36 + 0.05 * stain + 0.015 * self.v_agg.at(x, y),
-            Material::Grass => 0.09 + 0.05 * self.v_grass.fbm(x, y, 3) + 0.08 * s.wear * stain.max(0.0),
+            Material::Sidewalk => {
+                0.36 + 0.05 * stain + 0.015 * self.v_agg.at(x, y) + 0.02 * self.v_grain.at(x, y)
+            }
+            Material::Grass => {
+                0.09 + 0.05 * self.v_grass.fbm(x, y, 3) + 0.08 * s.wear * stain.max(0.0)
+            }
         };
         if s.d_curb < 0.0 {
             a *= self.road_darkening(w, s, x, y);
@@ -129,7 +141,8 @@ impl Appearance {
                 f *= 1.0 - 0.45 * near * streak * (-q * q).exp();
             }
             let q = off / 0.35;
-            f *= 1.0 - 0.3 * near * (-q * q).exp() * (0.5 + 0.5 * self.v_stain.at(sa * 2.0, l * 2.0));
+            f *= 1.0
+                - 0.3 * near * (-q * q).exp() * (0.5 + 0.5 * self.v_stain.at(sa * 2.0, l * 2.0));
         }
         // Wet or dirty gutter strips where water collects.
         if s.d_curb > -1.2 {
@@ -145,7 +158,13 @@ impl Appearance {
         let asphalt = [0.21 * tone, 0.21 * tone, 0.225 * tone];
         // The image was taken at another time: paint was fresher or more worn, unevenly.
         let wear_sat = |w: f64| (0.6 * w + 0.15 + 0.25 * self.s_wear.at(x, y)).clamp(0.0, 1.0);
-        let mix = |a: [f64; 3], b: [f64; 3], t: f64| [a[0] + (b[0] - a[0]) * t, a[1] + (b[1] - a[1]) * t, a[2] + (b[2] - a[2]) * t];
+        let mix = |a: [f64; 3], b: [f64; 3], t: f64| {
+            [
+                a[0] + (b[0] - a[0]) * t,
+                a[1] + (b[1] - a[1]) * t,
+                a[2] + (b[2] - a[2]) * t,
+            ]
+        };
         match s.mat {
             Material::Asphalt => asphalt,
             Material::Patch => mix(asphalt, [0.11, 0.11, 0.12], 1.0 - s.wear * 0.6),
@@ -171,14 +190,23 @@ mod tests {
     use crate::sim::world::World;
 
     fn surf(mat: Material, wear: f64) -> Surface {
-        Surface { mat, wear, d_curb: -5.0 }
+        Surface {
+            mat,
+            wear,
+            d_curb: -5.0,
+        }
     }
 
     #[test]
     fn modality_gap_orderings() {
         let w = World::generate(1);
         let a = Appearance::new(1);
-        let avg = |f: &dyn Fn(f64, f64) -> f64| (0..400).map(|i| f(i as f64 * 0.37 + 200.0, i as f64 * 0.11 + 300.0)).sum::<f64>() / 400.0;
+        let avg = |f: &dyn Fn(f64, f64) -> f64| {
+            (0..400)
+                .map(|i| f(i as f64 * 0.37 + 200.0, i as f64 * 0.11 + 300.0))
+                .sum::<f64>()
+                / 400.0
+        };
         let lid = |m, wr| avg(&|x, y| a.lidar(&surf(m, wr), x, y));
         let vis = |m, wr| avg(&|x, y| a.visible(&w, &surf(m, wr), x, y));
         // LiDAR: paint ≫ concrete > asphalt; worn paint less; patch ≈ asphalt.

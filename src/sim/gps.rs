@@ -76,10 +76,18 @@ pub fn track(
     m: &GpsModel,
     to_wgs84: impl Fn(f64, f64) -> Result<(f64, f64)>,
 ) -> Result<Vec<Fix>> {
-    let bias = [std_normal(rng) * m.bias_sigma, std_normal(rng) * m.bias_sigma, std_normal(rng) * m.bias_sigma * 1.5];
+    let bias = [
+        std_normal(rng) * m.bias_sigma,
+        std_normal(rng) * m.bias_sigma,
+        std_normal(rng) * m.bias_sigma * 1.5,
+    ];
     let phi = (-1.0 / m.tau_s).exp();
     let drive = m.noise_sigma * (1.0 - phi * phi).sqrt();
-    let mut n = [std_normal(rng) * m.noise_sigma, std_normal(rng) * m.noise_sigma, std_normal(rng) * m.noise_sigma * 1.5];
+    let mut n = [
+        std_normal(rng) * m.noise_sigma,
+        std_normal(rng) * m.noise_sigma,
+        std_normal(rng) * m.noise_sigma * 1.5,
+    ];
     let mut sats = rng.random_range(m.sats.0..=m.sats.1);
     let mut hdop = rng.random_range(m.hdop.0..m.hdop.1);
     let mut out = Vec::with_capacity(m.duration_s as usize);
@@ -91,7 +99,8 @@ pub fn track(
                 *v = phi * *v + drive * scale * std_normal(rng);
             }
             if rng.random_bool(0.05) {
-                sats = (sats as i64 + rng.random_range(-1..=1)).clamp(m.sats.0 as i64, m.sats.1 as i64) as u32;
+                sats = (sats as i64 + rng.random_range(-1..=1))
+                    .clamp(m.sats.0 as i64, m.sats.1 as i64) as u32;
                 hdop = rng.random_range(m.hdop.0..m.hdop.1);
             }
         }
@@ -100,7 +109,10 @@ pub fn track(
         let (speed_kn, course) = match prev {
             Some((px, py)) => {
                 let (dx, dy): (f64, f64) = (x - px, y - py);
-                (dx.hypot(dy) * 1.943_844, dx.atan2(dy).to_degrees().rem_euclid(360.0))
+                (
+                    dx.hypot(dy) * 1.943_844,
+                    dx.atan2(dy).to_degrees().rem_euclid(360.0),
+                )
             }
             None => (0.0, 0.0),
         };
@@ -164,7 +176,10 @@ pub fn nmea_log(fixes: &[Fix], start: &UtcStart, geoid_sep: f64) -> String {
         sentence(&mut out, &gga);
         let mode = if f.quality == 2 { 'D' } else { 'A' };
         let date = format!("{:02}{:02}{:02}", start.day, start.month, start.year % 100);
-        let rmc = format!("GPRMC,{hms},A,{lat},{lon},{:.3},{:.2},{date},,,{mode}", f.speed_kn, f.course);
+        let rmc = format!(
+            "GPRMC,{hms},A,{lat},{lon},{:.3},{:.2},{date},,,{mode}",
+            f.speed_kn, f.course
+        );
         sentence(&mut out, &rmc);
     }
     out
@@ -202,10 +217,26 @@ mod tests {
         };
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         // A local tangent-plane stand-in for the projection: 1e-5 degree per metre.
-        let fixes = track(&mut rng, [0.0, 0.0, 250.0], &m, |x, y| Ok((42.0 + y * 1e-5, -83.0 + x * 1e-5))).unwrap();
-        let var = fixes.iter().map(|f| ((f.lat - 42.0) * 1e5).powi(2)).sum::<f64>() / fixes.len() as f64;
+        let fixes = track(&mut rng, [0.0, 0.0, 250.0], &m, |x, y| {
+            Ok((42.0 + y * 1e-5, -83.0 + x * 1e-5))
+        })
+        .unwrap();
+        let var = fixes
+            .iter()
+            .map(|f| ((f.lat - 42.0) * 1e5).powi(2))
+            .sum::<f64>()
+            / fixes.len() as f64;
         assert!((var.sqrt() - 5.0).abs() < 0.6, "σ {}", var.sqrt());
-        let text = nmea_log(&fixes[..40], &UtcStart { year: 2026, month: 6, day: 15, sec_of_day: 50000 }, -34.5);
+        let text = nmea_log(
+            &fixes[..40],
+            &UtcStart {
+                year: 2026,
+                month: 6,
+                day: 15,
+                sec_of_day: 50000,
+            },
+            -34.5,
+        );
         let lines: Vec<&str> = text.split_inclusive("\r\n").collect();
         assert_eq!(lines.len(), 80);
         for l in lines {
@@ -213,7 +244,14 @@ mod tests {
             let (body, cs) = l[1..l.len() - 2].split_once('*').unwrap();
             assert_eq!(u8::from_str_radix(cs, 16).unwrap(), checksum(body));
             let n = body.split(',').count();
-            assert!(if body.starts_with("GPGGA") { n == 15 } else { n == 13 }, "{body}");
+            assert!(
+                if body.starts_with("GPGGA") {
+                    n == 15
+                } else {
+                    n == 13
+                },
+                "{body}"
+            );
         }
         assert!(text.starts_with("$GPGGA,135320.00,"));
     }

@@ -40,47 +40,83 @@ fn in_hole(w: &World, x: f64, y: f64) -> bool {
         let (dx, dy) = (x - f.x, y - f.y);
         let a = c * dx + s * dy;
         let b = -s * dx + c * dy;
-        a.abs() <= f.hl + HOLE_MARGIN && b <= f.hw + HOLE_MARGIN && b >= -(f.hw + HOLE_MARGIN + HOLE_SHADOW)
+        a.abs() <= f.hl + HOLE_MARGIN
+            && b <= f.hw + HOLE_MARGIN
+            && b >= -(f.hw + HOLE_MARGIN + HOLE_SHADOW)
     });
     // No ground returns under buildings either.
     car || w.statics.iter().any(|o| match (o.kind, o.shape) {
-        (Kind::Building, Shape::Box { cx, cy, hl, hw, yaw, .. }) => Footprint { x: cx, y: cy, yaw, hl, hw }.contains(x, y, 0.0),
+        (
+            Kind::Building,
+            Shape::Box {
+                cx,
+                cy,
+                hl,
+                hw,
+                yaw,
+                ..
+            },
+        ) => Footprint {
+            x: cx,
+            y: cy,
+            yaw,
+            hl,
+            hw,
+        }
+        .contains(x, y, 0.0),
         _ => false,
     })
 }
 
 /// Build the LiDAR layers on `grid` (map CRS); `origin` is the map position of the world's
 /// local (0, 0); `height_sigma` the height noise σ in metres.
-pub fn lidar(w: &World, look: &Appearance, grid: &GeoGrid, origin: [f64; 2], height_sigma: f64) -> Lidar {
+pub fn lidar(
+    w: &World,
+    look: &Appearance,
+    grid: &GeoGrid,
+    origin: [f64; 2],
+    height_sigma: f64,
+) -> Lidar {
     let (gw, gh) = (grid.width, grid.height);
     let mut refl = vec![REFLECTIVITY_NODATA; gw * gh];
     let mut height = vec![f32::NAN; gw * gh];
     let seed = w.seed ^ 0x1D;
-    refl.par_chunks_mut(gw).zip(height.par_chunks_mut(gw)).enumerate().for_each(|(row, (rr, hr))| {
-        for col in 0..gw {
-            let (mx, my) = grid.pixel_center(col, row);
-            let (x, y) = (mx - origin[0], my - origin[1]);
-            if in_hole(w, x, y) {
-                continue;
-            }
-            let mut acc = 0.0;
-            for i in 0..LIDAR_SUB {
-                for j in 0..LIDAR_SUB {
-                    let off = |k: usize| ((k as f64 + 0.5) / LIDAR_SUB as f64 - 0.5) * grid.res;
-                    let (sx, sy) = (x + off(i), y + off(j));
-                    acc += look.lidar(&w.surface(sx, sy), sx, sy);
+    refl.par_chunks_mut(gw)
+        .zip(height.par_chunks_mut(gw))
+        .enumerate()
+        .for_each(|(row, (rr, hr))| {
+            for col in 0..gw {
+                let (mx, my) = grid.pixel_center(col, row);
+                let (x, y) = (mx - origin[0], my - origin[1]);
+                if in_hole(w, x, y) {
+                    continue;
                 }
+                let mut acc = 0.0;
+                for i in 0..LIDAR_SUB {
+                    for j in 0..LIDAR_SUB {
+                        let off = |k: usize| ((k as f64 + 0.5) / LIDAR_SUB as f64 - 0.5) * grid.res;
+                        let (sx, sy) = (x + off(i), y + off(j));
+                        acc += look.lidar(&w.surface(sx, sy), sx, sy);
+                    }
+                }
+                let r = acc / (LIDAR_SUB * LIDAR_SUB) as f64;
+                let h = hash3(seed, col as i64, row as i64);
+                let noisy = r * (1.0 + SPECKLE_MUL * gauss(h)) + SPECKLE_ADD * gauss(h ^ 0x77);
+                rr[col] = noisy.round().clamp(1.0, 255.0) as u8;
+                hr[col] = (w.height(x, y) + height_sigma * gauss(h ^ 0x99)) as f32;
             }
-            let r = acc / (LIDAR_SUB * LIDAR_SUB) as f64;
-            let h = hash3(seed, col as i64, row as i64);
-            let noisy = r * (1.0 + SPECKLE_MUL * gauss(h)) + SPECKLE_ADD * gauss(h ^ 0x77);
-            rr[col] = noisy.round().clamp(1.0, 255.0) as u8;
-            hr[col] = (w.height(x, y) + height_sigma * gauss(h ^ 0x99)) as f32;
-        }
-    });
+        });
     Lidar {
-        reflectivity: Raster { grid: *grid, data: refl, nodata: Some(REFLECTIVITY_NODATA) },
-        height: Raster { grid: *grid, data: height, nodata: Some(f32::NAN) },
+        reflectivity: Raster {
+            grid: *grid,
+            data: refl,
+            nodata: Some(REFLECTIVITY_NODATA),
+        },
+        height: Raster {
+            grid: *grid,
+            data: height,
+            nodata: Some(f32::NAN),
+        },
     }
 }
 
@@ -101,7 +137,14 @@ pub struct SatelliteShot {
 }
 
 /// Render the satellite orthophoto on `grid`. `parked` are the cars present that day.
-pub fn satellite(w: &World, look: &Appearance, grid: &GeoGrid, origin: [f64; 2], shot: &SatelliteShot, parked: &[Solid]) -> Result<Raster<[u8; 3]>> {
+pub fn satellite(
+    w: &World,
+    look: &Appearance,
+    grid: &GeoGrid,
+    origin: [f64; 2],
+    shot: &SatelliteShot,
+    parked: &[Solid],
+) -> Result<Raster<[u8; 3]>> {
     let (gw, gh) = (grid.width, grid.height);
     let mut planes = vec![vec![0f32; gw * gh]; 3];
     let dapple = Field::new(w.seed ^ 0xD1, 0.5);
@@ -114,7 +157,10 @@ pub fn satellite(w: &World, look: &Appearance, grid: &GeoGrid, origin: [f64; 2],
             (0..gw)
                 .map(|col| {
                     let (mx, my) = grid.pixel_center(col, row);
-                    let (x, y) = (mx - origin[0] - shot.shift[0], my - origin[1] - shot.shift[1]);
+                    let (x, y) = (
+                        mx - origin[0] - shot.shift[0],
+                        my - origin[1] - shot.shift[1],
+                    );
                     // Orthorectified to the ground: trace the view ray that ends at this ground point
                     // back up; the first solid it meets from above is what the satellite saw.
                     let g = Vector3::new(x, y, w.height(x, y));
@@ -123,7 +169,9 @@ pub fn satellite(w: &World, look: &Appearance, grid: &GeoGrid, origin: [f64; 2],
                     let mut best = None;
                     for set in sets {
                         if let Some((i, hit)) = nearest(set, &o, &d, back - 1e-3) {
-                            if best.as_ref().is_none_or(|(_, h, _): &(usize, super::solids::Hit, &[Solid])| hit.t < h.t) {
+                            if best.as_ref().is_none_or(
+                                |(_, h, _): &(usize, super::solids::Hit, &[Solid])| hit.t < h.t,
+                            ) {
                                 best = Some((i, hit, set));
                             }
                         }
@@ -132,9 +180,14 @@ pub fn satellite(w: &World, look: &Appearance, grid: &GeoGrid, origin: [f64; 2],
                         Some((i, hit, set)) => {
                             let s = &set[i];
                             let p = o + hit.t * d;
-                            let mut c = if hit.normal.z > 0.5 { s.rgb_top } else { s.rgb_side };
+                            let mut c = if hit.normal.z > 0.5 {
+                                s.rgb_top
+                            } else {
+                                s.rgb_side
+                            };
                             if s.kind == Kind::Crown {
-                                let k = 0.6 + 0.8 * (0.5 + 0.5 * leaves.fbm(p.x + p.z, p.y - p.z, 3));
+                                let k =
+                                    0.6 + 0.8 * (0.5 + 0.5 * leaves.fbm(p.x + p.z, p.y - p.z, 3));
                                 c = [c[0] * k, c[1] * k, c[2] * k];
                             }
                             (c, hit.normal, p)
@@ -145,13 +198,18 @@ pub fn satellite(w: &World, look: &Appearance, grid: &GeoGrid, origin: [f64; 2],
                         }
                     };
                     let cos = n.dot(&shot.light.sun).max(0.0);
-                    let vis = if cos > 0.0 { sun_visibility(&sets, &(p + n * 1e-3), &shot.light.sun, &dapple) } else { 0.0 };
+                    let vis = if cos > 0.0 {
+                        sun_visibility(&sets, &(p + n * 1e-3), &shot.light.sun, &dapple)
+                    } else {
+                        0.0
+                    };
                     // Skylight is bluish, sunlight warm: shadows turn blue-gray as in real imagery.
                     let sky = [0.85, 0.95, 1.2];
                     let sunc = [1.05, 1.0, 0.92];
                     let mut out = [0f32; 3];
                     for k in 0..3 {
-                        let e = shot.light.ambient * sky[k] * (0.5 + 0.5 * n.z) + shot.light.sun_irr * sunc[k] * cos * vis;
+                        let e = shot.light.ambient * sky[k] * (0.5 + 0.5 * n.z)
+                            + shot.light.sun_irr * sunc[k] * cos * vis;
                         out[k] = (albedo[k] * e) as f32;
                     }
                     out
@@ -186,5 +244,9 @@ pub fn satellite(w: &World, look: &Appearance, grid: &GeoGrid, origin: [f64; 2],
         .map_err(|e| Error::Invalid(format!("satellite JPEG decode: {e}")))?
         .to_rgb8();
     let data = dec.pixels().map(|p| p.0).collect();
-    Ok(Raster { grid: *grid, data, nodata: None })
+    Ok(Raster {
+        grid: *grid,
+        data,
+        nodata: None,
+    })
 }

@@ -300,7 +300,11 @@ fn traffic(w: &World, rng: &mut ChaCha8Rng, vehicles: usize, pedestrians: usize)
             }
         } else {
             let side = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
-            let corner = if side > 0.0 { w.corners[i] } else { w.corners[(i + k - 1) % k] };
+            let corner = if side > 0.0 {
+                w.corners[i]
+            } else {
+                w.corners[(i + k - 1) % k]
+            };
             let base = if side > 0.0 { a.w_in } else { a.w_out };
             Mover {
                 approach: i,
@@ -345,7 +349,10 @@ fn movers_at(w: &World, movers: &[Mover], frame: u32) -> Vec<Solid> {
 /// Generate a scene.
 pub fn generate(settings: &Settings) -> Result<Scene> {
     if settings.frames == 0 || settings.frames > 1000 {
-        return Err(Error::Invalid(format!("simulate: --frames {} must be 1..=1000", settings.frames)));
+        return Err(Error::Invalid(format!(
+            "simulate: --frames {} must be 1..=1000",
+            settings.frames
+        )));
     }
     let hard = settings.difficulty == Difficulty::Hard;
     let mut rng = ChaCha8Rng::seed_from_u64(mix64(settings.seed));
@@ -358,25 +365,45 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
 
     // Camera and true pose.
     let camera_true = true_camera(&mut rng, settings.preset, settings.lens);
-    let camera_given = if hard { perturbed_camera(&mut rng, &camera_true) } else { camera_true.clone() };
+    let camera_given = if hard {
+        perturbed_camera(&mut rng, &camera_true)
+    } else {
+        camera_true.clone()
+    };
     let r = 10.0 * rng.random::<f64>().sqrt();
     let phi = rng.random_range(0.0..TAU);
     let (cx, cy) = (r * phi.cos(), r * phi.sin());
     world.clear_around(cx, cy, 4.0);
     let above = rng.random_range(4.0..12.0);
     let cz = world.height(cx, cy) + above;
-    let tilt = if hard { 3f64.to_radians() } else { 0.2f64.to_radians() };
+    let tilt = if hard {
+        3f64.to_radians()
+    } else {
+        0.2f64.to_radians()
+    };
     let yaw = rng.random_range(-PI..PI);
     let pitch = rng.random_range(-tilt..tilt);
     let roll = rng.random_range(-tilt..tilt);
     let pose_local = CamFromMap::from_center_ypr(&Point3::new(cx, cy, cz), yaw, pitch, roll);
-    let pose = CamFromMap::from_center_ypr(&Point3::new(cx + origin[0], cy + origin[1], cz), yaw, pitch, roll);
+    let pose = CamFromMap::from_center_ypr(
+        &Point3::new(cx + origin[0], cy + origin[1], cz),
+        yaw,
+        pitch,
+        roll,
+    );
 
     // Map layers.
     let look = Appearance::new(world.seed);
     let half = TILE_SIZE_M / 2.0;
     let n = (TILE_SIZE_M / MAP_RES).round() as usize;
-    let grid = GeoGrid { crs, x0: origin[0] - half, y0: origin[1] + half, res: MAP_RES, width: n, height: n };
+    let grid = GeoGrid {
+        crs,
+        x0: origin[0] - half,
+        y0: origin[1] + half,
+        res: MAP_RES,
+        width: n,
+        height: n,
+    };
     let lidar = layers::lidar(&world, &look, &grid, origin, if hard { 0.03 } else { 0.02 });
     let sat_n = ((TILE_SIZE_M + 2.0 * SAT_MARGIN_M) / MAP_RES).round() as usize;
     let sat_grid = GeoGrid {
@@ -400,7 +427,14 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         blur_px: 1.5,
         jpeg_quality: rng.random_range(55..80),
     };
-    let satellite = layers::satellite(&world, &look, &sat_grid, origin, &shot, &world.satellite_parked)?;
+    let satellite = layers::satellite(
+        &world,
+        &look,
+        &sat_grid,
+        origin,
+        &shot,
+        &world.satellite_parked,
+    )?;
 
     // Fisheye frames.
     let overcast = hard && rng.random_bool(0.25);
@@ -412,21 +446,48 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
     };
     let mut statics = world.statics.clone();
     statics.extend_from_slice(&world.camera_parked);
-    let view = View { world: &world, look: &look, statics: &statics, light };
+    let view = View {
+        world: &world,
+        look: &look,
+        statics: &statics,
+        light,
+    };
     let sensor = if hard {
-        Sensor { blur_px: 0.7, vignetting: 0.45, full_well: 900.0, read_noise: 0.006, gamma: 2.2 }
+        Sensor {
+            blur_px: 0.7,
+            vignetting: 0.45,
+            full_well: 900.0,
+            read_noise: 0.006,
+            gamma: 2.2,
+        }
     } else {
-        Sensor { blur_px: 0.6, vignetting: 0.3, full_well: 3000.0, read_noise: 0.003, gamma: 2.2 }
+        Sensor {
+            blur_px: 0.6,
+            vignetting: 0.3,
+            full_well: 3000.0,
+            read_noise: 0.003,
+            gamma: 2.2,
+        }
     };
     let base = render::static_pass(&view, &camera_true, &pose_local);
     let exposure = base.auto_exposure();
-    let (nv, np) = if hard { (rng.random_range(8..15), rng.random_range(5..11)) } else { (rng.random_range(3..7), rng.random_range(2..6)) };
+    let (nv, np) = if hard {
+        (rng.random_range(8..15), rng.random_range(5..11))
+    } else {
+        (rng.random_range(3..7), rng.random_range(2..6))
+    };
     let movers = traffic(&world, &mut rng, nv, np);
     let frames = (0..settings.frames)
         .map(|f| {
             let dynamic = movers_at(&world, &movers, f);
             let gain = 1.0 + rng.random_range(-0.04..0.04);
-            base.frame(&view, &dynamic, &sensor, exposure * gain, mix64(world.seed ^ (0xF0 + f as u64)))
+            base.frame(
+                &view,
+                &dynamic,
+                &sensor,
+                exposure * gain,
+                mix64(world.seed ^ (0xF0 + f as u64)),
+            )
         })
         .collect();
 
@@ -461,19 +522,31 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
     for (id, x, y) in cands {
         let z = world.height(x, y);
         let map = [x + origin[0], y + origin[1], z];
-        tile_points.push(ControlPoint { id: id.clone(), xyz: map });
+        tile_points.push(ControlPoint {
+            id: id.clone(),
+            xyz: map,
+        });
         let pc = pose.transform(&Point3::new(map[0], map[1], map[2]));
-        let Ok(px) = camera_true.project_visible(&pc.coords) else { continue };
-        if !camera_true.is_valid_pixel(&px) || pc.z / pc.coords.norm() < CONTROL_MAX_THETA_DEG.to_radians().cos() {
+        let Ok(px) = camera_true.project_visible(&pc.coords) else {
+            continue;
+        };
+        if !camera_true.is_valid_pixel(&px)
+            || pc.z / pc.coords.norm() < CONTROL_MAX_THETA_DEG.to_radians().cos()
+        {
             continue;
         }
         let to = Vector3::new(x, y, z) - center_l;
         let dist = to.norm();
         let d = to / dist;
         let blocked = solids::nearest(&statics, &center_l, &d, dist - 0.05).is_some();
-        let first = render::intersect_ground(&world, &center_l, &d).is_some_and(|t| (t - dist).abs() < 0.02);
+        let first = render::intersect_ground(&world, &center_l, &d)
+            .is_some_and(|t| (t - dist).abs() < 0.02);
         if !blocked && first {
-            control_points.push(TruthPoint { id, map, pixel: [px.x, px.y] });
+            control_points.push(TruthPoint {
+                id,
+                map,
+                pixel: [px.x, px.y],
+            });
         }
     }
 
@@ -534,7 +607,10 @@ impl Scene {
         let extra = [
             ("intrinsics_given", serde_json::to_value(&self.camera_given)),
             ("control_points", serde_json::to_value(&self.control_points)),
-            ("gps_truth_wgs84", serde_json::to_value(self.gps_truth_wgs84)),
+            (
+                "gps_truth_wgs84",
+                serde_json::to_value(self.gps_truth_wgs84),
+            ),
             ("seed", serde_json::to_value(self.settings.seed)),
             ("settings", serde_json::to_value(self.settings)),
             ("acquisition", serde_json::to_value(&self.acquisition)),
@@ -555,9 +631,10 @@ impl Scene {
     pub fn montage(&self, panel: u32) -> image::RgbImage {
         use image::imageops::{resize, FilterType};
         let sat = &self.tile.satellite;
-        let satimg = image::RgbImage::from_fn(sat.grid.width as u32, sat.grid.height as u32, |x, y| {
-            image::Rgb(sat.data[y as usize * sat.grid.width + x as usize])
-        });
+        let satimg =
+            image::RgbImage::from_fn(sat.grid.width as u32, sat.grid.height as u32, |x, y| {
+                image::Rgb(sat.data[y as usize * sat.grid.width + x as usize])
+            });
         let refl = &self.tile.reflectivity;
         let g = refl.grid;
         let reflimg = image::RgbImage::from_fn(g.width as u32, g.height as u32, |x, y| {
@@ -583,7 +660,11 @@ impl Scene {
                 image::Rgb([90, 0, 0])
             } else {
                 let t = ((d + 0.05) / 0.45).clamp(0.0, 1.0);
-                image::Rgb([(255.0 * t) as u8, (255.0 * (1.0 - (2.0 * t - 1.0).abs())) as u8, (255.0 * (1.0 - t)) as u8])
+                image::Rgb([
+                    (255.0 * t) as u8,
+                    (255.0 * (1.0 - (2.0 * t - 1.0).abs())) as u8,
+                    (255.0 * (1.0 - t)) as u8,
+                ])
             }
         });
         let (fw, fh) = self.frame_size();

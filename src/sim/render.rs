@@ -130,7 +130,12 @@ pub fn ground_normal(w: &World, x: f64, y: f64) -> Vector3<f64> {
 }
 
 /// Fraction of direct sunlight reaching `p` past the solids in `sets` (0 = full shadow).
-pub fn sun_visibility(sets: &[&[Solid]], p: &Vector3<f64>, sun: &Vector3<f64>, dapple: &Field) -> f64 {
+pub fn sun_visibility(
+    sets: &[&[Solid]],
+    p: &Vector3<f64>,
+    sun: &Vector3<f64>,
+    dapple: &Field,
+) -> f64 {
     let mut vis = 1.0;
     for set in sets {
         for s in set.iter() {
@@ -161,7 +166,9 @@ pub fn solid_albedo(s: &Solid, h: &Hit, p: &Vector3<f64>, leaves: &Field) -> f64
                 s.gray_side
             }
         }
-        Kind::Crown => s.gray_top * (0.55 + 0.9 * (0.5 + 0.5 * leaves.fbm(p.x + p.z, p.y - p.z, 3))),
+        Kind::Crown => {
+            s.gray_top * (0.55 + 0.9 * (0.5 + 0.5 * leaves.fbm(p.x + p.z, p.y - p.z, 3)))
+        }
         _ if top => s.gray_top,
         _ => s.gray_side,
     }
@@ -255,12 +262,22 @@ pub fn static_pass(v: &View, cam: &Camera, pose: &CamFromMap) -> StaticPass {
                 let (albedo, n, p, tt) = match (solid, tg) {
                     (Some((i, hit)), _) => {
                         let p = center + hit.t * d;
-                        (solid_albedo(&v.statics[i], &hit, &p, &leaves), hit.normal, p, hit.t)
+                        (
+                            solid_albedo(&v.statics[i], &hit, &p, &leaves),
+                            hit.normal,
+                            p,
+                            hit.t,
+                        )
                     }
                     (None, Some(tg)) => {
                         let p = center + tg * d;
                         let s = v.world.surface(p.x, p.y);
-                        (v.look.visible(v.world, &s, p.x, p.y), ground_normal(v.world, p.x, p.y), p, tg)
+                        (
+                            v.look.visible(v.world, &s, p.x, p.y),
+                            ground_normal(v.world, p.x, p.y),
+                            p,
+                            tg,
+                        )
                     }
                     (None, None) => {
                         ar[col] = sky_radiance(&d, &v.light) as f32;
@@ -276,7 +293,16 @@ pub fn static_pass(v: &View, cam: &Camera, pose: &CamFromMap) -> StaticPass {
                 }
             }
         });
-    StaticPass { width: w, height: h, dir, t, amb, sun, rad, center }
+    StaticPass {
+        width: w,
+        height: h,
+        dir,
+        t,
+        amb,
+        sun,
+        rad,
+        center,
+    }
 }
 
 /// Principal point of a camera.
@@ -312,14 +338,21 @@ impl StaticPass {
 
     /// Render one frame with the moving `dynamic` solids: 8-bit gray, row-major.
     #[allow(clippy::too_many_arguments)]
-    pub fn frame(&self, v: &View, dynamic: &[Solid], sensor: &Sensor, exposure: f64, noise_seed: u64) -> Vec<u8> {
+    pub fn frame(
+        &self,
+        v: &View,
+        dynamic: &[Solid],
+        sensor: &Sensor,
+        exposure: f64,
+        noise_seed: u64,
+    ) -> Vec<u8> {
         let (w, h) = (self.width, self.height);
         let leaves = Field::new(v.world.seed ^ 0xC0, 0.4);
         let dapple = Field::new(v.world.seed ^ 0xC1, 0.5);
         let c = self.center;
         let mut lin = vec![0f32; w * h];
         lin.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
-            for col in 0..w {
+            for (col, o) in out.iter_mut().enumerate() {
                 let i = row * w + col;
                 let dd = self.dir[i];
                 if dd[0].is_nan() {
@@ -335,29 +368,42 @@ impl StaticPass {
                     let cos = n.dot(&v.light.sun);
                     if cos > 0.0 && v.light.sun_irr > 0.0 {
                         let q = p + n * 1e-3;
-                        l += a * v.light.sun_irr * cos * sun_visibility(&[v.statics, dynamic], &q, &v.light.sun, &dapple);
+                        l += a
+                            * v.light.sun_irr
+                            * cos
+                            * sun_visibility(&[v.statics, dynamic], &q, &v.light.sun, &dapple);
                     }
-                    out[col] = l as f32;
+                    *o = l as f32;
                 } else if ts.is_finite() && self.sun[i] > 0.0 {
                     let p = c + ts * d;
-                    let vis = sun_visibility(&[dynamic], &(p + Vector3::z() * 1e-3), &v.light.sun, &dapple);
-                    out[col] = self.amb[i] + self.sun[i] * vis as f32;
+                    let vis = sun_visibility(
+                        &[dynamic],
+                        &(p + Vector3::z() * 1e-3),
+                        &v.light.sun,
+                        &dapple,
+                    );
+                    *o = self.amb[i] + self.sun[i] * vis as f32;
                 } else {
-                    out[col] = self.amb[i] + self.sun[i];
+                    *o = self.amb[i] + self.sun[i];
                 }
             }
         });
         gaussian_blur(&mut lin, w, h, sensor.blur_px);
         let mut img = vec![0u8; w * h];
         img.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
-            for col in 0..w {
+            for (col, o) in out.iter_mut().enumerate() {
                 let i = row * w + col;
                 let r = self.rad[i];
-                let vig = if r.is_nan() { 0.0 } else { 1.0 - sensor.vignetting * (r as f64).powi(2) };
+                let vig = if r.is_nan() {
+                    0.0
+                } else {
+                    1.0 - sensor.vignetting * (r as f64).powi(2)
+                };
                 let s = (lin[i] as f64 * exposure * vig).clamp(0.0, 1.0);
                 let sigma = (s / sensor.full_well + sensor.read_noise * sensor.read_noise).sqrt();
-                let noisy = (s + sigma * gauss(hash3(noise_seed, col as i64, row as i64))).clamp(0.0, 1.0);
-                out[col] = (noisy.powf(1.0 / sensor.gamma) * 255.0).round() as u8;
+                let noisy =
+                    (s + sigma * gauss(hash3(noise_seed, col as i64, row as i64))).clamp(0.0, 1.0);
+                *o = (noisy.powf(1.0 / sensor.gamma) * 255.0).round() as u8;
             }
         });
         img
@@ -370,7 +416,9 @@ pub fn gaussian_blur(plane: &mut [f32], w: usize, h: usize, sigma: f64) {
         return;
     }
     let r = (3.0 * sigma).ceil() as isize;
-    let mut k: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32).collect();
+    let mut k: Vec<f32> = (-r..=r)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32)
+        .collect();
     let sum: f32 = k.iter().sum();
     k.iter_mut().for_each(|v| *v /= sum);
     let clampi = |i: isize, n: usize| i.clamp(0, n as isize - 1) as usize;
@@ -378,7 +426,11 @@ pub fn gaussian_blur(plane: &mut [f32], w: usize, h: usize, sigma: f64) {
     plane.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
         let line = &src[row * w..(row + 1) * w];
         for (col, o) in out.iter_mut().enumerate() {
-            *o = k.iter().enumerate().map(|(j, kv)| kv * line[clampi(col as isize + j as isize - r, w)]).sum();
+            *o = k
+                .iter()
+                .enumerate()
+                .map(|(j, kv)| kv * line[clampi(col as isize + j as isize - r, w)])
+                .sum();
         }
     });
     let src = plane.to_vec();
@@ -407,7 +459,11 @@ mod tests {
             let d = Vector3::new(th.sin() * az.cos(), th.sin() * az.sin(), -th.cos());
             let t = intersect_ground(&w, &o, &d).unwrap();
             let p = o + t * d;
-            assert!((p.z - w.height(p.x, p.y)).abs() < 1e-4, "θ={th} miss {}", p.z - w.height(p.x, p.y));
+            assert!(
+                (p.z - w.height(p.x, p.y)).abs() < 1e-4,
+                "θ={th} miss {}",
+                p.z - w.height(p.x, p.y)
+            );
             // Nothing earlier on the ray is below the ground (first hit).
             for k in 1..50 {
                 let q = o + t * (k as f64 / 50.0) * d;

@@ -95,11 +95,28 @@ pub struct Hit {
 
 impl Solid {
     /// A solid; the bounding sphere is computed here.
-    pub fn new(shape: Shape, kind: Kind, gray: (f64, f64), rgb: ([f64; 3], [f64; 3]), tex: u64) -> Self {
+    pub fn new(
+        shape: Shape,
+        kind: Kind,
+        gray: (f64, f64),
+        rgb: ([f64; 3], [f64; 3]),
+        tex: u64,
+    ) -> Self {
         let (c, r) = match shape {
-            Shape::Box { cx, cy, z0, z1, hl, hw, .. } => {
+            Shape::Box {
+                cx,
+                cy,
+                z0,
+                z1,
+                hl,
+                hw,
+                ..
+            } => {
                 let hz = 0.5 * (z1 - z0);
-                (Vector3::new(cx, cy, z0 + hz), (hl * hl + hw * hw + hz * hz).sqrt())
+                (
+                    Vector3::new(cx, cy, z0 + hz),
+                    (hl * hl + hw * hw + hz * hz).sqrt(),
+                )
             }
             Shape::Cylinder { cx, cy, r, z0, z1 } => {
                 let hz = 0.5 * (z1 - z0);
@@ -135,7 +152,13 @@ impl Solid {
 
     /// First intersection of the ray `o + t·d` (d unit) with `t_min < t < t_max`.
     #[inline]
-    pub fn intersect(&self, o: &Vector3<f64>, d: &Vector3<f64>, t_min: f64, t_max: f64) -> Option<Hit> {
+    pub fn intersect(
+        &self,
+        o: &Vector3<f64>,
+        d: &Vector3<f64>,
+        t_min: f64,
+        t_max: f64,
+    ) -> Option<Hit> {
         // Bounding-sphere rejection: most rays miss most solids.
         let oc = self.bound_c - o;
         let tc = oc.dot(d);
@@ -148,7 +171,15 @@ impl Solid {
             return None;
         }
         let hit = match self.shape {
-            Shape::Box { cx, cy, z0, z1, hl, hw, yaw } => {
+            Shape::Box {
+                cx,
+                cy,
+                z0,
+                z1,
+                hl,
+                hw,
+                yaw,
+            } => {
                 let (s, c) = yaw.sin_cos();
                 // Into box coordinates (a along yaw, b across).
                 let (px, py) = (o.x - cx, o.y - cy);
@@ -212,8 +243,15 @@ impl Solid {
                 if d.z < 0.0 {
                     let t = (z1 - o.z) / d.z;
                     let (x, y) = (px + t * d.x, py + t * d.y);
-                    if t > t_min && t < t_max && x * x + y * y <= r * r && best.is_none_or(|h| t < h.t) {
-                        best = Some(Hit { t, normal: Vector3::z() });
+                    if t > t_min
+                        && t < t_max
+                        && x * x + y * y <= r * r
+                        && best.is_none_or(|h| t < h.t)
+                    {
+                        best = Some(Hit {
+                            t,
+                            normal: Vector3::z(),
+                        });
                     }
                 }
                 best?
@@ -229,7 +267,10 @@ impl Solid {
                 if t <= t_min || t >= t_max {
                     return None;
                 }
-                Hit { t, normal: (oc + t * d) / r }
+                Hit {
+                    t,
+                    normal: (oc + t * d) / r,
+                }
             }
         };
         Some(hit)
@@ -238,7 +279,12 @@ impl Solid {
 
 /// Nearest hit among `solids`: (index, hit).
 #[inline]
-pub fn nearest(solids: &[Solid], o: &Vector3<f64>, d: &Vector3<f64>, t_max: f64) -> Option<(usize, Hit)> {
+pub fn nearest(
+    solids: &[Solid],
+    o: &Vector3<f64>,
+    d: &Vector3<f64>,
+    t_max: f64,
+) -> Option<(usize, Hit)> {
     let mut best: Option<(usize, Hit)> = None;
     let mut tm = t_max;
     for (i, s) in solids.iter().enumerate() {
@@ -260,33 +306,66 @@ mod tests {
 
     #[test]
     fn rotated_box_top_and_side() {
-        let b = plain(Shape::Box { cx: 10.0, cy: 5.0, z0: 0.0, z1: 3.0, hl: 2.0, hw: 1.0, yaw: 0.5 });
+        let b = plain(Shape::Box {
+            cx: 10.0,
+            cy: 5.0,
+            z0: 0.0,
+            z1: 3.0,
+            hl: 2.0,
+            hw: 1.0,
+            yaw: 0.5,
+        });
         // Straight down onto the centre: hits the top at z = 3.
-        let h = b.intersect(&Vector3::new(10.0, 5.0, 10.0), &-Vector3::z(), 0.0, 100.0).unwrap();
+        let h = b
+            .intersect(&Vector3::new(10.0, 5.0, 10.0), &-Vector3::z(), 0.0, 100.0)
+            .unwrap();
         assert!((h.t - 7.0).abs() < 1e-12 && (h.normal.z - 1.0).abs() < 1e-12);
         // Horizontally along the box's long axis from outside: hits the end face at distance 8 − 2.
         let (s, c) = 0.5f64.sin_cos();
         let o = Vector3::new(10.0 - 8.0 * c, 5.0 - 8.0 * s, 1.0);
-        let h = b.intersect(&o, &Vector3::new(c, s, 0.0), 0.0, 100.0).unwrap();
+        let h = b
+            .intersect(&o, &Vector3::new(c, s, 0.0), 0.0, 100.0)
+            .unwrap();
         assert!((h.t - 6.0).abs() < 1e-9, "{}", h.t);
         assert!((h.normal - Vector3::new(-c, -s, 0.0)).norm() < 1e-12);
         // Corner miss: a ray just outside the half width.
         let o = Vector3::new(10.0 - 1.01 * s - 8.0 * c, 5.0 + 1.01 * c - 8.0 * s, 1.0);
-        assert!(b.intersect(&o, &Vector3::new(c, s, 0.0), 0.0, 100.0).is_none());
+        assert!(b
+            .intersect(&o, &Vector3::new(c, s, 0.0), 0.0, 100.0)
+            .is_none());
     }
 
     #[test]
     fn cylinder_and_sphere() {
-        let cy = plain(Shape::Cylinder { cx: 0.0, cy: 0.0, r: 0.5, z0: 0.0, z1: 2.0 });
-        let h = cy.intersect(&Vector3::new(-5.0, 0.0, 1.0), &Vector3::x(), 0.0, 100.0).unwrap();
+        let cy = plain(Shape::Cylinder {
+            cx: 0.0,
+            cy: 0.0,
+            r: 0.5,
+            z0: 0.0,
+            z1: 2.0,
+        });
+        let h = cy
+            .intersect(&Vector3::new(-5.0, 0.0, 1.0), &Vector3::x(), 0.0, 100.0)
+            .unwrap();
         assert!((h.t - 4.5).abs() < 1e-12);
-        assert!(cy.intersect(&Vector3::new(-5.0, 0.0, 2.5), &Vector3::x(), 0.0, 100.0).is_none());
-        let h = cy.intersect(&Vector3::new(0.1, 0.0, 5.0), &-Vector3::z(), 0.0, 100.0).unwrap();
+        assert!(cy
+            .intersect(&Vector3::new(-5.0, 0.0, 2.5), &Vector3::x(), 0.0, 100.0)
+            .is_none());
+        let h = cy
+            .intersect(&Vector3::new(0.1, 0.0, 5.0), &-Vector3::z(), 0.0, 100.0)
+            .unwrap();
         assert!((h.t - 3.0).abs() < 1e-12);
-        let sp = plain(Shape::Sphere { c: [0.0, 0.0, 5.0], r: 2.0 });
-        let h = sp.intersect(&Vector3::new(0.0, 0.0, 20.0), &-Vector3::z(), 0.0, 100.0).unwrap();
+        let sp = plain(Shape::Sphere {
+            c: [0.0, 0.0, 5.0],
+            r: 2.0,
+        });
+        let h = sp
+            .intersect(&Vector3::new(0.0, 0.0, 20.0), &-Vector3::z(), 0.0, 100.0)
+            .unwrap();
         assert!((h.t - 13.0).abs() < 1e-12);
         // t_max before the sphere: no hit.
-        assert!(sp.intersect(&Vector3::new(0.0, 0.0, 20.0), &-Vector3::z(), 0.0, 12.0).is_none());
+        assert!(sp
+            .intersect(&Vector3::new(0.0, 0.0, 20.0), &-Vector3::z(), 0.0, 12.0)
+            .is_none());
     }
 }

@@ -123,14 +123,26 @@ pub struct Mark {
 
 impl Mark {
     fn new(id: String, paint: Paint, wear: f64, poly: Vec<[f64; 2]>, control: Vec<bool>) -> Self {
-        let mut bbox = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+        let mut bbox = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
         for p in &poly {
             bbox[0] = bbox[0].min(p[0]);
             bbox[1] = bbox[1].min(p[1]);
             bbox[2] = bbox[2].max(p[0]);
             bbox[3] = bbox[3].max(p[1]);
         }
-        Mark { id, paint, wear, poly, control, bbox }
+        Mark {
+            id,
+            paint,
+            wear,
+            poly,
+            control,
+            bbox,
+        }
     }
 
     #[inline]
@@ -373,7 +385,15 @@ pub fn vehicle(rng: &mut impl RngCore, x: f64, y: f64, z: f64, yaw: f64) -> Vec<
         let hl = rng.random_range(3.5..6.0);
         let top = z + rng.random_range(2.6..3.3);
         let body = Solid::new(
-            Shape::Box { cx: x, cy: y, z0: z + 0.4, z1: top, hl, hw: 1.25, yaw },
+            Shape::Box {
+                cx: x,
+                cy: y,
+                z0: z + 0.4,
+                z1: top,
+                hl,
+                hw: 1.25,
+                yaw,
+            },
             Kind::VehicleBody,
             (gray.max(0.5), gray.max(0.5) * 0.8),
             ([0.8, 0.8, 0.8], rgb),
@@ -385,7 +405,15 @@ pub fn vehicle(rng: &mut impl RngCore, x: f64, y: f64, z: f64, yaw: f64) -> Vec<
     let hw = rng.random_range(0.88..0.98);
     let body_top = z + rng.random_range(0.95..1.15);
     let body = Solid::new(
-        Shape::Box { cx: x, cy: y, z0: z + 0.3, z1: body_top, hl, hw, yaw },
+        Shape::Box {
+            cx: x,
+            cy: y,
+            z0: z + 0.3,
+            z1: body_top,
+            hl,
+            hw,
+            yaw,
+        },
         Kind::VehicleBody,
         (gray, gray * 0.85),
         (rgb, rgb),
@@ -415,7 +443,13 @@ pub fn vehicle(rng: &mut impl RngCore, x: f64, y: f64, z: f64, yaw: f64) -> Vec<
 pub fn pedestrian(rng: &mut impl RngCore, x: f64, y: f64, z: f64) -> Solid {
     let g = rng.random_range(0.05..0.5);
     Solid::new(
-        Shape::Cylinder { cx: x, cy: y, r: rng.random_range(0.2..0.27), z0: z, z1: z + rng.random_range(1.55..1.9) },
+        Shape::Cylinder {
+            cx: x,
+            cy: y,
+            r: rng.random_range(0.2..0.27),
+            z0: z,
+            z1: z + rng.random_range(1.55..1.9),
+        },
         Kind::Pedestrian,
         (0.12, g),
         ([0.15, 0.12, 0.1], [g, g, g]),
@@ -461,11 +495,19 @@ impl World {
             .collect();
         let corners: Vec<Corner> = (0..k)
             .map(|i| {
-                let next = if i + 1 < k { angles[i + 1] } else { angles[0] + TAU };
+                let next = if i + 1 < k {
+                    angles[i + 1]
+                } else {
+                    angles[0] + TAU
+                };
                 Corner {
                     gap: next - angles[i],
                     radius: rng.random_range(4.0..9.0),
-                    lawn_w: if rng.random_bool(0.6) { rng.random_range(1.0..2.5) } else { 0.0 },
+                    lawn_w: if rng.random_bool(0.6) {
+                        rng.random_range(1.0..2.5)
+                    } else {
+                        0.0
+                    },
                     sidewalk_w: rng.random_range(1.5..3.0),
                 }
             })
@@ -555,15 +597,29 @@ impl World {
             };
             let (x, y) = self.approaches[i].point(s, l);
             if self.curb_distance(x, y).0 < -1.0 {
-                self.manholes.push(Disc { x, y, r: rng.random_range(0.3..0.4), age: rng.random() });
+                self.manholes.push(Disc {
+                    x,
+                    y,
+                    r: rng.random_range(0.3..0.4),
+                    age: rng.random(),
+                });
             }
         }
         for _ in 0..rng.random_range(3..9) {
             let (i, s, l) = self.road_point(rng, -8.0, 55.0);
             let (x, y) = self.approaches[i].point(s, l);
             let yaw = self.approaches[i].angle + rng.random_range(-0.1..0.1);
-            let fp = Footprint { x, y, yaw, hl: rng.random_range(0.8..4.0), hw: rng.random_range(0.6..2.0) };
-            self.patches.push(Rect { fp, age: rng.random() });
+            let fp = Footprint {
+                x,
+                y,
+                yaw,
+                hl: rng.random_range(0.8..4.0),
+                hw: rng.random_range(0.6..2.0),
+            };
+            self.patches.push(Rect {
+                fp,
+                age: rng.random(),
+            });
         }
         for a in self.approaches.clone() {
             for side in [1.0, -1.0] {
@@ -571,8 +627,17 @@ impl World {
                     let w = if side > 0.0 { a.w_in } else { a.w_out };
                     let s = a.s_stop + rng.random_range(1.0..25.0);
                     let (x, y) = a.point(s, side * (w - 0.35));
-                    let fp = Footprint { x, y, yaw: a.angle, hl: 0.5, hw: 0.3 };
-                    self.drains.push(Rect { fp, age: rng.random() });
+                    let fp = Footprint {
+                        x,
+                        y,
+                        yaw: a.angle,
+                        hl: 0.5,
+                        hw: 0.3,
+                    };
+                    self.drains.push(Rect {
+                        fp,
+                        age: rng.random(),
+                    });
                 }
             }
         }
@@ -590,9 +655,18 @@ impl World {
             let w = if side > 0.0 { a.w_in } else { a.w_out };
             let s = a.s_stop + rng.random_range(10.0..60.0);
             let (x, y) = a.point(s, side * (w - 1.2));
-            let yaw = if side > 0.0 { a.angle + PI } else { a.angle } + rng.random_range(-0.03..0.03);
-            let fp = Footprint { x, y, yaw, hl: 2.4, hw: 0.95 };
-            if out.iter().all(|o| (o.x - x).hypot(o.y - y) > 6.0) && self.curb_distance(x, y).0 < -0.5 {
+            let yaw =
+                if side > 0.0 { a.angle + PI } else { a.angle } + rng.random_range(-0.03..0.03);
+            let fp = Footprint {
+                x,
+                y,
+                yaw,
+                hl: 2.4,
+                hw: 0.95,
+            };
+            if out.iter().all(|o| (o.x - x).hypot(o.y - y) > 6.0)
+                && self.curb_distance(x, y).0 < -0.5
+            {
                 out.push(fp);
             }
         }
@@ -618,7 +692,15 @@ impl World {
                 let hw = rng.random_range(4.0..10.0);
                 let yaw = a.angle + rng.random_range(-0.05..0.05);
                 let (s, co) = yaw.sin_cos();
-                let ok = [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0), (0.0, 0.0)].iter().all(|&(p, q)| {
+                let ok = [
+                    (-1.0, -1.0),
+                    (-1.0, 1.0),
+                    (1.0, -1.0),
+                    (1.0, 1.0),
+                    (0.0, 0.0),
+                ]
+                .iter()
+                .all(|&(p, q)| {
                     let x = cx + p * hl * co - q * hw * s;
                     let y = cy + p * hl * s + q * hw * co;
                     self.curb_distance(x, y).0 > setback
@@ -633,7 +715,15 @@ impl World {
                 let roof = rng.random_range(0.15..0.5);
                 let tint = rng.random_range(-0.05..0.05);
                 self.statics.push(Solid::new(
-                    Shape::Box { cx, cy, z0: z - 0.5, z1: z + rng.random_range(4.0..18.0), hl, hw, yaw },
+                    Shape::Box {
+                        cx,
+                        cy,
+                        z0: z - 0.5,
+                        z1: z + rng.random_range(4.0..18.0),
+                        hl,
+                        hw,
+                        yaw,
+                    },
                     Kind::Building,
                     (roof, rng.random_range(0.2..0.6)),
                     ([roof + tint, roof, roof - tint], [0.55, 0.45, 0.38]),
@@ -646,7 +736,11 @@ impl World {
         for i in 0..k {
             let a = self.approaches[i].clone();
             for side in [1.0, -1.0] {
-                let corner = if side > 0.0 { self.corners[i] } else { self.corners[(i + k - 1) % k] };
+                let corner = if side > 0.0 {
+                    self.corners[i]
+                } else {
+                    self.corners[(i + k - 1) % k]
+                };
                 let w = if side > 0.0 { a.w_in } else { a.w_out };
                 let off = if corner.lawn_w > 1.2 {
                     CURB_W + 0.5 * corner.lawn_w
@@ -672,7 +766,13 @@ impl World {
                     let (x, y) = a.point(self.approaches[i].s_cw - 1.0, w + CURB_W + 0.6);
                     let z = self.height(x, y);
                     self.statics.push(Solid::new(
-                        Shape::Cylinder { cx: x, cy: y, r: 0.14, z0: z, z1: z + rng.random_range(6.0..9.0) },
+                        Shape::Cylinder {
+                            cx: x,
+                            cy: y,
+                            r: 0.14,
+                            z0: z,
+                            z1: z + rng.random_range(6.0..9.0),
+                        },
                         Kind::Trunk,
                         (0.35, 0.3),
                         ([0.45, 0.45, 0.45], [0.4, 0.4, 0.4]),
@@ -685,9 +785,24 @@ impl World {
 
     fn in_building(&self, x: f64, y: f64, margin: f64) -> bool {
         self.statics.iter().any(|o| match (o.kind, o.shape) {
-            (Kind::Building, Shape::Box { cx, cy, hl, hw, yaw, .. }) => {
-                Footprint { x: cx, y: cy, yaw, hl, hw }.contains(x, y, margin)
+            (
+                Kind::Building,
+                Shape::Box {
+                    cx,
+                    cy,
+                    hl,
+                    hw,
+                    yaw,
+                    ..
+                },
+            ) => Footprint {
+                x: cx,
+                y: cy,
+                yaw,
+                hl,
+                hw,
             }
+            .contains(x, y, margin),
             _ => false,
         })
     }
@@ -699,14 +814,27 @@ impl World {
         let leaf = rng.random_range(0.06..0.12);
         let tex = rng.next_u64();
         self.statics.push(Solid::new(
-            Shape::Cylinder { cx: x, cy: y, r: rng.random_range(0.12..0.25), z0: z, z1: zc },
+            Shape::Cylinder {
+                cx: x,
+                cy: y,
+                r: rng.random_range(0.12..0.25),
+                z0: z,
+                z1: zc,
+            },
             Kind::Trunk,
             (0.12, 0.1),
             ([0.25, 0.2, 0.15], [0.2, 0.16, 0.12]),
             tex,
         ));
         self.statics.push(Solid::new(
-            Shape::Sphere { c: [x + rng.random_range(-0.5..0.5), y + rng.random_range(-0.5..0.5), zc], r },
+            Shape::Sphere {
+                c: [
+                    x + rng.random_range(-0.5..0.5),
+                    y + rng.random_range(-0.5..0.5),
+                    zc,
+                ],
+                r,
+            },
             Kind::Crown,
             (leaf, leaf * 0.8),
             ([0.10, 0.17 + leaf, 0.07], [0.08, 0.14, 0.06]),
@@ -745,8 +873,16 @@ impl World {
         // Sector i spans [angle_i, angle_{i+1}); the last wraps round.
         let mut i = k - 1;
         for j in 0..k {
-            let next = if j + 1 < k { self.approaches[j + 1].angle } else { self.approaches[0].angle + TAU };
-            let t = if theta < self.approaches[j].angle { theta + TAU } else { theta };
+            let next = if j + 1 < k {
+                self.approaches[j + 1].angle
+            } else {
+                self.approaches[0].angle + TAU
+            };
+            let t = if theta < self.approaches[j].angle {
+                theta + TAU
+            } else {
+                theta
+            };
             if t >= self.approaches[j].angle && t < next {
                 i = j;
                 break;
@@ -807,7 +943,11 @@ impl World {
     /// Material and paint at (x, y).
     pub fn surface(&self, x: f64, y: f64) -> Surface {
         let (d, corner) = self.curb_distance(x, y);
-        let mk = |mat, wear| Surface { mat, wear, d_curb: d };
+        let mk = |mat, wear| Surface {
+            mat,
+            wear,
+            d_curb: d,
+        };
         if d >= 0.0 {
             let c = &self.corners[corner];
             return if d < CURB_W {
@@ -845,7 +985,14 @@ impl World {
                 return mk(Material::Drain, r.age);
             }
         }
-        let crack_on = self.f_crack_mask.at(x, y) > 0.25 && self.f_crack.fbm(x, y, 3).abs() < 0.008;
+        // Zero contours of a fractal field, domain-warped at 10–20 cm so they run jagged.
+        let crack_on = self.f_crack_mask.at(x, y) > 0.25 && {
+            let (wx, wy) = (
+                self.f_wear.at(y * 1.7, x * 1.7),
+                self.f_wear.at(x * 1.9 + 40.0, y * 1.9),
+            );
+            self.f_crack.fbm(x + 0.12 * wx, y + 0.12 * wy, 3).abs() < 0.008
+        };
         if crack_on {
             return mk(Material::Crack, 0.0);
         }
@@ -885,7 +1032,12 @@ fn build_marks(a: &mut Approach, idx: usize, rng: &mut ChaCha8Rng) {
         format!("a{idx}-stop"),
         Paint::White,
         w,
-        rect(a.s_stop, a.s_stop + STOP_BAR_W, DOUBLE_YELLOW_OFFSET + 0.2, in_w),
+        rect(
+            a.s_stop,
+            a.s_stop + STOP_BAR_W,
+            DOUBLE_YELLOW_OFFSET + 0.2,
+            in_w,
+        ),
         vec![true; 4],
     ));
     if a.crosswalk {
@@ -930,7 +1082,11 @@ fn build_marks(a: &mut Approach, idx: usize, rng: &mut ChaCha8Rng) {
                     format!("{id}-head"),
                     Paint::White,
                     w,
-                    vec![[tip, lc], [tip + HEAD_L, lc + HEAD_HW], [tip + HEAD_L, lc - HEAD_HW]],
+                    vec![
+                        [tip, lc],
+                        [tip + HEAD_L, lc + HEAD_HW],
+                        [tip + HEAD_L, lc - HEAD_HW],
+                    ],
                     vec![true; 3],
                 ));
                 a.marks.push(Mark::new(
@@ -954,15 +1110,39 @@ fn build_marks(a: &mut Approach, idx: usize, rng: &mut ChaCha8Rng) {
                     rect(arm_s0, tip + TAIL, lc - SHAFT_HW, lc + SHAFT_HW),
                     vec![true, true, true, true],
                 ));
-                let (l0, l1) = if dir < 0.0 { (arm_end, lc - SHAFT_HW) } else { (lc + SHAFT_HW, arm_end) };
-                a.marks.push(Mark::new(format!("{id}-arm"), Paint::White, w, rect(arm_s0, arm_s1, l0, l1), vec![false; 4]));
+                let (l0, l1) = if dir < 0.0 {
+                    (arm_end, lc - SHAFT_HW)
+                } else {
+                    (lc + SHAFT_HW, arm_end)
+                };
+                a.marks.push(Mark::new(
+                    format!("{id}-arm"),
+                    Paint::White,
+                    w,
+                    rect(arm_s0, arm_s1, l0, l1),
+                    vec![false; 4],
+                ));
                 let sm = 0.5 * (arm_s0 + arm_s1);
                 let head = if dir < 0.0 {
-                    vec![[sm, arm_end - HEAD_L], [sm + HEAD_HW, arm_end], [sm - HEAD_HW, arm_end]]
+                    vec![
+                        [sm, arm_end - HEAD_L],
+                        [sm + HEAD_HW, arm_end],
+                        [sm - HEAD_HW, arm_end],
+                    ]
                 } else {
-                    vec![[sm, arm_end + HEAD_L], [sm - HEAD_HW, arm_end], [sm + HEAD_HW, arm_end]]
+                    vec![
+                        [sm, arm_end + HEAD_L],
+                        [sm - HEAD_HW, arm_end],
+                        [sm + HEAD_HW, arm_end],
+                    ]
                 };
-                a.marks.push(Mark::new(format!("{id}-head"), Paint::White, w, head, vec![true; 3]));
+                a.marks.push(Mark::new(
+                    format!("{id}-head"),
+                    Paint::White,
+                    w,
+                    head,
+                    vec![true; 3],
+                ));
             }
         }
     }
@@ -980,7 +1160,10 @@ mod tests {
                 let x = (i % 200) as f64 * 0.61 - 61.0;
                 let y = (i / 200) as f64 * 1.23 - 61.0;
                 let d = w.height(x, y) - w.base(x, y);
-                assert!((DETAIL_MIN..=DETAIL_MAX).contains(&d), "seed {seed} ({x},{y}): {d}");
+                assert!(
+                    (DETAIL_MIN..=DETAIL_MAX).contains(&d),
+                    "seed {seed} ({x},{y}): {d}"
+                );
             }
             // Walking out along the bisector of corner 0 crosses a curb: a 10–20 cm step.
             let a0 = w.approaches[0].angle + 0.5 * w.corners[0].gap;
@@ -1003,15 +1186,23 @@ mod tests {
         assert!(w.curb_distance(0.0, 0.0).0 < -2.0);
         let a = &w.approaches[0];
         let stop = &a.marks[0];
-        let c = stop.poly.iter().fold([0.0, 0.0], |acc, p| [acc[0] + p[0] / 4.0, acc[1] + p[1] / 4.0]);
+        let c = stop.poly.iter().fold([0.0, 0.0], |acc, p| {
+            [acc[0] + p[0] / 4.0, acc[1] + p[1] / 4.0]
+        });
         let (x, y) = a.point(c[0], c[1]);
         let s = w.surface(x, y);
-        assert!(matches!(s.mat, Material::PaintWhite | Material::Asphalt), "{s:?}");
+        assert!(
+            matches!(s.mat, Material::PaintWhite | Material::Asphalt),
+            "{s:?}"
+        );
         // Most of a stop bar is paint.
         let mut paint = 0;
         for i in 0..100 {
             let t = i as f64 / 100.0;
-            let (x, y) = a.point(c[0], stop.poly[0][1] + t * (stop.poly[2][1] - stop.poly[0][1]));
+            let (x, y) = a.point(
+                c[0],
+                stop.poly[0][1] + t * (stop.poly[2][1] - stop.poly[0][1]),
+            );
             paint += (w.surface(x, y).mat == Material::PaintWhite) as usize;
         }
         assert!(paint > 40, "{paint}");
