@@ -38,6 +38,28 @@ pub enum FrameSourceKind {
     Aravis,
 }
 
+impl FrameSourceKind {
+    /// The name used in the config file.
+    pub fn name(self) -> &'static str {
+        match self {
+            FrameSourceKind::File => "file",
+            FrameSourceKind::V4l2 => "v4l2",
+            FrameSourceKind::Aravis => "aravis",
+        }
+    }
+
+    /// Pixel formats (`pixel-format`) this source kind can convert to gray.
+    pub fn pixel_formats(self) -> &'static [&'static str] {
+        match self {
+            FrameSourceKind::File => &[],
+            FrameSourceKind::V4l2 => &["GREY", "Y16", "YUYV", "MJPG"],
+            FrameSourceKind::Aravis => &[
+                "Mono8", "Mono16", "BayerRG8", "BayerBG8", "BayerGR8", "BayerGB8",
+            ],
+        }
+    }
+}
+
 /// `[camera]`: intrinsics (a file, or the inline `[camera.intrinsics]` table) and frame source.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
@@ -60,6 +82,24 @@ pub struct CameraConfig {
     pub settle_frames: u32,
     /// Per-frame timeout, milliseconds.
     pub timeout_ms: u64,
+    /// Attempts per frame (first included) before a fault (absent device, timeout, short or
+    /// corrupt frame) becomes an error.
+    pub retry_attempts: u32,
+    /// Wait after the first failed attempt, milliseconds; doubled after each further one
+    /// (capped at 30 s).
+    pub retry_backoff_ms: u64,
+    /// Pixel format to request: v4l2 `GREY`, `Y16`, `YUYV`, `MJPG`; aravis `Mono8`, `Mono16`,
+    /// `BayerRG8`, `BayerBG8`, `BayerGR8`, `BayerGB8`. Unset: keep the device's current format
+    /// (it must be one of these).
+    pub pixel_format: Option<String>,
+    /// For `v4l2`: frame size `[width, height]` to request (unset: the device's current size).
+    pub resolution: Option<[u32; 2]>,
+    /// For `aravis`: sensor region `[x, y, width, height]` (unset: the camera's current one).
+    pub region: Option<[u32; 4]>,
+    /// For `aravis`: exposure time, microseconds (unset: leave the camera's setting, e.g. auto).
+    pub exposure_us: Option<f64>,
+    /// For `aravis`: analog gain, dB (unset: leave the camera's setting).
+    pub gain_db: Option<f64>,
 }
 
 impl Default for CameraConfig {
@@ -74,7 +114,80 @@ impl Default for CameraConfig {
             frame_interval_ms: 1000,
             settle_frames: 5,
             timeout_ms: 2000,
+            retry_attempts: 3,
+            retry_backoff_ms: 500,
+            pixel_format: None,
+            resolution: None,
+            region: None,
+            exposure_us: None,
+            gain_db: None,
         }
+    }
+}
+
+impl CameraConfig {
+    /// The frame-source keys: values in range and meaningful for the chosen source.
+    fn validate_source(&self, origin: &Path) -> Result<()> {
+        let kind = self.source.name();
+        let err = |msg: String| Err(Error::config(origin, format!("[camera] {msg}")));
+        if self.timeout_ms == 0 {
+            return err("timeout-ms must be at least 1".into());
+        }
+        if self.retry_attempts == 0 {
+            return err("retry-attempts must be at least 1".into());
+        }
+        if let Some(f) = &self.pixel_format {
+            let known = self.source.pixel_formats();
+            if !known.contains(&f.as_str()) {
+                return err(if known.is_empty() {
+                    format!("pixel-format is not used with source = \"{kind}\"")
+                } else {
+                    format!(
+                        "pixel-format = \"{f}\" is not one of {} (source = \"{kind}\")",
+                        known.join(", ")
+                    )
+                });
+            }
+        }
+        if self.resolution.is_some() && self.source != FrameSourceKind::V4l2 {
+            return err(format!(
+                "resolution is for source = \"v4l2\" (use region for aravis), not \"{kind}\""
+            ));
+        }
+        if let Some([w, h]) = self.resolution {
+            if w == 0 || h == 0 {
+                return err(format!("resolution = [{w}, {h}] must be positive"));
+            }
+        }
+        let aravis_only = [
+            ("region", self.region.is_some()),
+            ("exposure-us", self.exposure_us.is_some()),
+            ("gain-db", self.gain_db.is_some()),
+        ];
+        if let Some((key, _)) = aravis_only
+            .iter()
+            .find(|(_, set)| *set && self.source != FrameSourceKind::Aravis)
+        {
+            return err(format!("{key} is for source = \"aravis\", not \"{kind}\""));
+        }
+        if let Some([_, _, w, h]) = self.region {
+            if w == 0 || h == 0 {
+                return err(format!(
+                    "region width and height must be positive, got {w}x{h}"
+                ));
+            }
+        }
+        if let Some(e) = self.exposure_us {
+            if !(e > 0.0 && e.is_finite()) {
+                return err(format!("exposure-us = {e} must be > 0"));
+            }
+        }
+        if let Some(g) = self.gain_db {
+            if !g.is_finite() {
+                return err(format!("gain-db = {g} is not a number"));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -226,6 +339,10 @@ impl Config {
                 "[camera]: intrinsics-file and [camera.intrinsics] are both set; keep one",
             ));
         }
+        if let Some(cam) = &c.intrinsics {
+            cam.validate()
+                .map_err(|m| Error::config(origin, format!("[camera.intrinsics] {m}")))?;
+        }
         if c.source == FrameSourceKind::File && c.frames.is_none() {
             return Err(Error::config(
                 origin,
@@ -247,6 +364,7 @@ impl Config {
                 "[camera] frame-count must be at least 1",
             ));
         }
+        c.validate_source(origin)?;
         let g = &self.gps;
         match g.source {
             GpsSourceKind::NmeaFile if g.path.is_none() => {
@@ -355,6 +473,69 @@ fallback-wgs84 = [42.0, -83.0]
         // Unknown key inside the inline camera table is rejected too.
         let bad = t.replace("k1 = -0.1", "k9 = -0.1");
         assert!(Config::parse(&bad, Path::new("x.toml")).is_err());
+        // Unusable values are a configuration error naming the parameter.
+        let bad = t.replace("fx = 300.0", "fx = -300.0");
+        let c = Config::parse(&bad, Path::new("x.toml")).unwrap();
+        let e = c.validate(Path::new("x.toml")).unwrap_err();
+        assert_eq!(e.exit_code(), crate::error::EXIT_CONFIG);
+        assert!(
+            e.to_string().contains("[camera.intrinsics] fx = -300"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn camera_source_keys_parse_and_validate() {
+        let base = "[camera]\nintrinsics-file = \"c.yaml\"\n";
+        let gps = "[gps]\nsource = \"fixed\"\nfallback-wgs84 = [42.0, -83.0]\n";
+        let ok = |extra: &str| {
+            let t = format!("{base}{extra}{gps}");
+            let c = Config::parse(&t, Path::new("x.toml")).unwrap();
+            c.validate(Path::new("x.toml")).map(|_| c)
+        };
+        let c = ok(
+            "source = \"aravis\"\ndevice = \"Basler-123\"\npixel-format = \"BayerRG8\"\n\
+                    region = [8, 4, 640, 480]\nexposure-us = 2500.0\ngain-db = 6.0\n\
+                    retry-attempts = 5\nretry-backoff-ms = 200\n",
+        )
+        .unwrap();
+        assert_eq!(c.camera.region, Some([8, 4, 640, 480]));
+        assert_eq!(c.camera.retry_attempts, 5);
+        let c = ok(
+            "source = \"v4l2\"\ndevice = \"/dev/video0\"\npixel-format = \"YUYV\"\n\
+                    resolution = [1280, 720]\n",
+        )
+        .unwrap();
+        assert_eq!(c.camera.resolution, Some([1280, 720]));
+
+        // Each mistake is a config error (exit 78) naming the key.
+        for (extra, key) in [
+            (
+                "source = \"v4l2\"\ndevice = \"/dev/video0\"\npixel-format = \"Mono8\"\n",
+                "pixel-format = \"Mono8\"",
+            ),
+            (
+                "source = \"aravis\"\npixel-format = \"YUYV\"\n",
+                "pixel-format = \"YUYV\"",
+            ),
+            (
+                "source = \"v4l2\"\ndevice = \"/dev/video0\"\nregion = [0, 0, 8, 8]\n",
+                "region",
+            ),
+            (
+                "source = \"aravis\"\nresolution = [640, 480]\n",
+                "resolution",
+            ),
+            ("source = \"aravis\"\nexposure-us = -1.0\n", "exposure-us"),
+            ("source = \"aravis\"\nregion = [0, 0, 0, 8]\n", "region"),
+            ("frames = \"f\"\nretry-attempts = 0\n", "retry-attempts"),
+            ("frames = \"f\"\ntimeout-ms = 0\n", "timeout-ms"),
+            ("frames = \"f\"\ngain-db = 3.0\n", "gain-db"),
+        ] {
+            let e = ok(extra).unwrap_err();
+            assert_eq!(e.exit_code(), crate::error::EXIT_CONFIG);
+            assert!(e.to_string().contains(key), "{extra}: {e}");
+        }
     }
 
     #[test]

@@ -255,6 +255,22 @@ fn errors_name_file_key_and_line() {
     );
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
 
+    // A real OpenCV XML file that is not an intrinsics file (the omnidir calibration input).
+    let calib_data = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../shared/data/omnidir/omni_calib_data.xml"
+    );
+    let out = project(
+        Path::new(calib_data),
+        &data("omni_calib.points_cam.csv"),
+        None,
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("omni_calib_data.xml: missing key camera_matrix"),
+        "{err}"
+    );
+
     let pts = dir.path().join("pts.csv");
     std::fs::write(&pts, "x,y,z\n1,2,3\n1,2,zz\n").unwrap();
     let out = project(&data("omni_calib.yaml"), &pts, None);

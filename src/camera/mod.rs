@@ -329,6 +329,48 @@ mod tests {
     }
 
     #[test]
+    fn mei_max_theta_stops_at_the_distortion_fold() {
+        // ξ = 0, k1 = −0.3: r(1 + k1 r²) peaks at r² = 1/(3·0.3), i.e. θ = atan(1.0541) = 46.49°.
+        let mut cam = Mei::pinhole(1000, 1000, 400.0, 400.0, 500.0, 500.0);
+        cam.k1 = -0.3;
+        let fold = (1.0f64 / 0.9).sqrt().atan();
+        assert!(
+            (cam.max_theta() - fold).abs() < 1e-12,
+            "{}",
+            cam.max_theta()
+        );
+        let ray = |deg: f64| Vector3::new(deg.to_radians().sin(), 0.0, deg.to_radians().cos());
+        assert!(cam.project(&ray(46.0)).is_ok());
+        assert_eq!(cam.project(&ray(47.0)), Err(Reject::DistortionFold));
+        // The fold of KITTI-360's lens (k1, k2 > 0) never happens: the mirror limit rules.
+        let k = kitti();
+        assert!((k.max_theta() - (-1.0 / k.xi).acos()).abs() < 1e-15);
+    }
+
+    #[test]
+    fn equidistant_near_backward_axis_is_not_the_forward_axis() {
+        let cam = Equidistant {
+            width: 1000,
+            height: 1000,
+            fx: 300.0,
+            fy: 300.0,
+            cx: 500.0,
+            cy: 500.0,
+            alpha: 0.0,
+            k1: 0.0,
+            k2: 0.0,
+            k3: 0.0,
+            k4: 0.0,
+            fov_deg: None,
+            cache: Default::default(),
+        };
+        // θ = π − 1e-14 at azimuth 0: the pixel lies at radius fx·θ, not at the centre.
+        let px = cam.project(&Vector3::new(1e-14, 0.0, -1.0)).unwrap();
+        assert!((px.x - (500.0 + 300.0 * (std::f64::consts::PI - 1e-14))).abs() < 1e-9);
+        assert!(cam.project(&Vector3::new(0.0, 0.0, -1.0)).is_err());
+    }
+
+    #[test]
     fn pinhole_is_mei_with_zero_xi() {
         let cam = Mei::pinhole(640, 480, 500.0, 500.0, 320.0, 240.0);
         let px = cam.project(&Vector3::new(1.0, -0.5, 2.0)).unwrap();

@@ -9,8 +9,8 @@
 
 use crate::camera::{load_camera, CameraModel};
 use crate::error::{Error, Result};
-use crate::pose::CamFromMap;
-use nalgebra::{Rotation3, Vector3};
+use crate::posefile::read_pose;
+use nalgebra::Vector3;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -33,7 +33,13 @@ pub struct Args {
 /// Run `project`.
 pub fn run(a: Args) -> Result<()> {
     let cam = load_camera(&a.camera)?;
-    let pose = a.pose.as_deref().map(read_pose).transpose()?;
+    // Pose file (contracts §4) or a simulator truth.json: only the rotation and translation are used.
+    let pose = a
+        .pose
+        .as_deref()
+        .map(read_pose)
+        .transpose()?
+        .map(|p| p.pose);
     let text = std::fs::read_to_string(&a.points).map_err(|e| Error::io(&a.points, e))?;
     let points = parse_points(&text, &a.points)?;
     let mut out = String::with_capacity(points.len() * 40);
@@ -104,57 +110,6 @@ pub fn parse_points(text: &str, origin: &Path) -> Result<Vec<Vector3<f64>>> {
     Ok(pts)
 }
 
-/// Read `rotation_cam_from_map` (row-major 3×3) and `translation_cam_from_map` from a pose JSON
-/// (contracts §4) or a simulator `truth.json`. Other keys are ignored.
-pub fn read_pose(path: &Path) -> Result<CamFromMap> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    parse_pose(&text, path)
-}
-
-/// Largest accepted deviation of the file's rotation from orthonormality, `max|RᵀR − I|`. Files
-/// carry ~16 significant digits; anything much worse is not a rotation.
-const ROTATION_TOLERANCE: f64 = 1e-6;
-/// Convergence threshold (radians) and iteration cap of the projection onto SO(3).
-const SO3_PROJECTION_EPS: f64 = 1e-15;
-const SO3_PROJECTION_ITER: usize = 100;
-
-/// Parse the pose keys of [`read_pose`] from text.
-pub fn parse_pose(text: &str, origin: &Path) -> Result<CamFromMap> {
-    #[derive(serde::Deserialize)]
-    struct Keys {
-        rotation_cam_from_map: [[f64; 3]; 3],
-        translation_cam_from_map: [f64; 3],
-    }
-    let k: Keys = serde_json::from_str(text).map_err(|e| Error::input(origin, e.to_string()))?;
-    let r = nalgebra::Matrix3::from_fn(|i, j| k.rotation_cam_from_map[i][j]);
-    let orth = (r.transpose() * r - nalgebra::Matrix3::identity())
-        .abs()
-        .max();
-    let det = r.determinant();
-    if !(orth <= ROTATION_TOLERANCE) || !(det > 0.0) {
-        return Err(Error::input(
-            origin,
-            format!(
-                "rotation_cam_from_map is not a rotation (max|RᵀR−I| = {orth:.2e}, det = {det:.4})"
-            ),
-        ));
-    }
-    if k.translation_cam_from_map.iter().any(|v| !v.is_finite()) {
-        return Err(Error::input(origin, "translation_cam_from_map: not finite"));
-    }
-    // Project onto SO(3) starting from the file's own matrix: it is already orthonormal to the
-    // digits given, so this leaves it as is instead of converging from the identity to ~1e-12
-    // (which moves a map point 40 m away by 1e-7 px).
-    let rotation = Rotation3::from_matrix_eps(
-        &r,
-        SO3_PROJECTION_EPS,
-        SO3_PROJECTION_ITER,
-        Rotation3::from_matrix_unchecked(r),
-    );
-    let [tx, ty, tz] = k.translation_cam_from_map;
-    Ok(CamFromMap::new(rotation, Vector3::new(tx, ty, tz)))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -177,35 +132,5 @@ mod tests {
         assert_eq!(e, "pts.csv: line 1: expected x,y,z, found 2 field(s)");
         // A header is only allowed first.
         assert!(parse_points("1,2,3\nx,y,z\n", p).is_err());
-    }
-
-    #[test]
-    fn pose_keys_and_rotation_check() {
-        let p = Path::new("pose.json");
-        let ok = r#"{"crs":"LOCAL","rotation_cam_from_map":[[0,1,0],[1,0,0],[0,0,-1]],
-                    "translation_cam_from_map":[1,2,3]}"#;
-        let t = parse_pose(ok, p).unwrap();
-        let x = t.rotation * Vector3::new(1.0, 0.0, 0.0) + t.translation;
-        assert!((x - Vector3::new(1.0, 3.0, 3.0)).norm() < 1e-15);
-        let bad = ok.replace("[0,0,-1]", "[0,0,-2]");
-        let e = parse_pose(&bad, p).unwrap_err().to_string();
-        assert!(
-            e.starts_with("pose.json: rotation_cam_from_map is not a rotation"),
-            "{e}"
-        );
-        let e = parse_pose(r#"{"rotation_cam_from_map":[[1,0,0],[0,1,0],[0,0,1]]}"#, p)
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("translation_cam_from_map"), "{e}");
-        // A rotation given to 17 digits is used as given, not re-projected to ~1e-12.
-        let c = (0.3f64).cos();
-        let s = (0.3f64).sin();
-        let rot = format!(
-            r#"{{"rotation_cam_from_map":[[{c},{},0],[{s},{c},0],[0,0,1]],"translation_cam_from_map":[0,0,0]}}"#,
-            -s
-        );
-        let t = parse_pose(&rot, p).unwrap();
-        let m = t.rotation.matrix();
-        assert_eq!((m[(0, 0)], m[(1, 0)], m[(0, 1)]), (c, s, -s));
     }
 }

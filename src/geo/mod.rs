@@ -93,6 +93,24 @@ pub fn utm_epsg_for(lat: f64, lon: f64) -> u32 {
     base + utm_zone_for(lat, lon)
 }
 
+/// Longitude of the central meridian of UTM zone `zone` (1..=60), degrees.
+pub fn central_meridian(zone: u32) -> f64 {
+    -183.0 + ZONE_WIDTH_DEG * f64::from(zone)
+}
+
+/// Mean Earth radius (IUGG), metres.
+const MEAN_EARTH_RADIUS_M: f64 = 6_371_008.8;
+
+/// Great-circle distance between two WGS84 positions on the mean sphere, metres (haversine;
+/// within 0.5 % of the ellipsoidal distance). For coarse "how far away" messages only.
+pub fn great_circle_m(lat1: f64, lon1: f64, lat2: f64, lon2: f64) -> f64 {
+    let (p1, p2) = (lat1.to_radians(), lat2.to_radians());
+    let dp = p2 - p1;
+    let dl = (lon2 - lon1).to_radians();
+    let h = (dp / 2.0).sin().powi(2) + p1.cos() * p2.cos() * (dl / 2.0).sin().powi(2);
+    2.0 * MEAN_EARTH_RADIUS_M * h.sqrt().min(1.0).asin()
+}
+
 /// One point handed to `proj4rs::transform` (it wants a type implementing its `Transform`).
 struct Pt(f64, f64);
 
@@ -210,6 +228,18 @@ mod tests {
         assert!(map_to_wgs84(Crs::Local, 0.0, 0.0).is_err());
         assert!(wgs84_to_map(Crs::Epsg(32617), f64::NAN, 0.0).is_err());
         assert!(wgs84_to_map(Crs::Epsg(32617), 91.0, 0.0).is_err());
+    }
+
+    #[test]
+    fn great_circle_against_pyproj_geod() {
+        // pyproj.Geod(ellps="WGS84").inv: 6 438 731.6 m and 14 102 659.7 m; the sphere is within
+        // 0.5 % of the ellipsoid.
+        let d = great_circle_m(45.146322013640194, 13.728070378524817, 45.0, 100.0);
+        assert!((d / 6_438_731.6 - 1.0).abs() < 5e-3, "{d}");
+        let d = great_circle_m(45.146322013640194, 13.728070378524817, -30.0, -100.0);
+        assert!((d / 14_102_659.7 - 1.0).abs() < 5e-3, "{d}");
+        assert_eq!(central_meridian(31), 3.0);
+        assert_eq!(central_meridian(1), -177.0);
     }
 
     #[test]

@@ -255,8 +255,17 @@ mod tests {
         v
     }
 
-    #[test]
-    fn coarse_stage_finds_pose_without_heading() {
+    struct Scene {
+        cam: Mei,
+        img: Vec<u8>,
+        sat: Raster<[u8; 3]>,
+        heights: Raster<f32>,
+        yaw: f64,
+        h: f64,
+        centre: [f64; 2],
+    }
+
+    fn scene() -> Scene {
         let cam = Mei {
             width: 800,
             height: 800,
@@ -308,6 +317,29 @@ mod tests {
                     [(g * 200.0) as u8, (g * 180.0) as u8, (g * 160.0) as u8];
             }
         }
+        let heights = Raster::filled(GeoGrid { res: 0.1, ..grid }, 0.0f32, None);
+        Scene {
+            cam,
+            img,
+            sat,
+            heights,
+            yaw,
+            h,
+            centre,
+        }
+    }
+
+    #[test]
+    fn coarse_stage_finds_pose_without_heading() {
+        let Scene {
+            cam,
+            img,
+            sat,
+            yaw,
+            h,
+            centre,
+            ..
+        } = scene();
         let p = CoarseParams {
             height_range_m: (6.0, 12.0),
             ..CoarseParams::default()
@@ -323,4 +355,333 @@ mod tests {
             "{best:?}"
         );
     }
+
+    #[test]
+    fn initialize_reaches_the_refinement_basin() {
+        let sc = scene();
+        let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(1);
+        let coarse = CoarseParams {
+            height_range_m: (6.0, 12.0),
+            ..CoarseParams::default()
+        };
+        let r = initialize(
+            &sc.cam,
+            &sc.img,
+            &sc.sat,
+            &sc.heights,
+            (0.0, 0.0),
+            12.0,
+            &coarse,
+            &FineParams::default(),
+            &mut rng,
+        )
+        .unwrap();
+        let c = r.pose.center();
+        let (yaw, _, _) = r.pose.yaw_pitch_roll();
+        let dyaw = ((yaw - sc.yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI)
+            .abs();
+        let dxy = ((c.x - sc.centre[0]).powi(2) + (c.y - sc.centre[1]).powi(2)).sqrt();
+        assert!(
+            dxy < 0.3 && (c.z - sc.h).abs() < 0.3 && dyaw.to_degrees() < 1.0,
+            "{r:?}"
+        );
+    }
+}
+
+/// Settings of the fine stage (local patch matching → PnP).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FineParams {
+    /// Anchor spacing on the ground, metres.
+    pub anchor_spacing_m: f64,
+    /// Largest off-nadir angle of an anchor, degrees (oblique ground is smeared in the fisheye).
+    pub max_off_nadir_deg: f64,
+    /// Largest anchor distance from the nadir point, metres.
+    pub max_radius_m: f64,
+    /// Per iteration: (patch half-size m, search half-size m, resolution m/px, PnP threshold px).
+    pub iterations: Vec<(f64, f64, f64, f64)>,
+    /// Minimum correlation of an accepted patch match.
+    pub min_score: f64,
+    /// PnP / RANSAC settings (the threshold is overridden per iteration).
+    pub pnp: super::pnp::PnpParams,
+}
+
+impl Default for FineParams {
+    fn default() -> Self {
+        FineParams {
+            anchor_spacing_m: 1.5,
+            max_off_nadir_deg: 65.0,
+            max_radius_m: 25.0,
+            iterations: vec![(3.0, 2.0, 0.2, 8.0), (2.0, 0.6, 0.1, 4.0)],
+            min_score: 0.35,
+            pnp: super::pnp::PnpParams::default(),
+        }
+    }
+}
+
+/// Bilinear height of the LiDAR height layer at (x, y); `None` on no-data.
+pub fn height_at(hl: &Raster<f32>, x: f64, y: f64) -> Option<f64> {
+    let (px, py) = hl.grid.to_pixel(x, y);
+    if !(px >= 0.0 && py >= 0.0) {
+        return None;
+    }
+    let (c0, r0) = (px as usize, py as usize);
+    let (fx, fy) = (px - c0 as f64, py - r0 as f64);
+    let mut acc = 0.0;
+    for (dc, dr, w) in [
+        (0, 0, (1.0 - fx) * (1.0 - fy)),
+        (1, 0, fx * (1.0 - fy)),
+        (0, 1, (1.0 - fx) * fy),
+        (1, 1, fx * fy),
+    ] {
+        let v = hl.get(c0 + dc, r0 + dr)?;
+        if !v.is_finite() || hl.nodata.is_some_and(|nd| v == nd) {
+            return None;
+        }
+        acc += w * v as f64;
+    }
+    Some(acc)
+}
+
+/// One matched anchor: where the fisheye sees it, and where the satellite says it is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AnchorMatch {
+    /// Correspondence for PnP.
+    pub corr: super::pnp::Correspondence,
+    /// Patch correlation at the best shift.
+    pub score: f64,
+}
+
+/// Match ground patches seen through `pose` against the satellite; returns correspondences.
+#[allow(clippy::too_many_arguments)]
+pub fn match_anchors(
+    cam: &dyn CameraModel,
+    image: &[u8],
+    sat: &Raster<[u8; 3]>,
+    heights: &Raster<f32>,
+    pose: &crate::pose::CamFromMap,
+    (patch_half, search_half, res): (f64, f64, f64),
+    p: &FineParams,
+) -> Vec<AnchorMatch> {
+    let c = pose.center();
+    let z_ground = height_at(heights, c.x, c.y).unwrap_or(c.z - 8.0);
+    let cam_h = (c.z - z_ground).max(1.0);
+    let radius = (cam_h * p.max_off_nadir_deg.to_radians().tan()).min(p.max_radius_m);
+    let n = (radius / p.anchor_spacing_m).floor() as i64;
+    let mut anchors = Vec::new();
+    for j in -n..=n {
+        for i in -n..=n {
+            let (dx, dy) = (i as f64 * p.anchor_spacing_m, j as f64 * p.anchor_spacing_m);
+            if dx * dx + dy * dy <= radius * radius {
+                anchors.push((c.x + dx, c.y + dy));
+            }
+        }
+    }
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
+    let ph = (patch_half / res).round() as i64;
+    let sh = (search_half / res).round() as i64;
+    let side = (2 * ph + 1) as usize;
+    anchors
+        .par_iter()
+        .filter_map(|&(ax, ay)| {
+            let az = height_at(heights, ax, ay)?;
+            // Fisheye patch resampled onto the ground around the anchor, through the current pose.
+            let mut patch = GrayF32::new(side, side);
+            let mut valid = vec![false; side * side];
+            let mut n_valid = 0;
+            for r in 0..side {
+                for col in 0..side {
+                    let (x, y) = (
+                        ax + (col as i64 - ph) as f64 * res,
+                        ay - (r as i64 - ph) as f64 * res,
+                    );
+                    let z = height_at(heights, x, y).unwrap_or(az);
+                    let pc = pose.transform(&nalgebra::Point3::new(x, y, z)).coords;
+                    if let Ok(px) = cam.project_visible(&pc) {
+                        if let Some(v) = sample_gray(image, w, h, px.x, px.y) {
+                            patch.data[r * side + col] = v;
+                            valid[r * side + col] = true;
+                            n_valid += 1;
+                        }
+                    }
+                }
+            }
+            if n_valid < side * side * 9 / 10 {
+                return None;
+            }
+            let pf = orientation_field(&patch, Some(&valid));
+            let (sg, sv) = satellite_gray(sat, ax, ay, patch_half + search_half, res);
+            let sf = orientation_field(&sg, Some(&sv));
+            let (score, sx, sy) = best_shift(&pf, &sf, ph, sh)?;
+            if score < p.min_score {
+                return None;
+            }
+            // The fisheye shows at the anchor's pixel the world point shifted by (sx, −sy)·res.
+            let (wx, wy) = (ax + sx * res, ay - sy * res);
+            let wz = height_at(heights, wx, wy).unwrap_or(az);
+            let pixel = cam
+                .project_visible(&pose.transform(&nalgebra::Point3::new(ax, ay, az)).coords)
+                .ok()?;
+            Some(AnchorMatch {
+                corr: super::pnp::Correspondence {
+                    pixel,
+                    world: nalgebra::Point3::new(wx, wy, wz),
+                },
+                score,
+            })
+        })
+        .collect()
+}
+
+/// Best shift of `patch` (half-size `ph`) inside `search` (half-size `ph + sh`) by normalised
+/// complex correlation, with a sub-pixel parabola fit; `None` if the peak is flat or on the edge.
+fn best_shift(patch: &Field, search: &Field, ph: i64, sh: i64) -> Option<(f64, f64, f64)> {
+    let side = (2 * ph + 1) as usize;
+    let sw = search.width;
+    let pn: f64 = patch.data.iter().map(|z| z.norm_sqr() as f64).sum();
+    if pn <= 0.0 {
+        return None;
+    }
+    let span = (2 * sh + 1) as usize;
+    let mut scores = vec![f64::NEG_INFINITY; span * span];
+    for oy in 0..span {
+        for ox in 0..span {
+            let (mut num, mut e) = (0.0f64, 0.0f64);
+            for r in 0..side {
+                let srow = &search.data[(oy + r) * sw + ox..(oy + r) * sw + ox + side];
+                let prow = &patch.data[r * side..(r + 1) * side];
+                for (s, t) in srow.iter().zip(prow) {
+                    num += (s * t.conj()).re as f64;
+                    e += s.norm_sqr() as f64;
+                }
+            }
+            if e > 0.0 {
+                scores[oy * span + ox] = num / (e * pn).sqrt();
+            }
+        }
+    }
+    let (bi, &best) = scores
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))?;
+    let (bx, by) = (bi % span, bi / span);
+    if bx == 0 || by == 0 || bx + 1 == span || by + 1 == span {
+        return None; // on the edge: the true shift may lie outside the window
+    }
+    let fit = |m: f64, c0: f64, p: f64| {
+        let d = m - 2.0 * c0 + p;
+        if d < 0.0 {
+            (0.5 * (m - p) / d).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
+    };
+    let dx = fit(scores[bi - 1], best, scores[bi + 1]);
+    let dy = fit(scores[bi - span], best, scores[bi + span]);
+    Some((best, bx as f64 + dx - sh as f64, by as f64 + dy - sh as f64))
+}
+
+/// Result of [`initialize`].
+#[derive(Debug, Clone)]
+pub struct InitResult {
+    /// World→camera pose from PnP.
+    pub pose: crate::pose::CamFromMap,
+    /// The coarse candidate it grew from.
+    pub candidate: Candidate,
+    /// Correspondences given to the last PnP.
+    pub matches: usize,
+    /// PnP inliers of the last iteration.
+    pub inliers: usize,
+    /// PnP reprojection RMS of the last iteration, px.
+    pub rms_px: f64,
+    /// Candidates tried.
+    pub candidates_tried: usize,
+}
+
+/// Full initialization: coarse sweep around the prior, then per candidate local matching + PnP;
+/// the candidate with the most inliers wins. Errors name the stage and the numbers.
+#[allow(clippy::too_many_arguments)]
+pub fn initialize<R: rand::Rng>(
+    cam: &dyn CameraModel,
+    image: &[u8],
+    sat: &Raster<[u8; 3]>,
+    heights: &Raster<f32>,
+    prior_xy: (f64, f64),
+    search_radius_m: f64,
+    coarse: &CoarseParams,
+    fine: &FineParams,
+    rng: &mut R,
+) -> crate::Result<InitResult> {
+    let expected = (cam.width() as usize) * (cam.height() as usize);
+    if image.len() != expected {
+        return Err(crate::Error::stage(
+            "init",
+            format!(
+                "image has {} pixels, camera expects {}×{}",
+                image.len(),
+                cam.width(),
+                cam.height()
+            ),
+        ));
+    }
+    let cands = coarse_candidates(cam, image, sat, prior_xy, search_radius_m, coarse);
+    if cands.is_empty() {
+        return Err(crate::Error::stage(
+            "match",
+            "no hypothesis scored (featureless view or satellite?)",
+        ));
+    }
+    let mut best: Option<InitResult> = None;
+    let mut last_err = String::new();
+    for cand in &cands {
+        let (cx, cy) = (prior_xy.0 + cand.offset[0], prior_xy.1 + cand.offset[1]);
+        let zg = height_at(heights, cx, cy).unwrap_or(0.0);
+        let mut pose = crate::pose::CamFromMap::from_center_ypr(
+            &nalgebra::Point3::new(cx, cy, zg + cand.height),
+            cand.yaw,
+            0.0,
+            0.0,
+        );
+        let mut outcome = None;
+        for &(ph, sh, res, thr) in &fine.iterations {
+            let m = match_anchors(cam, image, sat, heights, &pose, (ph, sh, res), fine);
+            let corr: Vec<_> = m.iter().map(|a| a.corr).collect();
+            let params = super::pnp::PnpParams {
+                threshold_px: thr,
+                ..fine.pnp
+            };
+            match super::pnp::solve_pnp_ransac(cam, &corr, &params, rng) {
+                Ok(r) => {
+                    pose = r.pose;
+                    outcome = Some((corr.len(), r.inliers.len(), r.rms_px));
+                }
+                Err(e) => {
+                    last_err = format!("{e} ({} patch matches)", corr.len());
+                    outcome = None;
+                    break;
+                }
+            }
+        }
+        if let Some((matches, inliers, rms_px)) = outcome {
+            if best.as_ref().is_none_or(|b| inliers > b.inliers) {
+                best = Some(InitResult {
+                    pose,
+                    candidate: *cand,
+                    matches,
+                    inliers,
+                    rms_px,
+                    candidates_tried: cands.len(),
+                });
+            }
+        }
+    }
+    best.ok_or_else(|| {
+        crate::Error::stage(
+            "pnp",
+            format!(
+                "none of {} candidates gave a pose; last: {last_err}",
+                cands.len()
+            ),
+        )
+    })
 }

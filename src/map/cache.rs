@@ -33,6 +33,11 @@ pub const CONTROL_POINTS_FILE: &str = "control_points.csv";
 pub const FORMAT: &str = "infraloc.tile.v1";
 /// Header line of `control_points.csv`.
 pub const CONTROL_POINTS_HEADER: &str = "id,x,y,z";
+/// How far (degrees of longitude) from a tile zone's central meridian a position is still placed in
+/// that zone's plane for [`find_tile`]: the range `tests/geo_reference.rs` checks against pyproj.
+/// Farther positions get a great-circle distance to the tile centre instead, because transverse
+/// Mercator far outside its zone returns finite but meaningless coordinates.
+const PLANAR_LON_RANGE_DEG: f64 = 9.0;
 /// Tolerance when comparing a layer's GeoTIFF georeference with the manifest, metres. Far below
 /// any pixel size, far above f64 round-off of UTM coordinates (~1e-9 m).
 const GRID_TOL_M: f64 = 1e-6;
@@ -576,7 +581,8 @@ fn rect_distance(x: f64, y: f64, e: (f64, f64, f64, f64)) -> (f64, f64) {
 /// Reads manifests only. Hidden entries (temporaries of [`write_tile`]) are skipped; any other
 /// directory must be a tile. If several tiles cover the position the one where it lies deepest
 /// inside wins (ties: smallest id). If none does, the error names the nearest tile and its
-/// distance in metres.
+/// distance in metres: planar in the tile's CRS, or, for positions more than 9° of longitude from
+/// the tile's zone, the great-circle distance to the tile centre.
 pub fn find_tile(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<TileRef> {
     let entries = fs::read_dir(cache_dir).map_err(|e| Error::io(cache_dir, e))?;
     let mut dirs: Vec<PathBuf> = Vec::new();
@@ -595,22 +601,36 @@ pub fn find_tile(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<
     for dir in dirs {
         let m = read_manifest(&dir)?;
         let crs = manifest_crs(&m, &dir.join(MANIFEST))?;
-        let (x, y) = geo::wgs84_to_map(crs, lat, lon)
-            .map_err(|e| Error::input(dir.join(MANIFEST), e.to_string()))?;
         let extent = coverage(&m);
-        let (dist, inside) = rect_distance(x, y, extent);
-        if inside >= margin_m && best.as_ref().is_none_or(|(d, _)| inside > *d) {
-            best = Some((
-                inside,
-                TileRef {
-                    id: m.id.clone(),
-                    dir: dir.clone(),
-                    crs,
-                    position: (x, y),
-                    extent,
-                },
-            ));
-        }
+        let (zone, _) =
+            geo::check_crs(crs).map_err(|e| Error::input(dir.join(MANIFEST), e.to_string()))?;
+        let dlon = (lon - geo::central_meridian(zone) + 180.0).rem_euclid(360.0) - 180.0;
+        let (dist, inside) = if dlon.abs() <= PLANAR_LON_RANGE_DEG {
+            let (x, y) = geo::wgs84_to_map(crs, lat, lon)
+                .map_err(|e| Error::input(dir.join(MANIFEST), e.to_string()))?;
+            let (dist, inside) = rect_distance(x, y, extent);
+            if inside >= margin_m && best.as_ref().is_none_or(|(d, _)| inside > *d) {
+                best = Some((
+                    inside,
+                    TileRef {
+                        id: m.id.clone(),
+                        dir: dir.clone(),
+                        crs,
+                        position: (x, y),
+                        extent,
+                    },
+                ));
+            }
+            (dist, inside)
+        } else {
+            let (clat, clon) = geo::map_to_wgs84(
+                crs,
+                0.5 * (extent.0 + extent.2),
+                0.5 * (extent.1 + extent.3),
+            )
+            .map_err(|e| Error::input(dir.join(MANIFEST), e.to_string()))?;
+            (geo::great_circle_m(lat, lon, clat, clon), f64::NEG_INFINITY)
+        };
         if nearest.as_ref().is_none_or(|(d, _, _)| dist < *d) {
             nearest = Some((dist, m.id.clone(), inside));
         }
@@ -621,7 +641,7 @@ pub fn find_tile(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<
     let where_ = format!("lat {lat:.7}, lon {lon:.7}");
     Err(match nearest {
         None => Error::input(cache_dir, format!("no tiles in the cache (looking for {where_})")),
-        Some((dist, id, inside)) if dist == 0.0 => Error::input(
+        Some((0.0, id, inside)) => Error::input(
             cache_dir,
             format!(
                 "no tile covers {where_} with a {margin_m} m margin; nearest tile {id:?} has it only {inside:.1} m inside its edge"

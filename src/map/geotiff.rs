@@ -205,7 +205,7 @@ pub fn write_f32(path: &Path, r: &Raster<f32>) -> Result<()> {
 /// Decode any supported TIFF (u8 gray, u8 RGB, f32 gray), with its georeference if tagged.
 pub fn read_image(path: &Path) -> Result<Image> {
     let file = File::open(path).map_err(|e| Error::io(path, e))?;
-    let rerr = tiff_err(path, "not a readable TIFF");
+    let rerr = tiff_err(path, "not a readable TIFF (truncated or corrupt)");
     let mut limits = Limits::default();
     limits.decoding_buffer_size = MAX_DECODE_BYTES;
     let mut dec = Decoder::new(BufReader::new(file))

@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 
 pub mod cache;
 pub mod geotiff;
+pub mod import;
 
 /// A coordinate reference system of map data.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -178,7 +179,8 @@ pub struct GroundPoint {
 ///
 /// Cells whose reflectivity is the reflectivity no-data value, or whose height is NaN or the height
 /// no-data value, are skipped. Order is deterministic: row-major from the north-west (rows north →
-/// south, columns west → east), i.e. the raster order.
+/// south, columns west → east), i.e. the raster order. A tile whose reflectivity and height grids
+/// differ yields no points ([`cache::write_tile`] and [`cache::load_tile`] refuse such tiles).
 pub fn ground_points(tile: &Tile, center_xy: (f64, f64), radius_m: f64) -> Vec<GroundPoint> {
     let refl = &tile.reflectivity;
     let hgt = &tile.height;
