@@ -1,12 +1,163 @@
-//! `infraloc simulate` (placeholder: implemented by the foundation work in progress).
+//! `infraloc simulate`: generate a scene in memory ([`crate::sim`]) and write the scene directory
+//! of contracts §5.
 
+use crate::config::{Config, GpsSourceKind};
 use crate::error::{Error, Result};
+use crate::map::cache::{write_tile_with, Provenance};
+use crate::sim::{self, Difficulty, Lens, Preset, Scene, Settings};
+use std::fs;
+use std::path::{Path, PathBuf};
+
+/// Image preset.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum PresetArg {
+    /// 1024×1024, fast (tests).
+    Small,
+    /// 2448×2048 Sony IMX264 with a 185° lens.
+    #[value(name = "5mp")]
+    FiveMp,
+}
+
+/// Difficulty.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum DifficultyArg {
+    /// Level camera, good GPS, exact intrinsics, light traffic.
+    Easy,
+    /// Tilted camera, 5 m GPS, slightly wrong intrinsics, dense traffic.
+    Hard,
+}
+
+/// Lens model.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum LensArg {
+    /// Mei / OpenCV omnidir.
+    Mei,
+    /// Equidistant / OpenCV fisheye.
+    Equidistant,
+}
 
 /// Arguments of `simulate`.
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Output directory (created; existing files in it are overwritten).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Seed: the same seed and settings give byte-identical output.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Image preset.
+    #[arg(long, value_enum, default_value = "small")]
+    pub preset: PresetArg,
+    /// Difficulty.
+    #[arg(long, value_enum, default_value = "hard")]
+    pub difficulty: DifficultyArg,
+    /// Lens model of the simulated camera.
+    #[arg(long, value_enum, default_value = "mei")]
+    pub lens: LensArg,
+    /// Number of fisheye frames.
+    #[arg(long, default_value_t = 5)]
+    pub frames: u32,
+    /// Also write a side-by-side PNG (satellite | reflectivity | height | fisheye) here.
+    #[arg(long)]
+    pub montage: Option<PathBuf>,
+}
+
+impl Args {
+    /// The generator settings these arguments ask for.
+    pub fn settings(&self) -> Settings {
+        Settings {
+            seed: self.seed,
+            preset: match self.preset {
+                PresetArg::Small => Preset::Small,
+                PresetArg::FiveMp => Preset::FiveMp,
+            },
+            difficulty: match self.difficulty {
+                DifficultyArg::Easy => Difficulty::Easy,
+                DifficultyArg::Hard => Difficulty::Hard,
+            },
+            lens: match self.lens {
+                LensArg::Mei => Lens::Mei,
+                LensArg::Equidistant => Lens::Equidistant,
+            },
+            frames: self.frames,
+        }
+    }
+}
 
 /// Run `simulate`.
-pub fn run(_a: Args) -> Result<()> {
-    Err(Error::Invalid("simulate: not built yet".into()))
+pub fn run(a: Args) -> Result<()> {
+    let scene = sim::generate(&a.settings())?;
+    write_scene(&scene, &a.out)?;
+    if let Some(m) = &a.montage {
+        scene
+            .montage(512)
+            .save(m)
+            .map_err(|e| Error::Invalid(format!("{}: {e}", m.display())))?;
+    }
+    println!(
+        "simulate: wrote {} ({} frames, {} control points, tile {})",
+        a.out.display(),
+        scene.frames.len(),
+        scene.control_points.len(),
+        scene.tile.id
+    );
+    Ok(())
+}
+
+fn write(path: &Path, bytes: impl AsRef<[u8]>) -> Result<()> {
+    fs::write(path, bytes).map_err(|e| Error::io(path, e))
+}
+
+/// File name of frame `i`.
+pub fn frame_name(i: usize) -> String {
+    format!("{i:03}.png")
+}
+
+/// Write the scene directory (contracts §5) into `dir`.
+pub fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
+    let frames_dir = dir.join("frames");
+    fs::create_dir_all(&frames_dir).map_err(|e| Error::io(&frames_dir, e))?;
+    let (w, h) = scene.frame_size();
+    for (i, f) in scene.frames.iter().enumerate() {
+        let p = frames_dir.join(frame_name(i));
+        image::GrayImage::from_raw(w, h, f.clone())
+            .ok_or_else(|| Error::Invalid(format!("{}: frame buffer size", p.display())))?
+            .save(&p)
+            .map_err(|e| Error::Invalid(format!("{}: {e}", p.display())))?;
+    }
+    write(
+        &dir.join("camera.yaml"),
+        crate::camera::import::to_opencv_yaml(&scene.camera_given),
+    )?;
+    write(&dir.join("gps.nmea"), &scene.nmea)?;
+    let s = &scene.settings;
+    let provenance = Provenance {
+        sources: vec![format!(
+            "infraloc simulate --seed {} --preset {} --difficulty {} --lens {}",
+            s.seed,
+            serde_json::to_value(s.preset).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
+            serde_json::to_value(s.difficulty).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
+            serde_json::to_value(s.lens).ok().and_then(|v| v.as_str().map(String::from)).unwrap_or_default(),
+        )],
+        note: Some("simulated scene; heights orthometric (GGA altitude = height, geoid separation -34.5 m)".into()),
+        ..Provenance::default()
+    };
+    write_tile_with(&dir.join("tiles"), &scene.tile, &provenance)?;
+    let truth = serde_json::to_string_pretty(&scene.truth_json())
+        .map_err(|e| Error::Invalid(format!("truth.json: {e}")))?;
+    write(&dir.join("truth.json"), truth + "\n")?;
+    let mut cfg = Config::default();
+    cfg.camera.intrinsics_file = Some(PathBuf::from("camera.yaml"));
+    cfg.camera.frames = Some(PathBuf::from("frames"));
+    cfg.camera.frame_count = scene.frames.len() as u32;
+    cfg.gps.source = GpsSourceKind::NmeaFile;
+    cfg.gps.path = Some(PathBuf::from("gps.nmea"));
+    cfg.map.tiles = PathBuf::from("tiles");
+    let text = toml::to_string(&cfg).map_err(|e| Error::Invalid(format!("infraloc.toml: {e}")))?;
+    write(
+        &dir.join("infraloc.toml"),
+        format!(
+            "# Written by `infraloc simulate`: localizes this scene with no other flags.\n{text}"
+        ),
+    )
 }

@@ -1,1 +1,699 @@
-//! Scene simulator: seeded intersection world, LiDAR and satellite layers, fisheye frames, GPS.
+//! Scene simulator: a seeded intersection world, its LiDAR and satellite map layers, fisheye
+//! frames ray-cast from a true pose, a noisy GPS log and surveyed control points — everything
+//! `infraloc simulate` writes (contracts §5), generated in memory. Pure: no files, no clock.
+//!
+//! The three ground-seeing sensors share one world ([`world`]) but see it through different
+//! physics ([`appearance`]): that is the modality gap every accuracy number is measured across.
+//! See `docs/simulator.md`.
+
+pub mod appearance;
+pub mod gps;
+pub mod layers;
+pub mod noise;
+pub mod render;
+pub mod solids;
+pub mod world;
+
+use crate::camera::{Camera, CameraModel, Equidistant, Mei};
+use crate::error::{Error, Result};
+use crate::map::{ControlPoint, Crs, GeoGrid, Raster, Tile};
+use crate::pose::CamFromMap;
+use appearance::Appearance;
+use nalgebra::{Point3, Vector3};
+use noise::mix64;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use render::{Light, Sensor, View};
+use serde::{Deserialize, Serialize};
+use solids::Solid;
+use std::f64::consts::{PI, TAU};
+use world::World;
+
+/// Map CRS of simulated scenes: WGS84 / UTM 17N (Michigan, where the seed paper's data is from).
+pub const SIM_EPSG: u32 = 32617;
+/// Nominal site: UTM 17N coordinates near Ann Arbor, MI (42.28 N, 83.74 W).
+const SITE_UTM: [f64; 2] = [274_069.0, 4_684_501.0];
+/// The site is moved by up to this much per seed, metres.
+const SITE_JITTER: f64 = 3000.0;
+/// LiDAR tile side, metres.
+pub const TILE_SIZE_M: f64 = 120.0;
+/// Map resolution, metres per pixel.
+pub const MAP_RES: f64 = 0.1;
+/// Satellite tile margin beyond the LiDAR tile on each side, metres.
+const SAT_MARGIN_M: f64 = 1.0;
+/// Geoid separation reported by the receiver (EGM96 near Ann Arbor), metres.
+const GEOID_SEP: f64 = -34.5;
+/// Frame spacing of the simulated capture, seconds.
+const FRAME_DT: f64 = 1.0;
+/// Lens field of view, degrees.
+const LENS_FOV_DEG: f64 = 185.0;
+/// Mei mirror parameter of the simulated lens and the radial terms that make it match an
+/// equidistant 185° lens to < 1 px (least-squares fit over 0–92.5°).
+const MEI_XI: f64 = 1.2;
+/// Mei γ per equidistant focal length (γ ≈ f·(1+ξ), refined by the fit).
+const MEI_GAMMA_PER_F: f64 = 2.196_137;
+/// Mei k1 of the fit.
+const MEI_K1: f64 = -0.269_52;
+/// Mei k2 of the fit.
+const MEI_K2: f64 = 0.094_65;
+/// Largest angle of a control point from the optical axis, degrees (grazing points are useless).
+const CONTROL_MAX_THETA_DEG: f64 = 80.0;
+
+/// Image size and optics.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Preset {
+    /// 1024×1024, f ≈ 300 px: fast, for tests.
+    Small,
+    /// 2448×2048 Sony IMX264 (3.45 µm) with a Fujinon FE185C057HA-class 185° lens, f ≈ 540 px.
+    #[serde(rename = "5mp")]
+    FiveMp,
+}
+
+/// How hard the scene is for the localizer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Difficulty {
+    /// Level camera, good GPS (σ ≈ 2 m), exact intrinsics, light traffic, sunny.
+    Easy,
+    /// Roll/pitch ±3°, GPS σ ≈ 5 m, slightly wrong intrinsics, dense traffic, noisy sensor.
+    Hard,
+}
+
+/// Lens model of the simulated camera.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Lens {
+    /// Mei / OpenCV omnidir (what the product calibrates with).
+    Mei,
+    /// Equidistant / OpenCV fisheye (what the seed paper's simulator used).
+    Equidistant,
+}
+
+/// Generator settings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub struct Settings {
+    /// Master seed.
+    pub seed: u64,
+    /// Image preset.
+    pub preset: Preset,
+    /// Difficulty.
+    pub difficulty: Difficulty,
+    /// Lens model.
+    pub lens: Lens,
+    /// Number of frames.
+    pub frames: u32,
+}
+
+/// A control point with its true image position.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TruthPoint {
+    /// Identifier (`a<approach>-<marking>-<vertex>`).
+    pub id: String,
+    /// Map coordinates (CRS of the scene).
+    pub map: [f64; 3],
+    /// Pixel (u, v), OpenCV convention.
+    pub pixel: [f64; 2],
+}
+
+/// Acquisition details recorded in truth.json (what made this scene what it is).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Acquisition {
+    /// Camera sun azimuth/elevation (deg) and whether overcast.
+    pub camera_sun_az_el_deg: [f64; 2],
+    /// Camera sky is overcast (no direct sun).
+    pub camera_overcast: bool,
+    /// Satellite sun azimuth/elevation, degrees.
+    pub satellite_sun_az_el_deg: [f64; 2],
+    /// Satellite off-nadir angle, degrees.
+    pub satellite_off_nadir_deg: f64,
+    /// Satellite misregistration against the LiDAR layers (east, north), metres.
+    pub satellite_shift_m: [f64; 2],
+    /// Satellite JPEG quality.
+    pub satellite_jpeg_quality: u8,
+    /// GPS bias σ and noise σ per axis, metres.
+    pub gps_sigma_bias_noise_m: [f64; 2],
+    /// Camera height above the ground below it, metres.
+    pub camera_height_above_ground_m: f64,
+    /// Number of approaches of the intersection.
+    pub approaches: usize,
+    /// Moving vehicles and pedestrians per frame.
+    pub traffic_vehicles_pedestrians: [usize; 2],
+}
+
+/// A generated scene, in memory.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    /// Settings it was generated with.
+    pub settings: Settings,
+    /// Map CRS.
+    pub crs: Crs,
+    /// Map position of the world's local origin (intersection centre).
+    pub origin: [f64; 2],
+    /// The world (local coordinates).
+    pub world: World,
+    /// True intrinsics.
+    pub camera_true: Camera,
+    /// Intrinsics handed to the localizer (perturbed in `hard`).
+    pub camera_given: Camera,
+    /// True pose in the map CRS.
+    pub pose: CamFromMap,
+    /// Map tile (satellite, reflectivity, height, control points).
+    pub tile: Tile,
+    /// Fisheye frames, 8-bit gray, row-major.
+    pub frames: Vec<Vec<u8>>,
+    /// NMEA log text.
+    pub nmea: String,
+    /// True camera position in WGS84 (lat, lon).
+    pub gps_truth_wgs84: [f64; 2],
+    /// Visible control points with true pixels.
+    pub control_points: Vec<TruthPoint>,
+    /// Acquisition details.
+    pub acquisition: Acquisition,
+    /// UTC start of the GPS log (also the capture time).
+    pub start: gps::UtcStart,
+}
+
+/// True intrinsics for a preset and lens, with per-unit manufacturing jitter.
+fn true_camera(rng: &mut ChaCha8Rng, preset: Preset, lens: Lens) -> Camera {
+    let (w, h, f) = match preset {
+        Preset::Small => (1024u32, 1024u32, 300.0),
+        Preset::FiveMp => (2448, 2048, 540.0),
+    };
+    let f = f * rng.random_range(0.99..1.01);
+    let cx = (w as f64 - 1.0) / 2.0 + rng.random_range(-6.0..6.0);
+    let cy = (h as f64 - 1.0) / 2.0 + rng.random_range(-6.0..6.0);
+    let aspect = 1.0 + rng.random_range(-8e-4..8e-4);
+    match lens {
+        Lens::Mei => Camera::Mei(Mei {
+            width: w,
+            height: h,
+            fx: f * MEI_GAMMA_PER_F,
+            fy: f * MEI_GAMMA_PER_F * aspect,
+            cx,
+            cy,
+            skew: 0.0,
+            xi: MEI_XI,
+            k1: MEI_K1 * rng.random_range(0.98..1.02),
+            k2: MEI_K2 * rng.random_range(0.98..1.02),
+            p1: rng.random_range(-2e-4..2e-4),
+            p2: rng.random_range(-2e-4..2e-4),
+            fov_deg: Some(LENS_FOV_DEG),
+        }),
+        Lens::Equidistant => Camera::Equidistant(Equidistant {
+            width: w,
+            height: h,
+            fx: f,
+            fy: f * aspect,
+            cx,
+            cy,
+            alpha: 0.0,
+            k1: rng.random_range(-0.015..-0.005),
+            k2: rng.random_range(0.0..0.002),
+            k3: rng.random_range(-4e-4..0.0),
+            k4: rng.random_range(0.0..4e-5),
+            fov_deg: Some(LENS_FOV_DEG),
+            cache: Default::default(),
+        }),
+    }
+}
+
+/// The intrinsics a slightly wrong calibration would give: focal ±0.15–0.3 %, principal point
+/// ±1–2 px.
+fn perturbed_camera(rng: &mut ChaCha8Rng, cam: &Camera) -> Camera {
+    let sign = |rng: &mut ChaCha8Rng| if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+    let fs = 1.0 + sign(rng) * rng.random_range(0.0015..0.003);
+    let dx = sign(rng) * rng.random_range(1.0..2.0);
+    let dy = sign(rng) * rng.random_range(1.0..2.0);
+    let mut c = cam.clone();
+    match &mut c {
+        Camera::Mei(m) => {
+            m.fx *= fs;
+            m.fy *= fs;
+            m.cx += dx;
+            m.cy += dy;
+        }
+        Camera::Equidistant(m) => {
+            m.fx *= fs;
+            m.fy *= fs;
+            m.cx += dx;
+            m.cy += dy;
+            m.cache = Default::default();
+        }
+    }
+    c
+}
+
+/// A moving road user: its path and speed; its shape is regenerated from `shape_seed` each frame.
+#[derive(Debug, Clone, Copy)]
+struct Mover {
+    approach: usize,
+    /// Lateral position (vehicles: lane centre; pedestrians on sidewalks: fixed).
+    l: f64,
+    s: f64,
+    /// Signed speed along s (vehicles, sidewalk pedestrians) or along l (crosswalk pedestrians).
+    v: f64,
+    along_l: bool,
+    range: (f64, f64),
+    vehicle: bool,
+    shape_seed: u64,
+}
+
+fn traffic(w: &World, rng: &mut ChaCha8Rng, vehicles: usize, pedestrians: usize) -> Vec<Mover> {
+    let k = w.approaches.len();
+    let mut out = Vec::new();
+    for _ in 0..vehicles {
+        let i = rng.random_range(0..k);
+        let a = &w.approaches[i];
+        let inbound = rng.random_bool(0.5);
+        let lanes = if inbound { a.lanes_in } else { a.lanes_out };
+        let lane = rng.random_range(0..lanes) as f64;
+        let l = (lane + 0.5) * a.lane_w * if inbound { 1.0 } else { -1.0 };
+        let speed = rng.random_range(4.0..14.0);
+        out.push(Mover {
+            approach: i,
+            l,
+            // Denser near the junction, where queues form and the camera looks.
+            s: a.s_cw - 4.0 + 70.0 * rng.random::<f64>().powi(2),
+            v: if inbound { -speed } else { speed },
+            along_l: false,
+            range: (a.s_cw - 6.0, 75.0),
+            vehicle: true,
+            shape_seed: rng.random(),
+        });
+    }
+    for _ in 0..pedestrians {
+        let i = rng.random_range(0..k);
+        let a = &w.approaches[i];
+        let speed = rng.random_range(0.9..1.7) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+        let m = if a.crosswalk && rng.random_bool(0.5) {
+            Mover {
+                approach: i,
+                l: rng.random_range(-a.w_out..a.w_in),
+                s: a.s_cw + rng.random_range(0.5..2.5),
+                v: speed,
+                along_l: true,
+                range: (-a.w_out - 2.0, a.w_in + 2.0),
+                vehicle: false,
+                shape_seed: rng.random(),
+            }
+        } else {
+            let side = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+            let corner = if side > 0.0 {
+                w.corners[i]
+            } else {
+                w.corners[(i + k - 1) % k]
+            };
+            let base = if side > 0.0 { a.w_in } else { a.w_out };
+            Mover {
+                approach: i,
+                l: side * (base + world::CURB_W + corner.lawn_w + 0.5 * corner.sidewalk_w),
+                s: rng.random_range(a.s_cw + 4.0..50.0),
+                v: speed,
+                along_l: false,
+                range: (a.s_cw + 3.0, 60.0),
+                vehicle: false,
+                shape_seed: rng.random(),
+            }
+        };
+        out.push(m);
+    }
+    out
+}
+
+fn movers_at(w: &World, movers: &[Mover], frame: u32) -> Vec<Solid> {
+    let mut out = Vec::new();
+    for m in movers {
+        let a = &w.approaches[m.approach];
+        let span = m.range.1 - m.range.0;
+        let moved = m.v * FRAME_DT * frame as f64;
+        let (s, l) = if m.along_l {
+            (m.s, m.range.0 + (m.l + moved - m.range.0).rem_euclid(span))
+        } else {
+            (m.range.0 + (m.s + moved - m.range.0).rem_euclid(span), m.l)
+        };
+        let (x, y) = a.point(s, l);
+        let z = w.height(x, y);
+        let mut r = ChaCha8Rng::seed_from_u64(m.shape_seed);
+        if m.vehicle {
+            let yaw = a.angle + if m.v < 0.0 { PI } else { 0.0 };
+            out.extend(world::vehicle(&mut r, x, y, z, yaw));
+        } else {
+            out.push(world::pedestrian(&mut r, x, y, z));
+        }
+    }
+    out
+}
+
+/// Generate a scene.
+pub fn generate(settings: &Settings) -> Result<Scene> {
+    if settings.frames == 0 || settings.frames > 1000 {
+        return Err(Error::Invalid(format!(
+            "simulate: --frames {} must be 1..=1000",
+            settings.frames
+        )));
+    }
+    let hard = settings.difficulty == Difficulty::Hard;
+    let mut rng = ChaCha8Rng::seed_from_u64(mix64(settings.seed));
+    let mut world = World::generate(mix64(settings.seed ^ 0x5EED));
+    let crs = Crs::Epsg(SIM_EPSG);
+    let origin = [
+        (SITE_UTM[0] + rng.random_range(-SITE_JITTER..SITE_JITTER)).round(),
+        (SITE_UTM[1] + rng.random_range(-SITE_JITTER..SITE_JITTER)).round(),
+    ];
+
+    // Camera and true pose.
+    let camera_true = true_camera(&mut rng, settings.preset, settings.lens);
+    let camera_given = if hard {
+        perturbed_camera(&mut rng, &camera_true)
+    } else {
+        camera_true.clone()
+    };
+    let r = 10.0 * rng.random::<f64>().sqrt();
+    let phi = rng.random_range(0.0..TAU);
+    let (cx, cy) = (r * phi.cos(), r * phi.sin());
+    world.clear_around(cx, cy, 4.0);
+    let above = rng.random_range(4.0..12.0);
+    let cz = world.height(cx, cy) + above;
+    let tilt = if hard {
+        3f64.to_radians()
+    } else {
+        0.2f64.to_radians()
+    };
+    let yaw = rng.random_range(-PI..PI);
+    let pitch = rng.random_range(-tilt..tilt);
+    let roll = rng.random_range(-tilt..tilt);
+    let pose_local = CamFromMap::from_center_ypr(&Point3::new(cx, cy, cz), yaw, pitch, roll);
+    let pose = CamFromMap::from_center_ypr(
+        &Point3::new(cx + origin[0], cy + origin[1], cz),
+        yaw,
+        pitch,
+        roll,
+    );
+
+    // Map layers.
+    let look = Appearance::new(world.seed);
+    let half = TILE_SIZE_M / 2.0;
+    let n = (TILE_SIZE_M / MAP_RES).round() as usize;
+    let grid = GeoGrid {
+        crs,
+        x0: origin[0] - half,
+        y0: origin[1] + half,
+        res: MAP_RES,
+        width: n,
+        height: n,
+    };
+    let lidar = layers::lidar(&world, &look, &grid, origin, if hard { 0.03 } else { 0.02 });
+    let sat_n = ((TILE_SIZE_M + 2.0 * SAT_MARGIN_M) / MAP_RES).round() as usize;
+    let sat_grid = GeoGrid {
+        crs,
+        x0: origin[0] - half - SAT_MARGIN_M + rng.random_range(0.0..MAP_RES),
+        y0: origin[1] + half + SAT_MARGIN_M - rng.random_range(0.0..MAP_RES),
+        res: MAP_RES,
+        width: sat_n,
+        height: sat_n,
+    };
+    let shift_mag = rng.random_range(0.1..0.3);
+    let shift_dir = rng.random_range(0.0..TAU);
+    let sat_sun = (rng.random_range(130.0..230.0), rng.random_range(38.0..65.0));
+    let off_nadir: f64 = rng.random_range(2.0..12.0);
+    let off_az = rng.random_range(0.0..TAU);
+    let on = off_nadir.to_radians();
+    let shot = layers::SatelliteShot {
+        light: Light::from_az_el(sat_sun.0, sat_sun.1, 0.85, 0.3),
+        view: Vector3::new(on.sin() * off_az.sin(), on.sin() * off_az.cos(), -on.cos()),
+        shift: [shift_mag * shift_dir.cos(), shift_mag * shift_dir.sin()],
+        blur_px: 1.5,
+        jpeg_quality: rng.random_range(55..80),
+    };
+    let satellite = layers::satellite(
+        &world,
+        &look,
+        &sat_grid,
+        origin,
+        &shot,
+        &world.satellite_parked,
+    )?;
+
+    // Fisheye frames.
+    let overcast = hard && rng.random_bool(0.25);
+    let cam_sun = (rng.random_range(0.0..360.0), rng.random_range(18.0..65.0));
+    let light = if overcast {
+        Light::from_az_el(cam_sun.0, cam_sun.1, 0.0, 1.0)
+    } else {
+        Light::from_az_el(cam_sun.0, cam_sun.1, 1.0, 0.3)
+    };
+    let mut statics = world.statics.clone();
+    statics.extend_from_slice(&world.camera_parked);
+    let view = View {
+        world: &world,
+        look: &look,
+        statics: &statics,
+        light,
+    };
+    let sensor = if hard {
+        Sensor {
+            blur_px: 0.7,
+            vignetting: 0.45,
+            full_well: 900.0,
+            read_noise: 0.006,
+            gamma: 2.2,
+        }
+    } else {
+        Sensor {
+            blur_px: 0.6,
+            vignetting: 0.3,
+            full_well: 3000.0,
+            read_noise: 0.003,
+            gamma: 2.2,
+        }
+    };
+    let base = render::static_pass(&view, &camera_true, &pose_local);
+    let exposure = base.auto_exposure();
+    let (nv, np) = if hard {
+        (rng.random_range(8..15), rng.random_range(5..11))
+    } else {
+        (rng.random_range(3..7), rng.random_range(2..6))
+    };
+    let movers = traffic(&world, &mut rng, nv, np);
+    let frames = (0..settings.frames)
+        .map(|f| {
+            let dynamic = movers_at(&world, &movers, f);
+            let gain = 1.0 + rng.random_range(-0.04..0.04);
+            base.frame(
+                &view,
+                &dynamic,
+                &sensor,
+                exposure * gain,
+                mix64(world.seed ^ (0xF0 + f as u64)),
+            )
+        })
+        .collect();
+
+    // GPS.
+    let (bias_s, noise_s) = if hard { (4.0, 3.0) } else { (1.5, 1.3) };
+    let gm = gps::GpsModel {
+        bias_sigma: bias_s,
+        noise_sigma: noise_s,
+        tau_s: 10.0,
+        duration_s: rng.random_range(30..=60),
+        quality: if hard { 1 } else { 2 },
+        hdop: if hard { (1.1, 2.4) } else { (0.7, 1.2) },
+        sats: if hard { (6, 10) } else { (9, 14) },
+    };
+    let c_map = pose.center();
+    let to_wgs = |x: f64, y: f64| crate::geo::map_to_wgs84(crs, x, y);
+    let fixes = gps::track(&mut rng, [c_map.x, c_map.y, c_map.z], &gm, to_wgs)?;
+    let start = gps::UtcStart {
+        year: 2026,
+        month: rng.random_range(4..=10),
+        day: rng.random_range(1..=28),
+        sec_of_day: rng.random_range(13 * 3600..21 * 3600),
+    };
+    let nmea = gps::nmea_log(&fixes, &start, GEOID_SEP);
+    let (lat, lon) = to_wgs(c_map.x, c_map.y)?;
+
+    // Control points: marking corners the true camera sees unoccluded.
+    let cands = world.control_candidates();
+    let mut control_points = Vec::new();
+    let mut tile_points = Vec::new();
+    let center_l = pose_local.center().coords;
+    for (id, x, y) in cands {
+        let z = world.height(x, y);
+        let map = [x + origin[0], y + origin[1], z];
+        tile_points.push(ControlPoint {
+            id: id.clone(),
+            xyz: map,
+        });
+        let pc = pose.transform(&Point3::new(map[0], map[1], map[2]));
+        let Ok(px) = camera_true.project_visible(&pc.coords) else {
+            continue;
+        };
+        if !camera_true.is_valid_pixel(&px)
+            || pc.z / pc.coords.norm() < CONTROL_MAX_THETA_DEG.to_radians().cos()
+        {
+            continue;
+        }
+        let to = Vector3::new(x, y, z) - center_l;
+        let dist = to.norm();
+        let d = to / dist;
+        let blocked = solids::nearest(&statics, &center_l, &d, dist - 0.05).is_some();
+        let first = render::intersect_ground(&world, &center_l, &d)
+            .is_some_and(|t| (t - dist).abs() < 0.02);
+        if !blocked && first {
+            control_points.push(TruthPoint {
+                id,
+                map,
+                pixel: [px.x, px.y],
+            });
+        }
+    }
+
+    let tile = Tile {
+        id: format!("sim-{:04}", settings.seed % 10_000),
+        satellite,
+        reflectivity: lidar.reflectivity,
+        height: lidar.height,
+        control_points: tile_points,
+    };
+    let acquisition = Acquisition {
+        camera_sun_az_el_deg: [cam_sun.0, cam_sun.1],
+        camera_overcast: overcast,
+        satellite_sun_az_el_deg: [sat_sun.0, sat_sun.1],
+        satellite_off_nadir_deg: off_nadir,
+        satellite_shift_m: shot.shift,
+        satellite_jpeg_quality: shot.jpeg_quality,
+        gps_sigma_bias_noise_m: [bias_s, noise_s],
+        camera_height_above_ground_m: above,
+        approaches: world.approaches.len(),
+        traffic_vehicles_pedestrians: [nv, np],
+    };
+    Ok(Scene {
+        settings: *settings,
+        crs,
+        origin,
+        world,
+        camera_true,
+        camera_given,
+        pose,
+        tile,
+        frames,
+        nmea,
+        gps_truth_wgs84: [lat, lon],
+        control_points,
+        acquisition,
+        start,
+    })
+}
+
+impl Scene {
+    /// truth.json content (contracts §5): a full `infraloc.pose.v1` document of the true pose
+    /// (so every pose reader accepts it) plus control points, GPS truth, seed and settings.
+    pub fn truth_json(&self) -> serde_json::Value {
+        let s = &self.start;
+        let stamp = format!(
+            "{:04}-{:02}-{:02}T{:02}:{:02}:{:02}Z",
+            s.year,
+            s.month,
+            s.day,
+            s.sec_of_day / 3600,
+            (s.sec_of_day / 60) % 60,
+            s.sec_of_day % 60
+        );
+        let mut pf = crate::posefile::PoseFile::new(&self.pose, self.crs, &self.tile.id, stamp);
+        pf.intrinsics = serde_json::to_value(&self.camera_true).unwrap_or_default();
+        pf.stages = vec![serde_json::json!({ "name": "truth" })];
+        let extra = [
+            ("intrinsics_given", serde_json::to_value(&self.camera_given)),
+            ("control_points", serde_json::to_value(&self.control_points)),
+            (
+                "gps_truth_wgs84",
+                serde_json::to_value(self.gps_truth_wgs84),
+            ),
+            ("seed", serde_json::to_value(self.settings.seed)),
+            ("settings", serde_json::to_value(self.settings)),
+            ("acquisition", serde_json::to_value(&self.acquisition)),
+        ];
+        for (k, v) in extra {
+            pf.extra.insert(k.into(), v.unwrap_or_default());
+        }
+        serde_json::to_value(&pf).unwrap_or_default()
+    }
+
+    /// Width and height of the frames.
+    pub fn frame_size(&self) -> (u32, u32) {
+        (self.camera_true.width(), self.camera_true.height())
+    }
+
+    /// A side-by-side picture: satellite | reflectivity | height | fisheye frame 0, each panel
+    /// `panel` pixels high. The three map panels show the same central square of the tile.
+    pub fn montage(&self, panel: u32) -> image::RgbImage {
+        use image::imageops::{resize, FilterType};
+        let sat = &self.tile.satellite;
+        let satimg =
+            image::RgbImage::from_fn(sat.grid.width as u32, sat.grid.height as u32, |x, y| {
+                image::Rgb(sat.data[y as usize * sat.grid.width + x as usize])
+            });
+        let refl = &self.tile.reflectivity;
+        let g = refl.grid;
+        let reflimg = image::RgbImage::from_fn(g.width as u32, g.height as u32, |x, y| {
+            let v = refl.data[y as usize * g.width + x as usize];
+            if v == layers::REFLECTIVITY_NODATA {
+                image::Rgb([90, 0, 0])
+            } else {
+                let s = ((v as f64 / 160.0).min(1.0).sqrt() * 255.0) as u8;
+                image::Rgb([s, s, s])
+            }
+        });
+        // Height: detrended (minus the base slope) to show crown, curbs and lawns.
+        let hr = &self.tile.height;
+        let det: Vec<f64> = (0..g.len())
+            .map(|i| {
+                let (mx, my) = g.pixel_center(i % g.width, i / g.width);
+                hr.data[i] as f64 - self.world.base(mx - self.origin[0], my - self.origin[1])
+            })
+            .collect();
+        let himg = image::RgbImage::from_fn(g.width as u32, g.height as u32, |x, y| {
+            let d = det[y as usize * g.width + x as usize];
+            if d.is_nan() {
+                image::Rgb([90, 0, 0])
+            } else {
+                let t = ((d + 0.05) / 0.45).clamp(0.0, 1.0);
+                image::Rgb([
+                    (255.0 * t) as u8,
+                    (255.0 * (1.0 - (2.0 * t - 1.0).abs())) as u8,
+                    (255.0 * (1.0 - t)) as u8,
+                ])
+            }
+        });
+        let (fw, fh) = self.frame_size();
+        let fimg = image::RgbImage::from_fn(fw, fh, |x, y| {
+            let v = self.frames[0][(y * fw + x) as usize];
+            image::Rgb([v, v, v])
+        });
+        let fish_w = (panel as f64 * fw as f64 / fh as f64).round() as u32;
+        let panels = [
+            resize(&satimg, panel, panel, FilterType::Triangle),
+            resize(&reflimg, panel, panel, FilterType::Triangle),
+            resize(&himg, panel, panel, FilterType::Triangle),
+            resize(&fimg, fish_w, panel, FilterType::Triangle),
+        ];
+        let total: u32 = panels.iter().map(|p| p.width()).sum::<u32>() + 3 * 4;
+        let mut out = image::RgbImage::from_pixel(total, panel, image::Rgb([255, 255, 255]));
+        let mut x0 = 0;
+        for p in &panels {
+            image::imageops::replace(&mut out, p, x0 as i64, 0);
+            x0 += p.width() + 4;
+        }
+        out
+    }
+
+    /// The reflectivity raster (convenience for callers that need only it).
+    pub fn reflectivity(&self) -> &Raster<u8> {
+        &self.tile.reflectivity
+    }
+}
+
+#[cfg(test)]
+mod tests;

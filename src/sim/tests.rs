@@ -1,0 +1,173 @@
+//! Whole-scene tests on one shared small scene (hard, Mei, two frames).
+
+use super::*;
+use crate::camera::CameraModel;
+use nalgebra::Point2;
+use std::sync::OnceLock;
+
+fn scene() -> &'static Scene {
+    static S: OnceLock<Scene> = OnceLock::new();
+    S.get_or_init(|| {
+        generate(&Settings {
+            seed: 7,
+            preset: Preset::Small,
+            difficulty: Difficulty::Hard,
+            lens: Lens::Mei,
+            frames: 2,
+        })
+        .unwrap()
+    })
+}
+
+#[test]
+fn truth_control_points_reproject_within_a_hundredth_of_a_pixel() {
+    let s = scene();
+    let text = serde_json::to_string_pretty(&s.truth_json()).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    // Read back only through the file's own keys: pose (via the pose-file reader) and intrinsics.
+    let pose = crate::posefile::parse_pose(&text, std::path::Path::new("truth.json"))
+        .unwrap()
+        .pose;
+    let cam: Camera = serde_json::from_value(v["intrinsics"].clone()).unwrap();
+    let pts: Vec<TruthPoint> = serde_json::from_value(v["control_points"].clone()).unwrap();
+    assert!(pts.len() >= 10, "only {} control points visible", pts.len());
+    for p in &pts {
+        let pc = pose.transform(&Point3::new(p.map[0], p.map[1], p.map[2]));
+        let px = cam.project(&pc.coords).unwrap();
+        let err = (px.x - p.pixel[0]).hypot(px.y - p.pixel[1]);
+        assert!(err < 0.01, "{}: {err} px", p.id);
+    }
+}
+
+#[test]
+fn control_pixels_see_their_point_through_the_renderer() {
+    // The renderer's path (unproject → inverse pose → height-field intersection) must land on the
+    // control point's map position: image and truth agree on where the markings are.
+    let s = scene();
+    let local = CamFromMap::from_center(
+        s.pose.rotation,
+        &Point3::from(s.pose.center().coords - Vector3::new(s.origin[0], s.origin[1], 0.0)),
+    );
+    let c = local.center().coords;
+    for p in &s.control_points {
+        let b = s
+            .camera_true
+            .unproject(&Point2::new(p.pixel[0], p.pixel[1]))
+            .unwrap();
+        let d = local.inverse().rotate(&b.into_inner());
+        let t = render::intersect_ground(&s.world, &c, &d).unwrap();
+        let q = c + t * d;
+        let e = Vector3::new(
+            q.x + s.origin[0] - p.map[0],
+            q.y + s.origin[1] - p.map[1],
+            q.z - p.map[2],
+        );
+        assert!(e.norm() < 2e-3, "{}: {} m", p.id, e.norm());
+    }
+}
+
+#[test]
+fn hard_pose_and_intrinsics_are_in_their_ranges() {
+    let s = scene();
+    let (_, pitch, roll) = s.pose.yaw_pitch_roll();
+    assert!(pitch.abs() <= 3f64.to_radians() + 1e-12 && roll.abs() <= 3f64.to_radians() + 1e-12);
+    assert!((4.0..=12.0).contains(&s.acquisition.camera_height_above_ground_m));
+    let (Camera::Mei(t), Camera::Mei(g)) = (&s.camera_true, &s.camera_given) else {
+        panic!("lens")
+    };
+    let df = (g.fx / t.fx - 1.0).abs();
+    assert!((0.0015..=0.003).contains(&df), "focal error {df}");
+    for d in [(g.cx - t.cx).abs(), (g.cy - t.cy).abs()] {
+        assert!((1.0..=2.0).contains(&d), "principal point error {d}");
+    }
+    // The 185° image circle fits on the sensor.
+    let r = render::edge_radius(&s.camera_true);
+    assert!(
+        r < 0.5 * t.height as f64 && r > 0.4 * t.height as f64,
+        "circle radius {r}"
+    );
+}
+
+fn correlation(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len() as f64;
+    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        sab += (x - ma) * (y - mb);
+        saa += (x - ma) * (x - ma);
+        sbb += (y - mb) * (y - mb);
+    }
+    sab / (saa * sbb).sqrt()
+}
+
+#[test]
+fn satellite_and_reflectivity_are_related_but_not_equal() {
+    let s = scene();
+    let (refl, sat) = (&s.tile.reflectivity, &s.tile.satellite);
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for row in (0..refl.grid.height).step_by(3) {
+        for col in (0..refl.grid.width).step_by(3) {
+            let r = refl.data[row * refl.grid.width + col];
+            if r == layers::REFLECTIVITY_NODATA {
+                continue;
+            }
+            let (x, y) = refl.grid.pixel_center(col, row);
+            // On the road, where the markings carry the shared structure.
+            if s.world.curb_distance(x - s.origin[0], y - s.origin[1]).0 > -0.5 {
+                continue;
+            }
+            let (u, v) = sat.grid.to_pixel(x, y);
+            let p = sat.data[v.round() as usize * sat.grid.width + u.round() as usize];
+            a.push(r as f64);
+            b.push(0.3 * p[0] as f64 + 0.59 * p[1] as f64 + 0.11 * p[2] as f64);
+        }
+    }
+    let c = correlation(&a, &b);
+    assert!(c > 0.3 && c < 0.85, "road correlation {c}");
+    // LiDAR holes exist (parked cars during mapping) and heights are NaN exactly there.
+    let holes = refl
+        .data
+        .iter()
+        .filter(|&&v| v == layers::REFLECTIVITY_NODATA)
+        .count();
+    assert!(holes > 1000);
+    for (r, h) in refl.data.iter().zip(&s.tile.height.data) {
+        assert_eq!(*r == layers::REFLECTIVITY_NODATA, h.is_nan());
+    }
+}
+
+#[test]
+fn traffic_moves_between_frames_and_the_rest_does_not() {
+    let s = scene();
+    let (f0, f1) = (&s.frames[0], &s.frames[1]);
+    let big = f0
+        .iter()
+        .zip(f1)
+        .filter(|(a, b)| (**a as i32 - **b as i32).abs() > 40)
+        .count();
+    let n = f0.len();
+    assert!(big > 200, "only {big} pixels changed a lot");
+    assert!(big < n / 10, "{big} of {n} pixels changed a lot");
+}
+
+#[test]
+fn nmea_fixes_scatter_around_the_true_position() {
+    let s = scene();
+    let (mut lat, mut lon, mut k) = (0.0, 0.0, 0.0);
+    for line in s.nmea.split("\r\n").filter(|l| l.starts_with("$GPGGA")) {
+        let f: Vec<&str> = line.split(',').collect();
+        let dm = |v: &str, deg_digits: usize| {
+            v[..deg_digits].parse::<f64>().unwrap() + v[deg_digits..].parse::<f64>().unwrap() / 60.0
+        };
+        lat += dm(f[2], 2);
+        lon -= dm(f[4], 3);
+        k += 1.0;
+    }
+    let (lat, lon) = (lat / k, lon / k);
+    let [tl, tn] = s.gps_truth_wgs84;
+    let north = (lat - tl) * 111_100.0;
+    let east = (lon - tn) * 111_100.0 * tl.to_radians().cos();
+    let e = north.hypot(east);
+    assert!(e > 0.05 && e < 20.0, "mean fix is {e} m from truth");
+    assert!((30..=60).contains(&(k as i32)));
+}
