@@ -16,6 +16,7 @@ pub mod cli;
 pub mod config;
 pub mod error;
 pub mod geo;
+pub mod localize;
 pub mod gnss;
 pub mod map;
 pub mod pose;
