@@ -12,5 +12,6 @@ pub mod mi;
 pub mod points;
 pub mod points_io;
 pub mod quality;
+pub mod refine;
 pub mod search;
 pub mod synth;
