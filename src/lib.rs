@@ -16,10 +16,12 @@ pub mod cli;
 pub mod config;
 pub mod error;
 pub mod geo;
-pub mod localize;
 pub mod gnss;
+pub mod localize;
 pub mod map;
+pub mod persist;
 pub mod pose;
+pub mod posefile;
 pub mod sim;
 
 pub use error::{Error, Result};

@@ -5,9 +5,11 @@
 //! (0, 0).
 
 mod equidistant;
+pub mod import;
 mod mei;
 
 pub use equidistant::Equidistant;
+pub use import::{load_camera, parse_camera, to_opencv_yaml};
 pub use mei::Mei;
 
 use nalgebra::{Point2, Unit, Vector3};
@@ -120,7 +122,74 @@ impl Camera {
             Camera::Equidistant(m) => m,
         }
     }
+
+    /// Check the parameters are usable: positive size and focal lengths, finite coefficients,
+    /// ξ ≥ 0, field of view in (0°, 360°]. The message names the offending parameter.
+    pub fn validate(&self) -> Result<(), String> {
+        let (w, h, named): (u32, u32, Vec<(&str, f64)>) = match self {
+            Camera::Mei(m) => (
+                m.width,
+                m.height,
+                vec![
+                    ("fx", m.fx),
+                    ("fy", m.fy),
+                    ("cx", m.cx),
+                    ("cy", m.cy),
+                    ("skew", m.skew),
+                    ("xi", m.xi),
+                    ("k1", m.k1),
+                    ("k2", m.k2),
+                    ("p1", m.p1),
+                    ("p2", m.p2),
+                ],
+            ),
+            Camera::Equidistant(e) => (
+                e.width,
+                e.height,
+                vec![
+                    ("fx", e.fx),
+                    ("fy", e.fy),
+                    ("cx", e.cx),
+                    ("cy", e.cy),
+                    ("alpha", e.alpha),
+                    ("k1", e.k1),
+                    ("k2", e.k2),
+                    ("k3", e.k3),
+                    ("k4", e.k4),
+                ],
+            ),
+        };
+        if w == 0 || h == 0 {
+            return Err(format!(
+                "image size {w}×{h}: width and height must be positive"
+            ));
+        }
+        for (name, v) in &named {
+            if !v.is_finite() {
+                return Err(format!("{name} = {v} is not finite"));
+            }
+            if matches!(*name, "fx" | "fy") && !(*v > 0.0) {
+                return Err(format!("{name} = {v}: focal length must be positive"));
+            }
+            if *name == "xi" && *v < 0.0 {
+                return Err(format!("xi = {v}: the mirror parameter must be ≥ 0"));
+            }
+        }
+        let fov = match self {
+            Camera::Mei(m) => m.fov_deg,
+            Camera::Equidistant(e) => e.fov_deg,
+        };
+        if let Some(f) = fov {
+            if !(f > 0.0 && f <= FULL_TURN_DEG) {
+                return Err(format!("fov-deg = {f}: must be in (0, {FULL_TURN_DEG}]"));
+            }
+        }
+        Ok(())
+    }
 }
+
+/// Upper bound of a field of view, degrees.
+const FULL_TURN_DEG: f64 = 360.0;
 
 impl CameraModel for Camera {
     fn width(&self) -> u32 {

@@ -2,18 +2,9 @@
 
 use crate::error::{Error, Result};
 
-/// One LiDAR ground point: map-CRS coordinates (f64 metres) and reflectivity (0–255).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct GroundPoint {
-    /// Easting (map x), metres.
-    pub x: f64,
-    /// Northing (map y), metres.
-    pub y: f64,
-    /// Height (map z, up), metres.
-    pub z: f64,
-    /// LiDAR reflectivity, 0–255.
-    pub reflectivity: u8,
-}
+/// One LiDAR ground point: map-CRS coordinates (f64 metres) and reflectivity (0–255). The same
+/// type the tile cache's [`crate::map::ground_points`] produces.
+pub use crate::map::GroundPoint;
 
 /// Check a point set for the refinement: non-empty and all coordinates finite. `what` names the
 /// source (file or tile) in the error.
