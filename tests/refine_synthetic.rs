@@ -96,7 +96,10 @@ fn recovers_truth_from_perturbed_starts() {
             res.stats.exhaustive_point_evaluations / res.stats.point_evaluations.max(1),
             q.reason
         );
-        assert!(err.x.abs() <= 0.02 && err.y.abs() <= 0.02, "trial {trial}: {err:?}");
+        assert!(
+            err.x.abs() <= 0.02 && err.y.abs() <= 0.02,
+            "trial {trial}: {err:?}"
+        );
         assert!(err.z.abs() <= 0.02, "trial {trial}: z {}", err.z);
         assert!(yaw_err <= 0.05, "trial {trial}: rotation error {yaw_err}°");
         assert!(
@@ -155,30 +158,41 @@ fn tiled_finds_the_exhaustive_cell() {
                 mode: Mode::Exhaustive,
                 ..tiled_cfg
             };
-            let ev = Evaluator::new(&s.cam, &s.gray, &s.mask, &s.points, &init, &tiled_cfg, 6)
-                .unwrap();
+            let ev =
+                Evaluator::new(&s.cam, &s.gray, &s.mask, &s.points, &init, &tiled_cfg, 6).unwrap();
             let t = search(&ev, &tiled_cfg);
             let e = search(&ev, &ex_cfg);
             assert!(t.stats.coarsest_level >= 2, "tiled must be coarse-to-fine");
-            ratio_min = ratio_min.min(e.stats.point_evaluations as f64 / t.stats.point_evaluations as f64);
+            ratio_min =
+                ratio_min.min(e.stats.point_evaluations as f64 / t.stats.point_evaluations as f64);
             if t.best.idx == e.best.idx {
                 agree += 1;
             }
         }
     }
-    eprintln!("tiled == exhaustive in {agree}/{trials}; exhaustive/tiled evaluations ≥ {ratio_min:.1}");
-    assert!(agree >= 99, "tiled found the exhaustive argmax in only {agree}/{trials}");
+    eprintln!(
+        "tiled == exhaustive in {agree}/{trials}; exhaustive/tiled evaluations ≥ {ratio_min:.1}"
+    );
+    assert!(
+        agree >= 99,
+        "tiled found the exhaustive argmax in only {agree}/{trials}"
+    );
 }
 
 #[test]
 fn same_result_regardless_of_thread_count() {
     let s = scene(3, 256, 150.0, 8.0, 0.2);
-    let init = s.truth.perturbed(&Vector3::new(0.3, -0.2, 0.1), 1f64.to_radians());
+    let init = s
+        .truth
+        .perturbed(&Vector3::new(0.3, -0.2, 0.1), 1f64.to_radians());
     let cfg = SearchConfig {
         coarse_min_points: 500,
         ..Default::default()
     };
-    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
     let a = one.install(|| run(&s, &init, &cfg).0);
     let b = run(&s, &init, &cfg).0;
     assert_eq!(a.best.idx, b.best.idx);
@@ -235,10 +249,18 @@ fn fixed_point_set_removes_the_fewer_points_bias() {
         picks.push(r);
     }
     // Naive: the argmax is at the bottom of the box (fewest points), far from the truth.
-    assert!(picks[0].offsets[2] <= -1.0, "naive dz {}", picks[0].offsets[2]);
+    assert!(
+        picks[0].offsets[2] <= -1.0,
+        "naive dz {}",
+        picks[0].offsets[2]
+    );
     // Fixed set: every pose sees the same points, and the truth wins.
     assert!(picks[1].stats.max_lost_fraction == 0.0);
-    assert!(picks[1].offsets[2].abs() <= 0.1, "fixed dz {}", picks[1].offsets[2]);
+    assert!(
+        picks[1].offsets[2].abs() <= 0.1,
+        "fixed dz {}",
+        picks[1].offsets[2]
+    );
     // NMI is also offered; check it is selectable and finite.
     let cfg = SearchConfig {
         spec,
@@ -258,23 +280,56 @@ fn bad_inputs_are_one_line_errors() {
     let s = scene(1, 128, 75.0, 5.0, 0.5);
     let cfg = SearchConfig::default();
     let e = |r: infraloc::Result<Evaluator>| r.unwrap_err().to_string();
-    assert!(e(Evaluator::new(&s.cam, &s.gray, &s.mask, &[], &s.truth, &cfg, 0)).contains("no ground points"));
+    assert!(e(Evaluator::new(
+        &s.cam,
+        &s.gray,
+        &s.mask,
+        &[],
+        &s.truth,
+        &cfg,
+        0
+    ))
+    .contains("no ground points"));
     let mut bad = s.points.clone();
     bad[3].z = f64::NAN;
-    assert!(e(Evaluator::new(&s.cam, &s.gray, &s.mask, &bad, &s.truth, &cfg, 0)).contains("non-finite"));
-    assert!(e(Evaluator::new(&s.cam, &s.gray[1..], &s.mask[1..], &s.points, &s.truth, &cfg, 0)).contains("camera is 128"));
+    assert!(e(Evaluator::new(
+        &s.cam, &s.gray, &s.mask, &bad, &s.truth, &cfg, 0
+    ))
+    .contains("non-finite"));
+    assert!(e(Evaluator::new(
+        &s.cam,
+        &s.gray[1..],
+        &s.mask[1..],
+        &s.points,
+        &s.truth,
+        &cfg,
+        0
+    ))
+    .contains("camera is 128"));
     // Points far away from the camera: none visible from every pose.
     let far: Vec<GroundPoint> = s
         .points
         .iter()
-        .map(|p| GroundPoint { z: p.z + 100.0, ..*p })
+        .map(|p| GroundPoint {
+            z: p.z + 100.0,
+            ..*p
+        })
         .collect();
-    assert!(e(Evaluator::new(&s.cam, &s.gray, &s.mask, &far, &s.truth, &cfg, 0)).contains("none is visible"));
+    assert!(e(Evaluator::new(
+        &s.cam, &s.gray, &s.mask, &far, &s.truth, &cfg, 0
+    ))
+    .contains("none is visible"));
     for spec in ["x=0:0.02", "yaw=500:1", "z=1:0", "x=1", "q=1:1", "x=1:2"] {
         let r: infraloc::Result<SearchSpec> = spec.parse();
         let msg = r.unwrap_err().to_string();
-        assert!(!msg.contains('\n') && msg.contains("--search"), "{spec}: {msg}");
+        assert!(
+            !msg.contains('\n') && msg.contains("--search"),
+            "{spec}: {msg}"
+        );
     }
     let ok: SearchSpec = "x=0.5:0.01,yaw=2:0.1".parse().unwrap();
-    assert_eq!((ok.x.half, ok.x.step, ok.yaw.half, ok.y.half), (0.5, 0.01, 2.0, 1.0));
+    assert_eq!(
+        (ok.x.half, ok.x.step, ok.yaw.half, ok.y.half),
+        (0.5, 0.01, 2.0, 1.0)
+    );
 }

@@ -53,7 +53,8 @@ pub struct Args {
 }
 
 fn load_gray(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
-    let img = image::open(path).map_err(|e| Error::input(path, format!("cannot read image: {e}")))?;
+    let img =
+        image::open(path).map_err(|e| Error::input(path, format!("cannot read image: {e}")))?;
     let g = img.to_luma8();
     Ok((g.width(), g.height(), g.into_raw()))
 }
@@ -80,7 +81,10 @@ pub fn run(a: Args) -> Result<()> {
     let (points, crs, tile_id): (Vec<GroundPoint>, Crs, String) = match (&a.tiles, &a.points) {
         (Some(dir), _) => {
             if !(a.radius > 0.0 && a.radius.is_finite()) {
-                return Err(Error::Invalid(format!("--radius {}: must be positive", a.radius)));
+                return Err(Error::Invalid(format!(
+                    "--radius {}: must be positive",
+                    a.radius
+                )));
             }
             let crs = init.crs.ok_or_else(|| {
                 Error::input(&a.init, "no \"crs\": needed to find the tile in --tiles")
@@ -90,7 +94,10 @@ pub fn run(a: Args) -> Result<()> {
             if tref.crs != crs {
                 return Err(Error::input(
                     &a.init,
-                    format!("pose CRS {crs} differs from tile {} CRS {}", tref.id, tref.crs),
+                    format!(
+                        "pose CRS {crs} differs from tile {} CRS {}",
+                        tref.id, tref.crs
+                    ),
                 ));
             }
             let tile = cache::load_tile(&tref.dir)?;
@@ -103,7 +110,11 @@ pub fn run(a: Args) -> Result<()> {
             }
             (pts, crs, tref.id)
         }
-        (None, Some(p)) => (read_points(p)?, init.crs.unwrap_or(Crs::Local), String::new()),
+        (None, Some(p)) => (
+            read_points(p)?,
+            init.crs.unwrap_or(Crs::Local),
+            String::new(),
+        ),
         (None, None) => return Err(Error::Invalid("give --tiles or --points".into())),
     };
     let cfg = SearchConfig {
@@ -111,7 +122,14 @@ pub fn run(a: Args) -> Result<()> {
         mode,
         ..Default::default()
     };
-    let r = refine(&cam, &gray, &points, &init.pose, &cfg, &QualityConfig::default())?;
+    let r = refine(
+        &cam,
+        &gray,
+        &points,
+        &init.pose,
+        &cfg,
+        &QualityConfig::default(),
+    )?;
     if let Some(path) = &a.report {
         let text = serde_json::to_string_pretty(&r.report(mode))
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;

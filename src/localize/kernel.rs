@@ -161,7 +161,14 @@ pub struct BinnedImage {
 impl BinnedImage {
     /// Bin `gray` (row-major, `width·height`) through `lut`; pixels whose `mask` is 0 get
     /// `invalid`.
-    pub fn new(width: usize, height: usize, gray: &[u8], mask: &[u8], lut: &[u8; 256], invalid: u8) -> Self {
+    pub fn new(
+        width: usize,
+        height: usize,
+        gray: &[u8],
+        mask: &[u8],
+        lut: &[u8; 256],
+        invalid: u8,
+    ) -> Self {
         let mut data: Vec<u8> = gray
             .iter()
             .zip(mask)
@@ -525,7 +532,11 @@ mod tests {
         accumulate_scalar(&pts, &pose, &cam, &gray, &mask, &lut, &lut, &mut slow);
         let n = pts.len() as u64;
         assert_eq!(fast.valid_count() + fast.invalid_count(), n);
-        eprintln!("valid {} invalid {}", slow.valid_count(), slow.invalid_count());
+        eprintln!(
+            "valid {} invalid {}",
+            slow.valid_count(),
+            slow.invalid_count()
+        );
         assert!(slow.valid_count() > n / 4 && slow.invalid_count() > n / 20);
         // f32 vs f64 may round a point to the neighbouring pixel at pixel borders; allow 0.5 %.
         let diff: u64 = fast
@@ -545,7 +556,10 @@ mod tests {
             16,
             &mut vis,
         );
-        assert_eq!(vis.iter().filter(|&&v| v).count() as u64, fast.valid_count());
+        assert_eq!(
+            vis.iter().filter(|&&v| v).count() as u64,
+            fast.valid_count()
+        );
     }
 
     #[test]

@@ -35,12 +35,10 @@ pub fn read_points(path: &Path) -> Result<Vec<GroundPoint>> {
         "csv" | "txt" => parse_csv(&bytes).map_err(|m| Error::input(path, m))?,
         "pcd" => parse_pcd(&bytes).map_err(|m| Error::input(path, m))?,
         "las" => parse_las(&bytes).map_err(|m| Error::input(path, m))?,
-        "laz" => {
-            return Err(Error::input(
-                path,
-                "LAZ (compressed LAS) is not supported; decompress with `laszip` or `pdal translate`",
-            ))
-        }
+        "laz" => return Err(Error::input(
+            path,
+            "LAZ (compressed LAS) is not supported; decompress with `laszip` or `pdal translate`",
+        )),
         _ => {
             return Err(Error::input(
                 path,
@@ -65,9 +63,9 @@ pub fn parse_csv(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> 
         .map(|c| c.trim().trim_matches('"').to_ascii_lowercase())
         .collect();
     let find = |name: &str| {
-        cols.iter()
-            .position(|c| c == name)
-            .ok_or_else(|| format!("header {header:?} has no column {name:?} (need x,y,z,reflectivity)"))
+        cols.iter().position(|c| c == name).ok_or_else(|| {
+            format!("header {header:?} has no column {name:?} (need x,y,z,reflectivity)")
+        })
     };
     let (ix, iy, iz, ir) = (find("x")?, find("y")?, find("z")?, find("reflectivity")?);
     let mut out = Vec::new();
@@ -129,7 +127,9 @@ fn scale_intensity(raw: RawIntensity) -> std::result::Result<Vec<u8>, String> {
             } else {
                 255.0 / max
             };
-            Ok(v.into_iter().map(|x| (x * k).round().min(255.0) as u8).collect())
+            Ok(v.into_iter()
+                .map(|x| (x * k).round().min(255.0) as u8)
+                .collect())
         }
     }
 }
@@ -195,9 +195,24 @@ pub fn parse_pcd(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> 
                     })
                     .collect()
             }
-            "SIZE" => sizes = rest.iter().map(|s| s.parse::<usize>().unwrap_or(0)).collect(),
-            "TYPE" => types = rest.iter().map(|s| s.as_bytes().first().copied().unwrap_or(0)).collect(),
-            "COUNT" => counts = rest.iter().map(|s| s.parse::<usize>().unwrap_or(0)).collect(),
+            "SIZE" => {
+                sizes = rest
+                    .iter()
+                    .map(|s| s.parse::<usize>().unwrap_or(0))
+                    .collect()
+            }
+            "TYPE" => {
+                types = rest
+                    .iter()
+                    .map(|s| s.as_bytes().first().copied().unwrap_or(0))
+                    .collect()
+            }
+            "COUNT" => {
+                counts = rest
+                    .iter()
+                    .map(|s| s.parse::<usize>().unwrap_or(0))
+                    .collect()
+            }
             "POINTS" => {
                 npoints = Some(
                     rest.first()
@@ -316,7 +331,10 @@ fn finish(xyz: Vec<[f64; 3]>, refl: Vec<u8>) -> std::result::Result<Vec<GroundPo
                     reflectivity: r,
                 })
             } else {
-                Err(format!("point {k}: non-finite coordinate ({}, {}, {})", p[0], p[1], p[2]))
+                Err(format!(
+                    "point {k}: non-finite coordinate ({}, {}, {})",
+                    p[0], p[1], p[2]
+                ))
             }
         })
         .collect()
@@ -361,7 +379,10 @@ pub fn parse_las(b: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> {
         return Err("not a LAS file (no LASF signature)".into());
     }
     let (maj, min) = (b.get(las::VERSION_MAJOR), b.get(las::VERSION_MINOR));
-    let (maj, min) = (*maj.ok_or("LAS header truncated")?, *min.ok_or("LAS header truncated")?);
+    let (maj, min) = (
+        *maj.ok_or("LAS header truncated")?,
+        *min.ok_or("LAS header truncated")?,
+    );
     if maj != 1 || min > 4 {
         return Err(format!("LAS version {maj}.{min} not supported (1.0–1.4)"));
     }
@@ -376,7 +397,10 @@ pub fn parse_las(b: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> {
     }
     let rec = le_u16(b, las::RECORD_LENGTH)? as usize;
     if rec < las::MIN_RECORD {
-        return Err(format!("LAS point record length {rec} < {}", las::MIN_RECORD));
+        return Err(format!(
+            "LAS point record length {rec} < {}",
+            las::MIN_RECORD
+        ));
     }
     let mut n = le_u32(b, las::LEGACY_COUNT)? as u64;
     if n == 0 && min >= 4 {
@@ -387,7 +411,11 @@ pub fn parse_las(b: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> {
             .ok_or("LAS 1.4 header truncated")?;
     }
     let n = n as usize;
-    let s = [le_f64(b, las::SCALE)?, le_f64(b, las::SCALE + 8)?, le_f64(b, las::SCALE + 16)?];
+    let s = [
+        le_f64(b, las::SCALE)?,
+        le_f64(b, las::SCALE + 8)?,
+        le_f64(b, las::SCALE + 16)?,
+    ];
     let o = [
         le_f64(b, las::OFFSET)?,
         le_f64(b, las::OFFSET + 8)?,
@@ -494,7 +522,9 @@ mod tests {
         laz[104] |= 0x80;
         assert!(parse_las(&laz).unwrap_err().contains("LAZ"));
         let short = las_bytes(1, &[1, 2, 3]);
-        assert!(parse_las(&short[..short.len() - 5]).unwrap_err().contains("need"));
+        assert!(parse_las(&short[..short.len() - 5])
+            .unwrap_err()
+            .contains("need"));
     }
 
     #[test]

@@ -18,8 +18,8 @@
 //! are close to 1 for any textured scene because misaligned views still share low-frequency
 //! structure, so the gate uses the contrast.
 
-use super::search::{Evaluator, SearchResult, AXES};
 use super::kernel::Scratch;
+use super::search::{Evaluator, SearchResult, AXES};
 use serde::{Deserialize, Serialize};
 
 /// Gate and profile settings.

@@ -79,7 +79,11 @@ pub fn refine(
         )));
     }
     let mask = cam.valid_mask();
-    let levels = if cfg.mode == Mode::Exhaustive { 0 } else { MAX_LEVEL };
+    let levels = if cfg.mode == Mode::Exhaustive {
+        0
+    } else {
+        MAX_LEVEL
+    };
     let ev = Evaluator::new(cam, gray, &mask, points, init, cfg, levels)?;
     let res = search(&ev, cfg);
     let quality = assess(&ev, &res, qcfg);

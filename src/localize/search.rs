@@ -88,10 +88,22 @@ impl Default for SearchSpec {
     /// ±1 m x/y, ±0.5 m z, ±3° yaw; finest steps 2 cm and 0.05°.
     fn default() -> Self {
         SearchSpec {
-            x: AxisRange { half: 1.0, step: 0.02 },
-            y: AxisRange { half: 1.0, step: 0.02 },
-            z: AxisRange { half: 0.5, step: 0.02 },
-            yaw: AxisRange { half: 3.0, step: 0.05 },
+            x: AxisRange {
+                half: 1.0,
+                step: 0.02,
+            },
+            y: AxisRange {
+                half: 1.0,
+                step: 0.02,
+            },
+            z: AxisRange {
+                half: 0.5,
+                step: 0.02,
+            },
+            yaw: AxisRange {
+                half: 3.0,
+                step: 0.05,
+            },
             pitch: None,
             roll: None,
         }
@@ -440,7 +452,9 @@ impl Evaluator {
             }
         }
         if gcounts.iter().sum::<u64>() == 0 {
-            return Err(Error::Invalid("image: no valid pixel in the camera's image circle".into()));
+            return Err(Error::Invalid(
+                "image: no valid pixel in the camera's image circle".into(),
+            ));
         }
         let lut_gray = bin_lut(cfg.mi.binning, cfg.mi.bins_gray, &gcounts);
 
@@ -675,9 +689,7 @@ pub struct SearchResult {
 pub fn coarsest_level(g: &Grid, budget: u64) -> u32 {
     let mut l = 0;
     while l < MAX_LEVEL {
-        let count: u64 = (0..6)
-            .map(|i| g.lattice_axis(i, l).len() as u64)
-            .product();
+        let count: u64 = (0..6).map(|i| g.lattice_axis(i, l).len() as u64).product();
         if count <= budget {
             break;
         }
@@ -749,11 +761,7 @@ fn exhaustive(ev: &Evaluator, stats: &mut SearchStats) -> (Scored, Vec<Scored>) 
 }
 
 fn sort_best_first(v: &mut [Scored]) {
-    v.sort_by(|a, b| {
-        b.score
-            .total_cmp(&a.score)
-            .then_with(|| a.idx.cmp(&b.idx))
-    });
+    v.sort_by(|a, b| b.score.total_cmp(&a.score).then_with(|| a.idx.cmp(&b.idx)));
 }
 
 /// Coarse-to-fine over sub-lattices.
@@ -800,10 +808,7 @@ fn tiled(ev: &Evaluator, cfg: &SearchConfig, stats: &mut SearchStats) -> (Scored
     // Descend: each candidate is re-examined on a ±2-step window of the next finer lattice.
     for level in (0..top).rev() {
         let f = 1i64 << level;
-        let windows: Vec<Vec<u64>> = cands
-            .iter()
-            .map(|&c| window(&g, &g.cell(c), f))
-            .collect();
+        let windows: Vec<Vec<u64>> = cands.iter().map(|&c| window(&g, &g.cell(c), f)).collect();
         let mut union: Vec<u64> = windows.iter().flatten().copied().collect();
         union.sort_unstable();
         union.dedup();

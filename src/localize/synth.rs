@@ -27,7 +27,9 @@ impl Texture {
     /// A texture from a seed.
     pub fn new(seed: u64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let table = (0..LATTICE * LATTICE).map(|_| rng.random::<f32>()).collect();
+        let table = (0..LATTICE * LATTICE)
+            .map(|_| rng.random::<f32>())
+            .collect();
         Texture {
             table,
             angle: rng.random::<f64>() * std::f64::consts::PI,
@@ -36,7 +38,10 @@ impl Texture {
 
     fn lattice(&self, i: i64, j: i64, octave: usize) -> f64 {
         let n = LATTICE as i64;
-        let (a, b) = ((i + 17 * octave as i64).rem_euclid(n), (j + 31 * octave as i64).rem_euclid(n));
+        let (a, b) = (
+            (i + 17 * octave as i64).rem_euclid(n),
+            (j + 31 * octave as i64).rem_euclid(n),
+        );
         self.table[(a * n + b) as usize] as f64
     }
 
@@ -106,7 +111,9 @@ pub fn ground_points(
             let (x, y) = (center.0 + dx, center.1 + dy);
             // Sum of 4 uniforms: cheap, seeded, roughly Gaussian with σ = noise.
             let e: f64 = (0..4).map(|_| rng.random::<f64>() - 0.5).sum::<f64>() * noise * 1.732;
-            let r = (Texture::reflectivity(tex.value(x, y)) + e).round().clamp(0.0, 255.0);
+            let r = (Texture::reflectivity(tex.value(x, y)) + e)
+                .round()
+                .clamp(0.0, 255.0);
             out.push(GroundPoint {
                 x,
                 y,
