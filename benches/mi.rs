@@ -64,6 +64,8 @@ fn bench_kernel(c: &mut Criterion) {
     let lut = bin_lut(Binning::Uniform, bins, &[0; 256]);
     let mut g = c.benchmark_group("mi_kernel");
     g.sample_size(20);
+    g.warm_up_time(std::time::Duration::from_secs(1));
+    g.measurement_time(std::time::Duration::from_secs(3));
     for (name, cam) in [("mei", mei()), ("equidistant", equidistant())] {
         let (w, h) = (cam.width() as usize, cam.height() as usize);
         let mask = cam.valid_mask();

@@ -138,7 +138,7 @@ fn tiled_finds_the_exhaustive_cell() {
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     let mut ratio_min = f64::MAX;
     for scene_seed in 0..4u64 {
-        let s = scene(scene_seed + 20, 256, 150.0, 8.0, 0.3);
+        let s = scene(scene_seed + 20, 320, 190.0, 8.0, 0.25);
         for _ in 0..trials / 4 {
             let d = Vector3::new(
                 rng.random_range(-0.08..0.08),
@@ -151,7 +151,6 @@ fn tiled_finds_the_exhaustive_cell() {
             let tiled_cfg = SearchConfig {
                 spec,
                 coarse_budget: 64,
-                coarse_min_points: 500,
                 ..Default::default()
             };
             let ex_cfg = SearchConfig {
@@ -167,6 +166,11 @@ fn tiled_finds_the_exhaustive_cell() {
                 ratio_min.min(e.stats.point_evaluations as f64 / t.stats.point_evaluations as f64);
             if t.best.idx == e.best.idx {
                 agree += 1;
+            } else {
+                eprintln!(
+                    "miss: tiled {:?} {:.5} vs exhaustive {:?} {:.5}",
+                    t.offsets, t.best.score, e.offsets, e.best.score
+                );
             }
         }
     }

@@ -458,7 +458,9 @@ impl Evaluator {
         }
         let lut_gray = bin_lut(cfg.mi.binning, cfg.mi.bins_gray, &gcounts);
 
-        // Level 0 image, and the eroded one used to pick the fixed set.
+        // Level 0 image (anti-aliased, see `blur3`), and the eroded one used to pick the fixed set.
+        let smooth = blur3(gray, mask, w, h);
+        let gray = &smooth[..];
         let level0 = GrayLevel {
             width: w,
             height: h,
@@ -599,6 +601,39 @@ impl Evaluator {
         }
         out
     }
+}
+
+/// 3×3 binomial blur ([1 2 1]⊗[1 2 1]/16) over valid pixels only (weights renormalised at the
+/// circle's edge). The sampler takes the nearest pixel; without this, a sub-pixel pose step moves
+/// a point between pixels that may differ a lot (sensor noise, aliasing), and the objective over
+/// the finest grid gets ripples that are not alignment information.
+fn blur3(gray: &[u8], mask: &[u8], w: usize, h: usize) -> Vec<u8> {
+    const K: [u32; 3] = [1, 2, 1];
+    let mut out = gray.to_vec();
+    for v in 0..h {
+        for u in 0..w {
+            if mask[v * w + u] == 0 {
+                continue;
+            }
+            let (mut acc, mut wsum) = (0u32, 0u32);
+            for (j, kj) in K.iter().enumerate() {
+                let y = v + j;
+                if y < 1 || y > h {
+                    continue;
+                }
+                for (i, ki) in K.iter().enumerate() {
+                    let x = u + i;
+                    if x < 1 || x > w || mask[(y - 1) * w + x - 1] == 0 {
+                        continue;
+                    }
+                    acc += kj * ki * gray[(y - 1) * w + x - 1] as u32;
+                    wsum += kj * ki;
+                }
+            }
+            out[v * w + u] = ((acc + wsum / 2) / wsum.max(1)) as u8;
+        }
+    }
+    out
 }
 
 /// Erode a validity mask by `r` pixels (square window), so a pixel stays valid only if every pixel
@@ -869,8 +904,11 @@ fn window(g: &Grid, c: &Cell, f: i64) -> Vec<u64> {
         .collect()
 }
 
-/// Steepest-ascent on the finest grid from `start` until no neighbour is better. Returns the peak
-/// and the number of poses scored.
+/// Steepest-ascent on the finest grid from `start` until no neighbour is better, then a wider look:
+/// if a cell within ±2 steps on every axis beats the peak, climb on from it. The MI surface over a
+/// nearest-pixel sampler has small pose-to-pose ripples; the ±2 window steps over them so that the
+/// result is the maximum of its 5^d neighbourhood, as the exhaustive search would see it. Returns
+/// the peak and the number of poses scored.
 fn climb(ev: &Evaluator, start: u64, max_iter: usize) -> (Scored, u64) {
     let g = ev.grid;
     let mut s = Scratch::default();
@@ -888,7 +926,16 @@ fn climb(ev: &Evaluator, start: u64, max_iter: usize) -> (Scored, u64) {
         let cands: Vec<Scored> = nb.iter().map(|n| score(g.index(n), &mut s)).collect();
         match best_of(&cands) {
             Some(b) if better(&b, &cur) => cur = b,
-            _ => break,
+            _ => {
+                let wide: Vec<Scored> = window(&g, &g.cell(cur.idx), 1)
+                    .into_iter()
+                    .map(|i| score(i, &mut s))
+                    .collect();
+                match best_of(&wide) {
+                    Some(b) if better(&b, &cur) => cur = b,
+                    _ => break,
+                }
+            }
         }
     }
     (cur, evals)
