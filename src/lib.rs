@@ -17,6 +17,7 @@ pub mod config;
 pub mod error;
 pub mod geo;
 pub mod gnss;
+pub mod gps_serial;
 pub mod map;
 pub mod pose;
 pub mod sim;
