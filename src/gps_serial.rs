@@ -347,7 +347,7 @@ pub fn spawn(mut reader: SerialReader) -> ReaderHandle {
 /// Decode an NMEA log file completely: every fix in order, plus the counters.
 pub fn decode_file(path: &Path) -> Result<(Vec<Fix>, DecodeStats)> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let mut d = Decoder::new();
+    let mut d = Decoder::for_log_files();
     let mut fixes = Vec::new();
     d.push(&bytes, |f| fixes.push(f));
     d.finish(|f| fixes.push(f));

@@ -9,6 +9,9 @@
 //!   line before it was cut off (a receiver reset or a lost terminator).
 //! - A byte that is not printable ASCII, or a line longer than [`MAX_LINE`], poisons the line: it
 //!   is dropped up to the next terminator or start character.
+//! - Log files only ([`LineFramer::for_log_files`]): a line starting with `#` is a comment (gpsd's
+//!   regression-log headers quote sentences in comments) and dropped whole. Off for serial
+//!   streams, where a stray `#` must not swallow the sentence after it.
 
 /// Longest line kept, bytes (NMEA allows 82 including CRLF; some receivers exceed that a bit).
 pub const MAX_LINE: usize = 128;
@@ -36,6 +39,8 @@ enum State {
     InLine,
     /// The current line is being dropped until a terminator or start character.
     Discard,
+    /// A `#` comment line (log files), dropped until a terminator.
+    Comment,
 }
 
 /// The framing state machine.
@@ -45,6 +50,9 @@ pub struct LineFramer {
     len: usize,
     state: State,
     stats: FramingStats,
+    comments: bool,
+    /// At the start of a line (only whitespace-free terminators seen since the last line).
+    at_line_start: bool,
 }
 
 impl Default for LineFramer {
@@ -61,6 +69,16 @@ impl LineFramer {
             len: 0,
             state: State::Idle,
             stats: FramingStats::default(),
+            comments: false,
+            at_line_start: true,
+        }
+    }
+
+    /// A framer for log files: also drops `#` comment lines.
+    pub fn for_log_files() -> Self {
+        LineFramer {
+            comments: true,
+            ..Self::new()
         }
     }
 
@@ -73,8 +91,16 @@ impl LineFramer {
     /// terminator excluded). The slice is only valid during the call.
     pub fn push(&mut self, bytes: &[u8], mut on_line: impl FnMut(&[u8])) {
         for &b in bytes {
+            let line_start = std::mem::replace(&mut self.at_line_start, false);
+            if self.state == State::Comment && b != b'\r' && b != b'\n' {
+                continue;
+            }
             match b {
+                b'#' if self.comments && line_start && self.state == State::Idle => {
+                    self.state = State::Comment;
+                }
                 b'\r' | b'\n' => {
+                    self.at_line_start = true;
                     if self.state == State::InLine {
                         self.stats.lines += 1;
                         on_line(&self.buf[..self.len]);
@@ -92,7 +118,7 @@ impl LineFramer {
                 }
                 _ => match self.state {
                     State::Idle => self.stats.garbage_bytes += 1,
-                    State::Discard => {}
+                    State::Discard | State::Comment => {}
                     State::InLine if !(0x20..0x7f).contains(&b) => {
                         self.stats.binary_lines += 1;
                         self.state = State::Discard;
@@ -124,6 +150,7 @@ impl LineFramer {
     pub fn reset(&mut self) {
         self.state = State::Idle;
         self.len = 0;
+        self.at_line_start = true;
     }
 }
 
@@ -174,6 +201,19 @@ mod tests {
         let s = f.stats();
         assert_eq!((s.binary_lines, s.truncated_lines, s.lines), (1, 1, 1));
         assert_eq!(s.garbage_bytes, 11);
+    }
+
+    #[test]
+    fn comment_lines_only_in_log_file_mode() {
+        let data = b"# Notes: $GPGRS quoted\r\n#  $QZGSV,1\n$GPZDA,1\r\n x#$GPZDA,2\n";
+        let mut f = LineFramer::for_log_files();
+        let mut out = Vec::new();
+        f.push(data, |l| out.push(l.to_vec()));
+        assert_eq!(out, vec![b"$GPZDA,1".to_vec(), b"$GPZDA,2".to_vec()]);
+        let mut f = LineFramer::new();
+        let mut out = Vec::new();
+        f.push(data, |l| out.push(l.to_vec()));
+        assert_eq!(out.len(), 4, "serial mode keeps sentences after a '#'");
     }
 
     #[test]

@@ -18,6 +18,8 @@ pub struct DecodeStats {
     pub lines: u64,
     /// Lines that parsed as sentences.
     pub sentences: u64,
+    /// Sentences accepted without a checksum (see `docs/gnss.md`).
+    pub unchecked_sentences: u64,
     /// Lines with a wrong checksum.
     pub checksum_errors: u64,
     /// Other unparsable lines (bad address, malformed field of a known sentence).
@@ -41,6 +43,14 @@ impl Decoder {
     /// A fresh decoder.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// A decoder for log files: `#` comment lines are skipped (see [`LineFramer::for_log_files`]).
+    pub fn for_log_files() -> Self {
+        Decoder {
+            framer: LineFramer::for_log_files(),
+            ..Self::default()
+        }
     }
 
     /// Counters so far.
@@ -68,6 +78,9 @@ impl Decoder {
         match nmea::parse(line) {
             Ok(s) => {
                 stats.sentences += 1;
+                if s.checksum == nmea::Checksum::Absent {
+                    stats.unchecked_sentences += 1;
+                }
                 if let Some(f) = merger.push(&s) {
                     on_fix(f);
                 }

@@ -14,8 +14,9 @@
 
 use std::fmt;
 
-/// Longest address field we keep (`GPGGA` is 5; proprietary ones such as `PGRME` also fit).
-const ADDRESS_MAX: usize = 6;
+/// Longest address field kept (`GPGGA` is 5; proprietary `PMTK001`, `PQVERNO` are longer, and
+/// proprietary addresses beyond this are accepted but stored truncated).
+const ADDRESS_MAX: usize = 8;
 /// Milliseconds per second / minute / hour, for time-of-day arithmetic.
 const MS_PER_S: u32 = 1000;
 const MS_PER_MIN: u32 = 60 * MS_PER_S;
@@ -39,6 +40,8 @@ pub enum NmeaError {
     },
     /// The address field (`GPGGA`) is missing or malformed.
     BadAddress,
+    /// An address with no data fields at all (e.g. a bare `$PQVERNO`); gpsd drops these too.
+    NoFields,
     /// A field of a known sentence is malformed. `index` counts data fields from 1 (after the address).
     BadField {
         /// Field number (1 = first field after the address).
@@ -57,6 +60,7 @@ impl fmt::Display for NmeaError {
                 write!(f, "checksum {given:02X} != computed {computed:02X}")
             }
             NmeaError::BadAddress => write!(f, "malformed address field"),
+            NmeaError::NoFields => write!(f, "no data fields"),
             NmeaError::BadField { index, what } => write!(f, "field {index} ({what}) malformed"),
         }
     }
@@ -826,17 +830,25 @@ pub fn parse(line: &[u8]) -> Result<Sentence, NmeaError> {
     };
     let addr_end = data.iter().position(|&b| b == b',').unwrap_or(data.len());
     let addr = &data[..addr_end];
-    if addr.len() < 2 || addr.len() > ADDRESS_MAX || !addr.iter().all(u8::is_ascii_alphanumeric) {
+    let proprietary = addr.first() == Some(&b'P');
+    if addr.len() < 2
+        || (addr.len() > ADDRESS_MAX && !proprietary)
+        || !addr.iter().all(u8::is_ascii_alphanumeric)
+    {
         return Err(NmeaError::BadAddress);
     }
+    if addr_end == data.len() {
+        return Err(NmeaError::NoFields);
+    }
+    let kept = addr.len().min(ADDRESS_MAX);
     let mut address = [0u8; ADDRESS_MAX];
-    address[..addr.len()].copy_from_slice(addr);
+    address[..kept].copy_from_slice(&addr[..kept]);
     let mut fs = Fields {
-        rest: data.get(addr_end + 1..).filter(|_| addr_end < data.len()),
+        rest: data.get(addr_end + 1..),
         index: 0,
     };
     // Proprietary sentences (`P…`) are never one of ours even if they end in GGA.
-    let kind: &[u8] = if addr[0] == b'P' || addr.len() != 5 {
+    let kind: &[u8] = if proprietary || addr.len() != 5 {
         b""
     } else {
         &addr[2..]
@@ -851,7 +863,7 @@ pub fn parse(line: &[u8]) -> Result<Sentence, NmeaError> {
     };
     Ok(Sentence {
         address,
-        address_len: addr.len() as u8,
+        address_len: kept as u8,
         checksum: checksum_state,
         body,
     })
@@ -1045,6 +1057,7 @@ mod tests {
         assert_eq!(parse(b"GPGGA,1"), Err(NmeaError::NoStart));
         assert_eq!(parse(b"$G"), Err(NmeaError::BadAddress));
         assert_eq!(parse(b"$"), Err(NmeaError::BadAddress));
+        assert_eq!(parse(b"$PQVERNO"), Err(NmeaError::NoFields));
     }
 
     #[test]
