@@ -901,6 +901,67 @@ pub fn format_coord(out: &mut String, deg: f64, is_lat: bool, decimals: usize) {
     };
 }
 
+/// Minute decimals written by [`write_gga`]/[`write_rmc`]: 1e-7′ ≈ 0.2 mm, below any receiver.
+pub const WRITE_MINUTE_DECIMALS: usize = 7;
+
+fn push_time(out: &mut String, t: &UtcTime) {
+    use fmt::Write;
+    let _ = write!(
+        out,
+        "{:02}{:02}{:02}.{:03}",
+        t.hour, t.minute, t.second, t.millis
+    );
+}
+
+/// Append a complete GGA sentence (`$…*hh`, no line terminator): the inverse of [`parse`] for
+/// simulated receivers and round-trip tests. `alt_msl`/`geoid_sep` in metres.
+#[allow(clippy::too_many_arguments)] // mirrors the sentence's fields one to one
+pub fn write_gga(
+    out: &mut String,
+    time: &UtcTime,
+    pos: LatLon,
+    quality: u8,
+    sats: u8,
+    hdop: f64,
+    alt_msl: f64,
+    geoid_sep: f64,
+) {
+    use fmt::Write;
+    let mut d = String::with_capacity(96);
+    d.push_str("GPGGA,");
+    push_time(&mut d, time);
+    d.push(',');
+    format_coord(&mut d, pos.lat, true, WRITE_MINUTE_DECIMALS);
+    d.push(',');
+    format_coord(&mut d, pos.lon, false, WRITE_MINUTE_DECIMALS);
+    let _ = write!(
+        d,
+        ",{quality},{sats:02},{hdop:.2},{alt_msl:.3},M,{geoid_sep:.3},M,,"
+    );
+    finish_sentence(out, &d);
+}
+
+/// Append a complete RMC sentence (status `A` unless `mode` is `N`; speed and course 0).
+pub fn write_rmc(out: &mut String, time: &UtcTime, date: &Date, pos: LatLon, mode: u8) {
+    use fmt::Write;
+    let mut d = String::with_capacity(96);
+    d.push_str("GPRMC,");
+    push_time(&mut d, time);
+    d.push_str(if mode == b'N' { ",V," } else { ",A," });
+    format_coord(&mut d, pos.lat, true, WRITE_MINUTE_DECIMALS);
+    d.push(',');
+    format_coord(&mut d, pos.lon, false, WRITE_MINUTE_DECIMALS);
+    let _ = write!(
+        d,
+        ",0.000,0.0,{:02}{:02}{:02},,,{}",
+        date.day,
+        date.month,
+        date.year % 100,
+        mode as char
+    );
+    finish_sentence(out, &d);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
