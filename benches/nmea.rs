@@ -27,14 +27,21 @@ fn corpus() -> (Vec<String>, Vec<u8>) {
     for p in paths {
         let text = std::fs::read_to_string(&p).unwrap();
         raw.extend_from_slice(text.as_bytes());
-        lines.extend(text.lines().filter(|l| l.starts_with('$')).map(str::to_string));
+        lines.extend(
+            text.lines()
+                .filter(|l| l.starts_with('$'))
+                .map(str::to_string),
+        );
     }
     (lines, raw)
 }
 
 /// What a quick hand-written parser looks like: split into owned Strings, parse with `str::parse`.
 fn naive(line: &str) -> Option<(f64, f64)> {
-    let (data, cs) = line.strip_prefix('$')?.split_once('*').unwrap_or((line, ""));
+    let (data, cs) = line
+        .strip_prefix('$')?
+        .split_once('*')
+        .unwrap_or((line, ""));
     if !cs.is_empty() {
         let want = u8::from_str_radix(cs, 16).ok()?;
         if data.bytes().fold(0, |a, b| a ^ b) != want {

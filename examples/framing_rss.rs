@@ -24,11 +24,15 @@ fn vm_hwm_kib() -> u64 {
 }
 
 fn main() {
-    let mb: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(100);
+    let mb: usize = std::env::args()
+        .nth(1)
+        .and_then(|a| a.parse().ok())
+        .unwrap_or(100);
     let total = mb * 1_000_000;
     let mut rng = ChaCha8Rng::seed_from_u64(SEED);
     let mut buf = vec![0u8; READ_SIZE];
-    let sentence = b"\r\n$GNGGA,003956.00,4552.65403,S,17030.00668,E,1,12,0.64,14.2,M,1.8,M,,*56\r\n";
+    let sentence =
+        b"\r\n$GNGGA,003956.00,4552.65403,S,17030.00668,E,1,12,0.64,14.2,M,1.8,M,,*56\r\n";
     let mut d = Decoder::new();
     let mut fixes = 0u64;
     let before = vm_hwm_kib();
@@ -57,5 +61,8 @@ fn main() {
         f.overlong_lines,
         f.binary_lines
     );
-    println!("peak RSS (VmHWM): before {before} KiB, after {after} KiB, growth {} KiB", after.saturating_sub(before));
+    println!(
+        "peak RSS (VmHWM): before {before} KiB, after {after} KiB, growth {} KiB",
+        after.saturating_sub(before)
+    );
 }
