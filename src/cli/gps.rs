@@ -56,7 +56,6 @@ fn decode(path: &std::path::Path) -> Result<()> {
         d.push(&buf[..n], &mut emit);
     }
     d.finish(&mut emit);
-    drop(emit);
     if let Some(e) = write_err {
         return Err(Error::io("<stdout>", e));
     }

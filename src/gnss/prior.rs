@@ -173,10 +173,9 @@ impl PriorEstimator {
             return false;
         };
         let hdop = f.hdop.unwrap_or(1.0);
-        if !(hdop > 0.0 && hdop <= self.settings.max_hdop)
-            || !f.lat.is_finite()
-            || !f.lon.is_finite()
-        {
+        let usable =
+            hdop > 0.0 && hdop <= self.settings.max_hdop && f.lat.is_finite() && f.lon.is_finite();
+        if !usable {
             self.ignored += 1;
             return false;
         }
