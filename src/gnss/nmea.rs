@@ -1160,6 +1160,44 @@ mod tests {
     }
 
     #[test]
+    fn written_sentences_parse_back() {
+        let time = UtcTime {
+            hour: 23,
+            minute: 59,
+            second: 60,
+            millis: 250,
+            has_fraction: true,
+        };
+        let date = Date::new(2016, 12, 31).unwrap();
+        let pos = LatLon {
+            lat: -45.877567166,
+            lon: 170.500111333,
+        };
+        let mut s = String::new();
+        write_gga(&mut s, &time, pos, quality::RTK_FIXED, 12, 0.64, 14.2, 1.8);
+        let Body::Gga(g) = parse(s.as_bytes()).unwrap().body else {
+            panic!("{s}")
+        };
+        let p = g.pos.unwrap();
+        assert!(
+            (p.lat - pos.lat).abs() < 1e-9 && (p.lon - pos.lon).abs() < 1e-9,
+            "{s}"
+        );
+        assert_eq!(
+            (g.time, g.quality, g.sats, g.hdop, g.alt_msl),
+            (Some(time), 4, Some(12), Some(0.64), Some(14.2))
+        );
+        s.clear();
+        write_rmc(&mut s, &time, &date, pos, b'D');
+        let p = parse(s.as_bytes()).unwrap();
+        assert!(
+            matches!(p.body, Body::Rmc(Rmc { date: Some(d), .. }) if d == date),
+            "{s}"
+        );
+        assert_eq!(p.position().unwrap().1, quality::DGPS);
+    }
+
+    #[test]
     fn coordinate_formatting_round_trips() {
         let mut out = String::new();
         format_coord(&mut out, -45.877567167, true, 5);
