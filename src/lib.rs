@@ -25,5 +25,6 @@ pub mod pose;
 pub mod posefile;
 pub mod sim;
 pub mod store;
+pub mod viz;
 
 pub use error::{Error, Result};

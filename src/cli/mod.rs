@@ -1,7 +1,9 @@
 //! Command line (contracts §6). Each command's handler lives in its own file; this module only
 //! parses arguments, dispatches, and turns errors into one stderr line and an exit code.
 
+mod demo;
 mod gps;
+mod localize;
 mod project;
 mod rectify;
 mod refine;
@@ -25,6 +27,11 @@ pub struct Cli {
 /// Subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// Simulate a scene, localize it, print the errors against truth (non-zero exit past the
+    /// documented thresholds).
+    Demo(demo::Args),
+    /// Localize the camera: GPS prior → satellite matching + PnP → MI refinement → pose file.
+    Localize(localize::Args),
     /// Generate a simulated scene directory (contracts §5).
     Simulate(simulate::Args),
     /// Project points through a camera model: CSV x,y,z → CSV u,v on stdout.
@@ -58,6 +65,8 @@ pub fn main() -> i32 {
 /// Dispatch a parsed command.
 pub fn run(cli: Cli) -> Result<(), Error> {
     match cli.command {
+        Command::Demo(a) => demo::run(a),
+        Command::Localize(a) => localize::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Project(a) => project::run(a),
         Command::Rectify(a) => rectify::run(a),

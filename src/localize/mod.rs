@@ -13,6 +13,7 @@ pub mod init;
 pub mod kernel;
 pub mod matching;
 pub mod mi;
+pub mod pipeline;
 pub mod pnp;
 pub mod points;
 pub mod points_io;

@@ -1,0 +1,257 @@
+//! `infraloc localize`: the full two-step pipeline, one shot (contracts §6).
+
+use crate::camera::{import::load_camera, Camera, CameraModel};
+use crate::config::{Config, FrameSourceKind, GpsSourceKind};
+use crate::error::{Error, Result};
+use crate::localize::pipeline::{localize, Outcome, Params};
+use crate::map::cache::{find_tile, load_tile};
+use crate::map::{Crs, Tile};
+use crate::persist::write_atomic;
+use crate::posefile::{format_utc, PoseFile};
+use image::GrayImage;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Arguments of `localize`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct Args {
+    /// Configuration file (a simulated scene's `infraloc.toml` localizes it with no other flags).
+    #[arg(long, default_value = super::DEFAULT_CONFIG)]
+    pub config: PathBuf,
+    /// Intrinsics file (overrides the config's camera).
+    #[arg(long)]
+    pub camera: Option<PathBuf>,
+    /// Frame(s) to use instead of capturing; several are median-filtered.
+    #[arg(long = "image")]
+    pub images: Vec<PathBuf>,
+    /// NMEA log for the prior (overrides the config's GPS source).
+    #[arg(long, conflicts_with = "prior_wgs84")]
+    pub gps_nmea: Option<PathBuf>,
+    /// Prior position `LAT,LON` (overrides the config's GPS source).
+    #[arg(long)]
+    pub prior_wgs84: Option<String>,
+    /// Tile cache (overrides `[map] tiles`).
+    #[arg(long)]
+    pub tiles: Option<PathBuf>,
+    /// Pose file to write (overrides `[output] pose`).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Overlay PNG: LiDAR points (cyan) over the frame at the final pose.
+    #[arg(long)]
+    pub overlay: Option<PathBuf>,
+    /// Report JSON: per-stage poses, timings, evaluation counts, errors vs truth.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Ground truth (a simulator `truth.json`) to report errors against.
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+/// Everything a localization run produced (used by `localize`, `demo` and the daemon).
+pub(crate) struct Run {
+    /// Pipeline outcome.
+    pub outcome: Outcome,
+    /// Camera used.
+    pub camera: Camera,
+    /// Tile used.
+    pub tile: Tile,
+    /// Median frame.
+    pub image: GrayImage,
+    /// The pose document written.
+    pub pose_file: PoseFile,
+    /// The report.
+    pub report: Value,
+}
+
+fn load_gray(path: &Path) -> Result<GrayImage> {
+    let img = image::open(path).map_err(|e| Error::input(path, format!("cannot read image: {e}")))?;
+    Ok(img.to_luma8())
+}
+
+fn frames(a: &Args, cfg: &Config, cfg_path: &Path) -> Result<Vec<GrayImage>> {
+    if !a.images.is_empty() {
+        return a.images.iter().map(|p| load_gray(p)).collect();
+    }
+    let c = &cfg.camera;
+    match c.source {
+        // Recorded frames are read as they are: no exposure settling, no pacing.
+        FrameSourceKind::File => {
+            let path = c
+                .frames
+                .as_ref()
+                .ok_or_else(|| Error::config(cfg_path, "[camera] source = \"file\" needs frames"))?;
+            let src = crate::capture::FileSource::new(path);
+            let files: Vec<PathBuf> = src.files().iter().take(c.frame_count.max(1) as usize).cloned().collect();
+            if files.is_empty() {
+                return Err(Error::input(path, "no image files"));
+            }
+            files.iter().map(|p| load_gray(p)).collect()
+        }
+        _ => {
+            let mut src = crate::capture::source_from_config(c)?;
+            let settings = crate::capture::CaptureSettings::from_config(c);
+            let cap = crate::capture::capture(src.as_mut(), &settings, &crate::capture::SystemClock::default())?;
+            Ok(cap.frames.into_iter().map(|f| f.image).collect())
+        }
+    }
+}
+
+/// The prior as (lat, lon, σ m) and a JSON description of where it came from.
+fn prior(a: &Args, cfg: &Config, cfg_path: &Path) -> Result<((f64, f64, f64), Value)> {
+    if let Some(s) = &a.prior_wgs84 {
+        let [lat, lon] = super::parse_list::<2>("--prior-wgs84", s)?;
+        if !(lat.abs() <= 90.0 && lon.abs() <= 180.0) {
+            return Err(Error::Invalid(format!("--prior-wgs84 {s}: not a WGS84 position")));
+        }
+        let sigma = cfg.gps.fallback_sigma_m;
+        return Ok(((lat, lon, sigma), json!({"source": "command-line", "lat": lat, "lon": lon, "sigma_m": sigma})));
+    }
+    let mut g = cfg.gps.clone();
+    if let Some(path) = &a.gps_nmea {
+        g.source = GpsSourceKind::NmeaFile;
+        g.path = Some(path.clone());
+    }
+    let _ = cfg_path;
+    let outcome = crate::gps_serial::acquire_prior(&g)?;
+    let desc = serde_json::to_value(&outcome).unwrap_or(Value::Null);
+    let pos = outcome
+        .position()
+        .ok_or_else(|| Error::stage("prior", format!("no position: {desc}")))?;
+    Ok((pos, desc))
+}
+
+/// Run the whole pipeline for `a`, writing pose/report/overlay as configured.
+pub(crate) fn run_pipeline(a: &Args) -> Result<Run> {
+    if let Some(n) = a.threads {
+        // Only the first call in a process can size the global pool; later calls keep it.
+        let _ = rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global();
+    }
+    let t_start = Instant::now();
+    let cfg = Config::load(&a.config)?;
+    let camera = match (&a.camera, &cfg.camera.intrinsics_file, &cfg.camera.intrinsics) {
+        (Some(p), _, _) | (None, Some(p), _) => load_camera(p)?,
+        (None, None, Some(c)) => c.clone(),
+        (None, None, None) => return Err(Error::config(&a.config, "[camera]: no intrinsics-file or [camera.intrinsics]")),
+    };
+    let frames = frames(a, &cfg, &a.config)?;
+    let image = if frames.len() == 1 {
+        frames.into_iter().next().unwrap_or_default()
+    } else {
+        crate::capture::temporal_median(&frames)?
+    };
+    if (image.width(), image.height()) != (camera.width(), camera.height()) {
+        return Err(Error::stage(
+            "capture",
+            format!("frame is {}×{}, camera intrinsics are {}×{}", image.width(), image.height(), camera.width(), camera.height()),
+        ));
+    }
+    let ((lat, lon, sigma), prior_desc) = prior(a, &cfg, &a.config)?;
+    let tiles = a.tiles.clone().unwrap_or_else(|| cfg.map.tiles.clone());
+    let tref = find_tile(&tiles, lat, lon, cfg.map.search_margin_m)?;
+    let tile = load_tile(&tref.dir)?;
+    let crs = tile.reflectivity.grid.crs;
+    let (px, py) = match crs {
+        Crs::Epsg(_) => crate::geo::wgs84_to_map(crs, lat, lon)?,
+        Crs::Local => return Err(Error::input(&tref.dir, "tile CRS is LOCAL: a WGS84 prior cannot be placed in it")),
+    };
+    let params = Params::default();
+    let clock = |t: Instant| move || t.elapsed().as_secs_f64();
+    let outcome = localize(&camera, image.as_raw(), &tile, (px, py), sigma, &params, &clock(Instant::now()))?;
+
+    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+    let mut pf = PoseFile::new(&outcome.pose, crs, &tile.id, format_utc(now.as_secs() as i64, None));
+    pf.intrinsics = serde_json::to_value(&camera).unwrap_or(Value::Null);
+    let q = &outcome.refinement.quality;
+    let mut quality = serde_json::to_value(q).unwrap_or(json!({}));
+    // The pose store compares results by `score`: the MI optimum's NMI.
+    quality["score"] = json!(q.nmi);
+    quality["pnp_inliers"] = json!(outcome.init.inliers);
+    quality["pnp_rms_px"] = json!(outcome.init.rms_px);
+    pf.quality = quality;
+    pf.stages = outcome.stages.iter().map(|s| s.to_json()).collect();
+    pf.stages[0]["source"] = prior_desc.clone();
+
+    let mut report = json!({
+        "config": a.config,
+        "tile_id": tile.id,
+        "prior": prior_desc,
+        "stages": pf.stages,
+        "seconds_total": t_start.elapsed().as_secs_f64(),
+    });
+    if let Some(t) = &a.truth {
+        report["truth"] = truth_errors(t, &camera, &outcome)?;
+    }
+    let out = a.out.clone().unwrap_or_else(|| cfg.output.pose.clone());
+    write_atomic(&out, pf.to_json().as_bytes())?;
+    if let Some(p) = a.report.clone().or_else(|| cfg.output.report.clone()) {
+        let text = serde_json::to_string_pretty(&report).unwrap_or_default();
+        write_atomic(&p, text.as_bytes())?;
+    }
+    if let Some(p) = a.overlay.clone().or_else(|| cfg.output.overlay.clone()) {
+        let pts = crate::map::ground_points(&tile, (outcome.pose.center().x, outcome.pose.center().y), params.mi_radius_m);
+        let png = crate::viz::overlay_png(&image, &camera, &[(&outcome.init.pose, crate::viz::RED), (&outcome.pose, crate::viz::CYAN)], &pts)?;
+        write_atomic(&p, &png)?;
+    }
+    Ok(Run { outcome, camera, tile, image, pose_file: pf, report })
+}
+
+/// Errors of each stage's pose against a simulator `truth.json`.
+pub(crate) fn truth_errors(path: &Path, camera: &Camera, o: &Outcome) -> Result<Value> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let truth = crate::posefile::parse_pose(&text, path)?.pose;
+    let v: Value = serde_json::from_str(&text).map_err(|e| Error::input(path, e.to_string()))?;
+    let cps: Vec<([f64; 3], [f64; 2])> = v["control_points"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|c| Some((serde_json::from_value(c["map"].clone()).ok()?, serde_json::from_value(c["pixel"].clone()).ok()?)))
+                .collect()
+        })
+        .unwrap_or_default();
+    let err = |p: &crate::pose::CamFromMap| {
+        let (c, tc) = (p.center(), truth.center());
+        let dyaw = (p.yaw_pitch_roll().0 - truth.yaw_pitch_roll().0 + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI;
+        let reproj: Vec<f64> = cps
+            .iter()
+            .filter_map(|(m, px)| {
+                let q = camera.project(&p.transform(&nalgebra::Point3::from(*m)).coords).ok()?;
+                Some(((q.x - px[0]).powi(2) + (q.y - px[1]).powi(2)).sqrt())
+            })
+            .collect();
+        let mean = if reproj.is_empty() { f64::NAN } else { reproj.iter().sum::<f64>() / reproj.len() as f64 };
+        json!({
+            "horizontal_m": ((c.x - tc.x).powi(2) + (c.y - tc.y).powi(2)).sqrt(),
+            "height_m": (c.z - tc.z).abs(),
+            "yaw_deg": dyaw.abs().to_degrees(),
+            "rotation_deg": crate::pose::rotation_angle_between(&p.rotation, &truth.rotation).to_degrees(),
+            "control_points_mean_px": mean,
+        })
+    };
+    Ok(json!({
+        "pnp": err(&o.init.pose),
+        "mi": err(&o.pose),
+        "control_points": cps.len(),
+    }))
+}
+
+/// Run `localize`: write the outputs and print a one-line summary.
+pub fn run(a: Args) -> Result<()> {
+    let r = run_pipeline(&a)?;
+    let (y, p, ro) = r.outcome.pose.yaw_pitch_roll();
+    let c = r.outcome.pose.center();
+    println!(
+        "pose ok: tile {} centre ({:.3}, {:.3}, {:.3}) yaw {:.3}° pitch {:.3}° roll {:.3}°  NMI {:.4}",
+        r.tile.id, c.x, c.y, c.z, y.to_degrees(), p.to_degrees(), ro.to_degrees(), r.outcome.refinement.quality.nmi
+    );
+    if let Some(t) = r.report.get("truth") {
+        println!("vs truth: {t}");
+    }
+    let _ = &r.pose_file;
+    let _ = &r.image;
+    Ok(())
+}
