@@ -339,6 +339,10 @@ impl Config {
                 "[camera]: intrinsics-file and [camera.intrinsics] are both set; keep one",
             ));
         }
+        if let Some(cam) = &c.intrinsics {
+            cam.validate()
+                .map_err(|m| Error::config(origin, format!("[camera.intrinsics] {m}")))?;
+        }
         if c.source == FrameSourceKind::File && c.frames.is_none() {
             return Err(Error::config(
                 origin,
@@ -469,6 +473,15 @@ fallback-wgs84 = [42.0, -83.0]
         // Unknown key inside the inline camera table is rejected too.
         let bad = t.replace("k1 = -0.1", "k9 = -0.1");
         assert!(Config::parse(&bad, Path::new("x.toml")).is_err());
+        // Unusable values are a configuration error naming the parameter.
+        let bad = t.replace("fx = 300.0", "fx = -300.0");
+        let c = Config::parse(&bad, Path::new("x.toml")).unwrap();
+        let e = c.validate(Path::new("x.toml")).unwrap_err();
+        assert_eq!(e.exit_code(), crate::error::EXIT_CONFIG);
+        assert!(
+            e.to_string().contains("[camera.intrinsics] fx = -300"),
+            "{e}"
+        );
     }
 
     #[test]

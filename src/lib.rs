@@ -23,5 +23,6 @@ pub mod persist;
 pub mod pose;
 pub mod posefile;
 pub mod sim;
+pub mod store;
 
 pub use error::{Error, Result};

@@ -119,8 +119,10 @@ impl CameraModel for Equidistant {
         if theta >= self.theta_monotonic_limit() {
             return Err(Reject::DistortionFold);
         }
-        let (x, y) = if rho < AXIS_EPS * p.z.abs() {
-            // On the axis θ_d/ρ → 1/z, as in OpenCV's `cdist = 1` branch.
+        let (x, y) = if p.z > 0.0 && rho < AXIS_EPS * p.z {
+            // On the forward axis θ_d/ρ → 1/z, as in OpenCV's `cdist = 1` branch. (Near the
+            // backward axis θ_d/ρ → ∞ instead, so that case must take the general formula; the
+            // exact backward axis θ = π is rejected above because the limit is at most π.)
             (p.x / p.z, p.y / p.z)
         } else {
             let s = self.theta_d(theta) / rho;

@@ -78,6 +78,22 @@ impl Mei {
         smallest_positive_root(5.0 * self.k2, 3.0 * self.k1, 1.0).unwrap_or(f64::INFINITY)
     }
 
+    /// Angle from the axis at which the radial distortion folds over (π if it never does inside
+    /// the mirror's range): the ray whose undistorted radius is `sqrt(max_r2_monotonic)`.
+    fn fold_theta(&self) -> f64 {
+        let r2 = self.max_r2_monotonic();
+        if !r2.is_finite() {
+            return std::f64::consts::PI;
+        }
+        let disc = 1.0 + (1.0 - self.xi * self.xi) * r2;
+        if disc < 0.0 {
+            // Beyond the tangent cone (ξ > 1): the fold is never reached by a real ray.
+            return std::f64::consts::PI;
+        }
+        let lambda = (self.xi + disc.sqrt()) / (r2 + 1.0);
+        (lambda - self.xi).clamp(-1.0, 1.0).acos()
+    }
+
     /// Apply the radtan distortion to a normalised point.
     #[inline]
     fn distort(&self, x: f64, y: f64) -> (f64, f64) {
@@ -193,9 +209,10 @@ impl CameraModel for Mei {
     }
 
     fn max_theta(&self) -> f64 {
+        let model = self.min_sphere_z().acos().min(self.fold_theta());
         match self.fov_deg {
-            Some(f) => (f * 0.5).to_radians(),
-            None => self.min_sphere_z().acos(),
+            Some(f) => (f * 0.5).to_radians().min(model),
+            None => model,
         }
     }
 }

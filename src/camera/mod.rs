@@ -5,9 +5,12 @@
 //! (0, 0).
 
 mod equidistant;
+pub mod import;
 mod mei;
+pub mod rectify;
 
 pub use equidistant::Equidistant;
+pub use import::{load_camera, parse_camera, to_opencv_yaml};
 pub use mei::Mei;
 
 use nalgebra::{Point2, Unit, Vector3};
@@ -120,7 +123,74 @@ impl Camera {
             Camera::Equidistant(m) => m,
         }
     }
+
+    /// Check the parameters are usable: positive size and focal lengths, finite coefficients,
+    /// ξ ≥ 0, field of view in (0°, 360°]. The message names the offending parameter.
+    pub fn validate(&self) -> Result<(), String> {
+        let (w, h, named): (u32, u32, Vec<(&str, f64)>) = match self {
+            Camera::Mei(m) => (
+                m.width,
+                m.height,
+                vec![
+                    ("fx", m.fx),
+                    ("fy", m.fy),
+                    ("cx", m.cx),
+                    ("cy", m.cy),
+                    ("skew", m.skew),
+                    ("xi", m.xi),
+                    ("k1", m.k1),
+                    ("k2", m.k2),
+                    ("p1", m.p1),
+                    ("p2", m.p2),
+                ],
+            ),
+            Camera::Equidistant(e) => (
+                e.width,
+                e.height,
+                vec![
+                    ("fx", e.fx),
+                    ("fy", e.fy),
+                    ("cx", e.cx),
+                    ("cy", e.cy),
+                    ("alpha", e.alpha),
+                    ("k1", e.k1),
+                    ("k2", e.k2),
+                    ("k3", e.k3),
+                    ("k4", e.k4),
+                ],
+            ),
+        };
+        if w == 0 || h == 0 {
+            return Err(format!(
+                "image size {w}×{h}: width and height must be positive"
+            ));
+        }
+        for (name, v) in &named {
+            if !v.is_finite() {
+                return Err(format!("{name} = {v} is not finite"));
+            }
+            if matches!(*name, "fx" | "fy") && !(*v > 0.0) {
+                return Err(format!("{name} = {v}: focal length must be positive"));
+            }
+            if *name == "xi" && *v < 0.0 {
+                return Err(format!("xi = {v}: the mirror parameter must be ≥ 0"));
+            }
+        }
+        let fov = match self {
+            Camera::Mei(m) => m.fov_deg,
+            Camera::Equidistant(e) => e.fov_deg,
+        };
+        if let Some(f) = fov {
+            if !(f > 0.0 && f <= FULL_TURN_DEG) {
+                return Err(format!("fov-deg = {f}: must be in (0, {FULL_TURN_DEG}]"));
+            }
+        }
+        Ok(())
+    }
 }
+
+/// Upper bound of a field of view, degrees.
+const FULL_TURN_DEG: f64 = 360.0;
 
 impl CameraModel for Camera {
     fn width(&self) -> u32 {
@@ -257,6 +327,48 @@ mod tests {
             cam.project(&Vector3::new(0.1, 0.0, -1.0)),
             Err(Reject::OutsideFov)
         );
+    }
+
+    #[test]
+    fn mei_max_theta_stops_at_the_distortion_fold() {
+        // ξ = 0, k1 = −0.3: r(1 + k1 r²) peaks at r² = 1/(3·0.3), i.e. θ = atan(1.0541) = 46.49°.
+        let mut cam = Mei::pinhole(1000, 1000, 400.0, 400.0, 500.0, 500.0);
+        cam.k1 = -0.3;
+        let fold = (1.0f64 / 0.9).sqrt().atan();
+        assert!(
+            (cam.max_theta() - fold).abs() < 1e-12,
+            "{}",
+            cam.max_theta()
+        );
+        let ray = |deg: f64| Vector3::new(deg.to_radians().sin(), 0.0, deg.to_radians().cos());
+        assert!(cam.project(&ray(46.0)).is_ok());
+        assert_eq!(cam.project(&ray(47.0)), Err(Reject::DistortionFold));
+        // The fold of KITTI-360's lens (k1, k2 > 0) never happens: the mirror limit rules.
+        let k = kitti();
+        assert!((k.max_theta() - (-1.0 / k.xi).acos()).abs() < 1e-15);
+    }
+
+    #[test]
+    fn equidistant_near_backward_axis_is_not_the_forward_axis() {
+        let cam = Equidistant {
+            width: 1000,
+            height: 1000,
+            fx: 300.0,
+            fy: 300.0,
+            cx: 500.0,
+            cy: 500.0,
+            alpha: 0.0,
+            k1: 0.0,
+            k2: 0.0,
+            k3: 0.0,
+            k4: 0.0,
+            fov_deg: None,
+            cache: Default::default(),
+        };
+        // θ = π − 1e-14 at azimuth 0: the pixel lies at radius fx·θ, not at the centre.
+        let px = cam.project(&Vector3::new(1e-14, 0.0, -1.0)).unwrap();
+        assert!((px.x - (500.0 + 300.0 * (std::f64::consts::PI - 1e-14))).abs() < 1e-9);
+        assert!(cam.project(&Vector3::new(0.0, 0.0, -1.0)).is_err());
     }
 
     #[test]

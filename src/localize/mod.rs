@@ -1,4 +1,6 @@
 //! Localization: initialization (matching + PnP) and refinement (mutual information).
 
+pub mod init;
+pub mod matching;
 pub mod pnp;
 pub mod poly;

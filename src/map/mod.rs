@@ -1,10 +1,15 @@
-//! Map tiles: georeferenced grids and layers (this pure model) and the on-disk tile cache.
+//! Map tiles: georeferenced grids and layers (this pure model) and the on-disk tile cache
+//! ([`cache`], [`geotiff`]: the I/O shell; layout in `docs/map.md`).
 //!
 //! A [`GeoGrid`] is north-up and square-pixelled: pixel (col, row) has its *centre* at
 //! `x = x0 + (col + 0.5)·res`, `y = y0 − (row + 0.5)·res`, where (x0, y0) is the outer corner of the
 //! top-left pixel (GeoTIFF "PixelIsArea" convention).
 
 use serde::{Deserialize, Serialize};
+
+pub mod cache;
+pub mod geotiff;
+pub mod import;
 
 /// A coordinate reference system of map data.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -155,4 +160,127 @@ pub struct Tile {
     pub height: Raster<f32>,
     /// Optional surveyed control points.
     pub control_points: Vec<ControlPoint>,
+}
+
+/// A LiDAR ground point of a tile: the centre of one valid reflectivity/height cell.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GroundPoint {
+    /// Easting, map CRS metres.
+    pub x: f64,
+    /// Northing, map CRS metres.
+    pub y: f64,
+    /// Height, metres (the tile's height datum).
+    pub z: f64,
+    /// Ground reflectivity 0..255.
+    pub reflectivity: u8,
+}
+
+/// The ground points of `tile` whose cell centres lie within `radius_m` of `center_xy` (map CRS).
+///
+/// Cells whose reflectivity is the reflectivity no-data value, or whose height is NaN or the height
+/// no-data value, are skipped. Order is deterministic: row-major from the north-west (rows north →
+/// south, columns west → east), i.e. the raster order. A tile whose reflectivity and height grids
+/// differ yields no points ([`cache::write_tile`] and [`cache::load_tile`] refuse such tiles).
+pub fn ground_points(tile: &Tile, center_xy: (f64, f64), radius_m: f64) -> Vec<GroundPoint> {
+    let refl = &tile.reflectivity;
+    let hgt = &tile.height;
+    let g = refl.grid;
+    if !(radius_m >= 0.0) || g.is_empty() || hgt.grid != g {
+        return Vec::new();
+    }
+    let (cx, cy) = center_xy;
+    // Pixel-index window of the circle's bounding box, clamped to the grid.
+    let (pc, pr) = g.to_pixel(cx, cy);
+    let rpx = radius_m / g.res;
+    let clamp = |v: f64, n: usize| -> usize { v.max(0.0).min(n as f64) as usize };
+    let (c0, c1) = (
+        clamp((pc - rpx).floor(), g.width),
+        clamp((pc + rpx).ceil() + 1.0, g.width),
+    );
+    let (r0, r1) = (
+        clamp((pr - rpx).floor(), g.height),
+        clamp((pr + rpx).ceil() + 1.0, g.height),
+    );
+    let r2 = radius_m * radius_m;
+    let mut out = Vec::new();
+    for row in r0..r1 {
+        for col in c0..c1 {
+            let (x, y) = g.pixel_center(col, row);
+            if (x - cx).powi(2) + (y - cy).powi(2) > r2 {
+                continue;
+            }
+            let i = row * g.width + col;
+            let r = refl.data[i];
+            let z = hgt.data[i];
+            if Some(r) == refl.nodata || z.is_nan() || Some(z) == hgt.nodata {
+                continue;
+            }
+            out.push(GroundPoint {
+                x,
+                y,
+                z: f64::from(z),
+                reflectivity: r,
+            });
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tile() -> Tile {
+        let g = GeoGrid {
+            crs: Crs::Epsg(32617),
+            x0: 1000.0,
+            y0: 2000.0,
+            res: 0.5,
+            width: 8,
+            height: 6,
+        };
+        let mut refl = Raster::filled(g, 100u8, Some(0));
+        let mut h = Raster::filled(g, 10.0f32, Some(-9999.0));
+        for (i, v) in refl.data.iter_mut().enumerate() {
+            *v = 1 + i as u8;
+        }
+        refl.data[g.width * 2 + 3] = 0; // nodata reflectivity
+        h.data[g.width * 3 + 4] = f32::NAN; // NaN height
+        h.data[g.width * 3 + 3] = -9999.0; // nodata height
+        Tile {
+            id: "t".into(),
+            satellite: Raster::filled(g, [0, 0, 0], None),
+            reflectivity: refl,
+            height: h,
+            control_points: vec![],
+        }
+    }
+
+    #[test]
+    fn ground_points_brute_force() {
+        let t = tile();
+        let g = t.reflectivity.grid;
+        for (c, rad) in [
+            ((1002.0, 1998.5), 1.2),
+            ((1000.0, 2000.0), 0.4),
+            ((990.0, 1990.0), 100.0),
+        ] {
+            let pts = ground_points(&t, c, rad);
+            // Brute force over every cell.
+            let mut want = Vec::new();
+            for row in 0..g.height {
+                for col in 0..g.width {
+                    let (x, y) = g.pixel_center(col, row);
+                    let i = row * g.width + col;
+                    let (r, z) = (t.reflectivity.data[i], t.height.data[i]);
+                    if (x - c.0).hypot(y - c.1) <= rad && r != 0 && z.is_finite() && z != -9999.0 {
+                        want.push((x, y, r));
+                    }
+                }
+            }
+            let got: Vec<_> = pts.iter().map(|p| (p.x, p.y, p.reflectivity)).collect();
+            assert_eq!(got, want, "centre {c:?} radius {rad}");
+        }
+        assert_eq!(ground_points(&t, (1002.0, 1998.5), 100.0).len(), 48 - 3);
+    }
 }

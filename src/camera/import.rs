@@ -1,0 +1,1064 @@
+//! Intrinsics files (contracts §2): OpenCV FileStorage (YAML or XML), Kalibr camchain YAML,
+//! KITTI-360 MEI YAML and the native TOML table, detected from content.
+//!
+//! [`parse_camera`] is pure (text in, model out); [`load_camera`] is the one-line file-reading
+//! wrapper the shell uses. Every failure is an [`Error::Input`] naming the file and the key.
+//!
+//! The YAML and XML flavours are first turned into one small tree ([`Node`]) so that the OpenCV
+//! key logic exists once for both syntaxes.
+
+use super::{Camera, Equidistant, Mei};
+use crate::error::{Error, Result};
+use std::path::{Path, PathBuf};
+use yaml_rust2::{Yaml, YamlLoader};
+
+/// Separator between a camchain path and the camera to pick from it: `camchain.yaml#cam1`.
+pub const CAMERA_SELECTOR: char = '#';
+
+/// Read and parse an intrinsics file. For a Kalibr camchain, `path#camN` selects camera `camN`
+/// (default: the first camera in the file); the suffix is only split off when `path` itself does
+/// not name an existing file.
+pub fn load_camera(path: &Path) -> Result<Camera> {
+    let (file, selector) = split_selector(path);
+    let text = std::fs::read_to_string(&file).map_err(|e| Error::io(&file, e))?;
+    parse_camera_named(&text, &file, selector.as_deref())
+}
+
+/// Parse intrinsics text in any supported format (the first camera of a camchain). `origin` is
+/// used only in error messages.
+pub fn parse_camera(text: &str, origin: &Path) -> Result<Camera> {
+    parse_camera_named(text, origin, None)
+}
+
+/// Like [`parse_camera`], selecting a named camera (`cam1`) of a Kalibr camchain. Naming a camera
+/// in a single-camera format is an error.
+pub fn parse_camera_named(text: &str, origin: &Path, camera: Option<&str>) -> Result<Camera> {
+    let ctx = Ctx { origin };
+    let cam = match detect(text) {
+        Syntax::Xml => {
+            let root = xml_tree(text, &ctx)?;
+            no_selector(&ctx, camera, "OpenCV FileStorage XML")?;
+            opencv(&root, &ctx)?
+        }
+        Syntax::Toml => {
+            no_selector(&ctx, camera, "TOML")?;
+            toml_camera(text, &ctx)?
+        }
+        Syntax::Yaml => {
+            let root = yaml_tree(text, &ctx)?;
+            if root.get("model_type").is_some() {
+                no_selector(&ctx, camera, "KITTI-360 MEI YAML")?;
+                kitti360(&root, &ctx)?
+            } else if root.get("camera_matrix").is_some() {
+                no_selector(&ctx, camera, "OpenCV FileStorage YAML")?;
+                opencv(&root, &ctx)?
+            } else if is_camchain(&root) {
+                kalibr(&root, &ctx, camera)?
+            } else {
+                return Err(ctx.err(
+                    "unrecognised intrinsics YAML: expected camera_matrix (OpenCV FileStorage), \
+                     model_type (KITTI-360 MEI) or cam0.camera_model (Kalibr camchain)",
+                ));
+            }
+        }
+    };
+    cam.validate().map_err(|m| ctx.err(m))?;
+    Ok(cam)
+}
+
+/// Split `file#cam1` into the file and the selector, unless the whole path is an existing file.
+fn split_selector(path: &Path) -> (PathBuf, Option<String>) {
+    if path.is_file() {
+        return (path.to_path_buf(), None);
+    }
+    let s = path.to_string_lossy();
+    match s.rsplit_once(CAMERA_SELECTOR) {
+        Some((f, sel)) if !sel.is_empty() && !sel.contains('/') => {
+            (PathBuf::from(f), Some(sel.to_string()))
+        }
+        _ => (path.to_path_buf(), None),
+    }
+}
+
+fn no_selector(ctx: &Ctx, camera: Option<&str>, format: &str) -> Result<()> {
+    match camera {
+        Some(c) => Err(ctx.err(format!(
+            "camera {c:?} selected, but a {format} file holds one camera (only Kalibr camchains \
+             hold several)"
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// Error context: the file being parsed.
+struct Ctx<'a> {
+    origin: &'a Path,
+}
+
+impl Ctx<'_> {
+    fn err(&self, msg: impl Into<String>) -> Error {
+        Error::input(self.origin, msg)
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Syntax detection and the common tree
+// ---------------------------------------------------------------------------------------------
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Syntax {
+    Yaml,
+    Xml,
+    Toml,
+}
+
+/// Decide the syntax from the first significant line: XML starts with `<`, YAML files start with a
+/// `%YAML` directive, `---`, or `key:`; anything else (`[table]`, `key = value`) is TOML.
+fn detect(text: &str) -> Syntax {
+    let first = text
+        .lines()
+        .map(|l| l.trim_start_matches('\u{feff}').trim())
+        .find(|l| !l.is_empty() && !l.starts_with('#'))
+        .unwrap_or("");
+    if first.starts_with('<') {
+        return Syntax::Xml;
+    }
+    if first.starts_with("%YAML") || first.starts_with("---") {
+        return Syntax::Yaml;
+    }
+    let colon = first.find(':');
+    let equals = first.find('=');
+    match (colon, equals) {
+        (Some(c), Some(e)) if c < e => Syntax::Yaml,
+        (Some(_), None) => Syntax::Yaml,
+        _ => Syntax::Toml,
+    }
+}
+
+/// A FileStorage-like tree: what OpenCV YAML, OpenCV XML and plain YAML have in common.
+#[derive(Debug, Clone, PartialEq)]
+enum Node {
+    /// A scalar, as text (numbers are parsed on use, so errors can name the key).
+    Scalar(String),
+    /// A mapping in file order.
+    Map(Vec<(String, Node)>),
+    /// A sequence.
+    Seq(Vec<Node>),
+    /// An `opencv-matrix`: `rows`, `cols`, `dt` and `data` (still text).
+    Matrix {
+        rows: String,
+        cols: String,
+        dt: String,
+        data: Vec<String>,
+    },
+}
+
+impl Node {
+    fn get(&self, key: &str) -> Option<&Node> {
+        match self {
+            Node::Map(m) => m.iter().find(|(k, _)| k == key).map(|(_, v)| v),
+            _ => None,
+        }
+    }
+
+    fn kind(&self) -> &'static str {
+        match self {
+            Node::Scalar(_) => "a scalar",
+            Node::Map(_) => "a mapping",
+            Node::Seq(_) => "a sequence",
+            Node::Matrix { .. } => "a matrix",
+        }
+    }
+}
+
+/// Turn the `%YAML:1.0` directive OpenCV writes (not valid YAML: the standard form has a space) into
+/// a blank line, keeping line numbers for error messages.
+fn strip_opencv_directive(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    for (i, line) in text.lines().enumerate() {
+        if i < 2 && line.trim_start_matches('\u{feff}').starts_with("%YAML") {
+            out.push('\n');
+        } else {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    out
+}
+
+fn yaml_tree(text: &str, ctx: &Ctx) -> Result<Node> {
+    // yaml-rust2 drops local tags such as `!!opencv-matrix` on mappings; the matrix is recognised by
+    // its rows/cols/dt/data keys instead.
+    let docs = YamlLoader::load_from_str(&strip_opencv_directive(text))
+        .map_err(|e| ctx.err(format!("YAML syntax: {e}")))?;
+    let doc = docs
+        .into_iter()
+        .next()
+        .ok_or_else(|| ctx.err("empty YAML document"))?;
+    yaml_node(&doc, ctx, "")
+}
+
+fn yaml_scalar(y: &Yaml) -> Option<String> {
+    match y {
+        Yaml::Real(s) | Yaml::String(s) => Some(s.clone()),
+        Yaml::Integer(i) => Some(i.to_string()),
+        Yaml::Boolean(b) => Some(b.to_string()),
+        _ => None,
+    }
+}
+
+fn yaml_node(y: &Yaml, ctx: &Ctx, path: &str) -> Result<Node> {
+    Ok(match y {
+        Yaml::Hash(h) => {
+            let mut m = Vec::with_capacity(h.len());
+            for (k, v) in h {
+                let key = yaml_scalar(k)
+                    .ok_or_else(|| ctx.err(format!("{path}: mapping key is not a scalar")))?;
+                let sub = if path.is_empty() {
+                    key.clone()
+                } else {
+                    format!("{path}.{key}")
+                };
+                m.push((key, yaml_node(v, ctx, &sub)?));
+            }
+            let node = Node::Map(m);
+            match (
+                node.get("rows"),
+                node.get("cols"),
+                node.get("dt"),
+                node.get("data"),
+            ) {
+                (Some(Node::Scalar(r)), Some(Node::Scalar(c)), dt, Some(Node::Seq(d))) => {
+                    let data = d
+                        .iter()
+                        .map(|n| match n {
+                            Node::Scalar(s) => Ok(s.clone()),
+                            other => Err(ctx.err(format!(
+                                "{path}.data: expected numbers, found {}",
+                                other.kind()
+                            ))),
+                        })
+                        .collect::<Result<Vec<_>>>()?;
+                    let dt = match dt {
+                        Some(Node::Scalar(s)) => s.clone(),
+                        _ => "d".into(),
+                    };
+                    Node::Matrix {
+                        rows: r.clone(),
+                        cols: c.clone(),
+                        dt,
+                        data,
+                    }
+                }
+                _ => node,
+            }
+        }
+        Yaml::Array(a) => Node::Seq(
+            a.iter()
+                .enumerate()
+                .map(|(i, v)| yaml_node(v, ctx, &format!("{path}[{i}]")))
+                .collect::<Result<_>>()?,
+        ),
+        Yaml::Null => Node::Scalar(String::new()),
+        other => Node::Scalar(
+            yaml_scalar(other)
+                .ok_or_else(|| ctx.err(format!("{path}: unsupported YAML value (alias?)")))?,
+        ),
+    })
+}
+
+/// OpenCV writes strings in XML bare, or in double quotes when they contain spaces or digits first.
+fn unquote(s: &str) -> &str {
+    let s = s.trim();
+    s.strip_prefix('"')
+        .and_then(|t| t.strip_suffix('"'))
+        .unwrap_or(s)
+}
+
+fn xml_tree(text: &str, ctx: &Ctx) -> Result<Node> {
+    let doc = roxmltree::Document::parse(text).map_err(|e| ctx.err(format!("XML syntax: {e}")))?;
+    let root = doc.root_element();
+    if root.tag_name().name() != "opencv_storage" {
+        return Err(ctx.err(format!(
+            "XML root element is <{}>, expected <opencv_storage> (OpenCV FileStorage)",
+            root.tag_name().name()
+        )));
+    }
+    xml_node(root, ctx)
+}
+
+fn xml_node(e: roxmltree::Node, ctx: &Ctx) -> Result<Node> {
+    let name = e.tag_name().name();
+    let children: Vec<_> = e.children().filter(|c| c.is_element()).collect();
+    if e.attribute("type_id") == Some("opencv-matrix") {
+        let field = |k: &str| {
+            children
+                .iter()
+                .find(|c| c.tag_name().name() == k)
+                .map(|c| c.text().unwrap_or("").trim().to_string())
+                .ok_or_else(|| ctx.err(format!("{name}: opencv-matrix without <{k}>")))
+        };
+        return Ok(Node::Matrix {
+            rows: field("rows")?,
+            cols: field("cols")?,
+            dt: unquote(&field("dt")?).to_string(),
+            data: field("data")?
+                .split_whitespace()
+                .map(str::to_string)
+                .collect(),
+        });
+    }
+    if children.is_empty() {
+        return Ok(Node::Scalar(unquote(e.text().unwrap_or("")).to_string()));
+    }
+    if children.iter().all(|c| c.tag_name().name() == "_") {
+        return Ok(Node::Seq(
+            children
+                .iter()
+                .map(|c| xml_node(*c, ctx))
+                .collect::<Result<_>>()?,
+        ));
+    }
+    Ok(Node::Map(
+        children
+            .iter()
+            .map(|c| Ok((c.tag_name().name().to_string(), xml_node(*c, ctx)?)))
+            .collect::<Result<_>>()?,
+    ))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Typed access with key-naming errors
+// ---------------------------------------------------------------------------------------------
+
+fn req<'a>(n: &'a Node, key: &str, ctx: &Ctx) -> Result<&'a Node> {
+    n.get(key)
+        .ok_or_else(|| ctx.err(format!("missing key {key}")))
+}
+
+fn parse_f64(s: &str, key: &str, ctx: &Ctx) -> Result<f64> {
+    s.trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|v| v.is_finite())
+        .ok_or_else(|| ctx.err(format!("{key}: {s:?} is not a finite number")))
+}
+
+/// A number: a scalar, or a 1×1 matrix (OpenCV writes `xi` either way).
+fn num(n: &Node, key: &str, ctx: &Ctx) -> Result<f64> {
+    match n {
+        Node::Scalar(s) => parse_f64(s, key, ctx),
+        Node::Matrix { .. } => {
+            let (r, c, d) = matrix(n, key, ctx)?;
+            if d.len() != 1 {
+                return Err(ctx.err(format!("{key}: expected a number, found a {r}×{c} matrix")));
+            }
+            Ok(d[0])
+        }
+        Node::Seq(v) if v.len() == 1 => num(&v[0], key, ctx),
+        other => Err(ctx.err(format!("{key}: expected a number, found {}", other.kind()))),
+    }
+}
+
+fn req_num(n: &Node, key: &str, ctx: &Ctx) -> Result<f64> {
+    num(req(n, key, ctx)?, key, ctx)
+}
+
+fn opt_num(n: &Node, key: &str, ctx: &Ctx) -> Result<Option<f64>> {
+    n.get(key).map(|v| num(v, key, ctx)).transpose()
+}
+
+/// An image dimension: a positive integer.
+fn dim(n: &Node, key: &str, ctx: &Ctx) -> Result<u32> {
+    let v = num(n, key, ctx)?;
+    if v >= 1.0 && v.fract() == 0.0 && v <= u32::MAX as f64 {
+        Ok(v as u32)
+    } else {
+        Err(ctx.err(format!("{key}: {v} is not a positive integer pixel count")))
+    }
+}
+
+fn string<'a>(n: &'a Node, key: &str, ctx: &Ctx) -> Result<&'a str> {
+    match n {
+        Node::Scalar(s) => Ok(s.as_str()),
+        other => Err(ctx.err(format!("{key}: expected a string, found {}", other.kind()))),
+    }
+}
+
+/// Parse an opencv-matrix: (rows, cols, row-major data). Checks the element count against the
+/// declared shape and channel count (`dt` such as `d`, `f` or `3d`).
+fn matrix(n: &Node, key: &str, ctx: &Ctx) -> Result<(usize, usize, Vec<f64>)> {
+    let Node::Matrix {
+        rows,
+        cols,
+        dt,
+        data,
+    } = n
+    else {
+        return Err(ctx.err(format!(
+            "{key}: expected an opencv-matrix (rows, cols, dt, data), found {}",
+            n.kind()
+        )));
+    };
+    let int = |s: &str, what: &str| {
+        s.trim()
+            .parse::<usize>()
+            .map_err(|_| ctx.err(format!("{key}.{what}: {s:?} is not a non-negative integer")))
+    };
+    let (r, c) = (int(rows, "rows")?, int(cols, "cols")?);
+    let channels = match dt
+        .trim()
+        .trim_end_matches(|ch: char| ch.is_ascii_alphabetic())
+    {
+        "" => 1,
+        digits => int(digits, "dt")?,
+    };
+    if channels != 1 {
+        return Err(ctx.err(format!(
+            "{key}.dt: {dt:?} is a {channels}-channel matrix, expected one channel"
+        )));
+    }
+    let values = data
+        .iter()
+        .map(|s| parse_f64(s, &format!("{key}.data"), ctx))
+        .collect::<Result<Vec<_>>>()?;
+    if values.len() != r * c {
+        return Err(ctx.err(format!(
+            "{key}: declared {r}×{c} but data holds {} values",
+            values.len()
+        )));
+    }
+    Ok((r, c, values))
+}
+
+/// A list of numbers: a YAML sequence, or a 1×N / N×1 matrix.
+fn vector(n: &Node, key: &str, ctx: &Ctx) -> Result<Vec<f64>> {
+    match n {
+        Node::Seq(v) => v
+            .iter()
+            .map(|x| num(x, key, ctx))
+            .collect::<Result<Vec<_>>>(),
+        Node::Matrix { .. } => {
+            let (r, c, d) = matrix(n, key, ctx)?;
+            if r != 1 && c != 1 {
+                return Err(ctx.err(format!("{key}: expected 1×N or N×1, found {r}×{c}")));
+            }
+            Ok(d)
+        }
+        other => Err(ctx.err(format!("{key}: expected a list, found {}", other.kind()))),
+    }
+}
+
+fn vector_len<const N: usize>(n: &Node, key: &str, ctx: &Ctx) -> Result<[f64; N]> {
+    let v = vector(n, key, ctx)?;
+    let len = v.len();
+    v.try_into()
+        .map_err(|_| ctx.err(format!("{key}: expected {N} values, found {len}")))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Formats
+// ---------------------------------------------------------------------------------------------
+
+/// OpenCV FileStorage (YAML or XML) from `cv::omnidir` / `cv::fisheye` calibration tooling.
+fn opencv(root: &Node, ctx: &Ctx) -> Result<Camera> {
+    let kn = req(root, "camera_matrix", ctx)?;
+    let (r, c, k) = matrix(kn, "camera_matrix", ctx)?;
+    if (r, c) != (3, 3) {
+        return Err(ctx.err(format!("camera_matrix: expected 3×3, found {r}×{c}")));
+    }
+    if k[3] != 0.0 || k[6] != 0.0 || k[7] != 0.0 || k[8] != 1.0 {
+        return Err(ctx.err(format!(
+            "camera_matrix: not upper-triangular with K[2][2] = 1 (rows 2–3: {:?}, {:?})",
+            &k[3..6],
+            &k[6..9]
+        )));
+    }
+    let size_key = |key: &str| {
+        let n = root.get(key).ok_or_else(|| {
+            ctx.err(format!(
+                "missing key {key}: the camera model needs the image size (OpenCV calibration \
+                 output does not store it; add image_width and image_height)"
+            ))
+        })?;
+        dim(n, key, ctx)
+    };
+    let (width, height) = (size_key("image_width")?, size_key("image_height")?);
+    let dist = vector_len::<4>(
+        req(root, "distortion_coefficients", ctx)?,
+        "distortion_coefficients",
+        ctx,
+    )?;
+    let fov_deg = opt_num(root, "fov_deg", ctx)?;
+    let model = match root.get("model") {
+        Some(n) => string(n, "model", ctx)?.to_ascii_lowercase(),
+        None => "mei".into(),
+    };
+    match model.as_str() {
+        "mei" | "omnidir" => Ok(Camera::Mei(Mei {
+            width,
+            height,
+            fx: k[0],
+            fy: k[4],
+            cx: k[2],
+            cy: k[5],
+            skew: k[1],
+            xi: req_num(root, "xi", ctx)?,
+            k1: dist[0],
+            k2: dist[1],
+            p1: dist[2],
+            p2: dist[3],
+            fov_deg,
+        })),
+        "equidistant" | "fisheye" => {
+            if root.get("xi").is_some() {
+                return Err(ctx.err("xi: not a parameter of model: equidistant"));
+            }
+            Ok(Camera::Equidistant(Equidistant {
+                width,
+                height,
+                fx: k[0],
+                fy: k[4],
+                cx: k[2],
+                cy: k[5],
+                // cv::fisheye stores the skew as K[0][1] = α·fx.
+                alpha: k[1] / k[0],
+                k1: dist[0],
+                k2: dist[1],
+                k3: dist[2],
+                k4: dist[3],
+                fov_deg,
+                cache: Default::default(),
+            }))
+        }
+        other => Err(ctx.err(format!(
+            "model: {other:?} is not supported (expected mei or equidistant)"
+        ))),
+    }
+}
+
+/// KITTI-360 / CamOdoCal MEI YAML.
+fn kitti360(root: &Node, ctx: &Ctx) -> Result<Camera> {
+    let model = string(req(root, "model_type", ctx)?, "model_type", ctx)?;
+    if !model.eq_ignore_ascii_case("MEI") {
+        return Err(ctx.err(format!(
+            "model_type: {model:?} is not supported (expected MEI)"
+        )));
+    }
+    let section = |name: &str| req(root, name, ctx);
+    let sub = |sec: &str, key: &str| -> Result<f64> {
+        let s = section(sec)?;
+        let full = format!("{sec}.{key}");
+        let n = s
+            .get(key)
+            .ok_or_else(|| ctx.err(format!("missing key {full}")))?;
+        num(n, &full, ctx)
+    };
+    Ok(Camera::Mei(Mei {
+        width: dim(req(root, "image_width", ctx)?, "image_width", ctx)?,
+        height: dim(req(root, "image_height", ctx)?, "image_height", ctx)?,
+        fx: sub("projection_parameters", "gamma1")?,
+        fy: sub("projection_parameters", "gamma2")?,
+        cx: sub("projection_parameters", "u0")?,
+        cy: sub("projection_parameters", "v0")?,
+        skew: 0.0,
+        xi: sub("mirror_parameters", "xi")?,
+        k1: sub("distortion_parameters", "k1")?,
+        k2: sub("distortion_parameters", "k2")?,
+        // KITTI-360's devkit ignores p1/p2 when projecting; the calibration has them, so we keep them.
+        p1: sub("distortion_parameters", "p1")?,
+        p2: sub("distortion_parameters", "p2")?,
+        fov_deg: opt_num(root, "fov_deg", ctx)?,
+    }))
+}
+
+fn is_camchain(root: &Node) -> bool {
+    match root {
+        Node::Map(m) => m.iter().any(|(_, v)| v.get("camera_model").is_some()),
+        _ => false,
+    }
+}
+
+/// Kalibr camchain: `omni` or `pinhole` projection with `radtan`, `equidistant` or `none`
+/// distortion.
+fn kalibr(root: &Node, ctx: &Ctx, camera: Option<&str>) -> Result<Camera> {
+    let Node::Map(m) = root else {
+        return Err(ctx.err("camchain: expected a mapping of cameras"));
+    };
+    let (name, cam) = match camera {
+        Some(c) => (
+            c.to_string(),
+            root.get(c).ok_or_else(|| {
+                let names: Vec<&str> = m.iter().map(|(k, _)| k.as_str()).collect();
+                ctx.err(format!(
+                    "camera {c:?} not in camchain (has {})",
+                    names.join(", ")
+                ))
+            })?,
+        ),
+        None => m
+            .iter()
+            .find(|(_, v)| v.get("camera_model").is_some())
+            .map(|(k, v)| (k.clone(), v))
+            .ok_or_else(|| ctx.err("camchain: no camera with camera_model"))?,
+    };
+    let key = |k: &str| format!("{name}.{k}");
+    let get = |k: &str| {
+        cam.get(k)
+            .ok_or_else(|| ctx.err(format!("missing key {}", key(k))))
+    };
+    let model = string(get("camera_model")?, &key("camera_model"), ctx)?;
+    let intr = vector(get("intrinsics")?, &key("intrinsics"), ctx)?;
+    let res = vector_len::<2>(get("resolution")?, &key("resolution"), ctx)?;
+    let size = |v: f64, what: &str| dim(&Node::Scalar(v.to_string()), &key(what), ctx);
+    let (width, height) = (size(res[0], "resolution")?, size(res[1], "resolution")?);
+    let dist_model = match cam.get("distortion_model") {
+        Some(n) => string(n, &key("distortion_model"), ctx)?,
+        None => "none",
+    };
+    let coeffs = match cam.get("distortion_coeffs") {
+        Some(n) => vector(n, &key("distortion_coeffs"), ctx)?,
+        None => Vec::new(),
+    };
+    let coeffs4 = |expected: &str| -> Result<[f64; 4]> {
+        coeffs.as_slice().try_into().map_err(|_| {
+            ctx.err(format!(
+                "{}: {expected} needs 4 coefficients, found {}",
+                key("distortion_coeffs"),
+                coeffs.len()
+            ))
+        })
+    };
+    let dist = match dist_model {
+        "radtan" | "equidistant" => coeffs4(dist_model)?,
+        "none" if coeffs.iter().all(|c| *c == 0.0) => [0.0; 4],
+        other => {
+            return Err(ctx.err(format!(
+                "{}: {other:?} is not supported (expected radtan, equidistant or none)",
+                key("distortion_model")
+            )))
+        }
+    };
+    let expect_len = |n: usize| -> Result<()> {
+        if intr.len() == n {
+            Ok(())
+        } else {
+            Err(ctx.err(format!(
+                "{}: camera_model {model} needs {n} values, found {}",
+                key("intrinsics"),
+                intr.len()
+            )))
+        }
+    };
+    let mei = |xi: f64, f: &[f64]| {
+        Camera::Mei(Mei {
+            width,
+            height,
+            fx: f[0],
+            fy: f[1],
+            cx: f[2],
+            cy: f[3],
+            skew: 0.0,
+            xi,
+            k1: dist[0],
+            k2: dist[1],
+            p1: dist[2],
+            p2: dist[3],
+            fov_deg: None,
+        })
+    };
+    match (model, dist_model) {
+        ("omni", "radtan" | "none") => {
+            expect_len(5)?;
+            Ok(mei(intr[0], &intr[1..]))
+        }
+        ("pinhole", "radtan" | "none") => {
+            expect_len(4)?;
+            Ok(mei(0.0, &intr))
+        }
+        ("pinhole", "equidistant") => {
+            expect_len(4)?;
+            Ok(Camera::Equidistant(Equidistant {
+                width,
+                height,
+                fx: intr[0],
+                fy: intr[1],
+                cx: intr[2],
+                cy: intr[3],
+                alpha: 0.0,
+                k1: dist[0],
+                k2: dist[1],
+                k3: dist[2],
+                k4: dist[3],
+                fov_deg: None,
+                cache: Default::default(),
+            }))
+        }
+        ("omni", _) => Err(ctx.err(format!(
+            "{}: {dist_model} with camera_model omni is not supported (expected radtan)",
+            key("distortion_model")
+        ))),
+        (other, _) => Err(ctx.err(format!(
+            "{}: {other:?} is not supported (expected omni or pinhole)",
+            key("camera_model")
+        ))),
+    }
+}
+
+/// The native TOML table (serde of [`Camera`]), at top level or under `[camera.intrinsics]`.
+fn toml_camera(text: &str, ctx: &Ctx) -> Result<Camera> {
+    let one_line =
+        |e: toml::de::Error| ctx.err(e.to_string().replace('\n', " ").trim().to_string());
+    let table: toml::Table = toml::from_str(text).map_err(one_line)?;
+    let value =
+        match table.get("camera") {
+            Some(toml::Value::Table(cam)) => match cam.get("intrinsics") {
+                Some(v) => v.clone(),
+                None if cam.contains_key("intrinsics-file") => return Err(ctx.err(
+                    "camera.intrinsics-file: this config points to an intrinsics file; pass that \
+                     file instead",
+                )),
+                None => return Err(ctx.err("missing table [camera.intrinsics]")),
+            },
+            _ => toml::Value::Table(table),
+        };
+    if let toml::Value::Table(t) = &value {
+        if !t.contains_key("model") {
+            return Err(ctx.err("missing key model (\"mei\" or \"equidistant\")"));
+        }
+    }
+    value.try_into::<Camera>().map_err(one_line)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Writing
+// ---------------------------------------------------------------------------------------------
+
+/// Shortest round-trip decimal of `v` in exponent form (`4.089e2`). OpenCV's parser treats a
+/// number with `e` as real, and strtod reads it back exactly.
+fn real(v: f64) -> String {
+    format!("{v:e}")
+}
+
+fn write_matrix(out: &mut String, key: &str, rows: usize, cols: usize, data: &[f64]) {
+    let values: Vec<String> = data.iter().map(|v| real(*v)).collect();
+    out.push_str(&format!(
+        "{key}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]\n",
+        values.join(", ")
+    ));
+}
+
+/// The camera as an OpenCV FileStorage YAML document (`cv2.FileStorage(path, READ)` reads it; so
+/// does [`parse_camera`]): `model`, `image_width`, `image_height`, `camera_matrix`,
+/// `distortion_coefficients`, `xi` (Mei only) and `fov_deg` when set.
+pub fn to_opencv_yaml(cam: &Camera) -> String {
+    let mut out = String::from("%YAML:1.0\n---\n");
+    let (model, w, h, k, d, xi, fov) = match cam {
+        Camera::Mei(m) => (
+            "mei",
+            m.width,
+            m.height,
+            [m.fx, m.skew, m.cx, 0.0, m.fy, m.cy, 0.0, 0.0, 1.0],
+            [m.k1, m.k2, m.p1, m.p2],
+            Some(m.xi),
+            m.fov_deg,
+        ),
+        Camera::Equidistant(e) => (
+            "equidistant",
+            e.width,
+            e.height,
+            [e.fx, e.alpha * e.fx, e.cx, 0.0, e.fy, e.cy, 0.0, 0.0, 1.0],
+            [e.k1, e.k2, e.k3, e.k4],
+            None,
+            e.fov_deg,
+        ),
+    };
+    out.push_str(&format!(
+        "model: {model}\nimage_width: {w}\nimage_height: {h}\n"
+    ));
+    write_matrix(&mut out, "camera_matrix", 3, 3, &k);
+    write_matrix(&mut out, "distortion_coefficients", 1, 4, &d);
+    if let Some(xi) = xi {
+        write_matrix(&mut out, "xi", 1, 1, &[xi]);
+    }
+    if let Some(f) = fov {
+        out.push_str(&format!("fov_deg: {}\n", real(f)));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const P: &str = "test.yaml";
+
+    fn parse(text: &str) -> Result<Camera> {
+        parse_camera(text, Path::new(P))
+    }
+
+    fn err(text: &str) -> String {
+        parse(text).unwrap_err().to_string()
+    }
+
+    const OPENCV_YAML: &str = "%YAML:1.0
+---
+image_width: 1280
+image_height: 960
+camera_matrix: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 408.89999999999998, -0.63, 630.20000000000005, 0.,
+       410.39999999999998, 431.89999999999998, 0., 0., 1. ]
+xi: !!opencv-matrix
+   rows: 1
+   cols: 1
+   dt: d
+   data: [ 1.0533861712345678 ]
+distortion_coefficients: !!opencv-matrix
+   rows: 1
+   cols: 4
+   dt: d
+   data: [ -0.0083000000000000001, 0.0117, 0.022800000000000001,
+       -0.0041000000000000003 ]
+";
+
+    #[test]
+    fn opencv_yaml_mei() {
+        let Camera::Mei(m) = parse(OPENCV_YAML).unwrap() else {
+            panic!("not mei")
+        };
+        assert_eq!((m.width, m.height), (1280, 960));
+        assert_eq!((m.fx, m.skew, m.cx), (408.9, -0.63, 630.2));
+        assert_eq!((m.fy, m.cy, m.xi), (410.4, 431.9, 1.0533861712345678));
+        assert_eq!([m.k1, m.k2, m.p1, m.p2], [-0.0083, 0.0117, 0.0228, -0.0041]);
+    }
+
+    #[test]
+    fn opencv_yaml_errors_name_the_key() {
+        let e = err(&OPENCV_YAML.replace("image_width: 1280\n", ""));
+        assert!(e.starts_with("test.yaml: missing key image_width"), "{e}");
+        let e = err(&OPENCV_YAML.replace("   rows: 3\n", "   rows: 2\n"));
+        assert!(
+            e.contains("camera_matrix: declared 2×3 but data holds 9"),
+            "{e}"
+        );
+        let e = err(&OPENCV_YAML.replace("0.0117,", "0.0117, 0.5,"));
+        assert!(
+            e.contains("distortion_coefficients: declared 1×4 but data holds 5"),
+            "{e}"
+        );
+        let e = err(&OPENCV_YAML.replace("1.0533861712345678", "abc"));
+        assert!(e.contains("xi.data: \"abc\""), "{e}");
+        let e = err(&OPENCV_YAML.replace("xi:", "xj:"));
+        assert!(e.ends_with("missing key xi"), "{e}");
+        let e = err(&format!("{OPENCV_YAML}model: scaramuzza\n"));
+        assert!(e.contains("model: \"scaramuzza\" is not supported"), "{e}");
+        assert!(!e.contains('\n'));
+    }
+
+    #[test]
+    fn opencv_xml_equals_yaml() {
+        let xml = r#"<?xml version="1.0"?>
+<opencv_storage>
+<image_width>1280</image_width>
+<image_height>960</image_height>
+<camera_matrix type_id="opencv-matrix">
+  <rows>3</rows>
+  <cols>3</cols>
+  <dt>d</dt>
+  <data>
+    408.89999999999998 -0.63 630.20000000000005 0. 410.39999999999998
+    431.89999999999998 0. 0. 1.</data></camera_matrix>
+<xi>1.0533861712345678</xi>
+<distortion_coefficients type_id="opencv-matrix">
+  <rows>4</rows>
+  <cols>1</cols>
+  <dt>"d"</dt>
+  <data>
+    -0.0083000000000000001 0.0117 0.022800000000000001
+    -0.0041000000000000003</data></distortion_coefficients>
+</opencv_storage>
+"#;
+        assert_eq!(parse(xml).unwrap(), parse(OPENCV_YAML).unwrap());
+        let e = err(&xml.replace("<rows>4</rows>", "<rows>2</rows><cols>2</cols>"));
+        assert!(!e.is_empty());
+    }
+
+    #[test]
+    fn opencv_equidistant_alpha_from_skew() {
+        let text = OPENCV_YAML
+            .replace("xi: !!opencv-matrix\n   rows: 1\n   cols: 1\n   dt: d\n   data: [ 1.0533861712345678 ]\n", "")
+            + "model: equidistant\nfov_deg: 185\n";
+        let Camera::Equidistant(e) = parse(&text).unwrap() else {
+            panic!("not equidistant")
+        };
+        assert_eq!(e.alpha, -0.63 / 408.9);
+        assert_eq!([e.k1, e.k2, e.k3, e.k4], [-0.0083, 0.0117, 0.0228, -0.0041]);
+        assert_eq!(e.fov_deg, Some(185.0));
+    }
+
+    const KALIBR: &str = "cam0:
+  cam_overlaps: [1]
+  camera_model: omni
+  distortion_coeffs: [-0.1, 0.02, 0.001, -0.002]
+  distortion_model: radtan
+  intrinsics: [0.9, 500.0, 501.0, 640.5, 480.5]
+  resolution: [1280, 960]
+  rostopic: /cam0/image_raw
+cam1:
+  T_cn_cnm1:
+  - [1.0, 0.0, 0.0, 0.1]
+  - [0.0, 1.0, 0.0, 0.0]
+  - [0.0, 0.0, 1.0, 0.0]
+  - [0.0, 0.0, 0.0, 1.0]
+  camera_model: pinhole
+  distortion_coeffs: [0.01, -0.002, 0.0003, -0.00004]
+  distortion_model: equidistant
+  intrinsics: [300.0, 301.0, 320.0, 240.0]
+  resolution: [640, 480]
+";
+
+    #[test]
+    fn kalibr_first_and_named() {
+        let Camera::Mei(m) = parse(KALIBR).unwrap() else {
+            panic!()
+        };
+        assert_eq!(
+            (m.xi, m.fx, m.fy, m.cx, m.cy),
+            (0.9, 500.0, 501.0, 640.5, 480.5)
+        );
+        assert_eq!([m.k1, m.k2, m.p1, m.p2], [-0.1, 0.02, 0.001, -0.002]);
+        let c = parse_camera_named(KALIBR, Path::new(P), Some("cam1")).unwrap();
+        let Camera::Equidistant(e) = c else { panic!() };
+        assert_eq!((e.width, e.fx, e.k4), (640, 300.0, -0.00004));
+        let e = parse_camera_named(KALIBR, Path::new(P), Some("cam7"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("\"cam7\" not in camchain (has cam0, cam1)"),
+            "{e}"
+        );
+        let e = err(&KALIBR.replace("camera_model: omni", "camera_model: ds"));
+        assert!(
+            e.contains("cam0.camera_model: \"ds\" is not supported"),
+            "{e}"
+        );
+        let e = err(&KALIBR.replace("  resolution: [1280, 960]\n", ""));
+        assert!(e.ends_with("missing key cam0.resolution"), "{e}");
+        let e = err(&KALIBR.replace("640.5, 480.5]", "640.5]"));
+        assert!(
+            e.contains("cam0.intrinsics: camera_model omni needs 5"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn kalibr_pinhole_radtan_is_mei_xi_0() {
+        let t = KALIBR
+            .replace("camera_model: omni", "camera_model: pinhole")
+            .replace(
+                "[0.9, 500.0, 501.0, 640.5, 480.5]",
+                "[500.0, 501.0, 640.5, 480.5]",
+            );
+        let Camera::Mei(m) = parse(&t).unwrap() else {
+            panic!()
+        };
+        assert_eq!((m.xi, m.fx, m.cy), (0.0, 500.0, 480.5));
+    }
+
+    const KITTI: &str = "%YAML:1.0
+---
+model_type: MEI
+camera_name: image_02
+image_width: 1400
+image_height: 1400
+mirror_parameters:
+   xi: 2.2134
+distortion_parameters:
+   k1: 0.0168
+   k2: 1.6549
+   p1: 4.22e-4
+   p2: 4.25e-4
+projection_parameters:
+   gamma1: 1336.32
+   gamma2: 1335.79
+   u0: 716.94
+   v0: 705.76
+";
+
+    #[test]
+    fn kitti360_mei() {
+        let Camera::Mei(m) = parse(KITTI).unwrap() else {
+            panic!()
+        };
+        assert_eq!(
+            (m.xi, m.k1, m.k2, m.p1, m.p2),
+            (2.2134, 0.0168, 1.6549, 4.22e-4, 4.25e-4)
+        );
+        assert_eq!((m.fx, m.fy, m.cx, m.cy), (1336.32, 1335.79, 716.94, 705.76));
+        let e = err(&KITTI.replace("   p2: 4.25e-4\n", ""));
+        assert!(e.ends_with("missing key distortion_parameters.p2"), "{e}");
+        let e = err(&KITTI.replace("MEI", "KANNALA_BRANDT"));
+        assert!(e.contains("model_type: \"KANNALA_BRANDT\""), "{e}");
+    }
+
+    #[test]
+    fn toml_top_level_and_config_table() {
+        let body = "model = \"mei\"\nwidth = 1400\nheight = 1400\nfx = 1336.32\nfy = 1335.79\n\
+                    cx = 716.94\ncy = 705.76\nxi = 2.2134\nk1 = 0.0168\nk2 = 1.6549\n\
+                    p1 = 4.22e-4\np2 = 4.25e-4\n";
+        let a = parse(body).unwrap();
+        let b = parse(&format!(
+            "[camera]\nsource = \"file\"\n[camera.intrinsics]\n{body}"
+        ))
+        .unwrap();
+        assert_eq!(a, b);
+        assert_eq!(a, parse(KITTI).unwrap());
+        let e = err(&body.replace("xi = 2.2134\n", ""));
+        assert!(e.contains("xi"), "{e}");
+        assert!(!e.contains('\n'), "{e}");
+        let e = err(&body.replace("\"mei\"", "\"scaramuzza\""));
+        assert!(e.contains("scaramuzza"), "{e}");
+    }
+
+    #[test]
+    fn unrecognised_and_invalid_values() {
+        let e = err("foo: 1\nbar: 2\n");
+        assert!(e.contains("unrecognised intrinsics YAML"), "{e}");
+        let e = err(&KITTI.replace("gamma1: 1336.32", "gamma1: -5"));
+        assert!(e.contains("fx"), "{e}");
+        let e = parse_camera_named(KITTI, Path::new(P), Some("cam1")).unwrap_err();
+        assert!(e.to_string().contains("one camera"));
+    }
+
+    #[test]
+    fn opencv_yaml_round_trip() {
+        for text in [OPENCV_YAML.to_string(), KITTI.to_string()] {
+            let cam = parse(&text).unwrap();
+            assert_eq!(parse(&to_opencv_yaml(&cam)).unwrap(), cam);
+        }
+        let mut e = match parse(KALIBR).unwrap() {
+            Camera::Mei(_) => parse_camera_named(KALIBR, Path::new(P), Some("cam1")).unwrap(),
+            c => c,
+        };
+        if let Camera::Equidistant(ref mut q) = e {
+            // A power of two, so K[0][1] = α·fx divides back exactly.
+            q.alpha = 0.015625;
+            q.fov_deg = Some(185.0);
+        }
+        assert_eq!(parse(&to_opencv_yaml(&e)).unwrap(), e);
+    }
+
+    #[test]
+    fn selector_split_only_when_not_a_file() {
+        let (f, s) = split_selector(Path::new("/nonexistent/chain.yaml#cam1"));
+        assert_eq!(
+            (f, s.as_deref()),
+            (PathBuf::from("/nonexistent/chain.yaml"), Some("cam1"))
+        );
+        let (f, s) = split_selector(Path::new("/nonexistent/chain.yaml"));
+        assert_eq!((f, s), (PathBuf::from("/nonexistent/chain.yaml"), None));
+    }
+}

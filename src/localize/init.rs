@@ -1,0 +1,687 @@
+//! Initialization from a GPS prior alone (the seed's step 1), learning-free.
+//!
+//! Coarse stage: the fisheye frame is resampled once into the nominal bird's-eye view (see
+//! [`super::matching`]), the satellite image around the prior into an orientation field, and a dense
+//! yaw × height × translation sweep ranks hypotheses. Roll and pitch are taken as zero here (the
+//! node is mounted nadir within a few degrees); PnP on the fine correspondences recovers them.
+
+use super::matching::{
+    orientation_field, Candidate, Field, GrayF32, NominalField, SearchField, SweepParams,
+};
+use crate::camera::CameraModel;
+use crate::map::Raster;
+use nalgebra::{Point2, Vector3};
+use rayon::prelude::*;
+
+/// Settings of the coarse stage.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CoarseParams {
+    /// Lowest and highest mounting height considered, metres.
+    pub height_range_m: (f64, f64),
+    /// Ratio between successive heights (scale step of the sweep).
+    pub height_ratio: f64,
+    /// Yaw step, degrees.
+    pub yaw_step_deg: f64,
+    /// Ground resolution of the sweep, metres per pixel.
+    pub res_m: f64,
+    /// Largest template radius, metres.
+    pub template_radius_m: f64,
+    /// Largest off-nadir ground angle used, degrees (beyond it ground is too oblique).
+    pub max_off_nadir_deg: f64,
+    /// Step of the nominal view in normalised ground units (metres per metre of height).
+    pub nominal_dq: f64,
+    /// Candidates kept for the fine stage.
+    pub top_k: usize,
+}
+
+impl Default for CoarseParams {
+    fn default() -> Self {
+        CoarseParams {
+            height_range_m: (3.0, 15.0),
+            height_ratio: 1.05,
+            yaw_step_deg: 3.0,
+            res_m: 0.4,
+            template_radius_m: 20.0,
+            max_off_nadir_deg: 70.0,
+            nominal_dq: 0.01,
+            top_k: 5,
+        }
+    }
+}
+
+impl CoarseParams {
+    /// The geometric sequence of heights swept.
+    pub fn heights(&self) -> Vec<f64> {
+        let (lo, hi) = self.height_range_m;
+        let mut v = Vec::new();
+        let mut h = lo;
+        while h <= hi * (1.0 + 1e-9) {
+            v.push(h);
+            h *= self.height_ratio;
+        }
+        v
+    }
+}
+
+/// Bilinear sample of a gray u8 image (row-major `w × h`) at pixel-centre coordinates; `None`
+/// outside.
+#[inline]
+pub fn sample_gray(img: &[u8], w: usize, h: usize, x: f64, y: f64) -> Option<f32> {
+    if !(x >= 0.0 && y >= 0.0) {
+        return None;
+    }
+    let (x0, y0) = (x as usize, y as usize);
+    if x0 + 1 >= w || y0 + 1 >= h {
+        return None;
+    }
+    let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+    let i = y0 * w + x0;
+    let p = |k: usize| img[k] as f32;
+    let top = p(i) * (1.0 - fx) + p(i + 1) * fx;
+    let bot = p(i + w) * (1.0 - fx) + p(i + w + 1) * fx;
+    Some(top * (1.0 - fy) + bot * fy)
+}
+
+/// The nominal bird's-eye view: the ground as a north-up nadir camera at unit height would see it,
+/// over `|q| ≤ tan(max_off_nadir)`, step `dq`; and the pixels that are seen.
+pub fn nominal_view(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> (GrayF32, Vec<bool>) {
+    let q_max = p.max_off_nadir_deg.to_radians().tan();
+    let half = (q_max / p.nominal_dq).ceil() as usize;
+    let n = 2 * half + 1;
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
+    let rows: Vec<(Vec<f32>, Vec<bool>)> = (0..n)
+        .into_par_iter()
+        .map(|y| {
+            let mut vals = vec![0.0; n];
+            let mut ok = vec![false; n];
+            for x in 0..n {
+                let (qx, qy) = (
+                    (x as f64 - half as f64) * p.nominal_dq,
+                    (half as f64 - y as f64) * p.nominal_dq,
+                );
+                if qx * qx + qy * qy > q_max * q_max {
+                    continue;
+                }
+                // Ground offset (qx, qy, −1) in the map; a north-up nadir camera's optical frame is
+                // diag(1, −1, −1) of it.
+                let ray = Vector3::new(qx, -qy, 1.0);
+                if let Ok(px) = cam.project_visible(&ray) {
+                    if let Some(v) = sample_gray(image, w, h, px.x, px.y) {
+                        vals[x] = v;
+                        ok[x] = true;
+                    }
+                }
+            }
+            (vals, ok)
+        })
+        .collect();
+    let mut img = GrayF32::new(n, n);
+    let mut valid = vec![false; n * n];
+    for (y, (vals, ok)) in rows.into_iter().enumerate() {
+        img.data[y * n..(y + 1) * n].copy_from_slice(&vals);
+        valid[y * n..(y + 1) * n].copy_from_slice(&ok);
+    }
+    (img, valid)
+}
+
+/// Orientation-field pyramid of the nominal view.
+pub fn nominal_field(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> NominalField {
+    let (img, valid) = nominal_view(cam, image, p);
+    let mut levels = vec![orientation_field(&img, Some(&valid))];
+    // Enough levels to reach the coarsest template step (res / lowest height).
+    let coarsest = p.res_m / p.height_range_m.0.max(1e-3);
+    while p.nominal_dq * 2f64.powi(levels.len() as i32) <= coarsest * 2.0 {
+        let next = levels[levels.len() - 1].downsample2();
+        levels.push(next);
+    }
+    NominalField {
+        levels,
+        dq: p.nominal_dq,
+        q_max: p.max_off_nadir_deg.to_radians().tan(),
+    }
+}
+
+/// Luminance of the satellite layer, area-averaged to `res` m/px over a square of half-size
+/// `half_m` centred on (cx, cy) (map coordinates); outside the layer the field is zero.
+pub fn satellite_gray(
+    sat: &Raster<[u8; 3]>,
+    cx: f64,
+    cy: f64,
+    half_m: f64,
+    res: f64,
+) -> (GrayF32, Vec<bool>) {
+    let n = 2 * (half_m / res).round() as usize + 1;
+    let c = (n as f64 - 1.0) / 2.0;
+    let g = &sat.grid;
+    // Average the source pixels that fall inside each output cell (≥ 1 sample per cell).
+    let sub = ((res / g.res).round() as usize).max(1);
+    let mut img = GrayF32::new(n, n);
+    let mut valid = vec![false; n * n];
+    for y in 0..n {
+        for x in 0..n {
+            let (mx, my) = (cx + (x as f64 - c) * res, cy + (c - y as f64) * res);
+            let mut acc = 0.0f32;
+            let mut cnt = 0;
+            for sy in 0..sub {
+                for sx in 0..sub {
+                    let ox = (sx as f64 + 0.5) / sub as f64 - 0.5;
+                    let oy = (sy as f64 + 0.5) / sub as f64 - 0.5;
+                    let (px, py) = g.to_pixel(mx + ox * res, my - oy * res);
+                    let (col, row) = (px.round(), py.round());
+                    if col < 0.0 || row < 0.0 {
+                        continue;
+                    }
+                    if let Some([r, gg, b]) = sat.get(col as usize, row as usize) {
+                        // Rec. 601 luma: the camera is a gray sensor with a broad response.
+                        acc += 0.299 * r as f32 + 0.587 * gg as f32 + 0.114 * b as f32;
+                        cnt += 1;
+                    }
+                }
+            }
+            if cnt == sub * sub {
+                img.data[y * n + x] = acc / cnt as f32;
+                valid[y * n + x] = true;
+            }
+        }
+    }
+    (img, valid)
+}
+
+/// Coarse stage: rank (yaw, height, position) hypotheses around the prior centre (cx, cy) within
+/// `search_radius_m`. Offsets in the returned candidates are relative to (cx, cy).
+pub fn coarse_candidates(
+    cam: &dyn CameraModel,
+    image: &[u8],
+    sat: &Raster<[u8; 3]>,
+    (cx, cy): (f64, f64),
+    search_radius_m: f64,
+    p: &CoarseParams,
+) -> Vec<Candidate> {
+    let nominal = nominal_field(cam, image, p);
+    let half = search_radius_m + p.template_radius_m;
+    let (gray, valid) = satellite_gray(sat, cx, cy, half, p.res_m);
+    let field: Field = orientation_field(&gray, Some(&valid));
+    let search = SearchField::new(&field, p.res_m);
+    let params = SweepParams {
+        yaw_step_deg: p.yaw_step_deg,
+        heights: p.heights(),
+        template_radius_m: p.template_radius_m,
+        top_k: p.top_k,
+    };
+    super::matching::sweep(&search, &nominal, &params)
+}
+
+/// Pixel where a map point offset (east, north, up) from a nadir camera at unit height projects; a
+/// helper for tests and diagnostics.
+pub fn nominal_pixel(cam: &dyn CameraModel, qx: f64, qy: f64) -> Option<Point2<f64>> {
+    cam.project_visible(&Vector3::new(qx, -qy, 1.0)).ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Mei;
+    use crate::map::{Crs, GeoGrid};
+    use crate::pose::CamFromMap;
+    use nalgebra::Point3;
+
+    fn marking(x: f64, y: f64) -> f32 {
+        // Two crossing roads with dashed centre lines, a zebra crossing and stop bars, hashed grain.
+        let (cx, cy) = ((x * 2.0).floor() as i64, (y * 2.0).floor() as i64);
+        let grain = (cx.wrapping_mul(73_856_093) ^ cy.wrapping_mul(19_349_663)).rem_euclid(1000)
+            as f32
+            / 1000.0;
+        let mut v = 0.25 + 0.08 * grain;
+        let road_ns = x.abs() < 7.0;
+        let road_ew = (y - 0.3 * x).abs() < 6.0;
+        if !(road_ns || road_ew) {
+            v = 0.45 + 0.1 * grain; // sidewalk / grass
+        }
+        if road_ns && (x.abs() < 0.08) && (y.rem_euclid(6.0) < 3.0) && y.abs() > 8.0 {
+            v = 0.9;
+        }
+        if road_ew && (y - 0.3 * x).abs() < 0.08 && x.rem_euclid(6.0) < 3.0 && x.abs() > 9.0 {
+            v = 0.9;
+        }
+        if road_ns && (9.0..12.0).contains(&y) && (x + 10.0).rem_euclid(1.2) < 0.6 {
+            v = 0.9; // zebra
+        }
+        if road_ew && (9.0..9.4).contains(&x) && (y - 0.3 * x) < 0.0 {
+            v = 0.9; // stop bar
+        }
+        if (x - 3.0).powi(2) + (y + 14.0).powi(2) < 0.36 {
+            v = 0.1; // manhole
+        }
+        v
+    }
+
+    struct Scene {
+        cam: Mei,
+        img: Vec<u8>,
+        sat: Raster<[u8; 3]>,
+        heights: Raster<f32>,
+        yaw: f64,
+        h: f64,
+        centre: [f64; 2],
+    }
+
+    fn scene() -> Scene {
+        let cam = Mei {
+            width: 800,
+            height: 800,
+            fx: 230.0,
+            fy: 230.0,
+            cx: 400.0,
+            cy: 400.0,
+            skew: 0.0,
+            xi: 1.0,
+            k1: -0.02,
+            k2: 0.0,
+            p1: 0.0,
+            p2: 0.0,
+            fov_deg: Some(185.0),
+        };
+        let (yaw, h, centre) = (211f64.to_radians(), 9.0, [2.3, -3.1]);
+        let pose =
+            CamFromMap::from_center_ypr(&Point3::new(centre[0], centre[1], h), yaw, 0.0, 0.0);
+        let inv = pose.inverse();
+        // Render the fisheye frame by casting each pixel's ray onto the ground plane z = 0.
+        let mut img = vec![0u8; 800 * 800];
+        for v in 0..800 {
+            for u in 0..800 {
+                if let Ok(b) = cam.unproject(&Point2::new(u as f64, v as f64)) {
+                    let d = inv.rotate(&b.into_inner());
+                    if d.z < -1e-3 {
+                        let t = -h / d.z;
+                        let g = marking(centre[0] + t * d.x, centre[1] + t * d.y);
+                        img[v * 800 + u] = (g * 250.0) as u8;
+                    }
+                }
+            }
+        }
+        // "Satellite": other polarity and brightness, 0.1 m/px, covering ±60 m.
+        let grid = GeoGrid {
+            crs: Crs::Local,
+            x0: -60.0,
+            y0: 60.0,
+            res: 0.1,
+            width: 1200,
+            height: 1200,
+        };
+        let mut sat = Raster::filled(grid, [0u8; 3], None);
+        for row in 0..1200 {
+            for col in 0..1200 {
+                let (x, y) = grid.pixel_center(col, row);
+                let g = 1.0 - marking(x, y);
+                sat.data[row * 1200 + col] =
+                    [(g * 200.0) as u8, (g * 180.0) as u8, (g * 160.0) as u8];
+            }
+        }
+        let heights = Raster::filled(GeoGrid { res: 0.1, ..grid }, 0.0f32, None);
+        Scene {
+            cam,
+            img,
+            sat,
+            heights,
+            yaw,
+            h,
+            centre,
+        }
+    }
+
+    #[test]
+    fn coarse_stage_finds_pose_without_heading() {
+        let Scene {
+            cam,
+            img,
+            sat,
+            yaw,
+            h,
+            centre,
+            ..
+        } = scene();
+        let p = CoarseParams {
+            height_range_m: (6.0, 12.0),
+            ..CoarseParams::default()
+        };
+        let best = coarse_candidates(&cam, &img, &sat, (0.0, 0.0), 12.0, &p)[0];
+        let dyaw = ((best.yaw - yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI)
+            .abs();
+        let dpos =
+            ((best.offset[0] - centre[0]).powi(2) + (best.offset[1] - centre[1]).powi(2)).sqrt();
+        assert!(
+            dyaw.to_degrees() <= 3.0 && dpos <= 1.0 && (best.height / h - 1.0).abs() <= 0.06,
+            "{best:?}"
+        );
+    }
+
+    #[test]
+    fn initialize_reaches_the_refinement_basin() {
+        let sc = scene();
+        let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(1);
+        let coarse = CoarseParams {
+            height_range_m: (6.0, 12.0),
+            ..CoarseParams::default()
+        };
+        let r = initialize(
+            &sc.cam,
+            &sc.img,
+            &sc.sat,
+            &sc.heights,
+            (0.0, 0.0),
+            12.0,
+            &coarse,
+            &FineParams::default(),
+            &mut rng,
+        )
+        .unwrap();
+        let c = r.pose.center();
+        let (yaw, _, _) = r.pose.yaw_pitch_roll();
+        let dyaw = ((yaw - sc.yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI)
+            .abs();
+        let dxy = ((c.x - sc.centre[0]).powi(2) + (c.y - sc.centre[1]).powi(2)).sqrt();
+        assert!(
+            dxy < 0.3 && (c.z - sc.h).abs() < 0.3 && dyaw.to_degrees() < 1.0,
+            "{r:?}"
+        );
+    }
+}
+
+/// Settings of the fine stage (local patch matching → PnP).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FineParams {
+    /// Anchor spacing on the ground, metres.
+    pub anchor_spacing_m: f64,
+    /// Largest off-nadir angle of an anchor, degrees (oblique ground is smeared in the fisheye).
+    pub max_off_nadir_deg: f64,
+    /// Largest anchor distance from the nadir point, metres.
+    pub max_radius_m: f64,
+    /// Per iteration: (patch half-size m, search half-size m, resolution m/px, PnP threshold px).
+    pub iterations: Vec<(f64, f64, f64, f64)>,
+    /// Minimum correlation of an accepted patch match.
+    pub min_score: f64,
+    /// PnP / RANSAC settings (the threshold is overridden per iteration).
+    pub pnp: super::pnp::PnpParams,
+}
+
+impl Default for FineParams {
+    fn default() -> Self {
+        FineParams {
+            anchor_spacing_m: 1.5,
+            max_off_nadir_deg: 65.0,
+            max_radius_m: 25.0,
+            iterations: vec![(3.0, 2.0, 0.2, 8.0), (2.0, 0.6, 0.1, 4.0)],
+            min_score: 0.35,
+            pnp: super::pnp::PnpParams::default(),
+        }
+    }
+}
+
+/// Bilinear height of the LiDAR height layer at (x, y); `None` on no-data.
+pub fn height_at(hl: &Raster<f32>, x: f64, y: f64) -> Option<f64> {
+    let (px, py) = hl.grid.to_pixel(x, y);
+    if !(px >= 0.0 && py >= 0.0) {
+        return None;
+    }
+    let (c0, r0) = (px as usize, py as usize);
+    let (fx, fy) = (px - c0 as f64, py - r0 as f64);
+    let mut acc = 0.0;
+    for (dc, dr, w) in [
+        (0, 0, (1.0 - fx) * (1.0 - fy)),
+        (1, 0, fx * (1.0 - fy)),
+        (0, 1, (1.0 - fx) * fy),
+        (1, 1, fx * fy),
+    ] {
+        let v = hl.get(c0 + dc, r0 + dr)?;
+        if !v.is_finite() || hl.nodata.is_some_and(|nd| v == nd) {
+            return None;
+        }
+        acc += w * v as f64;
+    }
+    Some(acc)
+}
+
+/// One matched anchor: where the fisheye sees it, and where the satellite says it is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AnchorMatch {
+    /// Correspondence for PnP.
+    pub corr: super::pnp::Correspondence,
+    /// Patch correlation at the best shift.
+    pub score: f64,
+}
+
+/// Match ground patches seen through `pose` against the satellite; returns correspondences.
+#[allow(clippy::too_many_arguments)]
+pub fn match_anchors(
+    cam: &dyn CameraModel,
+    image: &[u8],
+    sat: &Raster<[u8; 3]>,
+    heights: &Raster<f32>,
+    pose: &crate::pose::CamFromMap,
+    (patch_half, search_half, res): (f64, f64, f64),
+    p: &FineParams,
+) -> Vec<AnchorMatch> {
+    let c = pose.center();
+    let z_ground = height_at(heights, c.x, c.y).unwrap_or(c.z - 8.0);
+    let cam_h = (c.z - z_ground).max(1.0);
+    let radius = (cam_h * p.max_off_nadir_deg.to_radians().tan()).min(p.max_radius_m);
+    let n = (radius / p.anchor_spacing_m).floor() as i64;
+    let mut anchors = Vec::new();
+    for j in -n..=n {
+        for i in -n..=n {
+            let (dx, dy) = (i as f64 * p.anchor_spacing_m, j as f64 * p.anchor_spacing_m);
+            if dx * dx + dy * dy <= radius * radius {
+                anchors.push((c.x + dx, c.y + dy));
+            }
+        }
+    }
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
+    let ph = (patch_half / res).round() as i64;
+    let sh = (search_half / res).round() as i64;
+    let side = (2 * ph + 1) as usize;
+    anchors
+        .par_iter()
+        .filter_map(|&(ax, ay)| {
+            let az = height_at(heights, ax, ay)?;
+            // Fisheye patch resampled onto the ground around the anchor, through the current pose.
+            let mut patch = GrayF32::new(side, side);
+            let mut valid = vec![false; side * side];
+            let mut n_valid = 0;
+            for r in 0..side {
+                for col in 0..side {
+                    let (x, y) = (
+                        ax + (col as i64 - ph) as f64 * res,
+                        ay - (r as i64 - ph) as f64 * res,
+                    );
+                    let z = height_at(heights, x, y).unwrap_or(az);
+                    let pc = pose.transform(&nalgebra::Point3::new(x, y, z)).coords;
+                    if let Ok(px) = cam.project_visible(&pc) {
+                        if let Some(v) = sample_gray(image, w, h, px.x, px.y) {
+                            patch.data[r * side + col] = v;
+                            valid[r * side + col] = true;
+                            n_valid += 1;
+                        }
+                    }
+                }
+            }
+            if n_valid < side * side * 9 / 10 {
+                return None;
+            }
+            let pf = orientation_field(&patch, Some(&valid));
+            let (sg, sv) = satellite_gray(sat, ax, ay, patch_half + search_half, res);
+            let sf = orientation_field(&sg, Some(&sv));
+            let (score, sx, sy) = best_shift(&pf, &sf, ph, sh)?;
+            if score < p.min_score {
+                return None;
+            }
+            // The fisheye shows at the anchor's pixel the world point shifted by (sx, −sy)·res.
+            let (wx, wy) = (ax + sx * res, ay - sy * res);
+            let wz = height_at(heights, wx, wy).unwrap_or(az);
+            let pixel = cam
+                .project_visible(&pose.transform(&nalgebra::Point3::new(ax, ay, az)).coords)
+                .ok()?;
+            Some(AnchorMatch {
+                corr: super::pnp::Correspondence {
+                    pixel,
+                    world: nalgebra::Point3::new(wx, wy, wz),
+                },
+                score,
+            })
+        })
+        .collect()
+}
+
+/// Best shift of `patch` (half-size `ph`) inside `search` (half-size `ph + sh`) by normalised
+/// complex correlation, with a sub-pixel parabola fit; `None` if the peak is flat or on the edge.
+fn best_shift(patch: &Field, search: &Field, ph: i64, sh: i64) -> Option<(f64, f64, f64)> {
+    let side = (2 * ph + 1) as usize;
+    let sw = search.width;
+    let pn: f64 = patch.data.iter().map(|z| z.norm_sqr() as f64).sum();
+    if pn <= 0.0 {
+        return None;
+    }
+    let span = (2 * sh + 1) as usize;
+    let mut scores = vec![f64::NEG_INFINITY; span * span];
+    for oy in 0..span {
+        for ox in 0..span {
+            let (mut num, mut e) = (0.0f64, 0.0f64);
+            for r in 0..side {
+                let srow = &search.data[(oy + r) * sw + ox..(oy + r) * sw + ox + side];
+                let prow = &patch.data[r * side..(r + 1) * side];
+                for (s, t) in srow.iter().zip(prow) {
+                    num += (s * t.conj()).re as f64;
+                    e += s.norm_sqr() as f64;
+                }
+            }
+            if e > 0.0 {
+                scores[oy * span + ox] = num / (e * pn).sqrt();
+            }
+        }
+    }
+    let (bi, &best) = scores
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))?;
+    let (bx, by) = (bi % span, bi / span);
+    if bx == 0 || by == 0 || bx + 1 == span || by + 1 == span {
+        return None; // on the edge: the true shift may lie outside the window
+    }
+    let fit = |m: f64, c0: f64, p: f64| {
+        let d = m - 2.0 * c0 + p;
+        if d < 0.0 {
+            (0.5 * (m - p) / d).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
+    };
+    let dx = fit(scores[bi - 1], best, scores[bi + 1]);
+    let dy = fit(scores[bi - span], best, scores[bi + span]);
+    Some((best, bx as f64 + dx - sh as f64, by as f64 + dy - sh as f64))
+}
+
+/// Result of [`initialize`].
+#[derive(Debug, Clone)]
+pub struct InitResult {
+    /// World→camera pose from PnP.
+    pub pose: crate::pose::CamFromMap,
+    /// The coarse candidate it grew from.
+    pub candidate: Candidate,
+    /// Correspondences given to the last PnP.
+    pub matches: usize,
+    /// PnP inliers of the last iteration.
+    pub inliers: usize,
+    /// PnP reprojection RMS of the last iteration, px.
+    pub rms_px: f64,
+    /// Candidates tried.
+    pub candidates_tried: usize,
+}
+
+/// Full initialization: coarse sweep around the prior, then per candidate local matching + PnP;
+/// the candidate with the most inliers wins. Errors name the stage and the numbers.
+#[allow(clippy::too_many_arguments)]
+pub fn initialize<R: rand::Rng>(
+    cam: &dyn CameraModel,
+    image: &[u8],
+    sat: &Raster<[u8; 3]>,
+    heights: &Raster<f32>,
+    prior_xy: (f64, f64),
+    search_radius_m: f64,
+    coarse: &CoarseParams,
+    fine: &FineParams,
+    rng: &mut R,
+) -> crate::Result<InitResult> {
+    let expected = (cam.width() as usize) * (cam.height() as usize);
+    if image.len() != expected {
+        return Err(crate::Error::stage(
+            "init",
+            format!(
+                "image has {} pixels, camera expects {}×{}",
+                image.len(),
+                cam.width(),
+                cam.height()
+            ),
+        ));
+    }
+    let cands = coarse_candidates(cam, image, sat, prior_xy, search_radius_m, coarse);
+    if cands.is_empty() {
+        return Err(crate::Error::stage(
+            "match",
+            "no hypothesis scored (featureless view or satellite?)",
+        ));
+    }
+    let mut best: Option<InitResult> = None;
+    let mut last_err = String::new();
+    for cand in &cands {
+        let (cx, cy) = (prior_xy.0 + cand.offset[0], prior_xy.1 + cand.offset[1]);
+        let zg = height_at(heights, cx, cy).unwrap_or(0.0);
+        let mut pose = crate::pose::CamFromMap::from_center_ypr(
+            &nalgebra::Point3::new(cx, cy, zg + cand.height),
+            cand.yaw,
+            0.0,
+            0.0,
+        );
+        let mut outcome = None;
+        for &(ph, sh, res, thr) in &fine.iterations {
+            let m = match_anchors(cam, image, sat, heights, &pose, (ph, sh, res), fine);
+            let corr: Vec<_> = m.iter().map(|a| a.corr).collect();
+            let params = super::pnp::PnpParams {
+                threshold_px: thr,
+                ..fine.pnp
+            };
+            match super::pnp::solve_pnp_ransac(cam, &corr, &params, rng) {
+                Ok(r) => {
+                    pose = r.pose;
+                    outcome = Some((corr.len(), r.inliers.len(), r.rms_px));
+                }
+                Err(e) => {
+                    last_err = format!("{e} ({} patch matches)", corr.len());
+                    outcome = None;
+                    break;
+                }
+            }
+        }
+        if let Some((matches, inliers, rms_px)) = outcome {
+            if best.as_ref().is_none_or(|b| inliers > b.inliers) {
+                best = Some(InitResult {
+                    pose,
+                    candidate: *cand,
+                    matches,
+                    inliers,
+                    rms_px,
+                    candidates_tried: cands.len(),
+                });
+            }
+        }
+    }
+    best.ok_or_else(|| {
+        crate::Error::stage(
+            "pnp",
+            format!(
+                "none of {} candidates gave a pose; last: {last_err}",
+                cands.len()
+            ),
+        )
+    })
+}

@@ -1,0 +1,519 @@
+//! Learning-free matching of the fisheye's ground view against the satellite image, with unknown yaw
+//! (full 360°) and unknown mounting height: a dense sweep.
+//!
+//! The fisheye image is first resampled once into a *nominal* bird's-eye view `B(q)` over normalised
+//! ground offsets `q = offset / height` (a north-up nadir camera at unit height). A camera at height
+//! `h` with yaw `ψ` then sees the map offset `u` at `B(Rz(−ψ)·u / h)`: every (ψ, h) hypothesis is a
+//! rotated, scaled copy of `B`, and the camera position is a translation found by FFT correlation.
+//!
+//! Across the modality gap (satellite colour vs camera gray, different shadows) intensities do not
+//! correlate, edges do. The feature is the *doubled-angle gradient orientation field*
+//! `z = e^{2iθ}·s(|∇I|)`: squaring the direction makes it blind to contrast polarity (a marking
+//! brighter than asphalt in one image and darker in the other still matches), and the soft
+//! saturation `s` keeps a few strong shadow edges from dominating. Rotating the template by ψ turns
+//! its feature phase by 2ψ, so the field of `B` is computed once and only resampled per hypothesis.
+//!
+//! Score: masked normalised correlation `Re Σ z_s·z̄_t / √(Σ_mask|z_s|² · Σ|z_t|²)`. The mask is a
+//! disk whose radius depends on h only, so the local energy `Σ_mask|z_s|²` costs one FFT pair per
+//! height, and each (ψ, h) hypothesis costs one forward and one inverse FFT.
+
+use rayon::prelude::*;
+use rustfft::num_complex::Complex32;
+use rustfft::{Fft, FftPlanner};
+use std::sync::Arc;
+
+/// A single-channel f32 image, row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GrayF32 {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// `width × height` samples.
+    pub data: Vec<f32>,
+}
+
+impl GrayF32 {
+    /// A zero image.
+    pub fn new(width: usize, height: usize) -> Self {
+        GrayF32 {
+            width,
+            height,
+            data: vec![0.0; width * height],
+        }
+    }
+
+    #[inline]
+    fn at(&self, x: usize, y: usize) -> f32 {
+        self.data[y * self.width + x]
+    }
+}
+
+/// A complex feature field, row-major.
+#[derive(Debug, Clone)]
+pub struct Field {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Samples.
+    pub data: Vec<Complex32>,
+}
+
+impl Field {
+    /// Bilinear sample at continuous pixel coordinates (centres at integers); zero outside.
+    #[inline]
+    pub fn sample(&self, x: f32, y: f32) -> Complex32 {
+        if !(x >= 0.0 && y >= 0.0) {
+            return Complex32::new(0.0, 0.0);
+        }
+        let (x0, y0) = (x as usize, y as usize);
+        if x0 + 1 >= self.width || y0 + 1 >= self.height {
+            return Complex32::new(0.0, 0.0);
+        }
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let i = y0 * self.width + x0;
+        let top = self.data[i] * (1.0 - fx) + self.data[i + 1] * fx;
+        let bot = self.data[i + self.width] * (1.0 - fx) + self.data[i + self.width + 1] * fx;
+        top * (1.0 - fy) + bot * fy
+    }
+
+    /// Halve the resolution by 2×2 averaging (complex averaging: orientations that disagree
+    /// cancel, which is what a coarser view of them should do).
+    pub fn downsample2(&self) -> Field {
+        let (w, h) = ((self.width / 2).max(1), (self.height / 2).max(1));
+        let mut data = vec![Complex32::new(0.0, 0.0); w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let mut acc = Complex32::new(0.0, 0.0);
+                for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                    let (sx, sy) = (
+                        (2 * x + dx).min(self.width - 1),
+                        (2 * y + dy).min(self.height - 1),
+                    );
+                    acc += self.data[sy * self.width + sx];
+                }
+                data[y * w + x] = acc * 0.25;
+            }
+        }
+        Field {
+            width: w,
+            height: h,
+            data,
+        }
+    }
+}
+
+/// Doubled-angle orientation field of an image. `valid` (same size, optional) marks pixels whose
+/// 3×3 neighbourhood is real data; elsewhere the feature is zero so borders of the image circle or
+/// no-data areas create no false edges.
+pub fn orientation_field(img: &GrayF32, valid: Option<&[bool]>) -> Field {
+    let (w, h) = (img.width, img.height);
+    let mut data = vec![Complex32::new(0.0, 0.0); w * h];
+    let mut mags = Vec::with_capacity(w * h / 4);
+    for y in 1..h.saturating_sub(1) {
+        for x in 1..w.saturating_sub(1) {
+            if let Some(v) = valid {
+                let ok = (y - 1..=y + 1).all(|yy| (x - 1..=x + 1).all(|xx| v[yy * w + xx]));
+                if !ok {
+                    continue;
+                }
+            }
+            // Sobel.
+            let gx = (img.at(x + 1, y - 1) + 2.0 * img.at(x + 1, y) + img.at(x + 1, y + 1))
+                - (img.at(x - 1, y - 1) + 2.0 * img.at(x - 1, y) + img.at(x - 1, y + 1));
+            let gy = (img.at(x - 1, y + 1) + 2.0 * img.at(x, y + 1) + img.at(x + 1, y + 1))
+                - (img.at(x - 1, y - 1) + 2.0 * img.at(x, y - 1) + img.at(x + 1, y - 1));
+            let g = Complex32::new(gx, gy);
+            let m = g.norm();
+            if m > 0.0 {
+                data[y * w + x] = g * g / m; // |·| = m, arg = 2θ
+                mags.push(m);
+            }
+        }
+    }
+    // Soft saturation at a robust scale: s(m) = m / (m + k), k = 80th-percentile magnitude.
+    if !mags.is_empty() {
+        let idx = mags.len() * 4 / 5;
+        let k = *mags.select_nth_unstable_by(idx, f32::total_cmp).1;
+        if k > 0.0 {
+            for z in &mut data {
+                let m = z.norm();
+                if m > 0.0 {
+                    *z *= 1.0 / (m + k);
+                }
+            }
+        }
+    }
+    Field {
+        width: w,
+        height: h,
+        data,
+    }
+}
+
+/// Square 2-D FFT of side `n` (rows, transpose, rows: spectra are kept transposed, which is fine
+/// because they are only multiplied element-wise and transformed back by the same routine).
+pub struct Fft2 {
+    n: usize,
+    fwd: Arc<dyn Fft<f32>>,
+    inv: Arc<dyn Fft<f32>>,
+}
+
+impl Fft2 {
+    /// Plan transforms of size `n × n`.
+    pub fn new(n: usize) -> Self {
+        let mut p = FftPlanner::new();
+        Fft2 {
+            n,
+            fwd: p.plan_fft_forward(n),
+            inv: p.plan_fft_inverse(n),
+        }
+    }
+
+    /// Side length.
+    pub fn size(&self) -> usize {
+        self.n
+    }
+
+    fn run(&self, f: &Arc<dyn Fft<f32>>, buf: &mut [Complex32], scratch: &mut Vec<Complex32>) {
+        let n = self.n;
+        f.process(buf);
+        transpose(buf, n, scratch);
+        f.process(buf);
+    }
+
+    /// Forward transform in place (output transposed).
+    pub fn forward(&self, buf: &mut [Complex32], scratch: &mut Vec<Complex32>) {
+        self.run(&self.fwd, buf, scratch)
+    }
+
+    /// Inverse transform in place of a transposed spectrum (output in image layout, unscaled:
+    /// multiply by 1/n² for a true inverse).
+    pub fn inverse(&self, buf: &mut [Complex32], scratch: &mut Vec<Complex32>) {
+        let n = self.n;
+        self.inv.process(buf);
+        transpose(buf, n, scratch);
+        self.inv.process(buf);
+    }
+}
+
+fn transpose(buf: &mut [Complex32], n: usize, scratch: &mut Vec<Complex32>) {
+    scratch.clear();
+    scratch.extend_from_slice(buf);
+    for y in 0..n {
+        for x in 0..n {
+            buf[x * n + y] = scratch[y * n + x];
+        }
+    }
+}
+
+/// One hypothesis of the sweep.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Candidate {
+    /// Yaw ψ, radians.
+    pub yaw: f64,
+    /// Camera height above the ground, metres.
+    pub height: f64,
+    /// Camera position offset from the search centre, metres (east, north).
+    pub offset: [f64; 2],
+    /// Masked normalised correlation in [−1, 1].
+    pub score: f64,
+}
+
+/// The nominal bird's-eye field: `B` over normalised offsets, centre at (`c`, `c`), step `dq`.
+#[derive(Debug, Clone)]
+pub struct NominalField {
+    /// Field pyramid; level `l` has step `dq·2^l`.
+    pub levels: Vec<Field>,
+    /// Step of level 0 in normalised units (metres of ground offset per metre of height).
+    pub dq: f64,
+    /// Largest usable |q| (e.g. tan of 70°).
+    pub q_max: f64,
+}
+
+/// Search settings of [`sweep`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepParams {
+    /// Yaw step, degrees.
+    pub yaw_step_deg: f64,
+    /// Heights to try, metres.
+    pub heights: Vec<f64>,
+    /// Largest template radius, metres (ground beyond it is too oblique to be useful).
+    pub template_radius_m: f64,
+    /// How many best candidates to return (after non-maximum suppression).
+    pub top_k: usize,
+}
+
+/// Satellite-side data of a sweep: the search field and its spectra.
+pub struct SearchField {
+    fft: Fft2,
+    spec: Vec<Complex32>,
+    energy: Vec<Complex32>,
+    /// Ground resolution, metres per pixel.
+    pub res: f64,
+    /// Field size before padding.
+    pub size: usize,
+}
+
+impl SearchField {
+    /// Prepare the satellite field (`size × size`, square, centred on the search centre).
+    pub fn new(field: &Field, res: f64) -> Self {
+        let size = field.width.max(field.height);
+        // Valid shifts keep the template inside the field, so no wrap-around needs padding.
+        let n = size.next_power_of_two();
+        let fft = Fft2::new(n);
+        let mut spec = vec![Complex32::new(0.0, 0.0); n * n];
+        let mut energy = vec![Complex32::new(0.0, 0.0); n * n];
+        for y in 0..field.height {
+            for x in 0..field.width {
+                let z = field.data[y * field.width + x];
+                spec[y * n + x] = z;
+                energy[y * n + x] = Complex32::new(z.norm_sqr(), 0.0);
+            }
+        }
+        let mut scratch = Vec::new();
+        fft.forward(&mut spec, &mut scratch);
+        fft.forward(&mut energy, &mut scratch);
+        SearchField {
+            fft,
+            spec,
+            energy,
+            res,
+            size,
+        }
+    }
+}
+
+/// Dense sweep over yaw × height × translation. The search field must cover the search window plus
+/// the largest template radius on every side; offsets are relative to its centre.
+pub fn sweep(search: &SearchField, nominal: &NominalField, p: &SweepParams) -> Vec<Candidate> {
+    let n = search.fft.size();
+    let res = search.res;
+    let n_yaw = (360.0 / p.yaw_step_deg).round().max(1.0) as usize;
+    let centre = (search.size as f64 - 1.0) / 2.0;
+    let per_height: Vec<Vec<Candidate>> = p
+        .heights
+        .par_iter()
+        .map(|&h| {
+            let radius_m = (h * nominal.q_max).min(p.template_radius_m);
+            let r_px = (radius_m / res).floor() as isize;
+            let side = (2 * r_px + 1) as usize;
+            if side >= search.size {
+                return Vec::new();
+            }
+            let mut scratch = Vec::new();
+            // Local energy of the satellite under the disk mask at every shift.
+            let mut mask = vec![Complex32::new(0.0, 0.0); n * n];
+            for dy in 0..side {
+                for dx in 0..side {
+                    let (ex, ey) = (dx as isize - r_px, dy as isize - r_px);
+                    if ex * ex + ey * ey <= r_px * r_px {
+                        mask[dy * n + dx] = Complex32::new(1.0, 0.0);
+                    }
+                }
+            }
+            search.fft.forward(&mut mask, &mut scratch);
+            let mut local = vec![Complex32::new(0.0, 0.0); n * n];
+            for ((l, e), m) in local.iter_mut().zip(&search.energy).zip(&mask) {
+                *l = e * m.conj();
+            }
+            search.fft.inverse(&mut local, &mut scratch);
+            // Pyramid level whose step is closest to (not finer than half) the template step.
+            let want = res / h;
+            let mut level = 0;
+            while level + 1 < nominal.levels.len()
+                && nominal.dq * 2f64.powi(level as i32 + 1) <= want * 1.5
+            {
+                level += 1;
+            }
+            let f = &nominal.levels[level];
+            let scale = 2f64.powi(level as i32);
+            // Level-l pixel X averages level-0 pixels [2^l X, 2^l X + 2^l): its centre sits at
+            // level-0 coordinate (X + 0.5)·2^l − 0.5.
+            let c0 = (nominal.levels[0].width as f64 - 1.0) / 2.0;
+            let to_level = |x0: f64| ((x0 + 0.5) / scale - 0.5) as f32;
+            let inv_n2 = 1.0 / (n * n) as f64;
+            let valid = search.size - side + 1; // shifts with the template fully inside
+            let mut best: Vec<Candidate> = Vec::new();
+            let mut buf = vec![Complex32::new(0.0, 0.0); n * n];
+            for k in 0..n_yaw {
+                let yaw = (k as f64 * p.yaw_step_deg).to_radians();
+                let (s, c) = yaw.sin_cos();
+                // Image rows run south, so a counter-clockwise map rotation by ψ turns image
+                // orientations by −ψ and doubled angles by −2ψ.
+                let phase = Complex32::from_polar(1.0, (-2.0 * yaw) as f32);
+                buf.iter_mut().for_each(|v| *v = Complex32::new(0.0, 0.0));
+                let mut tnorm = 0.0f64;
+                for dy in 0..side {
+                    for dx in 0..side {
+                        let (ex, ey) = (dx as isize - r_px, dy as isize - r_px);
+                        if ex * ex + ey * ey > r_px * r_px {
+                            continue;
+                        }
+                        // Map offset u (east, north) of this template pixel, then q = Rz(−ψ)u / h.
+                        let (ux, uy) = (ex as f64 * res, -(ey as f64) * res);
+                        let (qx, qy) = ((c * ux + s * uy) / h, (-s * ux + c * uy) / h);
+                        let z = f.sample(
+                            to_level(c0 + qx / nominal.dq),
+                            to_level(c0 - qy / nominal.dq),
+                        ) * phase;
+                        tnorm += z.norm_sqr() as f64;
+                        buf[dy * n + dx] = z;
+                    }
+                }
+                if tnorm <= 0.0 {
+                    continue;
+                }
+                search.fft.forward(&mut buf, &mut scratch);
+                for (b, s) in buf.iter_mut().zip(&search.spec) {
+                    *b = s * b.conj();
+                }
+                search.fft.inverse(&mut buf, &mut scratch);
+                let mut top = Candidate {
+                    yaw,
+                    height: h,
+                    offset: [0.0; 2],
+                    score: f64::NEG_INFINITY,
+                };
+                for y in 0..valid {
+                    for x in 0..valid {
+                        // Both inverse transforms are unscaled (×n²).
+                        let e = local[y * n + x].re as f64 * inv_n2;
+                        if e <= 0.0 {
+                            continue;
+                        }
+                        let sc = buf[y * n + x].re as f64 * inv_n2 / (e * tnorm).sqrt();
+                        if sc > top.score {
+                            let cx = x as f64 + r_px as f64 - centre;
+                            let cy = y as f64 + r_px as f64 - centre;
+                            top.score = sc;
+                            top.offset = [cx * res, -cy * res];
+                        }
+                    }
+                }
+                if top.score.is_finite() {
+                    best.push(top);
+                }
+            }
+            best
+        })
+        .collect();
+    let mut all: Vec<Candidate> = per_height.into_iter().flatten().collect();
+    // Deterministic order: score, then the hypothesis' own coordinates.
+    all.sort_by(|a, b| {
+        b.score
+            .total_cmp(&a.score)
+            .then(a.yaw.total_cmp(&b.yaw))
+            .then(a.height.total_cmp(&b.height))
+    });
+    // Non-maximum suppression: drop candidates near a better one in yaw and position.
+    let mut kept: Vec<Candidate> = Vec::new();
+    for c in all {
+        let near = kept.iter().any(|k| {
+            let dyaw = ((c.yaw - k.yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+                - std::f64::consts::PI)
+                .abs();
+            let dpos =
+                ((c.offset[0] - k.offset[0]).powi(2) + (c.offset[1] - k.offset[1]).powi(2)).sqrt();
+            dyaw < 10f64.to_radians() && dpos < 2.0
+        });
+        if !near {
+            kept.push(c);
+            if kept.len() == p.top_k {
+                break;
+            }
+        }
+    }
+    kept
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// A procedural "ground": random bright bars and blobs on a textured background.
+    fn ground(seed: u64) -> impl Fn(f64, f64) -> f32 {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let bars: Vec<(f64, f64, f64, f64, f64)> = (0..60)
+            .map(|_| {
+                (
+                    rng.random_range(-40.0..40.0),
+                    rng.random_range(-40.0..40.0),
+                    rng.random_range(0.0..std::f64::consts::PI),
+                    rng.random_range(1.0..8.0),
+                    rng.random_range(0.15..0.6),
+                )
+            })
+            .collect();
+        move |x, y| {
+            // Non-periodic background texture (hashed 0.5 m cells), like asphalt grain.
+            let (cx, cy) = ((x * 2.0).floor() as i64, (y * 2.0).floor() as i64);
+            let hash = (cx.wrapping_mul(73_856_093) ^ cy.wrapping_mul(19_349_663)).rem_euclid(1000);
+            let mut v = 0.3 + 0.05 * (hash as f32 / 1000.0);
+            for &(bx, by, a, len, wid) in &bars {
+                let (dx, dy) = (x - bx, y - by);
+                let along = dx * a.cos() + dy * a.sin();
+                let across = -dx * a.sin() + dy * a.cos();
+                if along.abs() < len && across.abs() < wid {
+                    v = 0.9;
+                }
+            }
+            v
+        }
+    }
+
+    #[test]
+    fn sweep_recovers_yaw_height_and_offset_across_polarity() {
+        let g = ground(3);
+        let (true_yaw, true_h, true_off) = (137f64.to_radians(), 8.0, [3.2, -4.4]);
+        // Satellite field at 0.4 m/px over ±34 m around the search centre.
+        let res = 0.4;
+        let size = 171;
+        let c = (size as f64 - 1.0) / 2.0;
+        let mut sat = GrayF32::new(size, size);
+        for y in 0..size {
+            for x in 0..size {
+                // Inverted polarity, as paint vs shadowed asphalt can be across modalities.
+                sat.data[y * size + x] = 1.0 - g((x as f64 - c) * res, (c - y as f64) * res);
+            }
+        }
+        let search = SearchField::new(&orientation_field(&sat, None), res);
+        // Nominal BEV seen by the true camera: B(q) = ground(off + h·Rz(ψ)q).
+        let (dq, q_max) = (0.01, 2.0);
+        let nb = 2 * (q_max / dq) as usize + 1;
+        let bc = (nb as f64 - 1.0) / 2.0;
+        let mut b = GrayF32::new(nb, nb);
+        let (s, co) = true_yaw.sin_cos();
+        for y in 0..nb {
+            for x in 0..nb {
+                let (qx, qy) = ((x as f64 - bc) * dq, (bc - y as f64) * dq);
+                let (ux, uy) = (true_h * (co * qx - s * qy), true_h * (s * qx + co * qy));
+                b.data[y * nb + x] = g(true_off[0] + ux, true_off[1] + uy);
+            }
+        }
+        let mut levels = vec![orientation_field(&b, None)];
+        for _ in 0..4 {
+            let next = levels.last().unwrap().downsample2();
+            levels.push(next);
+        }
+        let nominal = NominalField { levels, dq, q_max };
+        let params = SweepParams {
+            yaw_step_deg: 3.0,
+            heights: (0..10).map(|i| 5.5 * 1.06f64.powi(i)).collect(),
+            template_radius_m: 14.0,
+            top_k: 3,
+        };
+        let best = sweep(&search, &nominal, &params)[0];
+        let dyaw = (best.yaw - true_yaw).abs().to_degrees();
+        let dpos = ((best.offset[0] - true_off[0]).powi(2)
+            + (best.offset[1] - true_off[1]).powi(2))
+        .sqrt();
+        assert!(
+            dyaw <= 3.0 && dpos <= 0.8 && (best.height / true_h - 1.0).abs() < 0.07,
+            "{best:?}"
+        );
+    }
+}
