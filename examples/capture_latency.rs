@@ -1,6 +1,9 @@
-//! Capture latency against a GigE Vision camera (e.g. Aravis's fake camera): for each frame,
-//! the time from Aravis completing it on this host (its buffer's system timestamp) to our
-//! `grab` returning it as gray — conversion included — compared with the frame period.
+//! Capture latency against a GigE Vision camera (e.g. Aravis's fake camera), compared with the
+//! frame period:
+//! - *age*: from Aravis completing the frame on this host (its buffer's system timestamp) to
+//!   our `grab` returning it as gray, conversion included;
+//! - *wait*: from calling `grab` (after idling, as the burst does between frames) to its
+//!   return. Stale queued frames are dropped, so this is at most one period plus the age.
 //!
 //! ```sh
 //! /opt/aravis-tools/usr/bin/arv-fake-gv-camera-0.8 -i 127.0.0.1 &
@@ -35,9 +38,15 @@ fn main() {
         let _ = src.grab(timeout);
     }
     let mut lat = Vec::with_capacity(n);
+    let mut waits = Vec::with_capacity(n);
+    // Idle between grabs like a burst does, long enough for every buffer to fill up.
+    let idle = Duration::from_millis(250);
     let mut stamps = Vec::with_capacity(n);
+    let mut seqs = Vec::with_capacity(n);
     let mut size = (0, 0);
     for _ in 0..n {
+        std::thread::sleep(idle);
+        let asked = SystemTime::now();
         let f = match src.grab(timeout) {
             Ok(f) => f,
             Err(e) => {
@@ -47,7 +56,9 @@ fn main() {
         };
         let returned = SystemTime::now();
         lat.push(returned.duration_since(f.timestamp).unwrap_or_default());
+        waits.push(returned.duration_since(asked).unwrap_or_default());
         stamps.push(f.timestamp);
+        seqs.push(f.sequence);
         size = f.image.dimensions();
     }
     src.close();
@@ -55,18 +66,27 @@ fn main() {
         eprintln!("too few frames");
         std::process::exit(1);
     }
+    // The camera's frame period from its own timestamps: consecutive returned frames are
+    // `idle + wait` apart, so use the sequence numbers to divide.
     let mut periods: Vec<Duration> = stamps
         .windows(2)
-        .filter_map(|w| w[1].duration_since(w[0]).ok())
+        .zip(seqs.windows(2))
+        .filter_map(|(t, s)| {
+            let dt = t[1].duration_since(t[0]).ok()?;
+            let frames = u32::try_from(s[1].checked_sub(s[0])?).ok()?;
+            (frames > 0).then(|| dt / frames)
+        })
         .collect();
     periods.sort();
+    waits.sort();
     lat.sort();
     let q = |v: &[Duration], p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
     let period = q(&periods, 0.5);
     let ms = |d: Duration| d.as_secs_f64() * 1e3;
     println!(
-        "{} frames {}x{} {format}: frame period {:.2} ms; latency median {:.3} ms, p95 {:.3} ms, \
-         max {:.3} ms; p95/period = {:.3}",
+        "{} frames {}x{} {format}: frame period {:.2} ms; age median {:.3} ms, p95 {:.3} ms, \
+         max {:.3} ms; wait median {:.2} ms, p95 {:.2} ms, max {:.2} ms; \
+         max wait / period = {:.3}",
         lat.len(),
         size.0,
         size.1,
@@ -74,6 +94,9 @@ fn main() {
         ms(q(&lat, 0.5)),
         ms(q(&lat, 0.95)),
         ms(*lat.last().unwrap()),
-        q(&lat, 0.95).as_secs_f64() / period.as_secs_f64()
+        ms(q(&waits, 0.5)),
+        ms(q(&waits, 0.95)),
+        ms(*waits.last().unwrap()),
+        waits.last().unwrap().as_secs_f64() / period.as_secs_f64()
     );
 }

@@ -204,6 +204,15 @@ impl FrameSource for AravisSource {
             .stream
             .as_ref()
             .ok_or_else(|| GrabError::new(Fault::Io, "grab before open"))?;
+        // Frames completed while nobody was grabbing (the burst sleeps between frames) are
+        // stale, and once every buffer is full Aravis drops new frames: requeue them all, so
+        // the frame returned is the next one to complete — at most one frame period old.
+        for _ in 0..2 * BUFFERS {
+            match stream.try_pop_buffer() {
+                Some(stale) => stream.push_buffer(stale),
+                None => break,
+            }
+        }
         let micros = u64::try_from(timeout.as_micros()).unwrap_or(u64::MAX);
         let buffer = stream.timeout_pop_buffer(micros).ok_or_else(|| {
             GrabError::new(

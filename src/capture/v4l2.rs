@@ -6,7 +6,7 @@ use super::{Fault, Frame, FrameSource, GrabError};
 use crate::config::CameraConfig;
 use crate::error::{Error, Result};
 use image::GrayImage;
-use std::time::{Duration, SystemTime};
+use std::time::{Duration, Instant, SystemTime};
 use v4l::buffer::{Flags, Type};
 use v4l::io::mmap::Stream;
 use v4l::io::traits::CaptureStream;
@@ -16,6 +16,9 @@ use v4l::{Device, FourCC};
 /// Driver buffers in the mmap ring: enough that a slow conversion does not drop frames, few
 /// enough that a returned frame is at most this many frames old.
 const BUFFERS: u32 = 4;
+/// A dequeue that returns faster than this found its buffer already filled (a frame older than
+/// the call); a camera's frame period is far longer.
+const READY_WITHOUT_WAITING: Duration = Duration::from_millis(2);
 
 /// The V4L2 pixel formats this source converts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -204,31 +207,45 @@ impl FrameSource for V4l2Source {
             .as_mut()
             .ok_or_else(|| GrabError::new(Fault::Io, "grab before open"))?;
         stream.set_timeout(timeout);
-        let (buf, meta) = stream.next().map_err(|e| {
-            if e.kind() == std::io::ErrorKind::TimedOut {
-                GrabError::new(
-                    Fault::Timeout,
-                    format!("no frame within {} ms", timeout.as_millis()),
-                )
-            } else {
-                GrabError::from_io(&e)
+        // The driver keeps filling queued buffers while the burst sleeps, then drops frames
+        // once all are full, so the first buffers dequeued are old. A buffer that is ready
+        // without waiting may be such a stale one: discard up to BUFFERS of them. After that
+        // every buffer was refilled after this call began, so the frame returned is at most
+        // one frame period old. (The v4l crate exposes buffers only through `next`, so the
+        // drain cannot use a zero-timeout poll.)
+        let mut discarded = 0;
+        loop {
+            let asked = Instant::now();
+            let (buf, meta) = stream.next().map_err(|e| {
+                if e.kind() == std::io::ErrorKind::TimedOut {
+                    GrabError::new(
+                        Fault::Timeout,
+                        format!("no frame within {} ms", timeout.as_millis()),
+                    )
+                } else {
+                    GrabError::from_io(&e)
+                }
+            })?;
+            if asked.elapsed() < READY_WITHOUT_WAITING && discarded < BUFFERS {
+                discarded += 1;
+                continue;
             }
-        })?;
-        if meta.flags.contains(Flags::ERROR) {
-            return Err(GrabError::new(
-                Fault::Corrupt,
-                "driver flagged the frame as damaged (V4L2_BUF_FLAG_ERROR)",
-            ));
+            if meta.flags.contains(Flags::ERROR) {
+                return Err(GrabError::new(
+                    Fault::Corrupt,
+                    "driver flagged the frame as damaged (V4L2_BUF_FLAG_ERROR)",
+                ));
+            }
+            let used = (meta.bytesused as usize).min(buf.len());
+            let image = format.to_gray(w, h, stride, &buf[..used])?;
+            return Ok(Frame {
+                image,
+                // The driver timestamp is CLOCK_MONOTONIC, which std cannot map to wall time;
+                // dequeue time is within one poll wake-up of it.
+                timestamp: SystemTime::now(),
+                sequence: meta.sequence as u64,
+            });
         }
-        let used = (meta.bytesused as usize).min(buf.len());
-        let image = format.to_gray(w, h, stride, &buf[..used])?;
-        Ok(Frame {
-            image,
-            // The driver timestamp is CLOCK_MONOTONIC, which std cannot map to wall time;
-            // dequeue time is within one poll wake-up of it.
-            timestamp: SystemTime::now(),
-            sequence: meta.sequence as u64,
-        })
     }
 
     fn close(&mut self) {
