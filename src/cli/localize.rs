@@ -55,8 +55,6 @@ pub struct Args {
 pub(crate) struct Run {
     /// Pipeline outcome.
     pub outcome: Outcome,
-    /// Camera used.
-    pub camera: Camera,
     /// Tile used.
     pub tile: Tile,
     /// Median frame.
@@ -196,7 +194,7 @@ pub(crate) fn run_pipeline(a: &Args) -> Result<Run> {
         let png = crate::viz::overlay_png(&image, &camera, &[(&outcome.init.pose, crate::viz::RED), (&outcome.pose, crate::viz::CYAN)], &pts)?;
         write_atomic(&p, &png)?;
     }
-    Ok(Run { outcome, camera, tile, image, pose_file: pf, report })
+    Ok(Run { outcome, tile, image, pose_file: pf, report })
 }
 
 /// Errors of each stage's pose against a simulator `truth.json`.
