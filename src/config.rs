@@ -224,6 +224,12 @@ pub struct GpsConfig {
     pub fallback_wgs84: Option<[f64; 2]>,
     /// 1-σ horizontal uncertainty of the fallback position, metres.
     pub fallback_sigma_m: f64,
+    /// Fixes with a larger HDOP are left out of the prior.
+    pub max_hdop: f64,
+    /// Accepted fixes (after outlier rejection) needed for a GNSS prior; fewer → fallback.
+    pub min_fixes: usize,
+    /// For `serial`: longest wait between reconnect attempts, seconds (back-off doubles up to it).
+    pub reconnect_max_s: f64,
 }
 
 impl Default for GpsConfig {
@@ -237,6 +243,9 @@ impl Default for GpsConfig {
             timeout_s: 120.0,
             fallback_wgs84: None,
             fallback_sigma_m: 5.0,
+            max_hdop: 10.0,
+            min_fixes: 5,
+            reconnect_max_s: 30.0,
         }
     }
 }
@@ -400,6 +409,15 @@ impl Config {
                 origin,
                 "[gps] window-s and fallback-sigma-m must be > 0, timeout-s >= 0",
             ));
+        }
+        if !(g.max_hdop > 0.0 && g.reconnect_max_s > 0.0 && g.reconnect_max_s.is_finite()) {
+            return Err(Error::config(
+                origin,
+                "[gps] max-hdop and reconnect-max-s must be > 0",
+            ));
+        }
+        if g.source == GpsSourceKind::Serial && g.baud == 0 {
+            return Err(Error::config(origin, "[gps] baud must be > 0"));
         }
         if !(self.map.search_margin_m >= 0.0) {
             return Err(Error::config(origin, "[map] search-margin-m must be >= 0"));

@@ -18,6 +18,7 @@ pub mod error;
 pub mod geo;
 pub mod gnss;
 pub mod localize;
+pub mod gps_serial;
 pub mod map;
 pub mod persist;
 pub mod pose;

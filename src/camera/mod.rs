@@ -7,6 +7,7 @@
 mod equidistant;
 pub mod import;
 mod mei;
+pub mod rectify;
 
 pub use equidistant::Equidistant;
 pub use import::{load_camera, parse_camera, to_opencv_yaml};

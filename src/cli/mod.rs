@@ -4,6 +4,7 @@
 mod gps;
 mod project;
 mod rectify;
+mod refine;
 mod simulate;
 mod tile;
 mod validate;
@@ -30,6 +31,8 @@ pub enum Command {
     Project(project::Args),
     /// Perspective rectification with cv::omnidir RECTIFY_PERSPECTIVE semantics.
     Rectify(rectify::Args),
+    /// MI refinement alone, from any initial pose.
+    Refine(refine::Args),
     /// Tile cache operations.
     #[command(subcommand)]
     Tile(tile::Command),
@@ -58,6 +61,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Simulate(a) => simulate::run(a),
         Command::Project(a) => project::run(a),
         Command::Rectify(a) => rectify::run(a),
+        Command::Refine(a) => refine::run(a),
         Command::Tile(c) => tile::run(c),
         Command::Gps(c) => gps::run(c),
         Command::Validate(a) => validate::run(a),

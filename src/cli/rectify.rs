@@ -1,12 +1,142 @@
-//! `infraloc rectify` (placeholder: implemented by the foundation work in progress).
+//! `infraloc rectify`: perspective rectification of a fisheye/omnidirectional image with
+//! `cv::omnidir::initUndistortRectifyMap(…, RECTIFY_PERSPECTIVE)` semantics (contracts §6).
 
+use super::parse_list;
+use crate::camera::import::load_camera;
+use crate::camera::rectify::{perspective_map, GrayView, RectifyMap, RemapTable};
+use crate::camera::CameraModel;
 use crate::error::{Error, Result};
+use nalgebra::Matrix3;
+use std::io::Write;
+use std::path::{Path, PathBuf};
 
 /// Arguments of `rectify`.
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Camera intrinsics file (OpenCV FileStorage, Kalibr camchain, KITTI-360 MEI YAML or TOML).
+    #[arg(long, value_name = "CAM")]
+    pub camera: PathBuf,
+    /// Input image (gray or colour; colour is converted with BT.601 weights like OpenCV).
+    #[arg(long, value_name = "IN")]
+    pub image: PathBuf,
+    /// Output image (gray; format from the extension, e.g. .png).
+    #[arg(long, value_name = "OUT")]
+    pub out: PathBuf,
+    /// Output size `W,H` in pixels.
+    #[arg(long, value_name = "W,H")]
+    pub size: String,
+    /// Intrinsics `FX,FY,CX,CY` of the virtual perspective camera (OpenCV's `P`).
+    #[arg(long, value_name = "FX,FY,CX,CY")]
+    pub k: String,
+    /// Rotation `R` (9 numbers, row-major), as OpenCV's `R` argument; identity if absent.
+    #[arg(long, value_name = "R00,…,R22", allow_hyphen_values = true)]
+    pub rotation: Option<String>,
+    /// Also write the maps: map_x then map_y, f32 little-endian, W·H each.
+    #[arg(long, value_name = "FILE")]
+    pub map_out: Option<PathBuf>,
+}
+
+/// Largest output side accepted (OpenCV's maps use 16-bit coordinates internally too).
+const MAX_SIDE: f64 = 32767.0;
 
 /// Run `rectify`.
-pub fn run(_a: Args) -> Result<()> {
-    Err(Error::Invalid("rectify: not built yet".into()))
+pub fn run(a: Args) -> Result<()> {
+    let [w, h] = parse_list::<2>("--size", &a.size)?;
+    let valid_side = |v: f64| (1.0..=MAX_SIDE).contains(&v) && v.fract() == 0.0;
+    if !(valid_side(w) && valid_side(h)) {
+        return Err(Error::Invalid(format!(
+            "--size {:?}: expected two whole numbers from 1 to {MAX_SIDE}",
+            a.size
+        )));
+    }
+    let (w, h) = (w as usize, h as usize);
+    let [fx, fy, cx, cy] = parse_list::<4>("--k", &a.k)?;
+    let p = Matrix3::new(fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0);
+    let r = match &a.rotation {
+        Some(s) => Matrix3::from_row_slice(&parse_list::<9>("--rotation", s)?),
+        None => Matrix3::identity(),
+    };
+    if !(p.iter().chain(r.iter()).all(|v| v.is_finite())) {
+        return Err(Error::Invalid(
+            "--k / --rotation: values must be finite".into(),
+        ));
+    }
+
+    let cam = load_camera(&a.camera)?;
+    let (gray, iw, ih) = load_gray(&a.image)?;
+    if iw != cam.width() as usize || ih != cam.height() as usize {
+        return Err(Error::input(
+            &a.image,
+            format!(
+                "image is {iw}x{ih} but the camera {} is calibrated for {}x{}",
+                a.camera.display(),
+                cam.width(),
+                cam.height()
+            ),
+        ));
+    }
+
+    let map = perspective_map(cam.model(), &p, &r, w, h)?;
+    let src = GrayView::new(&gray, iw, ih)?;
+    let out = RemapTable::new(&map, iw, ih)?.remap(&src)?;
+    let img = image::GrayImage::from_raw(w as u32, h as u32, out)
+        .ok_or_else(|| Error::Invalid("rectify: output buffer size mismatch".into()))?;
+    img.save(&a.out)
+        .map_err(|e| Error::input(&a.out, format!("cannot write image: {e}")))?;
+    if let Some(path) = &a.map_out {
+        write_maps(path, &map)?;
+    }
+    Ok(())
+}
+
+/// Read an image as gray u8. Colour is converted like `cv::cvtColor(…, COLOR_RGB2GRAY)`:
+/// Y = 0.299 R + 0.587 G + 0.114 B in OpenCV's 14-bit fixed point.
+fn load_gray(path: &Path) -> Result<(Vec<u8>, usize, usize)> {
+    let img =
+        image::open(path).map_err(|e| Error::input(path, format!("cannot read image: {e}")))?;
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let gray = match img {
+        image::DynamicImage::ImageLuma8(g) => g.into_raw(),
+        other if other.color().has_color() => {
+            other.to_rgb8().pixels().map(|p| bt601_gray(p.0)).collect()
+        }
+        other => other.to_luma8().into_raw(),
+    };
+    Ok((gray, w, h))
+}
+
+/// OpenCV's RGB→gray coefficients scaled by 2^14 (they sum to exactly 16384).
+const GRAY_R: u32 = 4899;
+const GRAY_G: u32 = 9617;
+const GRAY_B: u32 = 1868;
+const GRAY_SHIFT: u32 = 14;
+
+fn bt601_gray([r, g, b]: [u8; 3]) -> u8 {
+    ((r as u32 * GRAY_R + g as u32 * GRAY_G + b as u32 * GRAY_B + (1 << (GRAY_SHIFT - 1)))
+        >> GRAY_SHIFT) as u8
+}
+
+/// Write map_x then map_y as f32 little-endian planes.
+fn write_maps(path: &Path, map: &RectifyMap) -> Result<()> {
+    let f = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+    let mut w = std::io::BufWriter::new(f);
+    for v in map.map_x.iter().chain(&map.map_y) {
+        w.write_all(&v.to_le_bytes())
+            .map_err(|e| Error::io(path, e))?;
+    }
+    w.flush().map_err(|e| Error::io(path, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gray_weights_are_opencvs() {
+        assert_eq!(GRAY_R + GRAY_G + GRAY_B, 1 << GRAY_SHIFT);
+        assert_eq!(bt601_gray([255, 255, 255]), 255);
+        assert_eq!(bt601_gray([255, 0, 0]), 76); // 0.299·255 = 76.2
+        assert_eq!(bt601_gray([0, 255, 0]), 150); // 0.587·255 = 149.7
+        assert_eq!(bt601_gray([0, 0, 255]), 29); // 0.114·255 = 29.1
+    }
 }

@@ -1,6 +1,23 @@
 //! Localization: initialization (matching + PnP) and refinement (mutual information).
+//!
+//! MI refinement (seed §"Refinement of camera localization using Maximization of Mutual
+//! Information"): from an initial pose, maximise the mutual information between LiDAR ground
+//! reflectivity and the fisheye grayscale at the points' projections over Θ = [x, y, z, ψ].
+//! [`points`] (the point type and its f32 hot-loop form), [`mi`] (the pure estimator), [`kernel`]
+//! (project + sample + joint histogram, the hot loop), [`search`] (exhaustive and tiled
+//! coarse-to-fine grid search), [`quality`] (peak statistics and the gate), [`refine`] (one call).
+//! [`points_io`] is the I/O shell that reads CSV / PCD / LAS point files. Design and measurements:
+//! `docs/refine.md`.
 
 pub mod init;
+pub mod kernel;
 pub mod matching;
+pub mod mi;
 pub mod pnp;
+pub mod points;
+pub mod points_io;
 pub mod poly;
+pub mod quality;
+pub mod refine;
+pub mod search;
+pub mod synth;

@@ -1,0 +1,169 @@
+//! `infraloc refine`: MI refinement alone, from any initial pose (contracts §6).
+
+use crate::camera::import::load_camera;
+use crate::camera::CameraModel;
+use crate::error::{Error, Result};
+use crate::localize::points::GroundPoint;
+use crate::localize::points_io::read_points;
+use crate::localize::quality::QualityConfig;
+use crate::localize::refine::refine;
+use crate::localize::search::{Mode, SearchConfig, SearchSpec};
+use crate::map::{cache, Crs};
+use crate::posefile::{format_utc, read_pose, PoseFile};
+use std::path::{Path, PathBuf};
+
+/// Default radius (m) of tile ground points around the camera's nadir: at 6 m height that is
+/// 76° off-axis; points further out occupy few pixels and add aliasing more than information.
+pub const DEFAULT_RADIUS_M: f64 = 25.0;
+
+/// Arguments of `refine`.
+#[derive(Debug, clap::Args)]
+#[command(group(clap::ArgGroup::new("source").required(true).args(["tiles", "points"])))]
+pub struct Args {
+    /// Camera intrinsics (OpenCV/Kalibr/KITTI-360 YAML or TOML).
+    #[arg(long)]
+    pub camera: PathBuf,
+    /// The fisheye image (any format `image` reads; converted to gray).
+    #[arg(long)]
+    pub image: PathBuf,
+    /// Tile cache: ground points within --radius of the camera come from the tile covering it.
+    #[arg(long)]
+    pub tiles: Option<PathBuf>,
+    /// Point file: CSV (x,y,z,reflectivity header), PCD or LAS; all points used as given.
+    #[arg(long)]
+    pub points: Option<PathBuf>,
+    /// Initial pose (pose-like JSON: rotation_cam_from_map + translation_cam_from_map).
+    #[arg(long)]
+    pub init: PathBuf,
+    /// Search box: x=HALF:STEP,y=HALF:STEP,z=HALF:STEP,yaw=HALF:STEP (m, deg; STEP = finest).
+    #[arg(long, default_value = "x=1:0.02,y=1:0.02,z=0.5:0.02,yaw=3:0.05")]
+    pub search: String,
+    /// tiled (coarse-to-fine, default) or exhaustive (every cell).
+    #[arg(long, default_value = "tiled")]
+    pub mode: String,
+    /// Radius (m) of tile ground points around the camera (with --tiles).
+    #[arg(long, default_value_t = DEFAULT_RADIUS_M)]
+    pub radius: f64,
+    /// Write the refined pose here (contracts §4); only when the quality gate accepts.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Write a JSON report (search counters, quality) here, accepted or not.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+}
+
+fn load_gray(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
+    let img =
+        image::open(path).map_err(|e| Error::input(path, format!("cannot read image: {e}")))?;
+    let g = img.to_luma8();
+    Ok((g.width(), g.height(), g.into_raw()))
+}
+
+/// Run `refine`.
+pub fn run(a: Args) -> Result<()> {
+    let spec: SearchSpec = a.search.parse()?;
+    let mode: Mode = a.mode.parse()?;
+    let cam = load_camera(&a.camera)?;
+    let (w, h, gray) = load_gray(&a.image)?;
+    if (w, h) != (cam.width(), cam.height()) {
+        return Err(Error::input(
+            &a.image,
+            format!(
+                "image is {w}×{h} but the camera {} is {}×{}",
+                a.camera.display(),
+                cam.width(),
+                cam.height()
+            ),
+        ));
+    }
+    let init = read_pose(&a.init)?;
+    let c = init.pose.center();
+    let (points, crs, tile_id): (Vec<GroundPoint>, Crs, String) = match (&a.tiles, &a.points) {
+        (Some(dir), _) => {
+            if !(a.radius > 0.0 && a.radius.is_finite()) {
+                return Err(Error::Invalid(format!(
+                    "--radius {}: must be positive",
+                    a.radius
+                )));
+            }
+            let crs = init.crs.ok_or_else(|| {
+                Error::input(&a.init, "no \"crs\": needed to find the tile in --tiles")
+            })?;
+            let (lat, lon) = crate::geo::map_to_wgs84(crs, c.x, c.y)?;
+            let tref = cache::find_tile(dir, lat, lon, a.radius)?;
+            if tref.crs != crs {
+                return Err(Error::input(
+                    &a.init,
+                    format!(
+                        "pose CRS {crs} differs from tile {} CRS {}",
+                        tref.id, tref.crs
+                    ),
+                ));
+            }
+            let tile = cache::load_tile(&tref.dir)?;
+            let pts = crate::map::ground_points(&tile, (c.x, c.y), a.radius);
+            if pts.is_empty() {
+                return Err(Error::input(
+                    &tref.dir,
+                    format!("no valid ground point within {} m of the camera", a.radius),
+                ));
+            }
+            (pts, crs, tref.id)
+        }
+        (None, Some(p)) => (
+            read_points(p)?,
+            init.crs.unwrap_or(Crs::Local),
+            String::new(),
+        ),
+        (None, None) => return Err(Error::Invalid("give --tiles or --points".into())),
+    };
+    let cfg = SearchConfig {
+        spec,
+        mode,
+        ..Default::default()
+    };
+    let r = refine(
+        &cam,
+        &gray,
+        &points,
+        &init.pose,
+        &cfg,
+        &QualityConfig::default(),
+    )?;
+    if let Some(path) = &a.report {
+        let text = serde_json::to_string_pretty(&r.report(mode))
+            .map_err(|e| Error::Invalid(format!("report: {e}")))?;
+        crate::persist::write_atomic(path, (text + "\n").as_bytes())?;
+    }
+    if !r.quality.accepted {
+        return Err(Error::stage(
+            "mi",
+            format!(
+                "result rejected: {}",
+                r.quality.reason.clone().unwrap_or_default()
+            ),
+        ));
+    }
+    let o = r.offsets;
+    println!(
+        "mi: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°; MI {:.4} nats on {} points; {:.0}× fewer point-pose evaluations than exhaustive",
+        o[0],
+        o[1],
+        o[2],
+        o[3],
+        r.quality.mi,
+        r.points.1,
+        r.stats.exhaustive_point_evaluations as f64 / r.stats.point_evaluations.max(1) as f64
+    );
+    if let Some(path) = &a.out {
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs() as i64)
+            .unwrap_or(0);
+        let mut pf = PoseFile::new(&r.pose, crs, &tile_id, format_utc(now, None));
+        pf.quality = serde_json::to_value(&r.quality).unwrap_or_default();
+        pf.stages = vec![serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search })];
+        crate::persist::write_atomic(path, pf.to_json().as_bytes())?;
+    }
+    Ok(())
+}

@@ -1,0 +1,616 @@
+//! The MI evaluation kernel: project every point with one pose, sample the binned image, and
+//! accumulate the joint histogram. This is the hot loop of the search.
+//!
+//! Speed design (measured in `benches/mi.rs`, figures in `docs/benchmarks.md` "MI kernel"):
+//! - points are origin-shifted f32 in structure-of-arrays form ([`PreparedPoints`]), ordered along
+//!   a Morton curve so that neighbouring points hit neighbouring pixels;
+//! - the projection is the camera's exact formula specialised to f32 ([`FastCamera`]), written
+//!   without branches (invalid points are *selected* onto a sentinel pixel), in chunks, so the
+//!   compiler vectorises it;
+//! - the image is pre-binned ([`BinnedImage`], one u8 per pixel holding the gray bin, invalid
+//!   pixels and the sentinel hold the histogram's invalid column), so a sample is one load;
+//! - the histogram is u32 counts in four interleaved copies (breaking the store→load dependency of
+//!   consecutive equal bins), 32×33×4×4 B = 17 KiB, so it stays in L1.
+//!
+//! [`accumulate_scalar`] is the straightforward f64 version through [`CameraModel`], kept as the
+//! reference the fast kernel is tested against and as the benchmark's baseline.
+
+use super::mi::JointHist;
+use super::points::{GroundPoint, PreparedPoints};
+use crate::camera::{Camera, CameraModel};
+use crate::pose::CamFromMap;
+use nalgebra::{Point3, Vector3};
+
+/// Points per chunk: the index buffer (1 KiB) stays in L1 between the two passes.
+const CHUNK: usize = 256;
+/// Interleaved histogram copies.
+const SUB_HISTS: usize = 4;
+
+/// A camera model specialised for the hot loop (f32, precomputed validity limits), optionally for
+/// a 2^level downsampled image.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FastCamera {
+    /// OpenCV omnidir (Mei) model.
+    Mei {
+        /// fx, fy, skew, cx, cy (scaled to the pyramid level).
+        k: [f32; 5],
+        /// ξ.
+        xi: f32,
+        /// k1, k2, p1, p2.
+        d: [f32; 4],
+        /// Smallest admissible sphere z: max of the model's one-to-one limit and cos(max θ).
+        zmin: f32,
+        /// Largest undistorted r² where the radial polynomial is monotonic.
+        r2max: f32,
+    },
+    /// OpenCV fisheye (equidistant) model with atan2 (rays beyond 90°).
+    Equidistant {
+        /// fx, fy, alpha, cx, cy (scaled to the pyramid level; alpha is dimensionless).
+        k: [f32; 5],
+        /// k1..k4.
+        d: [f32; 4],
+        /// Largest admissible θ.
+        theta_max: f32,
+    },
+}
+
+impl FastCamera {
+    /// Specialise `cam` for an image downsampled by 2^`level` (pixel centres: u_l = (u+½)/2^l − ½).
+    pub fn new(cam: &Camera, level: u32) -> Self {
+        let s = 1.0 / (1u64 << level) as f64;
+        let c = |v: f64| ((v + 0.5) * s - 0.5) as f32;
+        match cam {
+            Camera::Mei(m) => {
+                let one_to_one = if m.xi <= 1.0 { -m.xi } else { -1.0 / m.xi };
+                let zmin = one_to_one.max(cam.max_theta().cos());
+                let r2max = mei_max_r2_monotonic(m.k1, m.k2);
+                FastCamera::Mei {
+                    k: [
+                        (m.fx * s) as f32,
+                        (m.fy * s) as f32,
+                        (m.skew * s) as f32,
+                        c(m.cx),
+                        c(m.cy),
+                    ],
+                    xi: m.xi as f32,
+                    d: [m.k1 as f32, m.k2 as f32, m.p1 as f32, m.p2 as f32],
+                    zmin: zmin as f32,
+                    r2max: r2max.min(f32::MAX as f64) as f32,
+                }
+            }
+            Camera::Equidistant(e) => FastCamera::Equidistant {
+                k: [
+                    (e.fx * s) as f32,
+                    (e.fy * s) as f32,
+                    e.alpha as f32,
+                    c(e.cx),
+                    c(e.cy),
+                ],
+                d: [e.k1 as f32, e.k2 as f32, e.k3 as f32, e.k4 as f32],
+                theta_max: cam.max_theta() as f32,
+            },
+        }
+    }
+}
+
+/// Largest undistorted r² where the Mei radial term r(1 + k1 r² + k2 r⁴) still increases, i.e. the
+/// smallest positive root s of 1 + 3 k1 s + 5 k2 s² (∞ if none) — the same limit
+/// [`crate::camera::Mei`] applies.
+fn mei_max_r2_monotonic(k1: f64, k2: f64) -> f64 {
+    let (a, b, c) = (5.0 * k2, 3.0 * k1, 1.0);
+    if a.abs() < 1e-300 {
+        return if b < 0.0 { -c / b } else { f64::INFINITY };
+    }
+    let disc = b * b - 4.0 * a * c;
+    if disc < 0.0 {
+        return f64::INFINITY;
+    }
+    let sq = disc.sqrt();
+    let (r1, r2) = ((-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a));
+    [r1.min(r2), r1.max(r2)]
+        .into_iter()
+        .find(|r| *r > 0.0)
+        .unwrap_or(f64::INFINITY)
+}
+
+/// A pose in hot-loop form: `X_c = R·p + t` for origin-shifted points `p = X_w − origin`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseF32 {
+    /// Row-major `R_cam_from_map`.
+    pub r: [f32; 9],
+    /// `R·(origin − c)`, computed in f64.
+    pub t: [f32; 3],
+}
+
+impl PoseF32 {
+    /// From a pose and the origin its points were shifted by.
+    pub fn new(pose: &CamFromMap, origin: [f64; 3]) -> Self {
+        let m = pose.rotation.matrix();
+        let o = Point3::new(origin[0], origin[1], origin[2]);
+        let t = pose.transform(&o);
+        PoseF32 {
+            r: [
+                m[(0, 0)] as f32,
+                m[(0, 1)] as f32,
+                m[(0, 2)] as f32,
+                m[(1, 0)] as f32,
+                m[(1, 1)] as f32,
+                m[(1, 2)] as f32,
+                m[(2, 0)] as f32,
+                m[(2, 1)] as f32,
+                m[(2, 2)] as f32,
+            ],
+            t: [t.x as f32, t.y as f32, t.z as f32],
+        }
+    }
+}
+
+/// An image reduced to gray bins: `data[v·width + u]` is the bin of pixel (u, v), or `invalid`
+/// outside the valid image circle; one extra trailing element (the sentinel) is `invalid` too and
+/// receives every point that misses the image.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BinnedImage {
+    /// Width (px).
+    pub width: usize,
+    /// Height (px).
+    pub height: usize,
+    /// Bins, `width·height + 1` values.
+    pub data: Vec<u8>,
+}
+
+impl BinnedImage {
+    /// Bin `gray` (row-major, `width·height`) through `lut`; pixels whose `mask` is 0 get
+    /// `invalid`.
+    pub fn new(
+        width: usize,
+        height: usize,
+        gray: &[u8],
+        mask: &[u8],
+        lut: &[u8; 256],
+        invalid: u8,
+    ) -> Self {
+        let mut data: Vec<u8> = gray
+            .iter()
+            .zip(mask)
+            .map(|(&g, &m)| if m != 0 { lut[g as usize] } else { invalid })
+            .collect();
+        data.push(invalid);
+        BinnedImage {
+            width,
+            height,
+            data,
+        }
+    }
+
+    /// Index of the sentinel element.
+    #[inline]
+    pub fn sentinel(&self) -> usize {
+        self.width * self.height
+    }
+}
+
+/// One level of a gray image pyramid with its validity mask.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct GrayLevel {
+    /// Width (px).
+    pub width: usize,
+    /// Height (px).
+    pub height: usize,
+    /// Gray values, row-major.
+    pub gray: Vec<u8>,
+    /// Validity (non-zero = valid).
+    pub mask: Vec<u8>,
+}
+
+impl GrayLevel {
+    /// Halve the resolution: each output pixel is the rounded mean of its valid 2×2 children and is
+    /// valid if any child is (so a point valid at level 0 stays valid at coarse levels).
+    pub fn downsample(&self) -> GrayLevel {
+        let (w, h) = (self.width.div_ceil(2), self.height.div_ceil(2));
+        let mut gray = vec![0u8; w * h];
+        let mut mask = vec![0u8; w * h];
+        for v in 0..h {
+            for u in 0..w {
+                let (mut sum, mut n) = (0u32, 0u32);
+                for (du, dv) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                    let (x, y) = (2 * u + du, 2 * v + dv);
+                    if x < self.width && y < self.height && self.mask[y * self.width + x] != 0 {
+                        sum += self.gray[y * self.width + x] as u32;
+                        n += 1;
+                    }
+                }
+                if n > 0 {
+                    gray[v * w + u] = ((sum + n / 2) / n) as u8;
+                    mask[v * w + u] = 255;
+                }
+            }
+        }
+        GrayLevel {
+            width: w,
+            height: h,
+            gray,
+            mask,
+        }
+    }
+}
+
+/// Fast Mei projection of one chunk into pixel indices (sentinel when not visible).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn project_chunk_mei(
+    xs: &[f32],
+    ys: &[f32],
+    zs: &[f32],
+    p: &PoseF32,
+    k: [f32; 5],
+    xi: f32,
+    d: [f32; 4],
+    zmin: f32,
+    r2max: f32,
+    w: usize,
+    h: usize,
+    sentinel: u32,
+    out: &mut [u32],
+) {
+    let r = p.r;
+    let (wf, hf) = (w as f32, h as f32);
+    for i in 0..out.len().min(xs.len()).min(ys.len()).min(zs.len()) {
+        let (x, y, z) = (xs[i], ys[i], zs[i]);
+        let cx = r[0] * x + r[1] * y + r[2] * z + p.t[0];
+        let cy = r[3] * x + r[4] * y + r[5] * z + p.t[1];
+        let cz = r[6] * x + r[7] * y + r[8] * z + p.t[2];
+        let inv_n = 1.0 / (cx * cx + cy * cy + cz * cz).sqrt();
+        let sz = cz * inv_n;
+        let f = inv_n / (sz + xi);
+        let (xu, yu) = (cx * f, cy * f);
+        let r2 = xu * xu + yu * yu;
+        let radial = 1.0 + d[0] * r2 + d[1] * r2 * r2;
+        let xd = xu * radial + 2.0 * d[2] * xu * yu + d[3] * (r2 + 2.0 * xu * xu);
+        let yd = yu * radial + d[2] * (r2 + 2.0 * yu * yu) + 2.0 * d[3] * xu * yu;
+        // Shifted by ½ so that truncation is rounding to the nearest pixel centre.
+        let u = k[0] * xd + k[2] * yd + k[3] + 0.5;
+        let v = k[1] * yd + k[4] + 0.5;
+        let ok = sz > zmin && r2 < r2max && u >= 0.0 && u < wf && v >= 0.0 && v < hf;
+        let uc = if ok { u } else { 0.0 };
+        let vc = if ok { v } else { 0.0 };
+        let idx = vc as u32 * w as u32 + uc as u32;
+        out[i] = if ok { idx } else { sentinel };
+    }
+}
+
+/// Fast branch-free atan on [0, 1] (odd minimax polynomial, |error| < 1e-5 rad ≈ 0.005 px at
+/// f = 500 px — far below the nearest-pixel rounding of the sampler).
+#[inline(always)]
+fn atan01(a: f32) -> f32 {
+    let s = a * a;
+    a * (0.999_977_26
+        + s * (-0.332_623_47
+            + s * (0.193_543_46 + s * (-0.116_432_87 + s * (0.052_653_32 + s * -0.011_721_2)))))
+}
+
+/// Fast equidistant projection of one chunk into pixel indices (sentinel when not visible).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn project_chunk_equidistant(
+    xs: &[f32],
+    ys: &[f32],
+    zs: &[f32],
+    p: &PoseF32,
+    k: [f32; 5],
+    d: [f32; 4],
+    theta_max: f32,
+    w: usize,
+    h: usize,
+    sentinel: u32,
+    out: &mut [u32],
+) {
+    let r = p.r;
+    let (wf, hf) = (w as f32, h as f32);
+    const HALF_PI: f32 = std::f32::consts::FRAC_PI_2;
+    const PI: f32 = std::f32::consts::PI;
+    for i in 0..out.len().min(xs.len()).min(ys.len()).min(zs.len()) {
+        let (x, y, z) = (xs[i], ys[i], zs[i]);
+        let cx = r[0] * x + r[1] * y + r[2] * z + p.t[0];
+        let cy = r[3] * x + r[4] * y + r[5] * z + p.t[1];
+        let cz = r[6] * x + r[7] * y + r[8] * z + p.t[2];
+        let rho = (cx * cx + cy * cy).sqrt();
+        let az = cz.abs();
+        let (lo, hi) = if rho < az { (rho, az) } else { (az, rho) };
+        let a = atan01(lo / hi.max(f32::MIN_POSITIVE));
+        let a = if rho > az { HALF_PI - a } else { a };
+        let theta = if cz < 0.0 { PI - a } else { a };
+        let t2 = theta * theta;
+        let thd = theta * (1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))));
+        // θ_d/ρ → 1/z on the axis.
+        let scale = if rho > 1e-7 * az { thd / rho } else { 1.0 / cz };
+        let (xd, yd) = (cx * scale, cy * scale);
+        let u = k[0] * (xd + k[2] * yd) + k[3] + 0.5;
+        let v = k[1] * yd + k[4] + 0.5;
+        let ok = theta <= theta_max && u >= 0.0 && u < wf && v >= 0.0 && v < hf;
+        let uc = if ok { u } else { 0.0 };
+        let vc = if ok { v } else { 0.0 };
+        let idx = vc as u32 * w as u32 + uc as u32;
+        out[i] = if ok { idx } else { sentinel };
+    }
+}
+
+/// Project a chunk of points with `cam` into pixel indices of `img` (sentinel when not visible).
+#[inline(always)]
+fn project_chunk(
+    xs: &[f32],
+    ys: &[f32],
+    zs: &[f32],
+    pose: &PoseF32,
+    cam: &FastCamera,
+    img: &BinnedImage,
+    out: &mut [u32],
+) {
+    let s = img.sentinel() as u32;
+    match *cam {
+        FastCamera::Mei {
+            k,
+            xi,
+            d,
+            zmin,
+            r2max,
+        } => project_chunk_mei(
+            xs, ys, zs, pose, k, xi, d, zmin, r2max, img.width, img.height, s, out,
+        ),
+        FastCamera::Equidistant { k, d, theta_max } => project_chunk_equidistant(
+            xs, ys, zs, pose, k, d, theta_max, img.width, img.height, s, out,
+        ),
+    }
+}
+
+/// Scratch memory of the kernel (reuse it across poses; one per thread).
+#[derive(Debug, Clone)]
+pub struct Scratch {
+    idx: Vec<u32>,
+    sub: Vec<u32>,
+}
+
+impl Default for Scratch {
+    fn default() -> Self {
+        Scratch {
+            idx: vec![0; CHUNK],
+            sub: Vec::new(),
+        }
+    }
+}
+
+/// The fast kernel: add the joint histogram of `pts` seen from `pose` to `hist` (which must have
+/// as many rows as reflectivity bins and `cols` = the image's invalid value).
+pub fn accumulate(
+    pts: &PreparedPoints,
+    pose: &PoseF32,
+    cam: &FastCamera,
+    img: &BinnedImage,
+    hist: &mut JointHist,
+    scratch: &mut Scratch,
+) {
+    let size = hist.counts.len();
+    let stride = hist.stride();
+    scratch.sub.clear();
+    scratch.sub.resize(SUB_HISTS * size, 0);
+    let (sub, idx) = (&mut scratch.sub, &mut scratch.idx);
+    let data = &img.data;
+    let n = pts.len();
+    let mut start = 0;
+    while start < n {
+        let end = (start + CHUNK).min(n);
+        let len = end - start;
+        project_chunk(
+            &pts.x[start..end],
+            &pts.y[start..end],
+            &pts.z[start..end],
+            pose,
+            cam,
+            img,
+            &mut idx[..len],
+        );
+        let bins = &pts.bin[start..end];
+        let mut quads = idx[..len].chunks_exact(SUB_HISTS);
+        let mut bquads = bins.chunks_exact(SUB_HISTS);
+        for (q, b) in (&mut quads).zip(&mut bquads) {
+            for j in 0..SUB_HISTS {
+                let g = data[q[j] as usize] as usize;
+                sub[j * size + b[j] as usize * stride + g] += 1;
+            }
+        }
+        for (&i, &b) in quads.remainder().iter().zip(bquads.remainder()) {
+            let g = data[i as usize] as usize;
+            sub[b as usize * stride + g] += 1;
+        }
+        start = end;
+    }
+    for (c, out) in hist.counts.iter_mut().enumerate() {
+        *out += (0..SUB_HISTS).map(|j| sub[j * size + c]).sum::<u32>();
+    }
+}
+
+/// Visibility of each point from `pose` (lands on a valid pixel of `img`).
+pub fn visible(
+    pts: &PreparedPoints,
+    pose: &PoseF32,
+    cam: &FastCamera,
+    img: &BinnedImage,
+    invalid: u8,
+    out: &mut [bool],
+) {
+    let mut idx = vec![0u32; CHUNK];
+    let n = pts.len().min(out.len());
+    let mut start = 0;
+    while start < n {
+        let end = (start + CHUNK).min(n);
+        let len = end - start;
+        project_chunk(
+            &pts.x[start..end],
+            &pts.y[start..end],
+            &pts.z[start..end],
+            pose,
+            cam,
+            img,
+            &mut idx[..len],
+        );
+        for (o, &i) in out[start..end].iter_mut().zip(&idx[..len]) {
+            *o = img.data[i as usize] != invalid;
+        }
+        start = end;
+    }
+}
+
+/// Reference kernel (the benchmark baseline): f64 through [`CameraModel::project_visible`],
+/// nearest pixel, validity `mask`, bins through the two LUTs. Same histogram layout as
+/// [`accumulate`].
+#[allow(clippy::too_many_arguments)]
+pub fn accumulate_scalar(
+    points: &[GroundPoint],
+    pose: &CamFromMap,
+    cam: &dyn CameraModel,
+    gray: &[u8],
+    mask: &[u8],
+    lut_reflectivity: &[u8; 256],
+    lut_gray: &[u8; 256],
+    hist: &mut JointHist,
+) {
+    let w = cam.width() as usize;
+    let stride = hist.stride();
+    let inv = hist.invalid_col();
+    for p in points {
+        let pc: Vector3<f64> = pose.transform(&Point3::new(p.x, p.y, p.z)).coords;
+        let row = lut_reflectivity[p.reflectivity as usize] as usize;
+        let col = match cam.project_visible(&pc) {
+            Ok(px) => {
+                let (u, v) = ((px.x + 0.5).floor() as usize, (px.y + 0.5).floor() as usize);
+                let i = v * w + u;
+                if i < mask.len() && mask[i] != 0 {
+                    lut_gray[gray[i] as usize] as usize
+                } else {
+                    inv
+                }
+            }
+            Err(_) => inv,
+        };
+        hist.counts[row * stride + col] += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::{Equidistant, Mei};
+    use crate::localize::mi::{bin_lut, Binning};
+    use crate::localize::synth::{ground_points, Texture};
+
+    fn check(cam: Camera) {
+        let tex = Texture::new(9);
+        let c = Point3::new(10.0, 20.0, 5.0);
+        let pose = CamFromMap::from_center_ypr(&c, 0.7, 0.02, -0.03);
+        let (w, h) = (cam.width() as usize, cam.height() as usize);
+        let mask = cam.valid_mask();
+        let gray: Vec<u8> = (0..w * h).map(|i| ((i * 7919) % 251) as u8).collect();
+        let lut = bin_lut(Binning::Uniform, 16, &[0; 256]);
+        // Points out to 40 m: past the horizon of the 185° lens, so the FOV limit is exercised.
+        let mut pts = ground_points(&tex, (10.0, 20.0), 40.0, 0.4, 0.0, 3.0, 1);
+        // Every 5th point above the camera (θ > 90°): rays near and beyond the 92.5° limit.
+        for p in pts.iter_mut().step_by(5) {
+            p.z = 5.6;
+        }
+        let origin = [c.x + 0.3, c.y - 0.2, c.z];
+        let prepared = PreparedPoints::new(&pts, origin, &lut);
+        let img = BinnedImage::new(w, h, &gray, &mask, &lut, 16);
+        let mut fast = JointHist::new(16, 16);
+        accumulate(
+            &prepared,
+            &PoseF32::new(&pose, origin),
+            &FastCamera::new(&cam, 0),
+            &img,
+            &mut fast,
+            &mut Scratch::default(),
+        );
+        let mut slow = JointHist::new(16, 16);
+        accumulate_scalar(&pts, &pose, &cam, &gray, &mask, &lut, &lut, &mut slow);
+        let n = pts.len() as u64;
+        assert_eq!(fast.valid_count() + fast.invalid_count(), n);
+        eprintln!(
+            "valid {} invalid {}",
+            slow.valid_count(),
+            slow.invalid_count()
+        );
+        assert!(slow.valid_count() > n / 4 && slow.invalid_count() > n / 20);
+        // f32 vs f64 may round a point to the neighbouring pixel at pixel borders; allow 0.5 %.
+        let diff: u64 = fast
+            .counts
+            .iter()
+            .zip(&slow.counts)
+            .map(|(&a, &b)| (a as i64 - b as i64).unsigned_abs())
+            .sum();
+        assert!(diff * 200 <= n, "{diff} of {n} differ");
+        // Visibility agrees with the histogram's valid count.
+        let mut vis = vec![false; prepared.len()];
+        visible(
+            &prepared,
+            &PoseF32::new(&pose, origin),
+            &FastCamera::new(&cam, 0),
+            &img,
+            16,
+            &mut vis,
+        );
+        assert_eq!(
+            vis.iter().filter(|&&v| v).count() as u64,
+            fast.valid_count()
+        );
+    }
+
+    #[test]
+    fn fast_kernel_matches_scalar_mei() {
+        check(Camera::Mei(Mei {
+            width: 400,
+            height: 380,
+            fx: 230.0,
+            fy: 231.0,
+            cx: 201.0,
+            cy: 188.0,
+            skew: 0.3,
+            xi: 1.1,
+            k1: -0.05,
+            k2: 0.01,
+            p1: 3e-4,
+            p2: -2e-4,
+            fov_deg: Some(185.0),
+        }));
+    }
+
+    #[test]
+    fn fast_kernel_matches_scalar_equidistant() {
+        check(Camera::Equidistant(Equidistant {
+            width: 400,
+            height: 380,
+            fx: 125.0,
+            fy: 125.5,
+            cx: 199.0,
+            cy: 190.0,
+            alpha: 0.001,
+            k1: 0.01,
+            k2: -0.002,
+            k3: 0.0003,
+            k4: 0.0,
+            fov_deg: Some(185.0),
+            cache: Default::default(),
+        }));
+    }
+
+    #[test]
+    fn pyramid_keeps_validity() {
+        let g = GrayLevel {
+            width: 3,
+            height: 2,
+            gray: vec![10, 20, 30, 40, 50, 60],
+            mask: vec![255, 0, 255, 0, 0, 0],
+        };
+        let d = g.downsample();
+        assert_eq!((d.width, d.height), (2, 1));
+        assert_eq!(d.gray, vec![10, 30]);
+        assert_eq!(d.mask, vec![255, 255]);
+    }
+}

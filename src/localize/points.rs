@@ -1,0 +1,177 @@
+//! Ground points (map CRS, f64) and their hot-loop form (origin-shifted f32, structure of arrays).
+
+use crate::error::{Error, Result};
+
+/// One LiDAR ground point: map-CRS coordinates (f64 metres) and reflectivity (0–255). The same
+/// type the tile cache's [`crate::map::ground_points`] produces.
+pub use crate::map::GroundPoint;
+
+/// Check a point set for the refinement: non-empty and all coordinates finite. `what` names the
+/// source (file or tile) in the error.
+pub fn validate(points: &[GroundPoint], what: &str) -> Result<()> {
+    if points.is_empty() {
+        return Err(Error::Invalid(format!("{what}: no ground points")));
+    }
+    if let Some((i, p)) = points
+        .iter()
+        .enumerate()
+        .find(|(_, p)| !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()))
+    {
+        return Err(Error::Invalid(format!(
+            "{what}: point {i} has a non-finite coordinate ({}, {}, {})",
+            p.x, p.y, p.z
+        )));
+    }
+    Ok(())
+}
+
+/// Points in the hot-loop form: coordinates relative to `origin` as f32 (the refinement works
+/// within ~100 m of the origin, where f32 resolves 8 µm), structure of arrays so the projection loop
+/// vectorises, plus the reflectivity already mapped to its histogram bin.
+#[derive(Debug, Clone, Default)]
+pub struct PreparedPoints {
+    /// x − origin.x.
+    pub x: Vec<f32>,
+    /// y − origin.y.
+    pub y: Vec<f32>,
+    /// z − origin.z.
+    pub z: Vec<f32>,
+    /// Reflectivity histogram bin (row of the joint histogram).
+    pub bin: Vec<u8>,
+}
+
+impl PreparedPoints {
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    /// Whether there are no points.
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// Build from map points: subtract `origin`, map reflectivity through `lut` (256 entries →
+    /// bin), and order the points along a Morton (Z-order) curve so that consecutive points project
+    /// to nearby pixels (cache locality in the image gather) and a strided subsample is spatially
+    /// uniform. Ordering makes the result independent of the input order.
+    pub fn new(points: &[GroundPoint], origin: [f64; 3], lut: &[u8; 256]) -> Self {
+        let mut order: Vec<(u64, usize)> = Vec::with_capacity(points.len());
+        if !points.is_empty() {
+            let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+            for p in points {
+                x0 = x0.min(p.x);
+                y0 = y0.min(p.y);
+                x1 = x1.max(p.x);
+                y1 = y1.max(p.y);
+            }
+            let span = (x1 - x0).max(y1 - y0).max(1e-9);
+            // 20 bits per axis: 1 µm cells on a 1 km tile, far below any point spacing.
+            const MORTON_BITS: u32 = 20;
+            let scale = ((1u64 << MORTON_BITS) - 1) as f64 / span;
+            for (i, p) in points.iter().enumerate() {
+                let ix = ((p.x - x0) * scale) as u64;
+                let iy = ((p.y - y0) * scale) as u64;
+                order.push((morton2(ix, iy), i));
+            }
+            order.sort_unstable();
+        }
+        let mut out = PreparedPoints::default();
+        for &(_, i) in &order {
+            let p = &points[i];
+            out.x.push((p.x - origin[0]) as f32);
+            out.y.push((p.y - origin[1]) as f32);
+            out.z.push((p.z - origin[2]) as f32);
+            out.bin.push(lut[p.reflectivity as usize]);
+        }
+        out
+    }
+
+    /// Every `stride`-th point (stride ≥ 1): along the Morton order this is a spatially uniform
+    /// subsample, used at the coarse search levels.
+    pub fn subsample(&self, stride: usize) -> Self {
+        let s = stride.max(1);
+        PreparedPoints {
+            x: self.x.iter().step_by(s).copied().collect(),
+            y: self.y.iter().step_by(s).copied().collect(),
+            z: self.z.iter().step_by(s).copied().collect(),
+            bin: self.bin.iter().step_by(s).copied().collect(),
+        }
+    }
+
+    /// The points whose flag is set.
+    pub fn select(&self, keep: &[bool]) -> Self {
+        let mut out = PreparedPoints::default();
+        for (i, &k) in keep.iter().enumerate().take(self.len()) {
+            if k {
+                out.x.push(self.x[i]);
+                out.y.push(self.y[i]);
+                out.z.push(self.z[i]);
+                out.bin.push(self.bin[i]);
+            }
+        }
+        out
+    }
+}
+
+/// Interleave the low 20 bits of `x` and `y`.
+fn morton2(x: u64, y: u64) -> u64 {
+    fn spread(mut v: u64) -> u64 {
+        v &= 0x0000_0000_ffff_ffff;
+        v = (v | (v << 16)) & 0x0000_ffff_0000_ffff;
+        v = (v | (v << 8)) & 0x00ff_00ff_00ff_00ff;
+        v = (v | (v << 4)) & 0x0f0f_0f0f_0f0f_0f0f;
+        v = (v | (v << 2)) & 0x3333_3333_3333_3333;
+        v = (v | (v << 1)) & 0x5555_5555_5555_5555;
+        v
+    }
+    spread(x) | (spread(y) << 1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn validate_rejects_empty_and_nan() {
+        assert!(validate(&[], "t").is_err());
+        let p = GroundPoint {
+            x: 1.0,
+            y: f64::NAN,
+            z: 0.0,
+            reflectivity: 3,
+        };
+        let e = validate(&[p], "pts.csv").unwrap_err().to_string();
+        assert!(e.contains("pts.csv") && e.contains("point 0"), "{e}");
+    }
+
+    #[test]
+    fn prepared_points_are_order_independent_and_shifted() {
+        let mut lut = [0u8; 256];
+        for (i, l) in lut.iter_mut().enumerate() {
+            *l = (i / 8) as u8;
+        }
+        let pts: Vec<GroundPoint> = (0..50)
+            .map(|i| GroundPoint {
+                x: 500_000.0 + (i % 7) as f64,
+                y: 4_000_000.0 + (i / 7) as f64 * 0.5,
+                z: 200.0,
+                reflectivity: (i * 5) as u8,
+            })
+            .collect();
+        let mut rev = pts.clone();
+        rev.reverse();
+        let o = [500_003.0, 4_000_001.0, 206.0];
+        let a = PreparedPoints::new(&pts, o, &lut);
+        let b = PreparedPoints::new(&rev, o, &lut);
+        assert_eq!(a.x, b.x);
+        assert_eq!(a.bin, b.bin);
+        assert_eq!(a.len(), 50);
+        assert!(a.z.iter().all(|&z| z == -6.0));
+        assert!(a.x.iter().all(|&x| (-3.0..=3.0).contains(&x)));
+        assert_eq!(a.subsample(4).len(), 13);
+        assert_eq!(morton2(1, 0), 1);
+        assert_eq!(morton2(0, 1), 2);
+        assert_eq!(morton2(3, 3), 15);
+    }
+}

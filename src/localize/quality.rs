@@ -1,0 +1,289 @@
+//! Quality of a refinement: the statistics reported with every result, and the gate that rejects
+//! ambiguous ones.
+//!
+//! Per enabled axis, the objective is profiled through the optimum at the finest step
+//! (±`profile-half-steps` cells, level 0: full image, all points):
+//! - **curvature / σ**: a least-squares parabola over ±`fit-half-steps` cells gives the MI
+//!   curvature κ = −d²MI/dθ² (nats per unit²). σ = 1/√(N·κ) treats N·MI as a log-likelihood ratio
+//!   of N independent points (Fisher information N·κ); neighbouring pixels are correlated, so read σ
+//!   as a lower bound on the real uncertainty and compare it across runs, not as a calibrated
+//!   standard deviation.
+//! - **basin width**: the profile is followed outwards from the optimum while it keeps falling; the
+//!   width is the distance between the first rises on both sides (`basin_open` when it reaches the
+//!   profile's end on a side).
+//!
+//! The **second peak** is the best other local maximum found by the search that lies outside the
+//! main peak's basin on at least one axis. Its height is reported as a ratio to the optimum and as
+//! a *contrast* above the background (the lowest profile value): (s₂ − bg)/(s₁ − bg). Raw MI ratios
+//! are close to 1 for any textured scene because misaligned views still share low-frequency
+//! structure, so the gate uses the contrast.
+
+use super::kernel::Scratch;
+use super::search::{Evaluator, SearchResult, AXES};
+use serde::{Deserialize, Serialize};
+
+/// Gate and profile settings.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
+pub struct QualityConfig {
+    /// Profile half length, finest cells.
+    pub profile_half_steps: i64,
+    /// Parabola-fit half length, finest cells.
+    pub fit_half_steps: i64,
+    /// Smallest accepted fixed point set.
+    pub min_points: usize,
+    /// Largest accepted second-peak contrast.
+    pub max_second_peak_contrast: f64,
+    /// Largest accepted fraction of the fixed set lost at some pose.
+    pub max_lost_fraction: f64,
+}
+
+impl Default for QualityConfig {
+    fn default() -> Self {
+        QualityConfig {
+            profile_half_steps: 15,
+            fit_half_steps: 3,
+            min_points: 1000,
+            max_second_peak_contrast: 0.8,
+            max_lost_fraction: 0.02,
+        }
+    }
+}
+
+/// Per-axis statistics.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AxisQuality {
+    /// Axis name (x, y, z, yaw, pitch, roll).
+    pub axis: String,
+    /// Unit of the values below (m or deg).
+    pub unit: String,
+    /// MI curvature κ at the peak, nats per unit².
+    pub curvature: f64,
+    /// σ = 1/√(N·κ) (∞ when κ ≤ 0).
+    pub sigma: f64,
+    /// Vertex offset of the fitted parabola from the optimum (sub-step peak estimate).
+    pub vertex_offset: f64,
+    /// Basin width along the axis.
+    pub basin_width: f64,
+    /// The profile reached its end on a side while still falling.
+    pub basin_open: bool,
+    /// Whether the optimum sits on the search box's edge on this axis.
+    pub on_edge: bool,
+}
+
+/// Quality of one result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Quality {
+    /// MI at the optimum (nats).
+    pub mi: f64,
+    /// NMI at the optimum.
+    pub nmi: f64,
+    /// Points that counted at the optimum.
+    pub points: u64,
+    /// Lowest profile value of the objective (background).
+    pub background: f64,
+    /// Objective of the best separated second peak over the optimum's (None: no such peak found).
+    pub second_peak_ratio: Option<f64>,
+    /// (s₂ − bg)/(s₁ − bg) (None: no separated peak).
+    pub second_peak_contrast: Option<f64>,
+    /// Offsets of the second peak from the optimum (m, m, m, deg, deg, deg).
+    pub second_peak_offset: Option<[f64; 6]>,
+    /// Per-axis statistics.
+    pub axes: Vec<AxisQuality>,
+    /// Poses scored for these statistics.
+    pub poses: u64,
+    /// Gate verdict.
+    pub accepted: bool,
+    /// Why the gate rejected (None when accepted).
+    pub reason: Option<String>,
+}
+
+/// Least-squares parabola y = a x² + b x + c; returns (a, b).
+fn fit_parabola(pts: &[(f64, f64)]) -> Option<(f64, f64)> {
+    if pts.len() < 3 {
+        return None;
+    }
+    // Normal equations of [x², x, 1].
+    let mut s = [0f64; 5];
+    let mut t = [0f64; 3];
+    for &(x, y) in pts {
+        let mut p = 1.0;
+        for v in s.iter_mut() {
+            *v += p;
+            p *= x;
+        }
+        t[0] += y * x * x;
+        t[1] += y * x;
+        t[2] += y;
+    }
+    // [s4 s3 s2; s3 s2 s1; s2 s1 s0] [a b c] = t
+    let m = nalgebra::Matrix3::new(s[4], s[3], s[2], s[3], s[2], s[1], s[2], s[1], s[0]);
+    let r = m.lu().solve(&nalgebra::Vector3::new(t[0], t[1], t[2]))?;
+    Some((r[0], r[1]))
+}
+
+/// Compute the quality statistics and apply the gate.
+pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Quality {
+    let g = *ev.grid();
+    let best_cell = g.cell(res.best.idx);
+    let n = res.best.value.n.max(1) as f64;
+    let mut scratch = Scratch::default();
+    let mut poses = 0u64;
+    let mut axes = Vec::new();
+    let mut background = res.best.score;
+    // Basin half widths in cells per axis and side (for the second-peak separation).
+    let mut basin_cells = [[0i64; 2]; 6];
+    for i in 0..6 {
+        if g.m[i] == 0 {
+            continue;
+        }
+        let mut prof: Vec<(i64, f64, f64)> = Vec::new(); // (k, objective, mi)
+        for k in -cfg.profile_half_steps..=cfg.profile_half_steps {
+            let mut c = best_cell;
+            c[i] += k;
+            if !g.contains(&c) {
+                continue;
+            }
+            let s = if k == 0 {
+                res.best
+            } else {
+                poses += 1;
+                ev.score(0, g.index(&c), &mut scratch)
+            };
+            prof.push((k, s.score, s.value.mi));
+        }
+        background = prof.iter().map(|p| p.1).fold(background, f64::min);
+        let step = g.step[i];
+        let fit: Vec<(f64, f64)> = prof
+            .iter()
+            .filter(|p| p.0.abs() <= cfg.fit_half_steps)
+            .map(|p| (p.0 as f64 * step, p.2))
+            .collect();
+        let (a, b) = fit_parabola(&fit).unwrap_or((0.0, 0.0));
+        let curvature = -2.0 * a;
+        let sigma = if curvature > 0.0 {
+            1.0 / (n * curvature).sqrt()
+        } else {
+            f64::INFINITY
+        };
+        let vertex_offset = if a != 0.0 { -b / (2.0 * a) } else { 0.0 };
+        let zero = prof.iter().position(|p| p.0 == 0).unwrap_or(0);
+        let mut open = false;
+        let mut walk = |dir: i64| -> i64 {
+            let mut j = zero as i64;
+            loop {
+                let nxt = j + dir;
+                if nxt < 0 || nxt >= prof.len() as i64 {
+                    open = true;
+                    break;
+                }
+                if prof[nxt as usize].1 > prof[j as usize].1 {
+                    break;
+                }
+                j = nxt;
+            }
+            (j - zero as i64).abs()
+        };
+        let (lo, hi) = (walk(-1), walk(1));
+        basin_cells[i] = [lo, hi];
+        axes.push(AxisQuality {
+            axis: AXES[i].into(),
+            unit: if i < 3 { "m" } else { "deg" }.into(),
+            curvature,
+            sigma,
+            vertex_offset,
+            basin_width: (lo + hi) as f64 * step,
+            basin_open: open,
+            on_edge: best_cell[i].abs() == g.m[i],
+        });
+    }
+    // Second peak: best other local maximum outside the basin on some axis.
+    let second = res.other_peaks.iter().find(|p| {
+        let c = g.cell(p.idx);
+        (0..6).any(|i| {
+            let d = c[i] - best_cell[i];
+            (d < 0 && -d > basin_cells[i][0].max(1)) || (d > 0 && d > basin_cells[i][1].max(1))
+        })
+    });
+    let s1 = res.best.score;
+    let (ratio, contrast, offset) = match second {
+        Some(p) => {
+            let c = g.cell(p.idx);
+            let mut off = [0.0; 6];
+            for i in 0..6 {
+                off[i] = (c[i] - best_cell[i]) as f64 * g.step[i];
+            }
+            let denom = s1 - background;
+            let contrast = if denom > 0.0 {
+                (p.score - background) / denom
+            } else {
+                1.0
+            };
+            (Some(p.score / s1), Some(contrast), Some(off))
+        }
+        None => (None, None, None),
+    };
+
+    // The gate: first failing check wins.
+    let mut reason = None;
+    if (ev.n_points) < cfg.min_points {
+        reason = Some(format!(
+            "only {} points seen from every pose of the search box (< {})",
+            ev.n_points, cfg.min_points
+        ));
+    } else if res.stats.max_lost_fraction > cfg.max_lost_fraction {
+        reason = Some(format!(
+            "{:.1}% of the fixed point set left the image at some pose (> {:.1}%)",
+            100.0 * res.stats.max_lost_fraction,
+            100.0 * cfg.max_lost_fraction
+        ));
+    } else if let Some(a) = axes.iter().find(|a| a.on_edge) {
+        reason = Some(format!(
+            "optimum on the search box's {} edge: the true optimum may lie outside; widen --search",
+            a.axis
+        ));
+    } else if let Some(a) = axes.iter().find(|a| !(a.curvature > 0.0)) {
+        reason = Some(format!(
+            "no peak along {}: MI curvature {:.3e} nats/{}² is not negative-definite",
+            a.axis, a.curvature, a.unit
+        ));
+    } else if let (Some(c), Some(o)) = (contrast, offset) {
+        if c > cfg.max_second_peak_contrast {
+            reason = Some(format!(
+                "ambiguous: a second peak at offset ({:.2} m, {:.2} m, {:.2} m, {:.2}°) reaches {:.0}% of the optimum's height above background (> {:.0}%)",
+                o[0], o[1], o[2], o[3], 100.0 * c, 100.0 * cfg.max_second_peak_contrast
+            ));
+        }
+    }
+    Quality {
+        mi: res.best.value.mi,
+        nmi: res.best.value.nmi,
+        points: res.best.value.n,
+        background,
+        second_peak_ratio: ratio,
+        second_peak_contrast: contrast,
+        second_peak_offset: offset,
+        axes,
+        poses,
+        accepted: reason.is_none(),
+        reason,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parabola_fit_recovers_coefficients() {
+        let pts: Vec<(f64, f64)> = (-3..=3)
+            .map(|k| {
+                let x = k as f64 * 0.02;
+                (x, -50.0 * x * x + 0.7 * x + 1.3)
+            })
+            .collect();
+        let (a, b) = fit_parabola(&pts).unwrap();
+        assert!((a + 50.0).abs() < 1e-6 && (b - 0.7).abs() < 1e-9, "{a} {b}");
+        assert!(fit_parabola(&pts[..2]).is_none());
+    }
+}

@@ -1,0 +1,942 @@
+//! Grid search over Θ = [x, y, z, ψ] (optionally pitch and roll) around an initial pose.
+//!
+//! The grid: axis i has cells at offsets k·step_i, k ∈ −m_i..=m_i, m_i = round(half_i/step_i),
+//! around the initial pose (x, y, z offsets of the camera centre in the map frame; yaw about the
+//! map's up axis through the camera centre, [`CamFromMap::perturbed`]). Cells are numbered
+//! mixed-radix with x slowest; ties between equal scores go to the lowest number.
+//!
+//! Two modes:
+//! - [`Mode::Exhaustive`] evaluates every cell with all points (the seed's method); exact argmax.
+//! - [`Mode::Tiled`] (default) is coarse-to-fine on sub-lattices of the same grid: level L surveys
+//!   the whole box at step 2^L cells — split into tiles evaluated in parallel — against a 2^L
+//!   downsampled image with a point subsample; the top-k local maxima go down a level, where each is
+//!   re-examined on a ±2-cell window at half the step, down to level 0 (finest step, full image,
+//!   all points); finally each candidate hill-climbs on the finest grid to a local maximum. The
+//!   result is always a cell of the exhaustive grid, scored by the same estimator.
+//!
+//! Bias remedy: MI computed on fewer points is biased upward (≈ (bx−1)(by−1)/2N nats), so a pose
+//! that pushes points out of the image would be favoured. The search therefore uses a *fixed point
+//! set*: the points that land on the image, at least `visibility-margin-px` inside the valid
+//! circle, from every pose of a 3^d lattice of the box (corners, edge and face centres, centre).
+//! Every pose of the search then sees (nearly) the same points; the residual loss is counted and
+//! reported ([`SearchStats::max_lost_fraction`]).
+//!
+//! Determinism: every score is a pure function of the cell (integer histogram → f64 entropies in a
+//! fixed order); parallel maps are collected in input order and reductions use the total order
+//! (score, −cell), so the result does not depend on thread count or scheduling.
+
+use super::kernel::{accumulate, visible, BinnedImage, FastCamera, GrayLevel, PoseF32, Scratch};
+use super::mi::{bin_lut, mutual_information, JointHist, MiConfig, MiValue};
+use super::points::{validate, GroundPoint, PreparedPoints};
+use crate::camera::{Camera, CameraModel};
+use crate::error::{Error, Result};
+use crate::pose::CamFromMap;
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+
+/// Axis names in grid order.
+pub const AXES: [&str; 6] = ["x", "y", "z", "yaw", "pitch", "roll"];
+/// Largest accepted half range for x and y (m): beyond this the prior is not a refinement start.
+pub const MAX_HALF_XY: f64 = 50.0;
+/// Largest accepted half range for z (m).
+pub const MAX_HALF_Z: f64 = 20.0;
+/// Largest accepted half range for yaw (deg).
+pub const MAX_HALF_YAW: f64 = 180.0;
+/// Largest accepted half range for pitch and roll (deg).
+pub const MAX_HALF_TILT: f64 = 20.0;
+/// Largest accepted number of grid cells (the exhaustive grid's size).
+pub const MAX_CELLS: u64 = 1 << 40;
+/// Deepest coarse level (step 2^6 = 64 finest cells).
+pub const MAX_LEVEL: u32 = 6;
+
+/// Half range and finest step of one axis (metres, or degrees for angles).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct AxisRange {
+    /// Half range: the grid spans −half..=+half around the initial value.
+    pub half: f64,
+    /// Finest step.
+    pub step: f64,
+}
+
+impl AxisRange {
+    /// Cells on each side of the centre.
+    pub fn m(&self) -> i64 {
+        (self.half / self.step).round() as i64
+    }
+}
+
+/// The search box (`--search x=HALF:STEP,y=…,z=…,yaw=…[,pitch=…,roll=…]`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SearchSpec {
+    /// Map x (easting) of the camera centre, metres.
+    pub x: AxisRange,
+    /// Map y (northing), metres.
+    pub y: AxisRange,
+    /// Map z (up), metres.
+    pub z: AxisRange,
+    /// Yaw about the map's up axis, degrees.
+    pub yaw: AxisRange,
+    /// Pitch, degrees (6-DoF only; off by default).
+    pub pitch: Option<AxisRange>,
+    /// Roll, degrees (6-DoF only; off by default).
+    pub roll: Option<AxisRange>,
+}
+
+impl Default for SearchSpec {
+    /// ±1 m x/y, ±0.5 m z, ±3° yaw; finest steps 2 cm and 0.05°.
+    fn default() -> Self {
+        SearchSpec {
+            x: AxisRange {
+                half: 1.0,
+                step: 0.02,
+            },
+            y: AxisRange {
+                half: 1.0,
+                step: 0.02,
+            },
+            z: AxisRange {
+                half: 0.5,
+                step: 0.02,
+            },
+            yaw: AxisRange {
+                half: 3.0,
+                step: 0.05,
+            },
+            pitch: None,
+            roll: None,
+        }
+    }
+}
+
+impl std::str::FromStr for SearchSpec {
+    type Err = Error;
+    /// Parse `x=HALF:STEP,y=HALF:STEP,z=HALF:STEP,yaw=HALF:STEP` (any subset; missing axes keep
+    /// their defaults; `pitch=`/`roll=` switch those axes on). The result is validated.
+    fn from_str(s: &str) -> Result<Self> {
+        let mut spec = SearchSpec::default();
+        for item in s.split(',').map(str::trim).filter(|t| !t.is_empty()) {
+            let bad = || {
+                Error::Invalid(format!(
+                    "--search {item:?}: expected AXIS=HALF:STEP with AXIS one of x, y, z, yaw, pitch, roll"
+                ))
+            };
+            let (axis, val) = item.split_once('=').ok_or_else(bad)?;
+            let (h, st) = val.split_once(':').ok_or_else(bad)?;
+            let r = AxisRange {
+                half: h.trim().parse().map_err(|_| bad())?,
+                step: st.trim().parse().map_err(|_| bad())?,
+            };
+            match axis.trim() {
+                "x" => spec.x = r,
+                "y" => spec.y = r,
+                "z" => spec.z = r,
+                "yaw" => spec.yaw = r,
+                "pitch" => spec.pitch = Some(r),
+                "roll" => spec.roll = Some(r),
+                _ => return Err(bad()),
+            }
+        }
+        spec.validate()?;
+        Ok(spec)
+    }
+}
+
+impl SearchSpec {
+    /// All six axes (pitch and roll as a single cell when off).
+    pub fn axes(&self) -> [AxisRange; 6] {
+        let off = AxisRange {
+            half: 0.0,
+            step: 1.0,
+        };
+        [
+            self.x,
+            self.y,
+            self.z,
+            self.yaw,
+            self.pitch.unwrap_or(off),
+            self.roll.unwrap_or(off),
+        ]
+    }
+
+    /// Reject zero, negative, non-finite or absurd ranges and steps.
+    pub fn validate(&self) -> Result<()> {
+        let limits = [
+            MAX_HALF_XY,
+            MAX_HALF_XY,
+            MAX_HALF_Z,
+            MAX_HALF_YAW,
+            MAX_HALF_TILT,
+            MAX_HALF_TILT,
+        ];
+        let enabled = [
+            true,
+            true,
+            true,
+            true,
+            self.pitch.is_some(),
+            self.roll.is_some(),
+        ];
+        for (i, a) in self.axes().iter().enumerate() {
+            if !enabled[i] {
+                continue;
+            }
+            let name = AXES[i];
+            if !(a.half.is_finite() && a.step.is_finite()) || !(a.half > 0.0) || !(a.step > 0.0) {
+                return Err(Error::Invalid(format!(
+                    "--search {name}={}:{}: half range and step must be positive",
+                    a.half, a.step
+                )));
+            }
+            if a.half > limits[i] {
+                return Err(Error::Invalid(format!(
+                    "--search {name}: half range {} exceeds the limit {} (not a refinement)",
+                    a.half, limits[i]
+                )));
+            }
+            if a.step > a.half {
+                return Err(Error::Invalid(format!(
+                    "--search {name}: step {} larger than the half range {}",
+                    a.step, a.half
+                )));
+            }
+        }
+        let cells = self.grid().cells();
+        if cells > MAX_CELLS {
+            return Err(Error::Invalid(format!(
+                "--search: {cells} grid cells, more than the limit {MAX_CELLS}"
+            )));
+        }
+        Ok(())
+    }
+
+    /// The grid geometry.
+    pub fn grid(&self) -> Grid {
+        let axes = self.axes();
+        let mut m = [0i64; 6];
+        let mut step = [0f64; 6];
+        for i in 0..6 {
+            m[i] = if i >= 4 && axes[i].half == 0.0 {
+                0
+            } else {
+                axes[i].m()
+            };
+            step[i] = axes[i].step;
+        }
+        Grid { m, step }
+    }
+}
+
+/// Grid geometry: `m[i]` cells each side, `step[i]` per cell (m or deg).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Grid {
+    /// Cells on each side of the centre, per axis.
+    pub m: [i64; 6],
+    /// Step per axis (m for x, y, z; degrees for angles).
+    pub step: [f64; 6],
+}
+
+/// Integer cell offsets from the centre, per axis.
+pub type Cell = [i64; 6];
+
+impl Grid {
+    /// Cells along axis i.
+    pub fn n(&self, i: usize) -> u64 {
+        (2 * self.m[i] + 1) as u64
+    }
+
+    /// Total number of cells.
+    pub fn cells(&self) -> u64 {
+        (0..6).fold(1u64, |a, i| a.saturating_mul(self.n(i)))
+    }
+
+    /// Cell number (x slowest).
+    pub fn index(&self, c: &Cell) -> u64 {
+        (0..6).fold(0u64, |a, i| a * self.n(i) + (c[i] + self.m[i]) as u64)
+    }
+
+    /// Cell of a number.
+    pub fn cell(&self, mut idx: u64) -> Cell {
+        let mut c = [0i64; 6];
+        for i in (0..6).rev() {
+            let n = self.n(i);
+            c[i] = (idx % n) as i64 - self.m[i];
+            idx /= n;
+        }
+        c
+    }
+
+    /// Whether a cell is inside the grid.
+    pub fn contains(&self, c: &Cell) -> bool {
+        (0..6).all(|i| c[i].abs() <= self.m[i])
+    }
+
+    /// Physical offsets (m, m, m, deg, deg, deg) of a cell.
+    pub fn offsets(&self, c: &Cell) -> [f64; 6] {
+        let mut o = [0.0; 6];
+        for i in 0..6 {
+            o[i] = c[i] as f64 * self.step[i];
+        }
+        o
+    }
+
+    /// The lattice of level l along axis i: multiples of 2^l within range.
+    fn lattice_axis(&self, i: usize, level: u32) -> Vec<i64> {
+        let f = 1i64 << level;
+        let k = self.m[i] / f;
+        (-k..=k).map(|j| j * f).collect()
+    }
+}
+
+/// The pose of a cell: centre moved by (dx, dy, dz) in the map frame, yaw about the map's up axis
+/// through the camera centre; pitch and roll (6-DoF) are added to the pose's own yaw/pitch/roll.
+pub fn pose_at(init: &CamFromMap, offsets: &[f64; 6]) -> CamFromMap {
+    let dc = Vector3::new(offsets[0], offsets[1], offsets[2]);
+    if offsets[4] == 0.0 && offsets[5] == 0.0 {
+        init.perturbed(&dc, offsets[3].to_radians())
+    } else {
+        let (y, p, r) = init.yaw_pitch_roll();
+        CamFromMap::from_center_ypr(
+            &(init.center() + dc),
+            y + offsets[3].to_radians(),
+            p + offsets[4].to_radians(),
+            r + offsets[5].to_radians(),
+        )
+    }
+}
+
+/// Search mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Mode {
+    /// Coarse-to-fine over tiles in parallel (default).
+    #[default]
+    Tiled,
+    /// Every cell (the seed's exhaustive grid search).
+    Exhaustive,
+}
+
+impl std::str::FromStr for Mode {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "tiled" => Ok(Mode::Tiled),
+            "exhaustive" => Ok(Mode::Exhaustive),
+            _ => Err(Error::Invalid(format!(
+                "--mode {s:?}: expected tiled or exhaustive"
+            ))),
+        }
+    }
+}
+
+/// Search settings.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
+pub struct SearchConfig {
+    /// The box and steps.
+    pub spec: SearchSpec,
+    /// Exhaustive or tiled.
+    pub mode: Mode,
+    /// Estimator.
+    pub mi: MiConfig,
+    /// Candidates carried between levels.
+    pub top_k: usize,
+    /// Largest number of poses of the coarsest survey (selects the coarsest level).
+    pub coarse_budget: u64,
+    /// Smallest point count of a coarse level's subsample.
+    pub coarse_min_points: usize,
+    /// Use the fixed point set (the bias remedy). Off = the naive estimator (for comparison only).
+    pub fixed_point_set: bool,
+    /// The fixed set keeps points at least this far (px) inside the valid image circle.
+    pub visibility_margin_px: usize,
+    /// Hill-climb iteration limit at the finest level.
+    pub max_climb: usize,
+}
+
+impl Default for SearchConfig {
+    fn default() -> Self {
+        SearchConfig {
+            spec: SearchSpec::default(),
+            mode: Mode::Tiled,
+            mi: MiConfig::default(),
+            top_k: 8,
+            coarse_budget: 4096,
+            coarse_min_points: 20_000,
+            fixed_point_set: true,
+            visibility_margin_px: 2,
+            max_climb: 64,
+        }
+    }
+}
+
+/// One level of the evaluator: image, camera and points at that resolution.
+#[derive(Debug, Clone)]
+struct Level {
+    cam: FastCamera,
+    img: BinnedImage,
+    pts: PreparedPoints,
+}
+
+/// Everything needed to score a grid cell: the problem prepared at every pyramid level.
+#[derive(Debug, Clone)]
+pub struct Evaluator {
+    init: CamFromMap,
+    origin: [f64; 3],
+    grid: Grid,
+    mi: MiConfig,
+    levels: Vec<Level>,
+    /// Points in the (fixed) set at level 0.
+    pub n_points: usize,
+    /// Points given.
+    pub n_input: usize,
+}
+
+/// A scored cell.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Scored {
+    /// Cell number.
+    pub idx: u64,
+    /// Objective value.
+    pub score: f64,
+    /// Full statistics.
+    pub value: MiValue,
+}
+
+/// Total order: higher score first, then lower cell number.
+fn better(a: &Scored, b: &Scored) -> bool {
+    a.score > b.score || (a.score == b.score && a.idx < b.idx)
+}
+
+fn best_of<'a>(it: impl IntoIterator<Item = &'a Scored>) -> Option<Scored> {
+    it.into_iter()
+        .fold(None, |acc: Option<Scored>, s| match acc {
+            Some(a) if !better(s, &a) => Some(a),
+            _ => Some(*s),
+        })
+}
+
+impl Evaluator {
+    /// Prepare the problem: validate inputs, bin, build the pyramid (levels 0..=`max_level`) and the
+    /// fixed point set. `gray`/`mask` are row-major at the camera's size (mask non-zero = valid
+    /// pixel, e.g. [`CameraModel::valid_mask`]).
+    pub fn new(
+        cam: &Camera,
+        gray: &[u8],
+        mask: &[u8],
+        points: &[GroundPoint],
+        init: &CamFromMap,
+        cfg: &SearchConfig,
+        max_level: u32,
+    ) -> Result<Self> {
+        validate(points, "points")?;
+        cfg.mi.validate()?;
+        cfg.spec.validate()?;
+        let (w, h) = (cam.width() as usize, cam.height() as usize);
+        if gray.len() != w * h || mask.len() != w * h {
+            return Err(Error::Invalid(format!(
+                "image has {} pixels but the camera is {w}×{h}",
+                gray.len()
+            )));
+        }
+        let grid = cfg.spec.grid();
+        let c = init.center();
+        let origin = [c.x, c.y, c.z];
+        let invalid = cfg.mi.bins_gray as u8;
+
+        // Gray LUT from the valid pixels.
+        let mut gcounts = [0u64; 256];
+        for (&g, &m) in gray.iter().zip(mask) {
+            if m != 0 {
+                gcounts[g as usize] += 1;
+            }
+        }
+        if gcounts.iter().sum::<u64>() == 0 {
+            return Err(Error::Invalid(
+                "image: no valid pixel in the camera's image circle".into(),
+            ));
+        }
+        let lut_gray = bin_lut(cfg.mi.binning, cfg.mi.bins_gray, &gcounts);
+
+        // Level 0 image (anti-aliased, see `blur3`), and the eroded one used to pick the fixed set.
+        let smooth = blur3(gray, mask, w, h);
+        let gray = &smooth[..];
+        let level0 = GrayLevel {
+            width: w,
+            height: h,
+            gray: gray.to_vec(),
+            mask: mask.to_vec(),
+        };
+        let cam0 = FastCamera::new(cam, 0);
+        let img0 = BinnedImage::new(w, h, gray, mask, &lut_gray, invalid);
+
+        // Points with raw reflectivity as "bin" first, to select the fixed set.
+        let mut identity = [0u8; 256];
+        for (i, v) in identity.iter_mut().enumerate() {
+            *v = i as u8;
+        }
+        let raw = PreparedPoints::new(points, origin, &identity);
+        let keep = if cfg.fixed_point_set {
+            let eroded = erode(mask, w, h, cfg.visibility_margin_px);
+            let img_e = BinnedImage::new(w, h, gray, &eroded, &lut_gray, invalid);
+            let mut keep = vec![true; raw.len()];
+            let mut vis = vec![false; raw.len()];
+            for cell in box_lattice(&grid) {
+                let p = PoseF32::new(&pose_at(init, &grid.offsets(&cell)), origin);
+                visible(&raw, &p, &cam0, &img_e, invalid, &mut vis);
+                keep.iter_mut().zip(&vis).for_each(|(k, &v)| *k &= v);
+            }
+            keep
+        } else {
+            let mut vis = vec![false; raw.len()];
+            let p = PoseF32::new(init, origin);
+            visible(&raw, &p, &cam0, &img0, invalid, &mut vis);
+            // The naive estimator uses every point; it only needs one visible to be meaningful.
+            if !vis.iter().any(|&v| v) {
+                vis.iter_mut().for_each(|v| *v = false);
+            } else {
+                vis.iter_mut().for_each(|v| *v = true);
+            }
+            vis
+        };
+        let mut pts0 = raw.select(&keep);
+        if pts0.is_empty() {
+            return Err(Error::Invalid(if cfg.fixed_point_set {
+                "points: none is visible from every pose of the search box (wrong pose, tile or camera?)"
+                    .into()
+            } else {
+                "points: none is visible from the initial pose".into()
+            }));
+        }
+        let mut rcounts = [0u64; 256];
+        for &b in &pts0.bin {
+            rcounts[b as usize] += 1;
+        }
+        let lut_refl = bin_lut(cfg.mi.binning, cfg.mi.bins_reflectivity, &rcounts);
+        pts0.bin.iter_mut().for_each(|b| *b = lut_refl[*b as usize]);
+
+        let n_points = pts0.len();
+        let mut levels = vec![Level {
+            cam: cam0,
+            img: img0,
+            pts: pts0.clone(),
+        }];
+        let mut g = level0;
+        for l in 1..=max_level {
+            g = g.downsample();
+            let stride = (1usize << (2 * l)).min((n_points / cfg.coarse_min_points.max(1)).max(1));
+            levels.push(Level {
+                cam: FastCamera::new(cam, l),
+                img: BinnedImage::new(g.width, g.height, &g.gray, &g.mask, &lut_gray, invalid),
+                pts: pts0.subsample(stride),
+            });
+        }
+        Ok(Evaluator {
+            init: *init,
+            origin,
+            grid,
+            mi: cfg.mi,
+            levels,
+            n_points,
+            n_input: points.len(),
+        })
+    }
+
+    /// The grid.
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+
+    /// Points used at a level.
+    pub fn points_at(&self, level: u32) -> usize {
+        self.levels[level as usize].pts.len()
+    }
+
+    /// The pose of a cell.
+    pub fn pose(&self, cell: &Cell) -> CamFromMap {
+        pose_at(&self.init, &self.grid.offsets(cell))
+    }
+
+    /// Joint histogram of a cell at a level.
+    pub fn histogram(&self, level: u32, cell: &Cell, scratch: &mut Scratch) -> JointHist {
+        let lv = &self.levels[level as usize];
+        let mut h = JointHist::new(self.mi.bins_reflectivity, self.mi.bins_gray);
+        let p = PoseF32::new(&self.pose(cell), self.origin);
+        accumulate(&lv.pts, &p, &lv.cam, &lv.img, &mut h, scratch);
+        h
+    }
+
+    /// Score a cell at a level.
+    pub fn score(&self, level: u32, idx: u64, scratch: &mut Scratch) -> Scored {
+        let h = self.histogram(level, &self.grid.cell(idx), scratch);
+        let value = mutual_information(&h, self.mi.parzen);
+        Scored {
+            idx,
+            score: value.get(self.mi.objective),
+            value,
+        }
+    }
+
+    /// Score many cells in parallel (order kept), adding to the stats.
+    fn score_many(&self, level: u32, idxs: &[u64], stats: &mut SearchStats) -> Vec<Scored> {
+        const TILE: usize = 64;
+        let out: Vec<Scored> = idxs
+            .par_chunks(TILE)
+            .flat_map_iter(|tile| {
+                let mut s = Scratch::default();
+                tile.iter()
+                    .map(|&i| self.score(level, i, &mut s))
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        let n = self.points_at(level) as u64;
+        stats.poses += idxs.len() as u64;
+        stats.point_evaluations += idxs.len() as u64 * n;
+        let lost = out
+            .iter()
+            .map(|s| 1.0 - s.value.n as f64 / n.max(1) as f64)
+            .fold(0.0, f64::max);
+        if level == 0 {
+            stats.max_lost_fraction = stats.max_lost_fraction.max(lost);
+        }
+        out
+    }
+}
+
+/// 3×3 binomial blur ([1 2 1]⊗[1 2 1]/16) over valid pixels only (weights renormalised at the
+/// circle's edge). The sampler takes the nearest pixel; without this, a sub-pixel pose step moves
+/// a point between pixels that may differ a lot (sensor noise, aliasing), and the objective over
+/// the finest grid gets ripples that are not alignment information.
+fn blur3(gray: &[u8], mask: &[u8], w: usize, h: usize) -> Vec<u8> {
+    const K: [u32; 3] = [1, 2, 1];
+    let mut out = gray.to_vec();
+    for v in 0..h {
+        for u in 0..w {
+            if mask[v * w + u] == 0 {
+                continue;
+            }
+            let (mut acc, mut wsum) = (0u32, 0u32);
+            for (j, kj) in K.iter().enumerate() {
+                let y = v + j;
+                if y < 1 || y > h {
+                    continue;
+                }
+                for (i, ki) in K.iter().enumerate() {
+                    let x = u + i;
+                    if x < 1 || x > w || mask[(y - 1) * w + x - 1] == 0 {
+                        continue;
+                    }
+                    acc += kj * ki * gray[(y - 1) * w + x - 1] as u32;
+                    wsum += kj * ki;
+                }
+            }
+            out[v * w + u] = ((acc + wsum / 2) / wsum.max(1)) as u8;
+        }
+    }
+    out
+}
+
+/// Erode a validity mask by `r` pixels (square window), so a pixel stays valid only if every pixel
+/// within `r` is.
+fn erode(mask: &[u8], w: usize, h: usize, r: usize) -> Vec<u8> {
+    if r == 0 {
+        return mask.to_vec();
+    }
+    let mut tmp = vec![0u8; w * h];
+    for v in 0..h {
+        for u in 0..w {
+            let lo = u.saturating_sub(r);
+            let hi = (u + r).min(w - 1);
+            tmp[v * w + u] = if (lo..=hi).all(|x| mask[v * w + x] != 0) && u >= r && u + r < w {
+                255
+            } else {
+                0
+            };
+        }
+    }
+    let mut out = vec![0u8; w * h];
+    for v in 0..h {
+        let lo = v.saturating_sub(r);
+        let hi = (v + r).min(h - 1);
+        for u in 0..w {
+            out[v * w + u] = if (lo..=hi).all(|y| tmp[y * w + u] != 0) && v >= r && v + r < h {
+                255
+            } else {
+                0
+            };
+        }
+    }
+    out
+}
+
+/// The 3^d lattice of the box: every combination of {−m, 0, +m} on the enabled axes.
+fn box_lattice(g: &Grid) -> Vec<Cell> {
+    let mut cells = vec![[0i64; 6]];
+    for i in 0..6 {
+        if g.m[i] == 0 {
+            continue;
+        }
+        cells = cells
+            .into_iter()
+            .flat_map(|c| {
+                [-g.m[i], 0, g.m[i]].into_iter().map(move |k| {
+                    let mut d = c;
+                    d[i] = k;
+                    d
+                })
+            })
+            .collect();
+    }
+    cells
+}
+
+/// Counters of a search.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct SearchStats {
+    /// Poses scored.
+    pub poses: u64,
+    /// Point-pose evaluations (Σ over scored poses of the points used).
+    pub point_evaluations: u64,
+    /// What the exhaustive grid costs: cells × points.
+    pub exhaustive_point_evaluations: u64,
+    /// Coarsest level used (0 for exhaustive).
+    pub coarsest_level: u32,
+    /// Largest fraction of the fixed set not landing on a valid pixel at any level-0 pose.
+    pub max_lost_fraction: f64,
+}
+
+/// The search's answer.
+#[derive(Debug, Clone)]
+pub struct SearchResult {
+    /// Best cell.
+    pub best: Scored,
+    /// Its offsets (m, m, m, deg, deg, deg).
+    pub offsets: [f64; 6],
+    /// Its pose.
+    pub pose: CamFromMap,
+    /// Other local maxima found at level 0 (best first), for the second-peak test.
+    pub other_peaks: Vec<Scored>,
+    /// Counters.
+    pub stats: SearchStats,
+}
+
+/// Coarsest level whose survey fits in `budget` poses.
+pub fn coarsest_level(g: &Grid, budget: u64) -> u32 {
+    let mut l = 0;
+    while l < MAX_LEVEL {
+        let count: u64 = (0..6).map(|i| g.lattice_axis(i, l).len() as u64).product();
+        if count <= budget {
+            break;
+        }
+        l += 1;
+    }
+    l
+}
+
+/// Run the search configured by `cfg` on a prepared evaluator.
+pub fn search(ev: &Evaluator, cfg: &SearchConfig) -> SearchResult {
+    let g = ev.grid;
+    let mut stats = SearchStats {
+        exhaustive_point_evaluations: g.cells().saturating_mul(ev.n_points as u64),
+        ..Default::default()
+    };
+    let (best, others) = match cfg.mode {
+        Mode::Exhaustive => exhaustive(ev, &mut stats),
+        Mode::Tiled => tiled(ev, cfg, &mut stats),
+    };
+    let cell = g.cell(best.idx);
+    SearchResult {
+        best,
+        offsets: g.offsets(&cell),
+        pose: ev.pose(&cell),
+        other_peaks: others,
+        stats,
+    }
+}
+
+fn neighbours(g: &Grid, c: &Cell, f: i64) -> Vec<Cell> {
+    let mut out = vec![*c];
+    for i in 0..6 {
+        if g.m[i] == 0 {
+            continue;
+        }
+        out = out
+            .into_iter()
+            .flat_map(|d| {
+                [-f, 0, f].into_iter().map(move |k| {
+                    let mut e = d;
+                    e[i] += k;
+                    e
+                })
+            })
+            .collect();
+    }
+    out.retain(|d| d != c && g.contains(d));
+    out
+}
+
+/// Every cell at level 0; also returns the other local maxima (3^d neighbourhood), best first.
+fn exhaustive(ev: &Evaluator, stats: &mut SearchStats) -> (Scored, Vec<Scored>) {
+    let g = ev.grid;
+    let all: Vec<u64> = (0..g.cells()).collect();
+    let scores = ev.score_many(0, &all, stats);
+    let best = best_of(&scores).expect("grid has at least one cell");
+    let mut peaks: Vec<Scored> = scores
+        .par_iter()
+        .filter(|s| {
+            s.idx != best.idx
+                && neighbours(&g, &g.cell(s.idx), 1)
+                    .iter()
+                    .all(|n| better(s, &scores[g.index(n) as usize]))
+        })
+        .copied()
+        .collect();
+    sort_best_first(&mut peaks);
+    (best, peaks)
+}
+
+fn sort_best_first(v: &mut [Scored]) {
+    v.sort_by(|a, b| b.score.total_cmp(&a.score).then_with(|| a.idx.cmp(&b.idx)));
+}
+
+/// Coarse-to-fine over sub-lattices.
+fn tiled(ev: &Evaluator, cfg: &SearchConfig, stats: &mut SearchStats) -> (Scored, Vec<Scored>) {
+    let g = ev.grid;
+    let top = (ev.levels.len() as u32 - 1).min(coarsest_level(&g, cfg.coarse_budget));
+    stats.coarsest_level = top;
+    let k = cfg.top_k.max(1);
+
+    // Survey of the whole box at the coarsest level. The lattice is enumerated x-slowest, so
+    // contiguous chunks of it are tiles of the search space; score_many runs them in parallel.
+    let mut lattice: Vec<Cell> = vec![[0; 6]];
+    for i in 0..6 {
+        let ax = g.lattice_axis(i, top);
+        lattice = lattice
+            .into_iter()
+            .flat_map(|c| {
+                ax.iter().map(move |&v| {
+                    let mut d = c;
+                    d[i] = v;
+                    d
+                })
+            })
+            .collect();
+    }
+    let idxs: Vec<u64> = lattice.iter().map(|c| g.index(c)).collect();
+    let survey = ev.score_many(top, &idxs, stats);
+    let by_idx: HashMap<u64, Scored> = survey.iter().map(|s| (s.idx, *s)).collect();
+    let f = 1i64 << top;
+    let mut maxima: Vec<Scored> = survey
+        .iter()
+        .filter(|s| {
+            neighbours(&g, &g.cell(s.idx), f)
+                .iter()
+                .filter_map(|n| by_idx.get(&g.index(n)))
+                .all(|n| better(s, n))
+        })
+        .copied()
+        .collect();
+    sort_best_first(&mut maxima);
+    maxima.truncate(k);
+    let mut cands: Vec<u64> = maxima.iter().map(|s| s.idx).collect();
+
+    // Descend: each candidate is re-examined on a ±2-step window of the next finer lattice.
+    for level in (0..top).rev() {
+        let f = 1i64 << level;
+        let windows: Vec<Vec<u64>> = cands.iter().map(|&c| window(&g, &g.cell(c), f)).collect();
+        let mut union: Vec<u64> = windows.iter().flatten().copied().collect();
+        union.sort_unstable();
+        union.dedup();
+        let scored = ev.score_many(level, &union, stats);
+        let map: HashMap<u64, Scored> = scored.iter().map(|s| (s.idx, *s)).collect();
+        let mut next: Vec<Scored> = windows
+            .iter()
+            .filter_map(|w| best_of(w.iter().filter_map(|i| map.get(i))))
+            .collect();
+        sort_best_first(&mut next);
+        next.dedup_by_key(|s| s.idx);
+        let mut seen = std::collections::HashSet::new();
+        next.retain(|s| seen.insert(s.idx));
+        next.truncate(k);
+        cands = next.iter().map(|s| s.idx).collect();
+    }
+
+    // Hill-climb each candidate to a local maximum of the finest grid (in parallel; each climb is
+    // sequential and deterministic).
+    let climbs: Vec<(Scored, u64)> = cands
+        .par_iter()
+        .map(|&c| climb(ev, c, cfg.max_climb))
+        .collect();
+    let n0 = ev.points_at(0) as u64;
+    for (_, evals) in &climbs {
+        stats.poses += evals;
+        stats.point_evaluations += evals * n0;
+    }
+    let mut peaks: Vec<Scored> = climbs.into_iter().map(|(s, _)| s).collect();
+    sort_best_first(&mut peaks);
+    peaks.dedup_by_key(|s| s.idx);
+    let best = peaks[0];
+    (best, peaks[1..].to_vec())
+}
+
+/// The lattice-`f` cells within ±2f of `c` on every axis.
+fn window(g: &Grid, c: &Cell, f: i64) -> Vec<u64> {
+    let mut cells = vec![*c];
+    for i in 0..6 {
+        if g.m[i] == 0 {
+            continue;
+        }
+        cells = cells
+            .into_iter()
+            .flat_map(|d| {
+                (-2..=2).map(move |k| {
+                    let mut e = d;
+                    e[i] += k * f;
+                    e
+                })
+            })
+            .collect();
+    }
+    cells
+        .into_iter()
+        .filter(|d| g.contains(d))
+        .map(|d| g.index(&d))
+        .collect()
+}
+
+/// Steepest-ascent on the finest grid from `start` until no neighbour is better, then a wider look:
+/// if a cell within ±2 steps on every axis beats the peak, climb on from it. The MI surface over a
+/// nearest-pixel sampler has small pose-to-pose ripples; the ±2 window steps over them so that the
+/// result is the maximum of its 5^d neighbourhood, as the exhaustive search would see it. Returns
+/// the peak and the number of poses scored.
+fn climb(ev: &Evaluator, start: u64, max_iter: usize) -> (Scored, u64) {
+    let g = ev.grid;
+    let mut s = Scratch::default();
+    let mut cache: HashMap<u64, Scored> = HashMap::new();
+    let mut evals = 0u64;
+    let mut score = |i: u64, s: &mut Scratch| -> Scored {
+        *cache.entry(i).or_insert_with(|| {
+            evals += 1;
+            ev.score(0, i, s)
+        })
+    };
+    let mut cur = score(start, &mut s);
+    for _ in 0..max_iter {
+        let nb = neighbours(&g, &g.cell(cur.idx), 1);
+        let cands: Vec<Scored> = nb.iter().map(|n| score(g.index(n), &mut s)).collect();
+        match best_of(&cands) {
+            Some(b) if better(&b, &cur) => cur = b,
+            _ => {
+                let wide: Vec<Scored> = window(&g, &g.cell(cur.idx), 1)
+                    .into_iter()
+                    .map(|i| score(i, &mut s))
+                    .collect();
+                match best_of(&wide) {
+                    Some(b) if better(&b, &cur) => cur = b,
+                    _ => break,
+                }
+            }
+        }
+    }
+    (cur, evals)
+}

@@ -1,0 +1,173 @@
+//! Synthetic scenes for tests, benches and studies (pure maths, seeded): a procedural ground
+//! texture, LiDAR points sampling it, and a fisheye image rendering it through a camera model.
+//!
+//! The image's gray is a *different*, non-monotonic function of the texture than the points'
+//! reflectivity (plus independent noise on both), as between a camera and a LiDAR: MI has to find
+//! the statistical dependence, not an equality.
+
+use super::points::GroundPoint;
+use crate::camera::CameraModel;
+use crate::pose::CamFromMap;
+use nalgebra::{Point2, Point3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Value-noise lattice size (cells); the texture repeats after this many cells per octave.
+const LATTICE: usize = 256;
+
+/// A seeded procedural ground texture t(x, y) ∈ [0, 1]: three octaves of value noise (cells of
+/// 2.5 m, 0.9 m, 0.35 m) plus painted lane lines (0.15 m wide every 3.5 m) and a crosswalk.
+#[derive(Debug, Clone)]
+pub struct Texture {
+    table: Vec<f32>,
+    angle: f64,
+}
+
+impl Texture {
+    /// A texture from a seed.
+    pub fn new(seed: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let table = (0..LATTICE * LATTICE)
+            .map(|_| rng.random::<f32>())
+            .collect();
+        Texture {
+            table,
+            angle: rng.random::<f64>() * std::f64::consts::PI,
+        }
+    }
+
+    fn lattice(&self, i: i64, j: i64, octave: usize) -> f64 {
+        let n = LATTICE as i64;
+        let (a, b) = (
+            (i + 17 * octave as i64).rem_euclid(n),
+            (j + 31 * octave as i64).rem_euclid(n),
+        );
+        self.table[(a * n + b) as usize] as f64
+    }
+
+    fn noise(&self, x: f64, y: f64, cell: f64, octave: usize) -> f64 {
+        let (fx, fy) = (x / cell, y / cell);
+        let (i, j) = (fx.floor(), fy.floor());
+        let (tx, ty) = (fx - i, fy - j);
+        let s = |t: f64| t * t * (3.0 - 2.0 * t);
+        let (sx, sy) = (s(tx), s(ty));
+        let (i, j) = (i as i64, j as i64);
+        let a = self.lattice(i, j, octave);
+        let b = self.lattice(i + 1, j, octave);
+        let c = self.lattice(i, j + 1, octave);
+        let d = self.lattice(i + 1, j + 1, octave);
+        a + (b - a) * sx + (c - a) * sy + (a - b - c + d) * sx * sy
+    }
+
+    /// Texture value at map (x, y).
+    pub fn value(&self, x: f64, y: f64) -> f64 {
+        let n = 0.45 * self.noise(x, y, 2.5, 0)
+            + 0.35 * self.noise(x, y, 0.9, 1)
+            + 0.20 * self.noise(x, y, 0.35, 2);
+        let (c, s) = (self.angle.cos(), self.angle.sin());
+        let across = x * c + y * s;
+        let along = -x * s + y * c;
+        let lane = across.rem_euclid(3.5) < 0.15;
+        let crosswalk = along.rem_euclid(12.0) < 2.5 && (across * 2.0).rem_euclid(1.2) < 0.5;
+        if lane || crosswalk {
+            0.95
+        } else {
+            0.8 * n
+        }
+    }
+
+    /// LiDAR-like reflectivity of texture value t (monotonic).
+    pub fn reflectivity(t: f64) -> f64 {
+        255.0 * (0.1 + 0.8 * t)
+    }
+
+    /// Camera-like gray of texture value t (non-monotonic: dark asphalt and bright paint both map
+    /// differently than in reflectivity).
+    pub fn gray(t: f64) -> f64 {
+        40.0 + 190.0 * (1.0 - (1.8 * t - 1.0).powi(2)).max(0.0) * 0.7 + 60.0 * t
+    }
+}
+
+/// Ground points on a square grid of spacing `spacing` within `radius` of (cx, cy) at height z,
+/// reflectivity from the texture plus Gaussian-ish noise of `noise` (0–255 units).
+pub fn ground_points(
+    tex: &Texture,
+    center: (f64, f64),
+    radius: f64,
+    spacing: f64,
+    z: f64,
+    noise: f64,
+    seed: u64,
+) -> Vec<GroundPoint> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let k = (radius / spacing).floor() as i64;
+    let mut out = Vec::new();
+    for j in -k..=k {
+        for i in -k..=k {
+            let (dx, dy) = (i as f64 * spacing, j as f64 * spacing);
+            if dx * dx + dy * dy > radius * radius {
+                continue;
+            }
+            let (x, y) = (center.0 + dx, center.1 + dy);
+            // Sum of 4 uniforms: cheap, seeded, roughly Gaussian with σ = noise.
+            let e: f64 = (0..4).map(|_| rng.random::<f64>() - 0.5).sum::<f64>() * noise * 1.732;
+            let r = (Texture::reflectivity(tex.value(x, y)) + e)
+                .round()
+                .clamp(0.0, 255.0);
+            out.push(GroundPoint {
+                x,
+                y,
+                z,
+                reflectivity: r as u8,
+            });
+        }
+    }
+    out
+}
+
+/// Render the ground plane z = `ground_z` through `cam` at `pose`: 2×2 supersampled texture →
+/// [`Texture::gray`] + noise of `noise` gray levels. Pixels outside the valid image circle are 0;
+/// rays above the horizon see a uniform sky (gray 210). Returns (gray, valid mask).
+pub fn render(
+    tex: &Texture,
+    cam: &dyn CameraModel,
+    pose: &CamFromMap,
+    ground_z: f64,
+    noise: f64,
+    seed: u64,
+) -> (Vec<u8>, Vec<u8>) {
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
+    let mask = cam.valid_mask();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let c = pose.center();
+    let r_mfc = pose.rotation.inverse();
+    let mut gray = vec![0u8; w * h];
+    const SKY: f64 = 210.0;
+    for v in 0..h {
+        for u in 0..w {
+            if mask[v * w + u] == 0 {
+                continue;
+            }
+            let mut acc = 0.0;
+            for (du, dv) in [(-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25)] {
+                let px = Point2::new(u as f64 + du, v as f64 + dv);
+                acc += match cam.unproject(&px) {
+                    Ok(ray) => {
+                        let d = r_mfc * ray.into_inner();
+                        if d.z < -1e-6 {
+                            let s = (ground_z - c.z) / d.z;
+                            let p: Point3<f64> = c + d * s;
+                            Texture::gray(tex.value(p.x, p.y))
+                        } else {
+                            SKY
+                        }
+                    }
+                    Err(_) => SKY,
+                };
+            }
+            let e: f64 = (0..4).map(|_| rng.random::<f64>() - 0.5).sum::<f64>() * noise * 1.732;
+            gray[v * w + u] = (acc / 4.0 + e).round().clamp(0.0, 255.0) as u8;
+        }
+    }
+    (gray, mask)
+}

@@ -1,0 +1,82 @@
+//! Shared helpers of the GNSS integration tests: where the real logs are, and gpsd's `.chk`.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+/// `shared/data/nmea` beside the clone (as CI lays it out); `INFRALOC_SHARED_DATA` overrides the
+/// `shared/data` directory for other layouts. A missing directory fails the test loudly.
+pub fn nmea_dir() -> PathBuf {
+    let dir = match std::env::var_os("INFRALOC_SHARED_DATA") {
+        Some(d) => PathBuf::from(d).join("nmea"),
+        None => PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/nmea")),
+    };
+    assert!(
+        dir.is_dir(),
+        "{} missing: set INFRALOC_SHARED_DATA to the shared/data directory",
+        dir.display()
+    );
+    dir
+}
+
+/// All `*.log` files, sorted.
+pub fn nmea_logs() -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(nmea_dir())
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "log"))
+        .collect();
+    v.sort();
+    v
+}
+
+/// One echoed sentence of a `.chk` and the first TPV report gpsd emitted right after it.
+pub struct Entry {
+    /// The sentence as gpsd echoed it.
+    pub sentence: String,
+    /// First TPV before the next echoed sentence.
+    pub tpv: Option<serde_json::Value>,
+}
+
+/// A parsed `.chk` file.
+pub struct Reference {
+    /// Echoed sentences in order.
+    pub entries: Vec<Entry>,
+}
+
+impl Reference {
+    /// Parse gpsd's `.chk`.
+    pub fn load(path: &Path) -> Reference {
+        let text = std::fs::read_to_string(path).unwrap();
+        let mut entries: Vec<Entry> = Vec::new();
+        for line in text.lines() {
+            let line = line.trim_end();
+            if line.starts_with('$') || line.starts_with('!') {
+                entries.push(Entry {
+                    sentence: line.to_string(),
+                    tpv: None,
+                });
+            } else if line.starts_with('{') {
+                let v: serde_json::Value = serde_json::from_str(line).unwrap();
+                if v["class"] == "TPV" {
+                    if let Some(e) = entries.last_mut() {
+                        e.tpv.get_or_insert(v);
+                    }
+                }
+            }
+        }
+        Reference { entries }
+    }
+}
+
+/// `2019-04-12T00:39:56.000Z` → Unix milliseconds.
+pub fn iso_to_unix_ms(s: &str) -> i64 {
+    let (date, time) = s.trim_end_matches('Z').split_once('T').unwrap();
+    let d: Vec<u32> = date.split('-').map(|x| x.parse().unwrap()).collect();
+    let (hms, frac) = time.split_once('.').unwrap_or((time, "0"));
+    let t: Vec<i64> = hms.split(':').map(|x| x.parse().unwrap()).collect();
+    let ms: i64 = format!("{frac:0<3}")[..3].parse().unwrap();
+    let days = infraloc::gnss::nmea::Date::new(d[0] as u16, d[1] as u8, d[2] as u8)
+        .unwrap()
+        .days_since_epoch();
+    days * 86_400_000 + (t[0] * 3600 + t[1] * 60 + t[2]) * 1000 + ms
+}

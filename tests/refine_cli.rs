@@ -1,0 +1,163 @@
+//! `infraloc refine` through the binary: a synthetic scene written to files, then good and bad
+//! invocations.
+
+use infraloc::camera::import::to_opencv_yaml;
+use infraloc::camera::{Camera, Mei};
+use infraloc::localize::synth::{ground_points, render, Texture};
+use infraloc::map::Crs;
+use infraloc::pose::CamFromMap;
+use infraloc::posefile::{read_pose, PoseFile};
+use nalgebra::{Point3, Vector3};
+use std::path::Path;
+use std::process::Command;
+
+fn write_scene(dir: &Path) -> CamFromMap {
+    let cam = Camera::Mei(Mei {
+        width: 320,
+        height: 320,
+        fx: 190.0,
+        fy: 190.0,
+        cx: 160.2,
+        cy: 158.9,
+        skew: 0.0,
+        xi: 1.2,
+        k1: -0.04,
+        k2: 0.008,
+        p1: 0.0,
+        p2: 0.0,
+        fov_deg: Some(185.0),
+    });
+    let tex = Texture::new(77);
+    let truth =
+        CamFromMap::from_center_ypr(&Point3::new(500_010.0, 4_400_020.0, 206.0), 1.0, 0.0, 0.0);
+    let (gray, _) = render(&tex, &cam, &truth, 200.0, 4.0, 1);
+    image::GrayImage::from_raw(320, 320, gray)
+        .unwrap()
+        .save(dir.join("frame.png"))
+        .unwrap();
+    std::fs::write(dir.join("camera.yaml"), to_opencv_yaml(&cam)).unwrap();
+    let pts = ground_points(&tex, (500_010.0, 4_400_020.0), 10.0, 0.15, 200.0, 4.0, 2);
+    let mut csv = String::from("x,y,z,reflectivity\n");
+    for p in &pts {
+        csv += &format!("{},{},{},{}\n", p.x, p.y, p.z, p.reflectivity);
+    }
+    std::fs::write(dir.join("points.csv"), csv).unwrap();
+    let init = truth.perturbed(&Vector3::new(0.07, -0.05, 0.03), 0.3f64.to_radians());
+    let pf = PoseFile::new(&init, Crs::Epsg(32617), "t", "2026-11-21T12:00:00Z".into());
+    std::fs::write(dir.join("init.json"), pf.to_json()).unwrap();
+    truth
+}
+
+fn refine(dir: &Path, extra: &[&str]) -> (bool, String) {
+    let mut args = vec![
+        "refine".to_string(),
+        "--camera".into(),
+        dir.join("camera.yaml").display().to_string(),
+        "--image".into(),
+        dir.join("frame.png").display().to_string(),
+        "--points".into(),
+        dir.join("points.csv").display().to_string(),
+        "--init".into(),
+        dir.join("init.json").display().to_string(),
+        "--out".into(),
+        dir.join("out.json").display().to_string(),
+        "--report".into(),
+        dir.join("report.json").display().to_string(),
+    ];
+    if !extra.contains(&"--search") {
+        args.push("--search".into());
+        args.push("x=0.16:0.02,y=0.16:0.02,z=0.1:0.02,yaw=0.6:0.05".into());
+    }
+    for e in extra {
+        args.push(e.to_string());
+    }
+    let o = Command::new(env!("CARGO_BIN_EXE_infraloc"))
+        .args(&args)
+        .output()
+        .unwrap();
+    (
+        o.status.success(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn refine_cli_end_to_end_and_bad_input() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let truth = write_scene(dir);
+    let (ok, err) = refine(dir, &[]);
+    assert!(ok, "{err}");
+    let out = read_pose(&dir.join("out.json")).unwrap().pose;
+    let e = out.center() - truth.center();
+    assert!(
+        e.x.abs() <= 0.03 && e.y.abs() <= 0.03 && e.z.abs() <= 0.04,
+        "{e:?}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["quality"]["accepted"], true);
+    assert!(report["evaluation_ratio"].as_f64().unwrap() > 1.0);
+
+    // Bad inputs: one line on stderr, non-zero exit, no pose written.
+    let bad = |name: &str, setup: &dyn Fn(&Path), extra: &[&str], want: &str| {
+        std::fs::remove_file(dir.join("out.json")).ok();
+        let d = tempfile::tempdir().unwrap();
+        for f in ["camera.yaml", "frame.png", "points.csv", "init.json"] {
+            std::fs::copy(dir.join(f), d.path().join(f)).unwrap();
+        }
+        setup(d.path());
+        let (ok, err) = refine(d.path(), extra);
+        assert!(!ok, "{name}: should fail");
+        assert_eq!(err.trim().lines().count(), 1, "{name}: {err}");
+        assert!(err.contains(want), "{name}: {err}");
+        assert!(!d.path().join("out.json").exists(), "{name}: pose written");
+    };
+    bad(
+        "empty points",
+        &|d| std::fs::write(d.join("points.csv"), "x,y,z,reflectivity\n").unwrap(),
+        &[],
+        "no ground points",
+    );
+    bad(
+        "NaN height",
+        &|d| {
+            std::fs::write(
+                d.join("points.csv"),
+                "x,y,z,reflectivity\n500010,4400020,NaN,3\n",
+            )
+            .unwrap()
+        },
+        &[],
+        "non-finite",
+    );
+    bad(
+        "image size",
+        &|d| {
+            image::GrayImage::new(100, 80)
+                .save(d.join("frame.png"))
+                .unwrap()
+        },
+        &[],
+        "100×80",
+    );
+    bad(
+        "invisible points",
+        &|d| {
+            std::fs::write(
+                d.join("points.csv"),
+                "x,y,z,reflectivity\n500010,4400020,900,3\n",
+            )
+            .unwrap()
+        },
+        &[],
+        "none is visible",
+    );
+    bad("zero range", &|_| {}, &["--search", "x=0:0.02"], "--search");
+    bad(
+        "absurd range",
+        &|_| {},
+        &["--search", "yaw=400:1"],
+        "--search",
+    );
+}
