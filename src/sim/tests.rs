@@ -171,3 +171,40 @@ fn nmea_fixes_scatter_around_the_true_position() {
     assert!(e > 0.05 && e < 20.0, "mean fix is {e} m from truth");
     assert!((30..=60).contains(&(k as i32)));
 }
+
+#[test]
+fn nmea_log_decodes_cleanly_with_the_receiver_decoder() {
+    // The node's own decoder (checked against gpsd's regression logs) must accept every line.
+    let s = scene();
+    let mut dec = crate::gnss::Decoder::new();
+    let mut fixes = Vec::new();
+    dec.push(s.nmea.as_bytes(), |f| fixes.push(f));
+    dec.finish(|f| fixes.push(f));
+    let st = dec.stats();
+    let epochs = s.nmea.matches("$GPGGA").count();
+    assert_eq!(st.sentences, 2 * epochs as u64);
+    assert_eq!(
+        (st.checksum_errors, st.parse_errors, st.unchecked_sentences),
+        (0, 0, 0)
+    );
+    assert!(
+        fixes.len() >= epochs - 1,
+        "{} fixes for {epochs} epochs",
+        fixes.len()
+    );
+    let [tl, tn] = s.gps_truth_wgs84;
+    for f in &fixes {
+        let d = ((f.lat - tl) * 111_100.0).hypot((f.lon - tn) * 111_100.0 * tl.to_radians().cos());
+        assert!(d < 40.0, "fix {d} m from truth");
+        assert_eq!(f.quality, 1);
+    }
+    let dated = fixes
+        .iter()
+        .filter_map(|f| f.date)
+        .next()
+        .expect("RMC gives a date");
+    assert_eq!(
+        (dated.year as u32, dated.month as u32, dated.day as u32),
+        (s.start.year, s.start.month, s.start.day)
+    );
+}
