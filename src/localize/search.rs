@@ -25,6 +25,9 @@
 //! fixed order); parallel maps are collected in input order and reductions use the total order
 //! (score, −cell), so the result does not depend on thread count or scheduling.
 
+// Axis-indexed loops over parallel fixed-size arrays ([_; 6]) read clearer with the index.
+#![allow(clippy::needless_range_loop)]
+
 use super::kernel::{accumulate, visible, BinnedImage, FastCamera, GrayLevel, PoseF32, Scratch};
 use super::mi::{bin_lut, mutual_information, JointHist, MiConfig, MiValue};
 use super::points::{validate, GroundPoint, PreparedPoints};
