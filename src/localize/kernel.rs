@@ -222,8 +222,8 @@ impl GrayLevel {
                         n += 1;
                     }
                 }
-                if n > 0 {
-                    gray[v * w + u] = ((sum + n / 2) / n) as u8;
+                if let Some(mean) = (sum + n / 2).checked_div(n) {
+                    gray[v * w + u] = mean as u8;
                     mask[v * w + u] = 255;
                 }
             }

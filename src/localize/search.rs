@@ -186,7 +186,8 @@ impl SearchSpec {
                 continue;
             }
             let name = AXES[i];
-            if !(a.half.is_finite() && a.step.is_finite()) || !(a.half > 0.0) || !(a.step > 0.0) {
+            let positive = a.half.is_finite() && a.step.is_finite() && a.half > 0.0 && a.step > 0.0;
+            if !positive {
                 return Err(Error::Invalid(format!(
                     "--search {name}={}:{}: half range and step must be positive",
                     a.half, a.step
