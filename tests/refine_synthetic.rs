@@ -214,7 +214,7 @@ fn fixed_point_set_removes_the_fewer_points_bias() {
     let tex = Texture::new(42);
     let truth = CamFromMap::from_center_ypr(&Point3::new(5.0, 5.0, 6.0), 0.2, 0.0, 0.0);
     // Heavy image noise: the true dependence is weak.
-    let (gray, mask) = render(&tex, &cam, &truth, 0.0, 25.0, 1);
+    let (gray, mask) = render(&tex, &cam, &truth, 0.0, 75.0, 1);
     let points = ground_points(&tex, (5.0, 5.0), 9.0, 0.2, 0.0, 40.0, 2);
     let spec = SearchSpec {
         x: AxisRange {

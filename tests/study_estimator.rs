@@ -25,6 +25,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 
 #[test]
 #[ignore]
+#[allow(clippy::type_complexity)]
 fn study_estimator() {
     let fisheye = Camera::Mei(Mei {
         width: 768,

@@ -359,9 +359,7 @@ mod tests {
         assert_eq!((u[0], u[7], u[8], u[255]), (0, 0, 1, 31));
         // Data concentrated on 100..=103: equalised bins spread those four values over all bins.
         let mut c = [0u64; 256];
-        for v in 100..=103 {
-            c[v] = 1000;
-        }
+        c[100..=103].fill(1000);
         let e = bin_lut(Binning::Equalized, 4, &c);
         assert_eq!(&e[100..=103], &[0, 1, 2, 3]);
         assert_eq!(e[0], 0);

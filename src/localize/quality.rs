@@ -18,6 +18,9 @@
 //! are close to 1 for any textured scene because misaligned views still share low-frequency
 //! structure, so the gate uses the contrast.
 
+// Axis-indexed loops over parallel fixed-size arrays ([_; 6]) read clearer with the index.
+#![allow(clippy::needless_range_loop)]
+
 use super::kernel::Scratch;
 use super::search::{Evaluator, SearchResult, AXES};
 use serde::{Deserialize, Serialize};
@@ -226,7 +229,7 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
 
     // The gate: first failing check wins.
     let mut reason = None;
-    if (ev.n_points) < cfg.min_points {
+    if ev.n_points < cfg.min_points {
         reason = Some(format!(
             "only {} points seen from every pose of the search box (< {})",
             ev.n_points, cfg.min_points

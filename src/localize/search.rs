@@ -25,6 +25,9 @@
 //! fixed order); parallel maps are collected in input order and reductions use the total order
 //! (score, −cell), so the result does not depend on thread count or scheduling.
 
+// Axis-indexed loops over parallel fixed-size arrays ([_; 6]) read clearer with the index.
+#![allow(clippy::needless_range_loop)]
+
 use super::kernel::{accumulate, visible, BinnedImage, FastCamera, GrayLevel, PoseF32, Scratch};
 use super::mi::{bin_lut, mutual_information, JointHist, MiConfig, MiValue};
 use super::points::{validate, GroundPoint, PreparedPoints};
@@ -183,7 +186,8 @@ impl SearchSpec {
                 continue;
             }
             let name = AXES[i];
-            if !(a.half.is_finite() && a.step.is_finite()) || !(a.half > 0.0) || !(a.step > 0.0) {
+            let positive = a.half.is_finite() && a.step.is_finite() && a.half > 0.0 && a.step > 0.0;
+            if !positive {
                 return Err(Error::Invalid(format!(
                     "--search {name}={}:{}: half range and step must be positive",
                     a.half, a.step
