@@ -16,7 +16,12 @@ pub const RED: [u8; 3] = [255, 48, 48];
 pub const DRAW_PERCENTILE: f64 = 0.85;
 
 /// The frame in gray with each pose's projections of the brightest ground points drawn on it.
-pub fn overlay(image: &GrayImage, cam: &dyn CameraModel, layers: &[(&CamFromMap, [u8; 3])], points: &[GroundPoint]) -> RgbImage {
+pub fn overlay(
+    image: &GrayImage,
+    cam: &dyn CameraModel,
+    layers: &[(&CamFromMap, [u8; 3])],
+    points: &[GroundPoint],
+) -> RgbImage {
     let mut out = RgbImage::from_fn(image.width(), image.height(), |x, y| {
         let v = image.get_pixel(x, y)[0] / 2 + 40; // dimmed so the points stand out
         Rgb([v, v, v])
@@ -43,7 +48,12 @@ pub fn overlay(image: &GrayImage, cam: &dyn CameraModel, layers: &[(&CamFromMap,
 }
 
 /// [`overlay`] encoded as PNG bytes.
-pub fn overlay_png(image: &GrayImage, cam: &dyn CameraModel, layers: &[(&CamFromMap, [u8; 3])], points: &[GroundPoint]) -> Result<Vec<u8>> {
+pub fn overlay_png(
+    image: &GrayImage,
+    cam: &dyn CameraModel,
+    layers: &[(&CamFromMap, [u8; 3])],
+    points: &[GroundPoint],
+) -> Result<Vec<u8>> {
     let img = overlay(image, cam, layers, points);
     let mut buf = std::io::Cursor::new(Vec::new());
     img.write_to(&mut buf, image::ImageFormat::Png)

@@ -1,8 +1,8 @@
 //! `infraloc demo`: simulate a scene in a temporary directory, localize it exactly as a node would
 //! (through the scene's config), print the errors against truth, exit non-zero past the thresholds.
 
-use crate::error::{Error, Result};
 use super::simulate::{DifficultyArg, LensArg, PresetArg};
+use crate::error::{Error, Result};
 use std::path::PathBuf;
 
 /// Horizontal error the demo accepts, metres (the refinement's 99th-percentile goal).
@@ -55,7 +55,14 @@ pub fn run(a: Args) -> Result<()> {
     let scene = crate::sim::generate(&sim_args.settings())?;
     super::simulate::write_scene(&scene, &dir)?;
     let t_sim = t0.elapsed().as_secs_f64();
-    println!("scene: {} (seed {}, {:?}, {:?}) in {:.1} s", dir.display(), a.seed, a.preset, a.difficulty, t_sim);
+    println!(
+        "scene: {} (seed {}, {:?}, {:?}) in {:.1} s",
+        dir.display(),
+        a.seed,
+        a.preset,
+        a.difficulty,
+        t_sim
+    );
     let la = super::localize::Args {
         config: dir.join("infraloc.toml"),
         camera: None,
@@ -71,8 +78,14 @@ pub fn run(a: Args) -> Result<()> {
     };
     let run = super::localize::run_pipeline(&la)?;
     let t = &run.report["truth"];
-    println!("{:<6} {:>12} {:>10} {:>9} {:>16} {:>9}", "stage", "horizontal", "height", "yaw", "control pts", "seconds");
-    for (name, secs) in [("pnp", run.outcome.stages[1].seconds), ("mi", run.outcome.stages[2].seconds)] {
+    println!(
+        "{:<6} {:>12} {:>10} {:>9} {:>16} {:>9}",
+        "stage", "horizontal", "height", "yaw", "control pts", "seconds"
+    );
+    for (name, secs) in [
+        ("pnp", run.outcome.stages[1].seconds),
+        ("mi", run.outcome.stages[2].seconds),
+    ] {
         let e = &t[name];
         println!(
             "{:<6} {:>10.3} m {:>8.3} m {:>7.3} ° {:>13.2} px {:>9.2}",

@@ -66,7 +66,8 @@ pub(crate) struct Run {
 }
 
 fn load_gray(path: &Path) -> Result<GrayImage> {
-    let img = image::open(path).map_err(|e| Error::input(path, format!("cannot read image: {e}")))?;
+    let img =
+        image::open(path).map_err(|e| Error::input(path, format!("cannot read image: {e}")))?;
     Ok(img.to_luma8())
 }
 
@@ -78,12 +79,18 @@ fn frames(a: &Args, cfg: &Config, cfg_path: &Path) -> Result<Vec<GrayImage>> {
     match c.source {
         // Recorded frames are read as they are: no exposure settling, no pacing.
         FrameSourceKind::File => {
-            let path = c
-                .frames
-                .as_ref()
-                .ok_or_else(|| Error::config(cfg_path, "[camera] source = \"file\" needs frames"))?;
-            let src = crate::capture::FileSource::new(path);
-            let files: Vec<PathBuf> = src.files().iter().take(c.frame_count.max(1) as usize).cloned().collect();
+            let path = c.frames.as_ref().ok_or_else(|| {
+                Error::config(cfg_path, "[camera] source = \"file\" needs frames")
+            })?;
+            let mut src = crate::capture::FileSource::new(path);
+            crate::capture::FrameSource::open(&mut src)
+                .map_err(|e| Error::input(path, e.detail))?;
+            let files: Vec<PathBuf> = src
+                .files()
+                .iter()
+                .take(c.frame_count.max(1) as usize)
+                .cloned()
+                .collect();
             if files.is_empty() {
                 return Err(Error::input(path, "no image files"));
             }
@@ -92,7 +99,11 @@ fn frames(a: &Args, cfg: &Config, cfg_path: &Path) -> Result<Vec<GrayImage>> {
         _ => {
             let mut src = crate::capture::source_from_config(c)?;
             let settings = crate::capture::CaptureSettings::from_config(c);
-            let cap = crate::capture::capture(src.as_mut(), &settings, &crate::capture::SystemClock::default())?;
+            let cap = crate::capture::capture(
+                src.as_mut(),
+                &settings,
+                &crate::capture::SystemClock::default(),
+            )?;
             Ok(cap.frames.into_iter().map(|f| f.image).collect())
         }
     }
@@ -103,10 +114,15 @@ fn prior(a: &Args, cfg: &Config, cfg_path: &Path) -> Result<((f64, f64, f64), Va
     if let Some(s) = &a.prior_wgs84 {
         let [lat, lon] = super::parse_list::<2>("--prior-wgs84", s)?;
         if !(lat.abs() <= 90.0 && lon.abs() <= 180.0) {
-            return Err(Error::Invalid(format!("--prior-wgs84 {s}: not a WGS84 position")));
+            return Err(Error::Invalid(format!(
+                "--prior-wgs84 {s}: not a WGS84 position"
+            )));
         }
         let sigma = cfg.gps.fallback_sigma_m;
-        return Ok(((lat, lon, sigma), json!({"source": "command-line", "lat": lat, "lon": lon, "sigma_m": sigma})));
+        return Ok((
+            (lat, lon, sigma),
+            json!({"source": "command-line", "lat": lat, "lon": lon, "sigma_m": sigma}),
+        ));
     }
     let mut g = cfg.gps.clone();
     if let Some(path) = &a.gps_nmea {
@@ -126,14 +142,25 @@ fn prior(a: &Args, cfg: &Config, cfg_path: &Path) -> Result<((f64, f64, f64), Va
 pub(crate) fn run_pipeline(a: &Args) -> Result<Run> {
     if let Some(n) = a.threads {
         // Only the first call in a process can size the global pool; later calls keep it.
-        let _ = rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global();
+        let _ = rayon::ThreadPoolBuilder::new()
+            .num_threads(n.max(1))
+            .build_global();
     }
     let t_start = Instant::now();
     let cfg = Config::load(&a.config)?;
-    let camera = match (&a.camera, &cfg.camera.intrinsics_file, &cfg.camera.intrinsics) {
+    let camera = match (
+        &a.camera,
+        &cfg.camera.intrinsics_file,
+        &cfg.camera.intrinsics,
+    ) {
         (Some(p), _, _) | (None, Some(p), _) => load_camera(p)?,
         (None, None, Some(c)) => c.clone(),
-        (None, None, None) => return Err(Error::config(&a.config, "[camera]: no intrinsics-file or [camera.intrinsics]")),
+        (None, None, None) => {
+            return Err(Error::config(
+                &a.config,
+                "[camera]: no intrinsics-file or [camera.intrinsics]",
+            ))
+        }
     };
     let frames = frames(a, &cfg, &a.config)?;
     let image = if frames.len() == 1 {
@@ -144,7 +171,13 @@ pub(crate) fn run_pipeline(a: &Args) -> Result<Run> {
     if (image.width(), image.height()) != (camera.width(), camera.height()) {
         return Err(Error::stage(
             "capture",
-            format!("frame is {}×{}, camera intrinsics are {}×{}", image.width(), image.height(), camera.width(), camera.height()),
+            format!(
+                "frame is {}×{}, camera intrinsics are {}×{}",
+                image.width(),
+                image.height(),
+                camera.width(),
+                camera.height()
+            ),
         ));
     }
     let ((lat, lon, sigma), prior_desc) = prior(a, &cfg, &a.config)?;
@@ -154,14 +187,34 @@ pub(crate) fn run_pipeline(a: &Args) -> Result<Run> {
     let crs = tile.reflectivity.grid.crs;
     let (px, py) = match crs {
         Crs::Epsg(_) => crate::geo::wgs84_to_map(crs, lat, lon)?,
-        Crs::Local => return Err(Error::input(&tref.dir, "tile CRS is LOCAL: a WGS84 prior cannot be placed in it")),
+        Crs::Local => {
+            return Err(Error::input(
+                &tref.dir,
+                "tile CRS is LOCAL: a WGS84 prior cannot be placed in it",
+            ))
+        }
     };
     let params = Params::default();
     let clock = |t: Instant| move || t.elapsed().as_secs_f64();
-    let outcome = localize(&camera, image.as_raw(), &tile, (px, py), sigma, &params, &clock(Instant::now()))?;
+    let outcome = localize(
+        &camera,
+        image.as_raw(),
+        &tile,
+        (px, py),
+        sigma,
+        &params,
+        &clock(Instant::now()),
+    )?;
 
-    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
-    let mut pf = PoseFile::new(&outcome.pose, crs, &tile.id, format_utc(now.as_secs() as i64, None));
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    let mut pf = PoseFile::new(
+        &outcome.pose,
+        crs,
+        &tile.id,
+        format_utc(now.as_secs() as i64, None),
+    );
     pf.intrinsics = serde_json::to_value(&camera).unwrap_or(Value::Null);
     let q = &outcome.refinement.quality;
     let mut quality = serde_json::to_value(q).unwrap_or(json!({}));
@@ -190,11 +243,29 @@ pub(crate) fn run_pipeline(a: &Args) -> Result<Run> {
         write_atomic(&p, text.as_bytes())?;
     }
     if let Some(p) = a.overlay.clone().or_else(|| cfg.output.overlay.clone()) {
-        let pts = crate::map::ground_points(&tile, (outcome.pose.center().x, outcome.pose.center().y), params.mi_radius_m);
-        let png = crate::viz::overlay_png(&image, &camera, &[(&outcome.init.pose, crate::viz::RED), (&outcome.pose, crate::viz::CYAN)], &pts)?;
+        let pts = crate::map::ground_points(
+            &tile,
+            (outcome.pose.center().x, outcome.pose.center().y),
+            params.mi_radius_m,
+        );
+        let png = crate::viz::overlay_png(
+            &image,
+            &camera,
+            &[
+                (&outcome.init.pose, crate::viz::RED),
+                (&outcome.pose, crate::viz::CYAN),
+            ],
+            &pts,
+        )?;
         write_atomic(&p, &png)?;
     }
-    Ok(Run { outcome, tile, image, pose_file: pf, report })
+    Ok(Run {
+        outcome,
+        tile,
+        image,
+        pose_file: pf,
+        report,
+    })
 }
 
 /// Errors of each stage's pose against a simulator `truth.json`.
@@ -206,22 +277,34 @@ pub(crate) fn truth_errors(path: &Path, camera: &Camera, o: &Outcome) -> Result<
         .as_array()
         .map(|a| {
             a.iter()
-                .filter_map(|c| Some((serde_json::from_value(c["map"].clone()).ok()?, serde_json::from_value(c["pixel"].clone()).ok()?)))
+                .filter_map(|c| {
+                    Some((
+                        serde_json::from_value(c["map"].clone()).ok()?,
+                        serde_json::from_value(c["pixel"].clone()).ok()?,
+                    ))
+                })
                 .collect()
         })
         .unwrap_or_default();
     let err = |p: &crate::pose::CamFromMap| {
         let (c, tc) = (p.center(), truth.center());
-        let dyaw = (p.yaw_pitch_roll().0 - truth.yaw_pitch_roll().0 + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+        let dyaw = (p.yaw_pitch_roll().0 - truth.yaw_pitch_roll().0 + std::f64::consts::PI)
+            .rem_euclid(std::f64::consts::TAU)
             - std::f64::consts::PI;
         let reproj: Vec<f64> = cps
             .iter()
             .filter_map(|(m, px)| {
-                let q = camera.project(&p.transform(&nalgebra::Point3::from(*m)).coords).ok()?;
+                let q = camera
+                    .project(&p.transform(&nalgebra::Point3::from(*m)).coords)
+                    .ok()?;
                 Some(((q.x - px[0]).powi(2) + (q.y - px[1]).powi(2)).sqrt())
             })
             .collect();
-        let mean = if reproj.is_empty() { f64::NAN } else { reproj.iter().sum::<f64>() / reproj.len() as f64 };
+        let mean = if reproj.is_empty() {
+            f64::NAN
+        } else {
+            reproj.iter().sum::<f64>() / reproj.len() as f64
+        };
         json!({
             "horizontal_m": ((c.x - tc.x).powi(2) + (c.y - tc.y).powi(2)).sqrt(),
             "height_m": (c.z - tc.z).abs(),

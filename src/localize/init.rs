@@ -82,6 +82,61 @@ pub fn sample_gray(img: &[u8], w: usize, h: usize, x: f64, y: f64) -> Option<f32
     Some(top * (1.0 - fy) + bot * fy)
 }
 
+/// A 2×2-box mip pyramid of a gray frame, so that resampling the fisheye onto coarse ground cells
+/// averages the pixels a cell covers instead of aliasing (a nadir pixel of a pole camera covers
+/// ~1–2 cm; ground cells here are 5–20 cm).
+pub struct Mip {
+    levels: Vec<(Vec<f32>, usize, usize)>,
+}
+
+/// Deepest pyramid level.
+const MIP_LEVELS: usize = 6;
+
+impl Mip {
+    /// Build from a row-major gray image.
+    pub fn new(img: &[u8], w: usize, h: usize) -> Self {
+        let mut levels = vec![(img.iter().map(|&v| v as f32).collect::<Vec<f32>>(), w, h)];
+        while levels.len() < MIP_LEVELS {
+            let (prev, pw, ph) = &levels[levels.len() - 1];
+            let (nw, nh) = (pw / 2, ph / 2);
+            if nw < 2 || nh < 2 {
+                break;
+            }
+            let mut next = vec![0.0; nw * nh];
+            for y in 0..nh {
+                for x in 0..nw {
+                    let i = 2 * y * pw + 2 * x;
+                    next[y * nw + x] =
+                        0.25 * (prev[i] + prev[i + 1] + prev[i + pw] + prev[i + pw + 1]);
+                }
+            }
+            levels.push((next, nw, nh));
+        }
+        Mip { levels }
+    }
+
+    /// Bilinear sample at level-0 pixel coordinates (u, v), at the level whose pixel is about
+    /// `footprint` level-0 pixels wide.
+    pub fn sample(&self, u: f64, v: f64, footprint: f64) -> Option<f32> {
+        let l = (footprint.max(1.0).log2().floor() as usize).min(self.levels.len() - 1);
+        let s = (1usize << l) as f64;
+        let (data, w, h) = &self.levels[l];
+        let (x, y) = ((u + 0.5) / s - 0.5, (v + 0.5) / s - 0.5);
+        if !(x >= 0.0 && y >= 0.0) {
+            return None;
+        }
+        let (x0, y0) = (x as usize, y as usize);
+        if x0 + 1 >= *w || y0 + 1 >= *h {
+            return None;
+        }
+        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+        let i = y0 * w + x0;
+        let top = data[i] * (1.0 - fx) + data[i + 1] * fx;
+        let bot = data[i + w] * (1.0 - fx) + data[i + w + 1] * fx;
+        Some(top * (1.0 - fy) + bot * fy)
+    }
+}
+
 /// The nominal bird's-eye view: the ground as a north-up nadir camera at unit height would see it,
 /// over `|q| ≤ tan(max_off_nadir)`, step `dq`; and the pixels that are seen.
 pub fn nominal_view(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> (GrayF32, Vec<bool>) {
@@ -89,6 +144,7 @@ pub fn nominal_view(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> (G
     let half = (q_max / p.nominal_dq).ceil() as usize;
     let n = 2 * half + 1;
     let (w, h) = (cam.width() as usize, cam.height() as usize);
+    let mip = Mip::new(image, w, h);
     let rows: Vec<(Vec<f32>, Vec<bool>)> = (0..n)
         .into_par_iter()
         .map(|y| {
@@ -106,7 +162,15 @@ pub fn nominal_view(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> (G
                 // diag(1, −1, −1) of it.
                 let ray = Vector3::new(qx, -qy, 1.0);
                 if let Ok(px) = cam.project_visible(&ray) {
-                    if let Some(v) = sample_gray(image, w, h, px.x, px.y) {
+                    // Footprint of the cell in fisheye pixels, from its neighbours' projections.
+                    let fp = [(p.nominal_dq, 0.0), (0.0, p.nominal_dq)]
+                        .iter()
+                        .filter_map(|(dx, dy)| {
+                            cam.project(&Vector3::new(qx + dx, -(qy + dy), 1.0)).ok()
+                        })
+                        .map(|q| (q - px).norm())
+                        .fold(1.0, f64::max);
+                    if let Some(v) = mip.sample(px.x, px.y, fp) {
                         vals[x] = v;
                         ok[x] = true;
                     }
@@ -398,7 +462,9 @@ pub struct FineParams {
     pub max_off_nadir_deg: f64,
     /// Largest anchor distance from the nadir point, metres.
     pub max_radius_m: f64,
-    /// Per iteration: (patch half-size m, search half-size m, resolution m/px, PnP threshold px).
+    /// Per iteration: (patch half-size m, search half-size m, resolution m/px, PnP inlier
+    /// tolerance in metres on the ground at nadir distance — converted to pixels for the current
+    /// height, because a fixed pixel threshold is metres on a 4 m pole and centimetres on a 15 m one).
     pub iterations: Vec<(f64, f64, f64, f64)>,
     /// Minimum correlation of an accepted patch match.
     pub min_score: f64,
@@ -412,7 +478,12 @@ impl Default for FineParams {
             anchor_spacing_m: 1.5,
             max_off_nadir_deg: 65.0,
             max_radius_m: 25.0,
-            iterations: vec![(3.0, 2.0, 0.2, 8.0), (2.0, 0.6, 0.1, 4.0)],
+            iterations: vec![
+                (3.0, 2.0, 0.2, 0.6),
+                (3.0, 1.2, 0.2, 0.45),
+                (2.0, 0.6, 0.1, 0.3),
+                (2.0, 0.4, 0.1, 0.25),
+            ],
             min_score: 0.35,
             pnp: super::pnp::PnpParams::default(),
         }
@@ -477,7 +548,7 @@ pub fn match_anchors(
             }
         }
     }
-    let (w, h) = (cam.width() as usize, cam.height() as usize);
+    let mip = Mip::new(image, cam.width() as usize, cam.height() as usize);
     let ph = (patch_half / res).round() as i64;
     let sh = (search_half / res).round() as i64;
     let side = (2 * ph + 1) as usize;
@@ -485,6 +556,22 @@ pub fn match_anchors(
         .par_iter()
         .filter_map(|&(ax, ay)| {
             let az = height_at(heights, ax, ay)?;
+            // One pyramid level per patch: its cells' footprint in fisheye pixels at the anchor.
+            let pa = cam
+                .project_visible(&pose.transform(&nalgebra::Point3::new(ax, ay, az)).coords)
+                .ok()?;
+            let fp = [(res, 0.0), (0.0, res)]
+                .iter()
+                .filter_map(|(dx, dy)| {
+                    cam.project(
+                        &pose
+                            .transform(&nalgebra::Point3::new(ax + dx, ay + dy, az))
+                            .coords,
+                    )
+                    .ok()
+                })
+                .map(|q| (q - pa).norm())
+                .fold(1.0, f64::max);
             // Fisheye patch resampled onto the ground around the anchor, through the current pose.
             let mut patch = GrayF32::new(side, side);
             let mut valid = vec![false; side * side];
@@ -498,7 +585,7 @@ pub fn match_anchors(
                     let z = height_at(heights, x, y).unwrap_or(az);
                     let pc = pose.transform(&nalgebra::Point3::new(x, y, z)).coords;
                     if let Ok(px) = cam.project_visible(&pc) {
-                        if let Some(v) = sample_gray(image, w, h, px.x, px.y) {
+                        if let Some(v) = mip.sample(px.x, px.y, fp) {
                             patch.data[r * side + col] = v;
                             valid[r * side + col] = true;
                             n_valid += 1;
@@ -581,6 +668,18 @@ fn best_shift(patch: &Field, search: &Field, ph: i64, sh: i64) -> Option<(f64, f
     Some((best, bx as f64 + dx - sh as f64, by as f64 + dy - sh as f64))
 }
 
+/// Focal length near the optical axis in pixels (the image scale of a nadir ray), from the model.
+pub fn focal_px(cam: &dyn CameraModel) -> f64 {
+    const D: f64 = 1e-3;
+    match (
+        cam.project(&Vector3::new(0.0, 0.0, 1.0)),
+        cam.project(&Vector3::new(D, 0.0, 1.0)),
+    ) {
+        (Ok(a), Ok(b)) => (b - a).norm() / D,
+        _ => cam.width() as f64 / 2.0,
+    }
+}
+
 /// Result of [`initialize`].
 #[derive(Debug, Clone)]
 pub struct InitResult {
@@ -643,11 +742,13 @@ pub fn initialize<R: rand::Rng>(
             0.0,
         );
         let mut outcome = None;
-        for &(ph, sh, res, thr) in &fine.iterations {
+        for &(ph, sh, res, tol_m) in &fine.iterations {
             let m = match_anchors(cam, image, sat, heights, &pose, (ph, sh, res), fine);
             let corr: Vec<_> = m.iter().map(|a| a.corr).collect();
+            let c = pose.center();
+            let cam_h = (c.z - height_at(heights, c.x, c.y).unwrap_or(c.z - cand.height)).max(1.0);
             let params = super::pnp::PnpParams {
-                threshold_px: thr,
+                threshold_px: tol_m / cam_h * focal_px(cam),
                 ..fine.pnp
             };
             match super::pnp::solve_pnp_ransac(cam, &corr, &params, rng) {

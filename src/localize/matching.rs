@@ -296,7 +296,10 @@ pub fn sweep(search: &SearchField, nominal: &NominalField, p: &SweepParams) -> V
         .heights
         .par_iter()
         .map(|&h| {
-            let radius_m = (h * nominal.q_max).min(p.template_radius_m);
+            // One radius for every height: a correlation over fewer pixels has a higher noise
+            // maximum, so height-dependent templates would bias the sweep towards low heights.
+            let h_min = p.heights.iter().copied().fold(f64::INFINITY, f64::min);
+            let radius_m = (h_min * nominal.q_max).min(p.template_radius_m);
             let r_px = (radius_m / res).floor() as isize;
             let side = (2 * r_px + 1) as usize;
             if side >= search.size {

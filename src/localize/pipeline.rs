@@ -110,7 +110,10 @@ pub fn localize(
         ));
     }
     if !(prior_sigma_m > 0.0 && prior_xy.0.is_finite() && prior_xy.1.is_finite()) {
-        return Err(Error::stage("prior", format!("unusable prior {prior_xy:?} σ {prior_sigma_m}")));
+        return Err(Error::stage(
+            "prior",
+            format!("unusable prior {prior_xy:?} σ {prior_sigma_m}"),
+        ));
     }
     let (lo, hi) = p.search_radius_range_m;
     let radius = (p.prior_sigmas * prior_sigma_m).clamp(lo, hi);
@@ -123,7 +126,10 @@ pub fn localize(
     if !tile.satellite.grid.contains(prior_xy.0, prior_xy.1, 0.0) {
         return Err(Error::stage(
             "prior",
-            format!("prior ({:.1}, {:.1}) is outside tile {:?}", prior_xy.0, prior_xy.1, tile.id),
+            format!(
+                "prior ({:.1}, {:.1}) is outside tile {:?}",
+                prior_xy.0, prior_xy.1, tile.id
+            ),
         ));
     }
     let t0 = now();
@@ -153,7 +159,8 @@ pub fn localize(
     });
     let c = init.pose.center();
     let ground = super::init::height_at(&tile.height, c.x, c.y).unwrap_or(c.z - 8.0);
-    let mi_radius = ((c.z - ground).max(1.0) * p.mi_max_off_nadir_deg.to_radians().tan()).min(p.mi_radius_m);
+    let mi_radius =
+        ((c.z - ground).max(1.0) * p.mi_max_off_nadir_deg.to_radians().tan()).min(p.mi_radius_m);
     let points = ground_points(tile, (c.x, c.y), mi_radius);
     let refinement = refine(camera, image, &points, &init.pose, &p.search, &p.quality)?;
     let t2 = now();
@@ -166,7 +173,10 @@ pub fn localize(
     if !refinement.quality.accepted {
         return Err(Error::stage(
             "mi",
-            format!("quality gate: {}", refinement.quality.reason.clone().unwrap_or_default()),
+            format!(
+                "quality gate: {}",
+                refinement.quality.reason.clone().unwrap_or_default()
+            ),
         ));
     }
     Ok(Outcome {
