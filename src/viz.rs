@@ -13,7 +13,7 @@ pub const CYAN: [u8; 3] = [0, 255, 255];
 pub const RED: [u8; 3] = [255, 48, 48];
 /// Only points at least this bright (percentile of the set's reflectivity) are drawn: the paint,
 /// whose alignment is what the eye checks; drawing every point would hide the image.
-pub const DRAW_PERCENTILE: f64 = 0.85;
+pub const DRAW_PERCENTILE: f64 = 0.96;
 
 /// The frame in gray with each pose's projections of the brightest ground points drawn on it.
 pub fn overlay(

@@ -44,7 +44,7 @@ impl Default for CoarseParams {
             template_radius_m: 20.0,
             max_off_nadir_deg: 70.0,
             nominal_dq: 0.01,
-            top_k: 5,
+            top_k: 10,
         }
     }
 }
@@ -680,6 +680,9 @@ pub fn focal_px(cam: &dyn CameraModel) -> f64 {
     }
 }
 
+/// PnP inliers (with ≥ 2/3 of the patch matches agreeing) that end the candidate search early.
+pub const CONVINCING_INLIERS: usize = 30;
+
 /// Result of [`initialize`].
 #[derive(Debug, Clone)]
 pub struct InitResult {
@@ -764,6 +767,7 @@ pub fn initialize<R: rand::Rng>(
             }
         }
         if let Some((matches, inliers, rms_px)) = outcome {
+            let convincing = inliers >= CONVINCING_INLIERS && inliers * 3 >= matches * 2;
             if best.as_ref().is_none_or(|b| inliers > b.inliers) {
                 best = Some(InitResult {
                     pose,
@@ -773,6 +777,11 @@ pub fn initialize<R: rand::Rng>(
                     rms_px,
                     candidates_tried: cands.len(),
                 });
+            }
+            // The sweep's ranking is only a shortlist; a candidate whose fine stage agrees this
+            // well is the answer, and trying the rest would only cost time.
+            if convincing {
+                break;
             }
         }
     }
