@@ -23,6 +23,9 @@ pub struct Config {
     /// Where results go.
     #[serde(default)]
     pub output: OutputConfig,
+    /// The service (`infraloc daemon`): control socket, schedules, drift check.
+    #[serde(default)]
+    pub daemon: DaemonConfig,
 }
 
 /// Where frames come from.
@@ -291,6 +294,47 @@ impl Default for OutputConfig {
     }
 }
 
+/// `[daemon]`: the service's control socket, schedules and drift check.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
+pub struct DaemonConfig {
+    /// Control socket of the technician commands (inside systemd's RuntimeDirectory).
+    pub socket: PathBuf,
+    /// Localization results kept in the history beside the pose file.
+    pub history_len: usize,
+    /// Re-localize on this period, hours; 0 = only at boot, on trigger and by the systemd timer.
+    pub relocalize_interval_h: f64,
+    /// After a failed localization, retry after this many seconds …
+    pub retry_initial_s: f64,
+    /// … doubling up to this many.
+    pub retry_max_s: f64,
+    /// Drift check period, minutes (0 = off): a narrow MI search around the served pose on fresh
+    /// frames; a camera found moved is re-localized.
+    pub drift_check_interval_min: f64,
+    /// The drift check flags a horizontal shift of at least this, metres …
+    pub drift_threshold_m: f64,
+    /// … or a yaw change of at least this, degrees.
+    pub drift_threshold_deg: f64,
+}
+
+impl Default for DaemonConfig {
+    fn default() -> Self {
+        DaemonConfig {
+            socket: PathBuf::from(DEFAULT_SOCKET),
+            history_len: crate::store::DEFAULT_HISTORY_LEN,
+            relocalize_interval_h: 0.0,
+            retry_initial_s: 60.0,
+            retry_max_s: 3600.0,
+            drift_check_interval_min: 30.0,
+            drift_threshold_m: 0.1,
+            drift_threshold_deg: 0.3,
+        }
+    }
+}
+
+/// Control socket of the installed service.
+pub const DEFAULT_SOCKET: &str = "/run/infraloc/control.sock";
+
 impl Config {
     /// Parse TOML text. `origin` names the source in errors.
     pub fn parse(text: &str, origin: &Path) -> Result<Config> {
@@ -331,6 +375,7 @@ impl Config {
         fix(&mut self.output.pose);
         self.output.report.as_mut().map(fix);
         self.output.overlay.as_mut().map(fix);
+        fix(&mut self.daemon.socket);
     }
 
     /// Hard errors a parsed config can still have (missing required combinations). Exit 78.
@@ -422,6 +467,34 @@ impl Config {
         if !(self.map.search_margin_m >= 0.0) {
             return Err(Error::config(origin, "[map] search-margin-m must be >= 0"));
         }
+        let d = &self.daemon;
+        for (key, v) in [
+            ("relocalize-interval-h", d.relocalize_interval_h),
+            ("drift-check-interval-min", d.drift_check_interval_min),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return Err(Error::config(
+                    origin,
+                    format!("[daemon] {key} = {v} must be >= 0 (0 = off)"),
+                ));
+            }
+        }
+        for (key, v) in [
+            ("retry-initial-s", d.retry_initial_s),
+            ("retry-max-s", d.retry_max_s),
+            ("drift-threshold-m", d.drift_threshold_m),
+            ("drift-threshold-deg", d.drift_threshold_deg),
+        ] {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(Error::config(
+                    origin,
+                    format!("[daemon] {key} = {v} must be > 0"),
+                ));
+            }
+        }
+        if d.history_len == 0 {
+            return Err(Error::config(origin, "[daemon] history-len must be >= 1"));
+        }
         Ok(())
     }
 
@@ -447,6 +520,19 @@ impl Config {
             w.push(format!(
                 "[map] search-margin-m = {} m is larger than any tile is likely to be",
                 self.map.search_margin_m
+            ));
+        }
+        let d = &self.daemon;
+        if d.retry_max_s < d.retry_initial_s {
+            w.push(format!(
+                "[daemon] retry-max-s = {} is below retry-initial-s = {}: retries wait retry-initial-s",
+                d.retry_max_s, d.retry_initial_s
+            ));
+        }
+        if d.drift_check_interval_min > 0.0 && d.drift_threshold_m >= 0.5 {
+            w.push(format!(
+                "[daemon] drift-threshold-m = {} reaches the drift search's ±0.5 m box: a moved camera shows as a gate failure",
+                d.drift_threshold_m
             ));
         }
         w

@@ -14,6 +14,8 @@ pub mod camera;
 pub mod capture;
 pub mod cli;
 pub mod config;
+pub mod control;
+pub mod daemon;
 pub mod error;
 pub mod geo;
 pub mod gnss;

@@ -31,8 +31,8 @@ pub struct HistoryEntry {
     pub status: String,
     /// `quality.score` of the result, if any.
     pub score: Option<f64>,
-    /// Camera centre of the result.
-    pub camera_center: [f64; 3],
+    /// Camera centre of the result (none for a run that failed before it had a pose).
+    pub camera_center: Option<[f64; 3]>,
     /// Whether it became the served pose.
     pub accepted: bool,
     /// Why it was (not) accepted.
@@ -51,7 +51,8 @@ pub enum Decision {
 /// A pose store rooted at a directory.
 #[derive(Debug, Clone)]
 pub struct PoseStore {
-    dir: PathBuf,
+    pose: PathBuf,
+    history: PathBuf,
     history_len: usize,
 }
 
@@ -62,15 +63,23 @@ fn score_of(p: &PoseFile) -> Option<f64> {
 impl PoseStore {
     /// A store in `dir` (which must exist) keeping `history_len` entries.
     pub fn new(dir: &Path, history_len: usize) -> Self {
+        Self::at(&dir.join(POSE_FILE), history_len)
+    }
+
+    /// A store serving `pose` (the configured `[output] pose`), its history in [`HISTORY_FILE`]
+    /// in the same directory (which must exist: the rename that publishes a pose cannot cross
+    /// directories).
+    pub fn at(pose: &Path, history_len: usize) -> Self {
         PoseStore {
-            dir: dir.to_path_buf(),
+            pose: pose.to_path_buf(),
+            history: pose.with_file_name(HISTORY_FILE),
             history_len: history_len.max(1),
         }
     }
 
     /// Path of the served pose file.
     pub fn pose_path(&self) -> PathBuf {
-        self.dir.join(POSE_FILE)
+        self.pose.clone()
     }
 
     /// The served pose, `None` if none was ever written. A file that exists but cannot be read is
@@ -95,12 +104,12 @@ impl PoseStore {
 
     /// The history, oldest first (empty if none).
     pub fn history(&self) -> Result<Vec<HistoryEntry>> {
-        let p = self.dir.join(HISTORY_FILE);
+        let p = &self.history;
         match std::fs::read_to_string(&p) {
             Ok(t) => serde_json::from_str(&t)
                 .map_err(|e| Error::input(&p, format!("unreadable history: {e}"))),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Vec::new()),
-            Err(e) => Err(Error::io(&p, e)),
+            Err(e) => Err(Error::io(p, e)),
         }
     }
 
@@ -141,22 +150,39 @@ impl PoseStore {
             Decision::Replaced(r) => (true, r.clone()),
             Decision::Kept(r) => (false, r.clone()),
         };
-        // A corrupt history is rebuilt rather than blocking the pose.
-        let mut hist = self.history().unwrap_or_default();
-        hist.push(HistoryEntry {
+        self.append(HistoryEntry {
             timestamp_utc: candidate.timestamp_utc.clone(),
             status: candidate.status.clone(),
             score: score_of(candidate),
-            camera_center: candidate.camera_center,
+            camera_center: Some(candidate.camera_center),
             accepted,
             reason,
-        });
+        })?;
+        Ok(decision)
+    }
+
+    /// Record a run that failed before it produced a pose (`status` is its one-line reason). The
+    /// served pose is not touched.
+    pub fn record_failure(&self, timestamp_utc: &str, status: &str) -> Result<()> {
+        self.append(HistoryEntry {
+            timestamp_utc: timestamp_utc.to_string(),
+            status: status.to_string(),
+            score: None,
+            camera_center: None,
+            accepted: false,
+            reason: "localization failed; served pose kept".into(),
+        })
+    }
+
+    fn append(&self, entry: HistoryEntry) -> Result<()> {
+        // A corrupt history is rebuilt rather than blocking the pose.
+        let mut hist = self.history().unwrap_or_default();
+        hist.push(entry);
         let excess = hist.len().saturating_sub(self.history_len);
         hist.drain(..excess);
         let text =
             serde_json::to_string_pretty(&hist).map_err(|e| Error::Invalid(e.to_string()))?;
-        write_atomic(&self.dir.join(HISTORY_FILE), text.as_bytes())?;
-        Ok(decision)
+        write_atomic(&self.history, text.as_bytes())
     }
 }
 

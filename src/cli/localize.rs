@@ -59,6 +59,10 @@ pub(crate) struct Run {
     pub tile: Tile,
     /// Median frame.
     pub image: GrayImage,
+    /// Camera intrinsics used.
+    pub camera: Camera,
+    /// Radius of the LiDAR points drawn in the overlay, metres.
+    pub mi_radius_m: f64,
     /// The pose document written.
     pub pose_file: PoseFile,
     /// The report.
@@ -146,8 +150,25 @@ pub(crate) fn run_pipeline(a: &Args) -> Result<Run> {
             .num_threads(n.max(1))
             .build_global();
     }
-    let t_start = Instant::now();
     let cfg = Config::load(&a.config)?;
+    cfg.validate(&a.config)?;
+    let run = compute(a, &cfg, &|_| {})?;
+    let out = a.out.clone().unwrap_or_else(|| cfg.output.pose.clone());
+    write_atomic(&out, run.pose_file.to_json().as_bytes())?;
+    run.write_side_outputs(
+        a.report.as_ref().or(cfg.output.report.as_ref()),
+        a.overlay.as_ref().or(cfg.output.overlay.as_ref()),
+    )?;
+    Ok(run)
+}
+
+/// The camera intrinsics and the (temporally median-filtered) frame for `a` under `cfg`, checked
+/// to agree in size. `progress("capture")` is called before frames are taken.
+pub(crate) fn camera_and_frame(
+    a: &Args,
+    cfg: &Config,
+    progress: &dyn Fn(&str),
+) -> Result<(Camera, GrayImage)> {
     let camera = match (
         &a.camera,
         &cfg.camera.intrinsics_file,
@@ -162,7 +183,8 @@ pub(crate) fn run_pipeline(a: &Args) -> Result<Run> {
             ))
         }
     };
-    let frames = frames(a, &cfg, &a.config)?;
+    progress("capture");
+    let frames = frames(a, cfg, &a.config)?;
     let image = if frames.len() == 1 {
         frames.into_iter().next().unwrap_or_default()
     } else {
@@ -180,7 +202,18 @@ pub(crate) fn run_pipeline(a: &Args) -> Result<Run> {
             ),
         ));
     }
-    let ((lat, lon, sigma), prior_desc) = prior(a, &cfg, &a.config)?;
+    Ok((camera, image))
+}
+
+/// The pipeline for `a` under `cfg` (already loaded and validated), writing nothing: the caller
+/// decides where the pose goes (`localize` writes it, the daemon offers it to its pose store).
+/// `progress` is told each stage as it starts: `capture`, `prior`, `tile`, `localize`.
+pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result<Run> {
+    let t_start = Instant::now();
+    let (camera, image) = camera_and_frame(a, cfg, progress)?;
+    progress("prior");
+    let ((lat, lon, sigma), prior_desc) = prior(a, cfg, &a.config)?;
+    progress("tile");
     let tiles = a.tiles.clone().unwrap_or_else(|| cfg.map.tiles.clone());
     let tref = find_tile(&tiles, lat, lon, cfg.map.search_margin_m)?;
     let tile = load_tile(&tref.dir)?;
@@ -194,6 +227,7 @@ pub(crate) fn run_pipeline(a: &Args) -> Result<Run> {
             ))
         }
     };
+    progress("localize");
     let params = Params::default();
     let clock = |t: Instant| move || t.elapsed().as_secs_f64();
     let outcome = localize(
@@ -236,36 +270,68 @@ pub(crate) fn run_pipeline(a: &Args) -> Result<Run> {
     if let Some(t) = &a.truth {
         report["truth"] = truth_errors(t, &camera, &outcome)?;
     }
-    let out = a.out.clone().unwrap_or_else(|| cfg.output.pose.clone());
-    write_atomic(&out, pf.to_json().as_bytes())?;
-    if let Some(p) = a.report.clone().or_else(|| cfg.output.report.clone()) {
-        let text = serde_json::to_string_pretty(&report).unwrap_or_default();
-        write_atomic(&p, text.as_bytes())?;
-    }
-    if let Some(p) = a.overlay.clone().or_else(|| cfg.output.overlay.clone()) {
-        let pts = crate::map::ground_points(
-            &tile,
-            (outcome.pose.center().x, outcome.pose.center().y),
-            params.mi_radius_m,
-        );
-        let png = crate::viz::overlay_png(
-            &image,
-            &camera,
-            &[
-                (&outcome.init.pose, crate::viz::RED),
-                (&outcome.pose, crate::viz::CYAN),
-            ],
-            &pts,
-        )?;
-        write_atomic(&p, &png)?;
-    }
     Ok(Run {
         outcome,
         tile,
         image,
+        camera,
+        mi_radius_m: params.mi_radius_m,
         pose_file: pf,
         report,
     })
+}
+
+impl Args {
+    /// Arguments that take everything from the config file `config` (what the daemon runs).
+    pub(crate) fn from_config(config: &Path) -> Args {
+        Args {
+            config: config.to_path_buf(),
+            camera: None,
+            images: Vec::new(),
+            gps_nmea: None,
+            prior_wgs84: None,
+            tiles: None,
+            out: None,
+            overlay: None,
+            report: None,
+            truth: None,
+            threads: None,
+        }
+    }
+}
+
+impl Run {
+    /// The technician's picture: the tile's LiDAR points projected at the PnP pose (red) and at
+    /// the final pose (cyan) over the median frame, as PNG bytes.
+    pub(crate) fn overlay_png(&self) -> Result<Vec<u8>> {
+        let c = self.outcome.pose.center();
+        let pts = crate::map::ground_points(&self.tile, (c.x, c.y), self.mi_radius_m);
+        crate::viz::overlay_png(
+            &self.image,
+            &self.camera,
+            &[
+                (&self.outcome.init.pose, crate::viz::RED),
+                (&self.outcome.pose, crate::viz::CYAN),
+            ],
+            &pts,
+        )
+    }
+
+    /// Write the report JSON and the overlay PNG where asked (each atomically).
+    pub(crate) fn write_side_outputs(
+        &self,
+        report: Option<&PathBuf>,
+        overlay: Option<&PathBuf>,
+    ) -> Result<()> {
+        if let Some(p) = report {
+            let text = serde_json::to_string_pretty(&self.report).unwrap_or_default();
+            write_atomic(p, text.as_bytes())?;
+        }
+        if let Some(p) = overlay {
+            write_atomic(p, &self.overlay_png()?)?;
+        }
+        Ok(())
+    }
 }
 
 /// Errors of each stage's pose against a simulator `truth.json`.

@@ -3,11 +3,12 @@
 
 mod demo;
 mod gps;
-mod localize;
+pub(crate) mod localize;
 mod project;
 mod rectify;
 mod refine;
 mod simulate;
+mod tech;
 mod tile;
 mod validate;
 
@@ -48,11 +49,32 @@ pub enum Command {
     Gps(gps::Command),
     /// Check a configuration file: prints "config OK" or the problem (exit 78).
     Validate(validate::Args),
+    /// The node service: serve the stored pose, localize at boot and on request, control socket,
+    /// watchdog (run by infraloc.service).
+    Daemon(tech::DaemonArgs),
+    /// The service's state, served pose, last run and schedules (exit 3 degraded, 4 failed).
+    Status(tech::Target),
+    /// Ask the service to localize now (`--wait`: show progress and the result).
+    Relocalize(tech::RelocalizeArgs),
+    /// Print the pose the service serves (contracts §4).
+    Pose(tech::Target),
+    /// Save the LiDAR-over-image overlay of the service's latest run as PNG.
+    Overlay(tech::OverlayArgs),
 }
 
 /// Run the CLI with the process arguments; returns the exit code.
 pub fn main() -> i32 {
     let cli = Cli::parse();
+    // `status` reports the service's state in its exit code too.
+    if let Command::Status(t) = cli.command {
+        return match tech::status(t) {
+            Ok(code) => code,
+            Err(e) => {
+                eprintln!("infraloc: {e}");
+                e.exit_code()
+            }
+        };
+    }
     match run(cli) {
         Ok(()) => 0,
         Err(e) => {
@@ -74,6 +96,11 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Tile(c) => tile::run(c),
         Command::Gps(c) => gps::run(c),
         Command::Validate(a) => validate::run(a),
+        Command::Daemon(a) => tech::daemon(a),
+        Command::Status(t) => tech::status(t).map(|_| ()),
+        Command::Relocalize(a) => tech::relocalize(a),
+        Command::Pose(t) => tech::pose(t),
+        Command::Overlay(a) => tech::overlay(a),
     }
 }
 

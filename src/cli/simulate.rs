@@ -153,6 +153,8 @@ pub fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
     cfg.gps.source = GpsSourceKind::NmeaFile;
     cfg.gps.path = Some(PathBuf::from("gps.nmea"));
     cfg.map.tiles = PathBuf::from("tiles");
+    // `infraloc daemon --config DIR/infraloc.toml` runs the service on the scene, socket included.
+    cfg.daemon.socket = PathBuf::from("control.sock");
     let text = toml::to_string(&cfg).map_err(|e| Error::Invalid(format!("infraloc.toml: {e}")))?;
     write(
         &dir.join("infraloc.toml"),

@@ -91,6 +91,16 @@ pub struct Outcome {
     pub stages: Vec<Stage>,
 }
 
+/// The LiDAR ground points MI uses around `pose`: within [`Params::mi_radius_m`] of the nadir
+/// point and within [`Params::mi_max_off_nadir_deg`] of nadir as seen from the camera's height.
+pub fn mi_points(tile: &Tile, pose: &CamFromMap, p: &Params) -> Vec<crate::map::GroundPoint> {
+    let c = pose.center();
+    let ground = super::init::height_at(&tile.height, c.x, c.y).unwrap_or(c.z - 8.0);
+    let radius =
+        ((c.z - ground).max(1.0) * p.mi_max_off_nadir_deg.to_radians().tan()).min(p.mi_radius_m);
+    ground_points(tile, (c.x, c.y), radius)
+}
+
 /// Run the pipeline on a (temporally median-filtered) gray frame. `now` returns seconds from any
 /// fixed origin. Errors name the stage and the numbers.
 pub fn localize(
@@ -157,11 +167,7 @@ pub fn localize(
                         "offset_m": init.candidate.offset, "score": init.candidate.score },
         }),
     });
-    let c = init.pose.center();
-    let ground = super::init::height_at(&tile.height, c.x, c.y).unwrap_or(c.z - 8.0);
-    let mi_radius =
-        ((c.z - ground).max(1.0) * p.mi_max_off_nadir_deg.to_radians().tan()).min(p.mi_radius_m);
-    let points = ground_points(tile, (c.x, c.y), mi_radius);
+    let points = mi_points(tile, &init.pose, p);
     let refinement = refine(camera, image, &points, &init.pose, &p.search, &p.quality)?;
     let t2 = now();
     stages.push(Stage {

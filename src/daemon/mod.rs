@@ -1,0 +1,895 @@
+//! `infraloc daemon`: the node's service (I/O shell).
+//!
+//! Boot: load and validate the config (exit 78 if bad) → serve the stored pose at once, if any →
+//! bind the control socket → localize (capture + GPS + tile → pipeline) in a worker thread →
+//! offer the result to the [`PoseStore`] (a failed or worse result never replaces a good pose
+//! unless a technician forces it) → `READY=1` once a pose is served or the service knows it is
+//! degraded, with the reason in `STATUS=`. The main loop pings the watchdog, re-localizes on
+//! request, on its schedule and after failures (backing off), runs the drift check, reloads the
+//! config on SIGHUP (a bad file is reported and the running config kept) and ends cleanly on
+//! SIGTERM. Every decision is one log line and is visible in `infraloc status`.
+
+pub mod notify;
+
+use crate::cli::localize::{camera_and_frame, compute, Args, Run};
+use crate::config::Config;
+use crate::control::{self, Reply, Request};
+use crate::error::{Error, Result};
+use crate::localize::pipeline::{mi_points, Params};
+use crate::localize::quality::QualityConfig;
+use crate::localize::refine::refine;
+use crate::localize::search::{AxisRange, SearchConfig, SearchSpec};
+use crate::map::cache::load_tile;
+use crate::posefile::{format_utc, PoseFile};
+use crate::store::{Decision, PoseStore};
+use notify::{Level, Logger};
+use serde::Serialize;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{channel, Receiver, RecvTimeoutError, Sender};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+/// Longest the main loop sleeps between looks at its timers.
+const TICK: Duration = Duration::from_millis(500);
+/// How long a technician's `relocalize --wait` may wait between two progress messages.
+pub const WAIT_TIMEOUT: Duration = Duration::from_secs(30 * 60);
+/// The drift check's search box around the served pose: wide enough to see a knocked camera
+/// (the thresholds are 0.1 m / 0.3° by default), narrow enough to cost a fraction of a
+/// localization.
+pub const DRIFT_SPEC: SearchSpec = SearchSpec {
+    x: AxisRange {
+        half: 0.5,
+        step: 0.02,
+    },
+    y: AxisRange {
+        half: 0.5,
+        step: 0.02,
+    },
+    z: AxisRange {
+        half: 0.2,
+        step: 0.02,
+    },
+    yaw: AxisRange {
+        half: 1.5,
+        step: 0.05,
+    },
+    pitch: None,
+    roll: None,
+};
+
+/// What the service is doing, as `infraloc status` shows it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum State {
+    /// Booting: no pose served yet and the first localization not finished.
+    Starting,
+    /// A pose is served and the latest localization (or drift check) agreed with it.
+    Ok,
+    /// A pose is served but the latest attempt failed or the camera looks moved.
+    Degraded,
+    /// No pose is served and the latest attempt failed.
+    Failed,
+}
+
+impl State {
+    /// Name as printed.
+    pub fn name(self) -> &'static str {
+        match self {
+            State::Starting => "starting",
+            State::Ok => "ok",
+            State::Degraded => "degraded",
+            State::Failed => "failed",
+        }
+    }
+}
+
+/// The service's status (answer to the `status` request).
+#[derive(Debug, Clone, Serialize)]
+pub struct Status {
+    /// Overall state.
+    pub state: State,
+    /// One line a technician reads first.
+    pub summary: String,
+    /// Daemon process id.
+    pub pid: u32,
+    /// Software version.
+    pub version: &'static str,
+    /// Config file in use.
+    pub config: PathBuf,
+    /// Seconds since start.
+    pub uptime_s: f64,
+    /// The served pose: file, time, tile, centre, yaw/pitch/roll, quality score.
+    pub served: Option<Value>,
+    /// The job running now (`localize` or `drift-check`) and its stage.
+    pub running: Option<Value>,
+    /// The latest localization's result.
+    pub last_result: Option<Value>,
+    /// The latest drift check's result.
+    pub last_drift_check: Option<Value>,
+    /// Failed localizations since the last good one.
+    pub failures_in_a_row: u32,
+    /// Seconds until the next scheduled localization (retry or periodic), if one is scheduled.
+    pub next_localize_in_s: Option<f64>,
+    /// Seconds until the next drift check, if one is scheduled.
+    pub next_drift_check_in_s: Option<f64>,
+    /// Why the last SIGHUP reload was refused (the running config stays in force).
+    pub reload_error: Option<String>,
+}
+
+/// Summary of a pose file for the status.
+fn served_summary(path: &Path, p: &PoseFile) -> Value {
+    json!({
+        "file": path,
+        "timestamp_utc": p.timestamp_utc,
+        "tile_id": p.tile_id,
+        "crs": p.crs,
+        "camera_center": p.camera_center,
+        "yaw_pitch_roll_deg": p.yaw_pitch_roll_deg,
+        "score": p.quality.get("score"),
+    })
+}
+
+fn now_utc() -> String {
+    let d = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    format_utc(d.as_secs() as i64, Some(d.subsec_millis()))
+}
+
+enum Job {
+    Localize,
+    Drift,
+}
+
+enum Event {
+    Terminate,
+    Reload,
+    Relocalize {
+        force: bool,
+        why: String,
+        waiter: Option<Sender<Value>>,
+    },
+    Progress(String),
+    LocalizeDone(Box<Result<Run>>),
+    DriftDone(Result<Value>),
+}
+
+/// State shared with the control socket's threads.
+struct Shared {
+    status: Mutex<Status>,
+    /// The latest successful pipeline run (for `dump-overlay`).
+    last_run: Mutex<Option<Arc<Run>>>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panicking holder leaves plain data behind; the status is still worth serving.
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Run the service with the config at `config_path` until SIGTERM. Errors: a bad config
+/// ([`Error::Config`], exit 78) or a control socket that cannot be bound.
+pub fn run(config_path: &Path) -> Result<()> {
+    let cfg = load_config(config_path)?;
+    let log = Arc::new(Logger::new());
+    for w in cfg.check() {
+        log.log(Level::Warning, &format!("config: {w}"));
+    }
+    let store = PoseStore::at(&cfg.output.pose, cfg.daemon.history_len);
+    let started = Instant::now();
+    let mut status = Status {
+        state: State::Starting,
+        summary: "starting: first localization pending".into(),
+        pid: std::process::id(),
+        version: env!("CARGO_PKG_VERSION"),
+        config: config_path.to_path_buf(),
+        uptime_s: 0.0,
+        served: None,
+        running: None,
+        last_result: None,
+        last_drift_check: None,
+        failures_in_a_row: 0,
+        next_localize_in_s: None,
+        next_drift_check_in_s: None,
+        reload_error: None,
+    };
+    let mut served: Option<PoseFile> = None;
+    match store.current() {
+        Ok(Some(p)) => {
+            log.log(
+                Level::Info,
+                &format!(
+                    "serving stored pose from {} (tile {})",
+                    p.timestamp_utc, p.tile_id
+                ),
+            );
+            status.served = Some(served_summary(&store.pose_path(), &p));
+            status.state = State::Ok;
+            status.summary = format!(
+                "ok: serving stored pose from {}; re-localizing",
+                p.timestamp_utc
+            );
+            served = Some(p);
+        }
+        Ok(None) => log.log(Level::Info, "no stored pose yet"),
+        Err(e) => log.log(
+            Level::Warning,
+            &format!("stored pose unusable, not served: {e}"),
+        ),
+    }
+    let shared = Arc::new(Shared {
+        status: Mutex::new(status),
+        last_run: Mutex::new(None),
+    });
+    let (tx, rx) = channel::<Event>();
+    let listener = control::bind(&cfg.daemon.socket)?;
+    start_signals(tx.clone())?;
+    let handler = make_handler(shared.clone(), store.clone(), tx.clone(), config_path);
+    let l2 = log.clone();
+    control::serve(listener, handler, Arc::new(move |m| l2.log(Level::Info, m)));
+    log.log(
+        Level::Info,
+        &format!(
+            "control socket {} (mode {:o})",
+            cfg.daemon.socket.display(),
+            control::SOCKET_MODE
+        ),
+    );
+    let mut d = Daemon {
+        cfg,
+        config_path: config_path.to_path_buf(),
+        store,
+        shared,
+        log,
+        tx,
+        served,
+        ready_sent: false,
+        job: None,
+        job_started: Instant::now(),
+        waiters: Vec::new(),
+        running_force: false,
+        pending: None,
+        next_localize: Some(Instant::now()),
+        next_drift: None,
+        started,
+    };
+    if d.served.is_some() {
+        // The stored pose is served already: the service is useful from this moment.
+        d.send_ready();
+    }
+    let result = d.main_loop(rx);
+    notify::notify("STOPPING=1");
+    let _ = std::fs::remove_file(&d.cfg.daemon.socket);
+    d.log.log(Level::Info, "stopped");
+    result
+}
+
+fn load_config(path: &Path) -> Result<Config> {
+    let cfg = Config::load(path)?;
+    cfg.validate(path)?;
+    Ok(cfg)
+}
+
+fn start_signals(tx: Sender<Event>) -> Result<()> {
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    let mut signals = signal_hook::iterator::Signals::new([SIGTERM, SIGINT, SIGHUP])
+        .map_err(|e| Error::Invalid(format!("cannot install signal handlers: {e}")))?;
+    std::thread::Builder::new()
+        .name("signals".into())
+        .spawn(move || {
+            for s in signals.forever() {
+                let ev = if s == SIGHUP {
+                    Event::Reload
+                } else {
+                    Event::Terminate
+                };
+                if tx.send(ev).is_err() {
+                    break;
+                }
+            }
+        })
+        .map_err(|e| Error::Invalid(format!("cannot start the signal thread: {e}")))?;
+    Ok(())
+}
+
+fn make_handler(
+    shared: Arc<Shared>,
+    store: PoseStore,
+    tx: Sender<Event>,
+    config_path: &Path,
+) -> Arc<control::Handler> {
+    let config_path = config_path.to_path_buf();
+    // mpsc::Sender is Sync since Rust 1.72, so the handler can be shared by client threads.
+    Arc::new(move |req: Request, reply: &mut dyn Reply| match req {
+        Request::Status => {
+            let s = lock(&shared.status).clone();
+            let mut v = serde_json::to_value(s).unwrap_or(Value::Null);
+            v["ok"] = json!(true);
+            (v, None)
+        }
+        Request::GetPose => match store.current() {
+            Ok(Some(p)) => (json!({"ok": true, "pose": p}), None),
+            Ok(None) => (json!({"ok": false, "error": "no pose served yet"}), None),
+            Err(e) => (json!({"ok": false, "error": e.to_string()}), None),
+        },
+        Request::Validate => match load_config(&config_path) {
+            Ok(c) => (
+                json!({"ok": true, "config": config_path, "warnings": c.check()}),
+                None,
+            ),
+            Err(e) => (
+                json!({"ok": false, "config": config_path, "error": e.to_string()}),
+                None,
+            ),
+        },
+        Request::DumpOverlay => {
+            let run = lock(&shared.last_run).clone();
+            match run {
+                Some(r) => match r.overlay_png() {
+                    Ok(png) => (
+                        json!({"ok": true, "timestamp_utc": r.pose_file.timestamp_utc,
+                               "bytes": png.len()}),
+                        Some(png),
+                    ),
+                    Err(e) => (json!({"ok": false, "error": e.to_string()}), None),
+                },
+                None => (
+                    json!({"ok": false, "error": "no localization has run since the daemon started; run `infraloc relocalize --wait` first"}),
+                    None,
+                ),
+            }
+        }
+        Request::Relocalize { wait, force } => {
+            let (wtx, wrx) = channel();
+            let ev = Event::Relocalize {
+                force,
+                why: "technician request".into(),
+                waiter: wait.then_some(wtx),
+            };
+            if tx.send(ev).is_err() {
+                return (
+                    json!({"ok": false, "error": "the daemon is stopping"}),
+                    None,
+                );
+            }
+            if !wait {
+                return (json!({"ok": true, "queued": true}), None);
+            }
+            loop {
+                match wrx.recv_timeout(WAIT_TIMEOUT) {
+                    Ok(v) if v.get("progress").is_some() => {
+                        if reply.progress(&v).is_err() {
+                            // The technician went away; the run goes on.
+                            return (json!({"ok": false, "error": "client gone"}), None);
+                        }
+                    }
+                    Ok(v) => return (v, None),
+                    Err(_) => {
+                        return (
+                            json!({"ok": false, "error": "no answer from the localization within 30 min"}),
+                            None,
+                        )
+                    }
+                }
+            }
+        }
+    })
+}
+
+struct Daemon {
+    cfg: Config,
+    config_path: PathBuf,
+    store: PoseStore,
+    shared: Arc<Shared>,
+    log: Arc<Logger>,
+    tx: Sender<Event>,
+    served: Option<PoseFile>,
+    ready_sent: bool,
+    job: Option<Job>,
+    job_started: Instant,
+    /// Technicians waiting for the running (or next) localization.
+    waiters: Vec<Sender<Value>>,
+    /// Whether the running localization was forced.
+    running_force: bool,
+    /// A localization asked for while another job ran: (force, why).
+    pending: Option<(bool, String)>,
+    next_localize: Option<Instant>,
+    next_drift: Option<Instant>,
+    started: Instant,
+}
+
+impl Daemon {
+    fn main_loop(&mut self, rx: Receiver<Event>) -> Result<()> {
+        let watchdog = notify::watchdog_interval();
+        let mut last_ping = Instant::now();
+        if watchdog.is_some() {
+            notify::notify("WATCHDOG=1");
+        }
+        loop {
+            // The watchdog is fed from this loop, so a wedged loop is what systemd restarts.
+            if let Some(w) = watchdog {
+                if last_ping.elapsed() >= w / 2 {
+                    notify::notify("WATCHDOG=1");
+                    last_ping = Instant::now();
+                }
+            }
+            self.run_timers();
+            self.refresh_status();
+            match rx.recv_timeout(TICK) {
+                Ok(Event::Terminate) => {
+                    self.log.log(Level::Info, "SIGTERM: stopping");
+                    for w in self.waiters.drain(..) {
+                        let _ = w.send(json!({"ok": false, "error": "the daemon is stopping"}));
+                    }
+                    return Ok(());
+                }
+                Ok(Event::Reload) => self.reload(),
+                Ok(Event::Relocalize { force, why, waiter }) => {
+                    if let Some(w) = waiter {
+                        // A technician joining a run in progress hears where it is at once.
+                        let stage = self
+                            .lock_status()
+                            .running
+                            .as_ref()
+                            .map(|r| r["stage"].clone());
+                        if let (Some(Job::Localize), Some(st)) = (&self.job, stage) {
+                            let _ = w.send(json!({ "progress": st }));
+                        }
+                        self.waiters.push(w);
+                    }
+                    match self.job {
+                        Some(Job::Localize) => {
+                            // Joins the run in progress: its result answers this request too.
+                            self.running_force |= force;
+                        }
+                        Some(Job::Drift) => {
+                            let f = self.pending.as_ref().is_some_and(|p| p.0) || force;
+                            self.pending = Some((f, why));
+                        }
+                        None => self.start_localize(force, &why),
+                    }
+                }
+                Ok(Event::Progress(stage)) => {
+                    let msg = json!({"progress": stage});
+                    self.waiters.retain(|w| w.send(msg.clone()).is_ok());
+                    let mut s = lock(&self.shared.status);
+                    if let Some(r) = s.running.as_mut() {
+                        r["stage"] = json!(stage);
+                    }
+                }
+                Ok(Event::LocalizeDone(r)) => self.localize_done(*r),
+                Ok(Event::DriftDone(r)) => self.drift_done(r),
+                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => return Ok(()),
+            }
+        }
+    }
+
+    fn run_timers(&mut self) {
+        if self.job.is_some() {
+            return;
+        }
+        let now = Instant::now();
+        if let Some((force, why)) = self.pending.take() {
+            self.start_localize(force, &why);
+        } else if self.next_localize.is_some_and(|t| t <= now) {
+            let why = if self.lock_status().failures_in_a_row > 0 {
+                "retry after failure"
+            } else if self.lock_status().last_result.is_some() {
+                "scheduled"
+            } else {
+                "boot"
+            };
+            self.start_localize(false, why);
+        } else if self.next_drift.is_some_and(|t| t <= now) {
+            self.start_drift();
+        }
+    }
+
+    fn lock_status(&self) -> MutexGuard<'_, Status> {
+        lock(&self.shared.status)
+    }
+
+    fn refresh_status(&self) {
+        let now = Instant::now();
+        let left = |t: Option<Instant>| t.map(|t| t.saturating_duration_since(now).as_secs_f64());
+        let mut s = self.lock_status();
+        s.uptime_s = self.started.elapsed().as_secs_f64();
+        s.next_localize_in_s = left(self.next_localize);
+        s.next_drift_check_in_s = left(self.next_drift);
+        if let Some(r) = s.running.as_mut() {
+            r["seconds"] = json!(self.job_started.elapsed().as_secs_f64());
+        }
+    }
+
+    fn start_localize(&mut self, force: bool, why: &str) {
+        self.log.log(
+            Level::Info,
+            &format!("localizing ({why}{})", if force { ", forced" } else { "" }),
+        );
+        self.job = Some(Job::Localize);
+        self.job_started = Instant::now();
+        self.running_force = force;
+        self.next_localize = None;
+        self.lock_status().running =
+            Some(json!({"job": "localize", "why": why, "stage": "starting", "seconds": 0.0}));
+        let (cfg, path, tx) = (self.cfg.clone(), self.config_path.clone(), self.tx.clone());
+        let spawned = std::thread::Builder::new()
+            .name("localize".into())
+            .spawn(move || {
+                let args = Args::from_config(&path);
+                let progress = |s: &str| {
+                    let _ = tx.send(Event::Progress(s.to_string()));
+                };
+                let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    compute(&args, &cfg, &progress)
+                }))
+                .unwrap_or_else(|p| Err(internal_error("localize", p)));
+                let _ = tx.send(Event::LocalizeDone(Box::new(r)));
+            });
+        if let Err(e) = spawned {
+            let _ = self
+                .tx
+                .send(Event::LocalizeDone(Box::new(Err(Error::Invalid(format!(
+                    "cannot start the localization thread: {e}"
+                ))))));
+        }
+    }
+
+    fn localize_done(&mut self, r: Result<Run>) {
+        let seconds = self.job_started.elapsed().as_secs_f64();
+        self.job = None;
+        let force = std::mem::take(&mut self.running_force);
+        let finished = now_utc();
+        let outcome = r.and_then(|run| {
+            let decision = self
+                .store
+                .offer(&run.pose_file, force)
+                .map_err(|e| Error::stage("persist", e.to_string()))?;
+            Ok((run, decision))
+        });
+        let answer = match outcome {
+            Ok((run, decision)) => {
+                let (accepted, why) = match &decision {
+                    Decision::Replaced(w) => (true, w.clone()),
+                    Decision::Kept(w) => (false, w.clone()),
+                };
+                let c = run.pose_file.camera_center;
+                self.log.log(
+                    Level::Info,
+                    &format!(
+                        "localized in {seconds:.1} s: centre ({:.3}, {:.3}, {:.3}), score {:.4}; {} ({why})",
+                        c[0],
+                        c[1],
+                        c[2],
+                        run.outcome.refinement.quality.nmi,
+                        if accepted { "served" } else { "not served" }
+                    ),
+                );
+                if accepted {
+                    self.served = Some(run.pose_file.clone());
+                    if let Err(e) = run.write_side_outputs(
+                        self.cfg.output.report.as_ref(),
+                        self.cfg.output.overlay.as_ref(),
+                    ) {
+                        self.log
+                            .log(Level::Warning, &format!("report/overlay not written: {e}"));
+                    }
+                }
+                let result = json!({
+                    "ok": true, "finished_utc": finished, "seconds": seconds,
+                    "served": accepted, "decision": why,
+                    "camera_center": c, "yaw_pitch_roll_deg": run.pose_file.yaw_pitch_roll_deg,
+                    "score": run.pose_file.quality.get("score"),
+                    "stages": run.pose_file.stages.iter().map(|s| json!({"name": s["name"], "seconds": s["seconds"]})).collect::<Vec<_>>(),
+                });
+                *lock(&self.shared.last_run) = Some(Arc::new(run));
+                {
+                    let mut s = self.lock_status();
+                    s.failures_in_a_row = 0;
+                    s.last_result = Some(result.clone());
+                }
+                self.next_localize = self.period(self.cfg.daemon.relocalize_interval_h * 3600.0);
+                self.next_drift = self.period(self.cfg.daemon.drift_check_interval_min * 60.0);
+                result
+            }
+            Err(e) => {
+                let msg = e.to_string();
+                let n = {
+                    let mut s = self.lock_status();
+                    s.failures_in_a_row += 1;
+                    s.failures_in_a_row
+                };
+                let d = &self.cfg.daemon;
+                let wait = (d.retry_initial_s * 2f64.powi(n.min(30) as i32 - 1))
+                    .min(d.retry_max_s.max(d.retry_initial_s));
+                self.next_localize = Some(Instant::now() + Duration::from_secs_f64(wait));
+                self.log.log(
+                    Level::Error,
+                    &format!(
+                        "localization failed ({n} in a row): {msg}; {}; retry in {wait:.0} s",
+                        if self.served.is_some() {
+                            "last good pose kept"
+                        } else {
+                            "no pose served"
+                        }
+                    ),
+                );
+                if let Err(e) = self.store.record_failure(&finished, &msg) {
+                    self.log
+                        .log(Level::Warning, &format!("history not written: {e}"));
+                }
+                let result = json!({
+                    "ok": false, "finished_utc": finished, "seconds": seconds,
+                    "served": false, "error": msg, "retry_in_s": wait,
+                });
+                self.lock_status().last_result = Some(result.clone());
+                result
+            }
+        };
+        for w in self.waiters.drain(..) {
+            let _ = w.send(answer.clone());
+        }
+        self.update_state();
+        self.send_ready();
+    }
+
+    fn period(&self, secs: f64) -> Option<Instant> {
+        (secs > 0.0 && self.served.is_some())
+            .then(|| Instant::now() + Duration::from_secs_f64(secs))
+    }
+
+    fn start_drift(&mut self) {
+        let Some(served) = self.served.clone() else {
+            self.next_drift = None;
+            return;
+        };
+        self.log.log(Level::Info, "drift check");
+        self.job = Some(Job::Drift);
+        self.job_started = Instant::now();
+        self.next_drift = None;
+        self.lock_status().running =
+            Some(json!({"job": "drift-check", "stage": "capture", "seconds": 0.0}));
+        let (cfg, path, tx) = (self.cfg.clone(), self.config_path.clone(), self.tx.clone());
+        let spawned = std::thread::Builder::new()
+            .name("drift".into())
+            .spawn(move || {
+                let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    drift_check(&cfg, &path, &served)
+                }))
+                .unwrap_or_else(|p| Err(internal_error("drift", p)));
+                let _ = tx.send(Event::DriftDone(r));
+            });
+        if let Err(e) = spawned {
+            let _ = self.tx.send(Event::DriftDone(Err(Error::Invalid(format!(
+                "cannot start the drift thread: {e}"
+            )))));
+        }
+    }
+
+    fn drift_done(&mut self, r: Result<Value>) {
+        self.job = None;
+        self.next_drift = self.period(self.cfg.daemon.drift_check_interval_min * 60.0);
+        let v = match r {
+            Ok(mut v) => {
+                v["checked_utc"] = json!(now_utc());
+                if v["moved"] == json!(true) {
+                    self.log.log(
+                        Level::Warning,
+                        &format!("drift check: camera moved ({}); re-localizing", v["reason"]),
+                    );
+                    // The served pose is known wrong now, so the new result replaces it even
+                    // if it scores lower (it still has to pass the quality gate).
+                    self.pending = Some((true, "drift check found the camera moved".into()));
+                } else {
+                    self.log.log(
+                        Level::Info,
+                        &format!(
+                            "drift check: ok (shift {:.3} m, yaw {:.3}°)",
+                            v["shift_m"].as_f64().unwrap_or(f64::NAN),
+                            v["yaw_deg"].as_f64().unwrap_or(f64::NAN)
+                        ),
+                    );
+                }
+                v
+            }
+            Err(e) => {
+                self.log
+                    .log(Level::Warning, &format!("drift check could not run: {e}"));
+                json!({"checked_utc": now_utc(), "moved": null, "error": e.to_string()})
+            }
+        };
+        self.lock_status().last_drift_check = Some(v);
+        self.update_state();
+    }
+
+    fn reload(&mut self) {
+        match load_config(&self.config_path) {
+            Ok(c) => {
+                if c.daemon.socket != self.cfg.daemon.socket {
+                    self.log.log(
+                        Level::Warning,
+                        "reload: [daemon] socket changed; it takes effect at the next restart",
+                    );
+                }
+                if c.output.pose != self.cfg.output.pose {
+                    self.log.log(
+                        Level::Warning,
+                        "reload: [output] pose changed; it takes effect at the next restart",
+                    );
+                }
+                let mut c = c;
+                c.daemon.socket = self.cfg.daemon.socket.clone();
+                c.output.pose = self.cfg.output.pose.clone();
+                self.cfg = c;
+                self.lock_status().reload_error = None;
+                self.log.log(Level::Info, "SIGHUP: config reloaded");
+            }
+            Err(e) => {
+                self.log.log(
+                    Level::Error,
+                    &format!("SIGHUP: config not reloaded, the running one stays: {e}"),
+                );
+                self.lock_status().reload_error = Some(e.to_string());
+            }
+        }
+        self.update_state();
+    }
+
+    /// Derive the state and summary line from what is known.
+    fn update_state(&self) {
+        let mut s = self.lock_status();
+        let last_failed = s
+            .last_result
+            .as_ref()
+            .is_some_and(|r| r["ok"] == json!(false));
+        let moved = s
+            .last_drift_check
+            .as_ref()
+            .is_some_and(|d| d["moved"] == json!(true));
+        s.served = self
+            .served
+            .as_ref()
+            .map(|p| served_summary(&self.store.pose_path(), p));
+        s.running = None;
+        let err = s
+            .last_result
+            .as_ref()
+            .and_then(|r| r["error"].as_str().map(str::to_string));
+        let (state, summary) = match (&self.served, err) {
+            (None, None) => (State::Starting, "starting: first localization pending".into()),
+            (None, Some(e)) => (State::Failed, format!("failed: no pose served; {e}")),
+            (Some(p), Some(e)) if last_failed => (
+                State::Degraded,
+                format!("degraded: serving pose from {}; last localization failed: {e}", p.timestamp_utc),
+            ),
+            (Some(p), _) if moved => (
+                State::Degraded,
+                format!("degraded: serving pose from {}; drift check found the camera moved, re-localizing", p.timestamp_utc),
+            ),
+            (Some(p), _) => (
+                State::Ok,
+                format!("ok: serving pose from {} (tile {})", p.timestamp_utc, p.tile_id),
+            ),
+        };
+        let summary = match &s.reload_error {
+            Some(e) => format!("{summary}; config reload refused: {e}"),
+            None => summary,
+        };
+        s.state = state;
+        s.summary = summary;
+    }
+
+    /// `READY=1` the first time there is something to say; `STATUS=` every time.
+    fn send_ready(&mut self) {
+        let summary = self.lock_status().summary.clone();
+        if self.ready_sent {
+            notify::notify(&format!("STATUS={summary}"));
+        } else {
+            notify::notify(&format!("READY=1\nSTATUS={summary}"));
+            self.ready_sent = true;
+        }
+    }
+}
+
+fn internal_error(stage: &'static str, p: Box<dyn std::any::Any + Send>) -> Error {
+    let what = p
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "panic".into());
+    Error::stage(stage, format!("internal error: {what}"))
+}
+
+/// The drift check: fresh frames, a narrow MI search ([`DRIFT_SPEC`]) around the served pose.
+/// The camera counts as moved when the optimum is `drift-threshold-m` or more away horizontally,
+/// `drift-threshold-deg` or more in yaw, or there is no acceptable MI peak in the box at all.
+pub fn drift_check(cfg: &Config, config_path: &Path, served: &PoseFile) -> Result<Value> {
+    let args = Args::from_config(config_path);
+    let (camera, image) = camera_and_frame(&args, cfg, &|_| {})?;
+    let tile = load_tile(&cfg.map.tiles.join(&served.tile_id))?;
+    let pose = served.pose();
+    let points = mi_points(&tile, &pose, &Params::default());
+    let search = SearchConfig {
+        spec: DRIFT_SPEC,
+        ..SearchConfig::default()
+    };
+    let r = refine(
+        &camera,
+        image.as_raw(),
+        &points,
+        &pose,
+        &search,
+        &QualityConfig::default(),
+    )?;
+    let mut v = drift_verdict(
+        &r.offsets,
+        r.quality.accepted,
+        r.quality.reason.as_deref(),
+        cfg.daemon.drift_threshold_m,
+        cfg.daemon.drift_threshold_deg,
+    );
+    let (y, p, ro) = r.pose.yaw_pitch_roll();
+    v["optimum"] = json!({
+        "camera_center": <[f64; 3]>::from(r.pose.center().coords),
+        "yaw_pitch_roll_deg": [y.to_degrees(), p.to_degrees(), ro.to_degrees()],
+    });
+    Ok(v)
+}
+
+/// Judge a drift search's offsets (x, y, z m; yaw deg; …) and gate verdict against the thresholds.
+pub fn drift_verdict(
+    offsets: &[f64; 6],
+    gate_accepted: bool,
+    gate_reason: Option<&str>,
+    threshold_m: f64,
+    threshold_deg: f64,
+) -> Value {
+    let shift = offsets[0].hypot(offsets[1]);
+    let yaw = offsets[3];
+    let reason = if !gate_accepted {
+        Some(format!(
+            "no clear MI peak within ±{} m / ±{}° of the served pose: {}",
+            DRIFT_SPEC.x.half,
+            DRIFT_SPEC.yaw.half,
+            gate_reason.unwrap_or("quality gate")
+        ))
+    } else if shift >= threshold_m {
+        Some(format!("shifted {shift:.3} m ≥ {threshold_m} m"))
+    } else if yaw.abs() >= threshold_deg {
+        Some(format!("yaw changed {yaw:.3}° (|·| ≥ {threshold_deg}°)"))
+    } else {
+        None
+    };
+    json!({
+        "moved": reason.is_some(),
+        "reason": reason,
+        "shift_m": shift,
+        "dz_m": offsets[2],
+        "yaw_deg": yaw,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn drift_verdict_flags_shift_yaw_and_missing_peak() {
+        let v = drift_verdict(&[0.02, -0.03, 0.01, 0.1, 0.0, 0.0], true, None, 0.1, 0.3);
+        assert_eq!(v["moved"], false);
+        let v = drift_verdict(&[0.12, 0.0, 0.0, 0.0, 0.0, 0.0], true, None, 0.1, 0.3);
+        assert_eq!(v["moved"], true);
+        assert!(v["reason"].as_str().unwrap().contains("shifted 0.120 m"));
+        let v = drift_verdict(&[0.0, 0.0, 0.0, -0.5, 0.0, 0.0], true, None, 0.1, 0.3);
+        assert!(v["reason"]
+            .as_str()
+            .unwrap()
+            .contains("yaw changed -0.500°"));
+        let v = drift_verdict(&[0.0; 6], false, Some("optimum on the box edge"), 0.1, 0.3);
+        assert!(v["reason"]
+            .as_str()
+            .unwrap()
+            .contains("optimum on the box edge"));
+    }
+}

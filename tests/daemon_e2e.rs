@@ -1,0 +1,566 @@
+//! End to end: the real `infraloc daemon` binary on a simulated scene, driven only through the
+//! CLI (`status`, `relocalize --wait`, `pose`, `overlay`, `validate --running`) and signals, with
+//! systemd's notify socket played by the test (READY=1 must come only once a pose is served, or
+//! with the reason the service is degraded; WATCHDOG=1 must keep coming).
+//!
+//! The GPS comes over a real pseudo-terminal fed with the scene's NMEA log. The failure cases
+//! (bad config, missing tile, silent GPS, absent camera) each run a fresh daemon against a good
+//! stored pose and check the status names the stage and the pose file is untouched.
+
+use infraloc::posefile::{read_pose, PoseFile};
+use serde_json::Value;
+use serialport::{SerialPort, TTYPort};
+use std::io::Write;
+use std::os::unix::net::UnixDatagram;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_infraloc");
+/// The first localization of a small scene takes ~20 s on a loaded 2-core machine.
+const LOCALIZE_TIMEOUT: Duration = Duration::from_secs(300);
+
+/// One simulated scene shared by the tests of this file (generating it takes ~10 s).
+fn scene() -> &'static Path {
+    static SCENE: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    &SCENE
+        .get_or_init(|| {
+            let d = tempfile::tempdir().unwrap();
+            let dir = d.path().join("scene");
+            let out = Command::new(BIN)
+                .args(["simulate", "--seed", "1", "--preset", "small"])
+                .args(["--difficulty", "hard", "--out"])
+                .arg(&dir)
+                .output()
+                .unwrap();
+            assert!(out.status.success(), "{}", text(&out.stderr));
+            (d, dir)
+        })
+        .1
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// A working directory with a config derived from the scene's: absolute scene paths, the pose,
+/// socket and history in the work dir, and `edit` applied to the TOML table.
+fn workdir(edit: impl FnOnce(&mut toml::Table)) -> (tempfile::TempDir, PathBuf) {
+    let s = scene();
+    let w = tempfile::tempdir().unwrap();
+    let mut t: toml::Table =
+        toml::from_str(&std::fs::read_to_string(s.join("infraloc.toml")).unwrap()).unwrap();
+    let abs = |p: &str| s.join(p).display().to_string();
+    set(&mut t, "camera", "intrinsics-file", abs("camera.yaml"));
+    set(&mut t, "camera", "frames", abs("frames"));
+    set(&mut t, "gps", "path", abs("gps.nmea"));
+    set(&mut t, "map", "tiles", abs("tiles"));
+    set(&mut t, "output", "pose", "pose.json");
+    set(&mut t, "output", "overlay", "overlay.png");
+    set(&mut t, "output", "report", "report.json");
+    set(&mut t, "daemon", "socket", "run/control.sock");
+    set(&mut t, "daemon", "retry-initial-s", 600.0);
+    edit(&mut t);
+    let cfg = w.path().join("infraloc.toml");
+    std::fs::write(&cfg, toml::to_string(&t).unwrap()).unwrap();
+    (w, cfg)
+}
+
+fn set(t: &mut toml::Table, sec: &str, k: &str, v: impl Into<toml::Value>) {
+    t.get_mut(sec)
+        .and_then(|x| x.as_table_mut())
+        .unwrap()
+        .insert(k.into(), v.into());
+}
+
+/// The daemon under test, with the notify socket the test listens on (drained by a thread, as
+/// systemd would: the daemon must never block on it anyway).
+struct Daemon {
+    child: Child,
+    messages: Arc<Mutex<Vec<String>>>,
+    seen: usize,
+    log: PathBuf,
+}
+
+impl Daemon {
+    fn start(cfg: &Path) -> Daemon {
+        let dir = cfg.parent().unwrap();
+        let sock = dir.join("notify.sock");
+        let notify = UnixDatagram::bind(&sock).unwrap();
+        let messages = Arc::new(Mutex::new(Vec::new()));
+        let m2 = messages.clone();
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 4096];
+            while let Ok(n) = notify.recv(&mut buf) {
+                m2.lock().unwrap().push(text(&buf[..n]));
+            }
+        });
+        let log = dir.join("daemon.log");
+        let child = Command::new(BIN)
+            .arg("daemon")
+            .arg("--config")
+            .arg(cfg)
+            .env("NOTIFY_SOCKET", &sock)
+            .env("WATCHDOG_USEC", "1000000")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap();
+        Daemon {
+            child,
+            messages,
+            seen: 0,
+            log,
+        }
+    }
+
+    /// Wait for a notify message (after the ones already consumed) that contains `what`.
+    fn wait_notify(&mut self, what: &str, timeout: Duration) -> String {
+        let start = Instant::now();
+        while start.elapsed() < timeout {
+            let found = {
+                let m = self.messages.lock().unwrap();
+                let hit = m[self.seen..].iter().position(|x| x.contains(what));
+                hit.map(|i| (self.seen + i, m[self.seen + i].clone()))
+            };
+            if let Some((i, m)) = found {
+                self.seen = i + 1;
+                return m;
+            }
+            if let Ok(Some(st)) = self.child.try_wait() {
+                panic!("daemon exited ({st}) before {what}: {}", self.log());
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        panic!(
+            "no {what} within {timeout:?}; got {:?}; log: {}",
+            self.messages,
+            self.log()
+        );
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    fn signal(&self, sig: &str) {
+        let ok = Command::new("kill")
+            .args([sig, &self.child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(ok.success());
+    }
+
+    /// SIGTERM; the daemon must exit 0 within a few seconds.
+    fn stop(mut self) -> String {
+        self.signal("-TERM");
+        let start = Instant::now();
+        loop {
+            if let Some(st) = self.child.try_wait().unwrap() {
+                assert!(st.success(), "exit {st} after SIGTERM: {}", self.log());
+                return self.log();
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(10),
+                "no exit after SIGTERM"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn cli(cfg: &Path, args: &[&str]) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .arg("--config")
+        .arg(cfg)
+        .output()
+        .unwrap()
+}
+
+fn status(cfg: &Path) -> (Value, i32) {
+    let out = cli(cfg, &["status", "--json"]);
+    let v: Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("status --json: {e}: {}", text(&out.stderr)));
+    (v, out.status.code().unwrap())
+}
+
+/// Poll `status` until the first localization attempt has finished.
+fn wait_for_result(cfg: &Path, d: &Daemon) -> (Value, i32) {
+    let start = Instant::now();
+    loop {
+        let (v, code) = status(cfg);
+        if !v["last_result"].is_null() {
+            return (v, code);
+        }
+        assert!(
+            start.elapsed() < LOCALIZE_TIMEOUT,
+            "no result: {v}; {}",
+            d.log()
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+/// Errors of a pose file against the scene's truth: horizontal m, height m, yaw deg.
+fn errors(pose: &Path) -> (f64, f64, f64) {
+    let p = read_pose(pose).unwrap().pose;
+    let t = read_pose(&scene().join("truth.json")).unwrap().pose;
+    let (c, tc) = (p.center(), t.center());
+    let dyaw = (p.yaw_pitch_roll().0 - t.yaw_pitch_roll().0).to_degrees();
+    let dyaw = (dyaw + 180.0).rem_euclid(360.0) - 180.0;
+    ((c.xy() - tc.xy()).norm(), (c.z - tc.z).abs(), dyaw.abs())
+}
+
+/// Feeds the scene's NMEA log into the master side of a pty, one epoch (GGA + RMC) every
+/// 100 ms, over and over, until dropped.
+struct GpsFeeder {
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    _slave: TTYPort,
+    path: String,
+}
+
+impl GpsFeeder {
+    fn start(silent: bool) -> GpsFeeder {
+        let (mut master, slave) = TTYPort::pair().unwrap();
+        let path = slave.name().unwrap();
+        let lines: Vec<String> = std::fs::read_to_string(scene().join("gps.nmea"))
+            .unwrap()
+            .lines()
+            .map(|l| format!("{l}\r\n"))
+            .collect();
+        let stop = Arc::new(AtomicBool::new(false));
+        let s2 = stop.clone();
+        let thread = std::thread::spawn(move || {
+            master.set_timeout(Duration::from_millis(100)).unwrap();
+            let mut i = 0;
+            while !s2.load(Ordering::SeqCst) {
+                if !silent {
+                    for _ in 0..2 {
+                        let _ = master.write_all(lines[i % lines.len()].as_bytes());
+                        i += 1;
+                    }
+                }
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        });
+        GpsFeeder {
+            stop,
+            thread: Some(thread),
+            _slave: slave,
+            path,
+        }
+    }
+}
+
+impl Drop for GpsFeeder {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+fn under_qemu() -> bool {
+    std::env::var_os("INFRALOC_QEMU").is_some_and(|v| v == "1")
+}
+
+#[test]
+fn boot_serve_relocalize_status_reload_stop() {
+    if under_qemu() {
+        eprintln!("skipped: INFRALOC_QEMU=1 (qemu-user lacks the TCGETS2 baud-rate ioctls)");
+        return;
+    }
+    let gps = GpsFeeder::start(false);
+    let (w, cfg) = workdir(|t| {
+        set(t, "gps", "source", "serial");
+        set(t, "gps", "device", gps.path.clone());
+        set(t, "gps", "baud", 115200);
+        // Fix time and wall time: ~4 s of the fed log, 5+ fixes.
+        set(t, "gps", "window-s", 4.0);
+        set(t, "gps", "min-fixes", 3);
+        set(t, "gps", "timeout-s", 60.0);
+    });
+    let pose = w.path().join("pose.json");
+    let mut d = Daemon::start(&cfg);
+
+    // READY=1 only once the pose is served; at that moment the pose file must be there.
+    let ready = d.wait_notify("READY=1", LOCALIZE_TIMEOUT);
+    assert!(pose.exists(), "READY=1 before a pose was served: {ready}");
+    assert!(ready.contains("STATUS=ok: serving pose"), "{ready}");
+    let (h, z, yaw) = errors(&pose);
+    assert!(
+        h < 0.10 && z < 0.10 && yaw < 0.2,
+        "boot pose errors {h:.3} m, {z:.3} m, {yaw:.3}°"
+    );
+    // The watchdog keeps being fed (1 s interval → a ping every 0.5 s).
+    d.wait_notify("WATCHDOG=1", Duration::from_secs(5));
+    let f: PoseFile = serde_json::from_str(&std::fs::read_to_string(&pose).unwrap()).unwrap();
+    assert_eq!(f.status, "ok");
+    assert!(
+        f.stages[0]["source"].to_string().contains("gnss"),
+        "prior should come from the serial GNSS: {}",
+        f.stages[0]["source"]
+    );
+
+    // status, human form: the summary line first, exit 0.
+    let out = cli(&cfg, &["status"]);
+    assert_eq!(out.status.code(), Some(0), "{}", text(&out.stderr));
+    let s = text(&out.stdout);
+    assert!(s.starts_with("ok: serving pose from"), "{s}");
+    assert!(s.contains("last run") && s.contains("served"), "{s}");
+
+    // relocalize --wait: progress on stderr, the result on stdout.
+    let out = cli(&cfg, &["relocalize", "--wait"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let o = text(&out.stdout);
+    assert!(o.starts_with("localized in") && o.contains("served"), "{o}");
+    assert!(
+        text(&out.stderr).contains("capture"),
+        "{}",
+        text(&out.stderr)
+    );
+    let (h, _, _) = errors(&pose);
+    assert!(h < 0.10, "relocalized pose {h:.3} m off");
+    let hist: Vec<Value> =
+        serde_json::from_str(&std::fs::read_to_string(w.path().join("history.json")).unwrap())
+            .unwrap();
+    assert_eq!(hist.len(), 2, "{hist:?}");
+
+    // pose and overlay over the socket.
+    let out = cli(&cfg, &["pose"]);
+    assert!(out.status.success());
+    let served: PoseFile = serde_json::from_slice(&out.stdout).unwrap();
+    let on_disk: PoseFile = serde_json::from_str(&std::fs::read_to_string(&pose).unwrap()).unwrap();
+    assert_eq!(served, on_disk);
+    let png = w.path().join("dump.png");
+    let out = Command::new(BIN)
+        .args(["overlay", "--out"])
+        .arg(&png)
+        .arg("--config")
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let img = image::open(&png).unwrap();
+    let cam = infraloc::camera::import::load_camera(&scene().join("camera.yaml")).unwrap();
+    use infraloc::camera::CameraModel;
+    assert_eq!((img.width(), img.height()), (cam.width(), cam.height()));
+    assert!(w.path().join("overlay.png").exists() && w.path().join("report.json").exists());
+
+    // SIGHUP with a broken file: refused, running config kept, status says why.
+    let good = std::fs::read_to_string(&cfg).unwrap();
+    std::fs::write(&cfg, good.replace("[map]", "[map]\ntile-cache = 3")).unwrap();
+    let out = Command::new(BIN)
+        .args(["validate", "--running", "--socket"])
+        .arg(w.path().join("run/control.sock"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(78), "{}", text(&out.stderr));
+    assert!(text(&out.stderr).contains("tile-cache"));
+    d.signal("-HUP");
+    let start = Instant::now();
+    let v = loop {
+        let (v, _) = status(&cfg);
+        if !v["reload_error"].is_null() || start.elapsed() > Duration::from_secs(10) {
+            break v;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    assert!(
+        v["reload_error"]
+            .as_str()
+            .unwrap_or("")
+            .contains("tile-cache"),
+        "{v}"
+    );
+    assert_eq!(v["state"], "ok");
+    std::fs::write(&cfg, good).unwrap();
+    d.signal("-HUP");
+    std::thread::sleep(Duration::from_millis(600));
+    assert!(status(&cfg).0["reload_error"].is_null());
+
+    let log = d.stop();
+    assert!(log.contains("control: Status from pid"), "{log}");
+    assert!(!w.path().join("run/control.sock").exists());
+    drop(gps);
+}
+
+/// A good pose from an earlier run: the truth itself, as the pipeline would write it.
+fn stored_pose(dir: &Path) -> Vec<u8> {
+    let t = read_pose(&scene().join("truth.json")).unwrap();
+    let mut f = PoseFile::new(
+        &t.pose,
+        t.crs.unwrap(),
+        "sim-0001",
+        "2026-11-01T00:00:00Z".into(),
+    );
+    f.quality = serde_json::json!({"score": 1.0});
+    let bytes = f.to_json().into_bytes();
+    std::fs::write(dir.join("pose.json"), &bytes).unwrap();
+    bytes
+}
+
+/// Run a daemon whose first localization fails; check the status and that the pose is kept.
+fn failing_case(edit: impl FnOnce(&mut toml::Table), want: &[&str]) {
+    let (w, cfg) = workdir(edit);
+    let before = stored_pose(w.path());
+    let mut d = Daemon::start(&cfg);
+    // The stored pose is served at once: READY=1 before any localization finished.
+    let ready = d.wait_notify("READY=1", Duration::from_secs(30));
+    assert!(
+        ready.contains("serving stored pose"),
+        "{ready}; {}",
+        d.log()
+    );
+    let (v, code) = wait_for_result(&cfg, &d);
+    assert_eq!(v["state"], "degraded", "{v}");
+    assert_eq!(code, 3, "status exit code when degraded");
+    let err = v["last_result"]["error"].as_str().unwrap().to_string();
+    for w in want {
+        assert!(err.contains(w), "{err:?} should name {w:?}");
+    }
+    assert!(!err.contains('\n'));
+    assert!(v["summary"].as_str().unwrap().contains(&err));
+    // systemd hears it too.
+    d.wait_notify("STATUS=degraded", Duration::from_secs(5));
+    let log = d.stop();
+    assert!(log.contains("last good pose kept"), "{log}");
+    assert_eq!(
+        std::fs::read(w.path().join("pose.json")).unwrap(),
+        before,
+        "the served pose changed"
+    );
+}
+
+#[test]
+fn missing_tile_keeps_the_pose() {
+    let empty = tempfile::tempdir().unwrap();
+    let p = empty.path().display().to_string();
+    failing_case(|t| set(t, "map", "tiles", p), &["tile"]);
+}
+
+#[test]
+fn absent_camera_keeps_the_pose() {
+    failing_case(
+        |t| {
+            set(t, "camera", "source", "v4l2");
+            set(t, "camera", "device", "/dev/video-absent");
+            set(t, "camera", "retry-attempts", 1);
+        },
+        &["/dev/video-absent"],
+    );
+}
+
+#[test]
+fn silent_gps_keeps_the_pose() {
+    if under_qemu() {
+        return;
+    }
+    let gps = GpsFeeder::start(true);
+    failing_case(
+        |t| {
+            set(t, "gps", "source", "serial");
+            set(t, "gps", "device", gps.path.clone());
+            set(t, "gps", "timeout-s", 2.0);
+        },
+        &["prior", &gps.path],
+    );
+}
+
+#[test]
+fn failure_without_a_stored_pose_is_failed_and_says_why() {
+    let empty = tempfile::tempdir().unwrap();
+    let p = empty.path().display().to_string();
+    let (w, cfg) = workdir(|t| set(t, "map", "tiles", p));
+    let mut d = Daemon::start(&cfg);
+    let ready = d.wait_notify("READY=1", Duration::from_secs(60));
+    assert!(ready.contains("STATUS=failed: no pose served"), "{ready}");
+    let (v, code) = status(&cfg);
+    assert_eq!((v["state"].as_str(), code), (Some("failed"), 4), "{v}");
+    assert!(!w.path().join("pose.json").exists());
+    let out = cli(&cfg, &["pose"]);
+    assert!(!out.status.success());
+    assert!(text(&out.stderr).contains("no pose served yet"));
+    d.stop();
+}
+
+#[test]
+fn bad_config_exits_78_naming_the_key_and_keeps_the_pose() {
+    let (w, cfg) = workdir(|t| set(t, "daemon", "drift-treshold-m", 0.2));
+    let before = stored_pose(w.path());
+    let out = Command::new(BIN)
+        .arg("daemon")
+        .arg("--config")
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(78));
+    let e = text(&out.stderr);
+    assert!(
+        e.contains("drift-treshold-m") && e.lines().count() == 1,
+        "{e}"
+    );
+    assert_eq!(std::fs::read(w.path().join("pose.json")).unwrap(), before);
+    // And with no daemon running, the technician commands say so in one line.
+    let out = cli(&cfg, &["status"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(text(&out.stderr).contains("is infraloc.service running?"));
+}
+
+#[test]
+fn drift_check_sees_a_knocked_camera() {
+    let (_w, cfg) = workdir(|_| {});
+    let c = infraloc::config::Config::load(&cfg).unwrap();
+    let t = read_pose(&scene().join("truth.json")).unwrap();
+    let pose_file = |centre: [f64; 3], ypr_deg: [f64; 3]| {
+        let pose = infraloc::pose::CamFromMap::from_center_ypr(
+            &centre.into(),
+            ypr_deg[0].to_radians(),
+            ypr_deg[1].to_radians(),
+            ypr_deg[2].to_radians(),
+        );
+        PoseFile::new(&pose, t.crs.unwrap(), "sim-0001", "x".into())
+    };
+    // The served pose is an MI optimum (what the pipeline serves): take the one next to truth.
+    let first = pose_file(
+        t.pose.center().coords.into(),
+        [0, 1, 2].map(|i| {
+            let (y, p, r) = t.pose.yaw_pitch_roll();
+            [y, p, r][i].to_degrees()
+        }),
+    );
+    let v = infraloc::daemon::drift_check(&c, &cfg, &first).unwrap();
+    let centre: [f64; 3] = serde_json::from_value(v["optimum"]["camera_center"].clone()).unwrap();
+    let ypr: [f64; 3] = serde_json::from_value(v["optimum"]["yaw_pitch_roll_deg"].clone()).unwrap();
+
+    let steady = infraloc::daemon::drift_check(&c, &cfg, &pose_file(centre, ypr)).unwrap();
+    assert_eq!(steady["moved"], false, "{steady}");
+    assert!(steady["shift_m"].as_f64().unwrap() < 0.03, "{steady}");
+    // Knocked 0.2 m sideways (the camera moved; the served pose did not).
+    let moved = [centre[0] + 0.2, centre[1], centre[2]];
+    let knocked = infraloc::daemon::drift_check(&c, &cfg, &pose_file(moved, ypr)).unwrap();
+    assert_eq!(knocked["moved"], true, "{knocked}");
+    let shift = knocked["shift_m"].as_f64().unwrap();
+    assert!((shift - 0.2).abs() < 0.05, "{knocked}");
+    // Turned by 0.5°.
+    let turned_ypr = [ypr[0] + 0.5, ypr[1], ypr[2]];
+    let turned = infraloc::daemon::drift_check(&c, &cfg, &pose_file(centre, turned_ypr)).unwrap();
+    assert_eq!(turned["moved"], true, "{turned}");
+    assert!(
+        (turned["yaw_deg"].as_f64().unwrap() + 0.5).abs() < 0.15,
+        "{turned}"
+    );
+}
