@@ -161,6 +161,18 @@ impl PoseStore {
         Ok(decision)
     }
 
+    /// Record an ok result that the caller decided not to serve (`why`), leaving the served pose.
+    pub fn record_kept(&self, candidate: &PoseFile, why: &str) -> Result<()> {
+        self.append(HistoryEntry {
+            timestamp_utc: candidate.timestamp_utc.clone(),
+            status: candidate.status.clone(),
+            score: score_of(candidate),
+            camera_center: Some(candidate.camera_center),
+            accepted: false,
+            reason: why.to_string(),
+        })
+    }
+
     /// Record a run that failed before it produced a pose (`status` is its one-line reason). The
     /// served pose is not touched.
     pub fn record_failure(&self, timestamp_utc: &str, status: &str) -> Result<()> {

@@ -188,8 +188,13 @@ fn cli(cfg: &Path, args: &[&str]) -> Output {
         .unwrap()
 }
 
+/// `status --json`, naming the socket so that it works while the config file is broken too.
 fn status(cfg: &Path) -> (Value, i32) {
-    let out = cli(cfg, &["status", "--json"]);
+    let out = Command::new(BIN)
+        .args(["status", "--json", "--socket"])
+        .arg(cfg.parent().unwrap().join("run/control.sock"))
+        .output()
+        .unwrap();
     let v: Value = serde_json::from_slice(&out.stdout)
         .unwrap_or_else(|e| panic!("status --json: {e}: {}", text(&out.stderr)));
     (v, out.status.code().unwrap())
@@ -222,8 +227,23 @@ fn errors(pose: &Path) -> (f64, f64, f64) {
     ((c.xy() - tc.xy()).norm(), (c.z - tc.z).abs(), dyaw.abs())
 }
 
-/// Feeds the scene's NMEA log into the master side of a pty, one epoch (GGA + RMC) every
-/// 100 ms, over and over, until dropped.
+/// The prior the scene's NMEA log gives (what `[gps] source = "nmea-file"` would use).
+fn file_prior() -> (f64, f64, f64) {
+    let g = infraloc::config::GpsConfig {
+        source: infraloc::config::GpsSourceKind::NmeaFile,
+        path: Some(scene().join("gps.nmea")),
+        ..Default::default()
+    };
+    match infraloc::gps_serial::acquire_prior(&g).unwrap() {
+        infraloc::gnss::prior::PriorOutcome::Gnss(e) => (e.lat, e.lon, e.sigma_m),
+        o => panic!("scene log gives no GNSS prior: {o:?}"),
+    }
+}
+
+/// A receiver on the master side of a pty: GGA + RMC epochs every 100 ms (receiver time advancing
+/// 1 s per epoch), all at the position the scene's log averages to, with the HDOP that gives its
+/// σ — so the serial prior equals the file prior whichever window the reader catches, and the
+/// pose is reproducible. `silent` sends nothing (a receiver that lost power but whose tty stays).
 struct GpsFeeder {
     stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<()>>,
@@ -233,24 +253,48 @@ struct GpsFeeder {
 
 impl GpsFeeder {
     fn start(silent: bool) -> GpsFeeder {
+        use infraloc::gnss::nmea::{write_gga, write_rmc, Date, LatLon, UtcTime};
         let (mut master, slave) = TTYPort::pair().unwrap();
         let path = slave.name().unwrap();
-        let lines: Vec<String> = std::fs::read_to_string(scene().join("gps.nmea"))
-            .unwrap()
-            .lines()
-            .map(|l| format!("{l}\r\n"))
-            .collect();
+        let (lat, lon, sigma) = file_prior();
+        let uere = infraloc::gnss::prior::uere_m(1).unwrap();
+        let hdop = sigma / uere;
         let stop = Arc::new(AtomicBool::new(false));
         let s2 = stop.clone();
         let thread = std::thread::spawn(move || {
             master.set_timeout(Duration::from_millis(100)).unwrap();
-            let mut i = 0;
+            let date = Date {
+                year: 2026,
+                month: 11,
+                day: 22,
+            };
+            let mut k: u32 = 0;
             while !s2.load(Ordering::SeqCst) {
                 if !silent {
-                    for _ in 0..2 {
-                        let _ = master.write_all(lines[i % lines.len()].as_bytes());
-                        i += 1;
-                    }
+                    let t = 12 * 3600 + k % 3600;
+                    let time = UtcTime {
+                        hour: (t / 3600) as u8,
+                        minute: (t / 60 % 60) as u8,
+                        second: (t % 60) as u8,
+                        millis: 0,
+                        has_fraction: true,
+                    };
+                    let mut out = String::new();
+                    write_gga(
+                        &mut out,
+                        &time,
+                        LatLon { lat, lon },
+                        1,
+                        9,
+                        hdop,
+                        250.0,
+                        -34.5,
+                    );
+                    out.push_str("\r\n");
+                    write_rmc(&mut out, &time, &date, LatLon { lat, lon }, b'A');
+                    out.push_str("\r\n");
+                    let _ = master.write_all(out.as_bytes());
+                    k += 1;
                 }
                 std::thread::sleep(Duration::from_millis(100));
             }

@@ -39,18 +39,36 @@ pub struct Target {
 }
 
 impl Target {
-    fn socket(&self) -> PathBuf {
+    /// The socket to use, and a note when the config could not say (its socket then is the
+    /// default, and a failure to connect should mention why).
+    fn socket_and_note(&self) -> (PathBuf, Option<String>) {
         if let Some(s) = &self.socket {
-            return s.clone();
+            return (s.clone(), None);
         }
-        // An unreadable config is not this command's business: the daemon reports it.
-        Config::load(&self.config)
-            .map(|c| c.daemon.socket)
-            .unwrap_or_else(|_| PathBuf::from(DEFAULT_SOCKET))
+        match Config::load(&self.config) {
+            Ok(c) => (c.daemon.socket, None),
+            Err(e) => (
+                PathBuf::from(DEFAULT_SOCKET),
+                Some(format!("{e}; tried the default socket")),
+            ),
+        }
+    }
+
+    fn socket(&self) -> PathBuf {
+        self.socket_and_note().0
+    }
+
+    /// Connect, naming the config problem if the socket came from the default because of it.
+    fn connect(&self) -> Result<Client> {
+        let (path, note) = self.socket_and_note();
+        Client::connect(&path).map_err(|e| match note {
+            Some(n) => Error::Invalid(format!("{e} ({n})")),
+            None => e,
+        })
     }
 
     fn call(&self, req: Request) -> Result<(Value, Option<Vec<u8>>)> {
-        Client::connect(&self.socket())?.call(&req, ANSWER_TIMEOUT, |_| {})
+        self.connect()?.call(&req, ANSWER_TIMEOUT, |_| {})
     }
 }
 
@@ -202,7 +220,14 @@ pub fn human_status(v: &Value) -> String {
     }
     if let Some(d) = v["last_drift_check"].as_object() {
         let what = match d["moved"].as_bool() {
-            Some(true) => format!("MOVED: {}", d["reason"].as_str().unwrap_or("?")),
+            Some(true) => format!(
+                "MOVED: {}{}",
+                d["reason"].as_str().unwrap_or("?"),
+                d["resolved"]
+                    .as_str()
+                    .map(|r| format!(" ({r})"))
+                    .unwrap_or_default()
+            ),
             Some(false) => format!(
                 "steady (shift {:.3} m, yaw {:.3}°)",
                 d["shift_m"].as_f64().unwrap_or(f64::NAN),
@@ -264,7 +289,7 @@ pub fn relocalize(a: RelocalizeArgs) -> Result<()> {
         ANSWER_TIMEOUT
     };
     let start = std::time::Instant::now();
-    let (v, _) = Client::connect(&a.target.socket())?.call(&req, timeout, |p| {
+    let (v, _) = a.target.connect()?.call(&req, timeout, |p| {
         if !a.target.json {
             let stage = p["progress"].as_str().unwrap_or("?");
             if tty {

@@ -151,7 +151,7 @@ enum Event {
         waiter: Option<Sender<Value>>,
     },
     Progress(String),
-    LocalizeDone(Box<Result<Run>>),
+    LocalizeDone(Box<Result<(Run, Option<Value>)>>),
     DriftDone(Result<Value>),
 }
 
@@ -514,6 +514,8 @@ impl Daemon {
         self.lock_status().running =
             Some(json!({"job": "localize", "why": why, "stage": "starting", "seconds": 0.0}));
         let (cfg, path, tx) = (self.cfg.clone(), self.config_path.clone(), self.tx.clone());
+        // A forced run is served whatever the served pose says, so it needs no cross-check.
+        let served = self.served.clone().filter(|_| !force);
         let spawned = std::thread::Builder::new()
             .name("localize".into())
             .spawn(move || {
@@ -522,7 +524,12 @@ impl Daemon {
                     let _ = tx.send(Event::Progress(s.to_string()));
                 };
                 let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    compute(&args, &cfg, &progress)
+                    let run = compute(&args, &cfg, &progress)?;
+                    let cc = served.as_ref().and_then(|p| {
+                        progress("cross-check");
+                        cross_check(&run, p, &cfg)
+                    });
+                    Ok((run, cc))
                 }))
                 .unwrap_or_else(|p| Err(internal_error("localize", p)));
                 let _ = tx.send(Event::LocalizeDone(Box::new(r)));
@@ -536,16 +543,32 @@ impl Daemon {
         }
     }
 
-    fn localize_done(&mut self, r: Result<Run>) {
+    fn localize_done(&mut self, r: Result<(Run, Option<Value>)>) {
         let seconds = self.job_started.elapsed().as_secs_f64();
         self.job = None;
         let force = std::mem::take(&mut self.running_force);
         let finished = now_utc();
-        let outcome = r.and_then(|run| {
-            let decision = self
-                .store
-                .offer(&run.pose_file, force)
-                .map_err(|e| Error::stage("persist", e.to_string()))?;
+        let outcome = r.and_then(|(run, cc)| {
+            let keep = cc.as_ref().filter(|v| v["served_still_best"] == json!(true) && !force);
+            let decision = match keep {
+                Some(v) => {
+                    let why = format!(
+                        "new result is {:.2} m / {:.2}° from the served pose, which is still the better MI peak on the same frames (NMI {:.4} vs {:.4}): served pose kept",
+                        v["distance_m"].as_f64().unwrap_or(f64::NAN),
+                        v["yaw_deg_apart"].as_f64().unwrap_or(f64::NAN),
+                        v["optimum"]["nmi"].as_f64().unwrap_or(f64::NAN),
+                        v["new_nmi"].as_f64().unwrap_or(f64::NAN),
+                    );
+                    self.store
+                        .record_kept(&run.pose_file, &why)
+                        .map_err(|e| Error::stage("persist", e.to_string()))?;
+                    Decision::Kept(why)
+                }
+                None => self
+                    .store
+                    .offer(&run.pose_file, force)
+                    .map_err(|e| Error::stage("persist", e.to_string()))?,
+            };
             Ok((run, decision))
         });
         let answer = match outcome {
@@ -568,6 +591,12 @@ impl Daemon {
                 );
                 if accepted {
                     self.served = Some(run.pose_file.clone());
+                    // A pose served after the drift alarm answers it.
+                    if let Some(d) = self.lock_status().last_drift_check.as_mut() {
+                        if d["moved"] == json!(true) {
+                            d["resolved"] = json!(format!("re-localized at {finished}"));
+                        }
+                    }
                     if let Err(e) = run.write_side_outputs(
                         self.cfg.output.report.as_ref(),
                         self.cfg.output.overlay.as_ref(),
@@ -630,6 +659,7 @@ impl Daemon {
         for w in self.waiters.drain(..) {
             let _ = w.send(answer.clone());
         }
+        self.lock_status().running = None;
         self.update_state();
         self.send_ready();
     }
@@ -699,7 +729,11 @@ impl Daemon {
                 json!({"checked_utc": now_utc(), "moved": null, "error": e.to_string()})
             }
         };
-        self.lock_status().last_drift_check = Some(v);
+        {
+            let mut s = self.lock_status();
+            s.last_drift_check = Some(v);
+            s.running = None;
+        }
         self.update_state();
     }
 
@@ -746,12 +780,11 @@ impl Daemon {
         let moved = s
             .last_drift_check
             .as_ref()
-            .is_some_and(|d| d["moved"] == json!(true));
+            .is_some_and(|d| d["moved"] == json!(true) && d["resolved"].is_null());
         s.served = self
             .served
             .as_ref()
             .map(|p| served_summary(&self.store.pose_path(), p));
-        s.running = None;
         let err = s
             .last_result
             .as_ref()
@@ -801,24 +834,35 @@ fn internal_error(stage: &'static str, p: Box<dyn std::any::Any + Send>) -> Erro
     Error::stage(stage, format!("internal error: {what}"))
 }
 
-/// The drift check: fresh frames, a narrow MI search ([`DRIFT_SPEC`]) around the served pose.
-/// The camera counts as moved when the optimum is `drift-threshold-m` or more away horizontally,
-/// `drift-threshold-deg` or more in yaw, or there is no acceptable MI peak in the box at all.
+/// The drift check: fresh frames, then [`drift_search`] around the served pose.
 pub fn drift_check(cfg: &Config, config_path: &Path, served: &PoseFile) -> Result<Value> {
     let args = Args::from_config(config_path);
     let (camera, image) = camera_and_frame(&args, cfg, &|_| {})?;
     let tile = load_tile(&cfg.map.tiles.join(&served.tile_id))?;
-    let pose = served.pose();
-    let points = mi_points(&tile, &pose, &Params::default());
+    drift_search(&camera, &image, &tile, &served.pose(), cfg)
+}
+
+/// A narrow MI search ([`DRIFT_SPEC`]) around `pose` on `image`. The camera counts as moved when
+/// the optimum is `drift-threshold-m` or more away horizontally, `drift-threshold-deg` or more in
+/// yaw, or there is no acceptable MI peak in the box at all. The answer also carries the
+/// optimum's pose and NMI.
+pub fn drift_search(
+    camera: &crate::camera::Camera,
+    image: &image::GrayImage,
+    tile: &crate::map::Tile,
+    pose: &crate::pose::CamFromMap,
+    cfg: &Config,
+) -> Result<Value> {
+    let points = mi_points(tile, pose, &Params::default());
     let search = SearchConfig {
         spec: DRIFT_SPEC,
         ..SearchConfig::default()
     };
     let r = refine(
-        &camera,
+        camera,
         image.as_raw(),
         &points,
-        &pose,
+        pose,
         &search,
         &QualityConfig::default(),
     )?;
@@ -833,9 +877,50 @@ pub fn drift_check(cfg: &Config, config_path: &Path, served: &PoseFile) -> Resul
     v["optimum"] = json!({
         "camera_center": <[f64; 3]>::from(r.pose.center().coords),
         "yaw_pitch_roll_deg": [y.to_degrees(), p.to_degrees(), ro.to_degrees()],
+        "nmi": r.quality.nmi,
     });
     Ok(v)
 }
+
+/// Horizontal distance (m) and absolute yaw difference (deg) between two poses.
+fn pose_distance(a: &crate::pose::CamFromMap, b: &crate::pose::CamFromMap) -> (f64, f64) {
+    let d = (a.center() - b.center()).xy().norm();
+    let dyaw = (a.yaw_pitch_roll().0 - b.yaw_pitch_roll().0).to_degrees();
+    (d, ((dyaw + 180.0).rem_euclid(360.0) - 180.0).abs())
+}
+
+/// When a new result lands away from the served pose, ask the new frames whether the served
+/// pose is still an MI peak that scores as well: then the camera has not moved and the new result
+/// is a different (wrong) optimum, whatever its own score. Runs in the worker thread. `None` when
+/// the two agree (or the check does not apply); otherwise the check's verdict, with
+/// `"served_still_best"`.
+fn cross_check(run: &Run, served: &PoseFile, cfg: &Config) -> Option<Value> {
+    let (d, dyaw) = pose_distance(&run.outcome.pose, &served.pose());
+    if d < cfg.daemon.drift_threshold_m && dyaw < cfg.daemon.drift_threshold_deg {
+        return None;
+    }
+    if served.tile_id != run.tile.id {
+        return None;
+    }
+    let mut v = match drift_search(&run.camera, &run.image, &run.tile, &served.pose(), cfg) {
+        Ok(v) => v,
+        Err(e) => json!({"moved": null, "error": e.to_string()}),
+    };
+    let served_nmi = v["optimum"]["nmi"].as_f64().unwrap_or(f64::NEG_INFINITY);
+    let new_nmi = run.outcome.refinement.quality.nmi;
+    // NMI of two poses on the same frame: the served one must be at least as good (within the
+    // jitter of a slightly different point set) to be preferred.
+    let served_best = v["moved"] == json!(false) && served_nmi >= new_nmi - CROSS_CHECK_NMI_SLACK;
+    v["distance_m"] = json!(d);
+    v["yaw_deg_apart"] = json!(dyaw);
+    v["new_nmi"] = json!(new_nmi);
+    v["served_still_best"] = json!(served_best);
+    Some(v)
+}
+
+/// How much lower the served pose's NMI on the new frames may be than the new result's and still
+/// be preferred by [`cross_check`] (point sets differ slightly between the two poses).
+pub const CROSS_CHECK_NMI_SLACK: f64 = 0.002;
 
 /// Judge a drift search's offsets (x, y, z m; yaw deg; …) and gate verdict against the thresholds.
 pub fn drift_verdict(
