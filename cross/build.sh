@@ -59,7 +59,17 @@ EOF
 
 for arg in "$@"; do
   case "$arg" in
-    --test) INFRALOC_QEMU=1 "${CARGO[@]}" test --release --target "$TARGET" ;;
+    --test)
+      # Tests that start the infraloc binary exec an aarch64 ELF from inside qemu; qemu-user does not
+      # follow execve, the kernel needs a binfmt_misc handler (Debian qemu-user-binfmt) for that.
+      if ! grep -qs '^enabled' /proc/sys/fs/binfmt_misc/qemu-aarch64; then
+        echo "cross/build.sh: warning: no binfmt_misc handler for aarch64: tests that run the" \
+          "infraloc binary will fail with 'Exec format error' (apt-get install qemu-user-binfmt)" >&2
+      fi
+      t=$SECONDS
+      INFRALOC_QEMU=1 "${CARGO[@]}" test --release --target "$TARGET"
+      echo "cross/build.sh: tests under qemu took $((SECONDS - t)) s"
+      ;;
     --demo)
       t=$SECONDS
       "${QEMU[@]}" "$BIN" demo --preset small
