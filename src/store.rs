@@ -105,9 +105,9 @@ impl PoseStore {
     /// The history, oldest first (empty if none).
     pub fn history(&self) -> Result<Vec<HistoryEntry>> {
         let p = &self.history;
-        match std::fs::read_to_string(&p) {
+        match std::fs::read_to_string(p) {
             Ok(t) => serde_json::from_str(&t)
-                .map_err(|e| Error::input(&p, format!("unreadable history: {e}"))),
+                .map_err(|e| Error::input(p, format!("unreadable history: {e}"))),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Vec::new()),
             Err(e) => Err(Error::io(p, e)),
         }
