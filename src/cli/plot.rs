@@ -335,7 +335,7 @@ pub(crate) fn surface_chart(
                 .map_err(pe)?;
         }
 
-        let (map_area, bar_area) = right.split_horizontally(size.0 * 45 / 100 - 110);
+        let (map_area, bar_area) = right.split_horizontally(size.0 * 45 / 100 - 150);
         let (lo, hi) = min_max(s.grid_mi.iter().copied());
         let (nx, ny) = (s.grid_x.len(), s.grid_y.len());
         let half = |v: &[f64]| {
@@ -394,8 +394,9 @@ pub(crate) fn surface_chart(
         let mut bar = ChartBuilder::on(&bar_area)
             .margin_top(top + 34)
             .margin_bottom(top + 48)
-            .margin_right(30)
-            .y_label_area_size(62)
+            .margin_right(50)
+            .margin_left(10)
+            .y_label_area_size(70)
             .build_cartesian_2d(0.0..1.0, padded(lo, hi, 0.0))
             .map_err(pe)?;
         let dy = decimals(&padded(lo, hi, 0.0));
@@ -412,7 +413,8 @@ pub(crate) fn surface_chart(
         bar.draw_series((0..steps).map(|i| {
             let (a, b) = (i as f64 / steps as f64, (i + 1) as f64 / steps as f64);
             let (va, vb) = (lo + a * (hi - lo), lo + b * (hi - lo));
-            Rectangle::new([(0.0, va), (1.0, vb)], ramp(a).filled())
+            // The bar starts at 0.35 of its strip: tick labels may overhang the axis a little.
+            Rectangle::new([(0.35, va), (1.0, vb)], ramp(a).filled())
         }))
         .map_err(pe)?;
         Ok(())
