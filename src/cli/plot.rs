@@ -394,9 +394,10 @@ pub(crate) fn surface_chart(
         let mut bar = ChartBuilder::on(&bar_area)
             .margin_top(top + 34)
             .margin_bottom(top + 48)
-            .margin_right(50)
-            .margin_left(10)
-            .y_label_area_size(70)
+            .margin_right(8)
+            .margin_left(30)
+            // Labels on the right, away from the heat map and not under the bar.
+            .right_y_label_area_size(80)
             .build_cartesian_2d(0.0..1.0, padded(lo, hi, 0.0))
             .map_err(pe)?;
         let dy = decimals(&padded(lo, hi, 0.0));
@@ -413,8 +414,7 @@ pub(crate) fn surface_chart(
         bar.draw_series((0..steps).map(|i| {
             let (a, b) = (i as f64 / steps as f64, (i + 1) as f64 / steps as f64);
             let (va, vb) = (lo + a * (hi - lo), lo + b * (hi - lo));
-            // The bar starts at 0.35 of its strip: tick labels may overhang the axis a little.
-            Rectangle::new([(0.35, va), (1.0, vb)], ramp(a).filled())
+            Rectangle::new([(0.0, va), (1.0, vb)], ramp(a).filled())
         }))
         .map_err(pe)?;
         Ok(())
