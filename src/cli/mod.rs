@@ -4,10 +4,12 @@
 mod demo;
 mod gps;
 pub(crate) mod localize;
+mod plot;
 mod project;
 mod rectify;
 mod refine;
 mod simulate;
+mod study;
 mod tech;
 mod tile;
 mod validate;
@@ -41,6 +43,11 @@ pub enum Command {
     Rectify(rectify::Args),
     /// MI refinement alone, from any initial pose.
     Refine(refine::Args),
+    /// The seed's robustness study: MI refinement from random starts around a simulated truth.
+    Study(study::Args),
+    /// Charts: `plot mi-surface` (MI along each axis and over x–y around a pose).
+    #[command(subcommand)]
+    Plot(plot::Command),
     /// Tile cache operations.
     #[command(subcommand)]
     Tile(tile::Command),
@@ -93,6 +100,8 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Project(a) => project::run(a),
         Command::Rectify(a) => rectify::run(a),
         Command::Refine(a) => refine::run(a),
+        Command::Study(a) => study::run(a),
+        Command::Plot(c) => plot::run(c),
         Command::Tile(c) => tile::run(c),
         Command::Gps(c) => gps::run(c),
         Command::Validate(a) => validate::run(a),

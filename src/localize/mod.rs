@@ -21,4 +21,5 @@ pub mod poly;
 pub mod quality;
 pub mod refine;
 pub mod search;
+pub mod study;
 pub mod synth;

@@ -1,0 +1,299 @@
+//! `infraloc study` (contracts §6): the seed's robustness study on a simulated scene — MI
+//! refinement from seeded random initializations around the truth, a summary on stdout, a scatter
+//! plot PNG and a JSON file with every trial. The computation is [`crate::localize::study`]; this
+//! file reads the scene and writes the outputs.
+
+use crate::camera::import::load_camera;
+use crate::camera::{Camera, CameraModel};
+use crate::error::{Error, Result};
+use crate::localize::quality::QualityConfig;
+use crate::localize::search::{SearchConfig, SearchSpec};
+use crate::localize::study::{
+    attitude_from_control_points, run_trial, Perturbation, PointSelection, Scene, Summary,
+    SUCCESS_HEIGHT_M, SUCCESS_HORIZONTAL_M, SUCCESS_YAW_DEG,
+};
+use crate::map::cache::{find_tile, load_tile};
+use crate::map::{Crs, Tile};
+use crate::pose::CamFromMap;
+use crate::posefile::read_pose;
+use image::GrayImage;
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Arguments of `study`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Simulated scene directory (`infraloc simulate --out DIR`: truth.json, camera.yaml, frames/,
+    /// tiles/).
+    #[arg(long)]
+    pub scene: PathBuf,
+    /// Number of random initializations.
+    #[arg(long, default_value_t = 100)]
+    pub trials: usize,
+    /// Seed of the initializations.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Largest x and y perturbation of the start, metres (uniform in ±value).
+    #[arg(long, default_value_t = 0.8)]
+    pub perturb_xy: f64,
+    /// Largest z perturbation, metres.
+    #[arg(long, default_value_t = 0.4)]
+    pub perturb_z: f64,
+    /// Largest yaw perturbation, degrees.
+    #[arg(long, default_value_t = 2.5)]
+    pub perturb_yaw: f64,
+    /// Search box around each start, as `refine --search`.
+    #[arg(long, default_value = "x=1:0.02,y=1:0.02,z=0.5:0.02,yaw=3:0.05")]
+    pub search: String,
+    /// Scatter plot PNG; default DIR/study.png.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// JSON with the summary and every trial; default DIR/study.json.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Roll and pitch of the starts: `truth`, or `control-points` (the least-squares fit of
+    /// truth.json's control points under camera.yaml's intrinsics, what a perfect PnP would give).
+    #[arg(long, value_enum, default_value = "truth")]
+    pub attitude: Attitude,
+    /// Plot size W,H in pixels.
+    #[arg(long, default_value = "1400,1200")]
+    pub size: String,
+}
+
+/// Where the starts' roll and pitch come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Attitude {
+    /// The true roll and pitch.
+    Truth,
+    /// The 6-DoF fit of the control points under the given intrinsics.
+    ControlPoints,
+}
+
+/// A scene directory read into memory.
+#[derive(Debug, Clone)]
+pub(crate) struct SceneFiles {
+    /// Intrinsics given to the localizer (camera.yaml).
+    pub camera: Camera,
+    /// Temporal median of frames/*.png (what the pipeline refines on).
+    pub gray: GrayImage,
+    /// The tile covering the true camera position.
+    pub tile: Tile,
+    /// True pose (truth.json).
+    pub truth: CamFromMap,
+    /// Control points of truth.json: map point and true pixel.
+    pub control: Vec<([f64; 3], [f64; 2])>,
+}
+
+/// Read a scene directory; each missing or bad part is a one-line error naming it.
+pub(crate) fn load_scene(dir: &Path) -> Result<SceneFiles> {
+    if !dir.is_dir() {
+        return Err(Error::input(dir, "scene directory not found"));
+    }
+    let tp = dir.join("truth.json");
+    let truth = read_pose(&tp)?;
+    let text = std::fs::read_to_string(&tp).map_err(|e| Error::io(&tp, e))?;
+    let doc: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| Error::input(&tp, e.to_string()))?;
+    let control = match doc.get("control_points") {
+        None => Vec::new(),
+        Some(v) => serde_json::from_value::<Vec<ControlPoint>>(v.clone())
+            .map_err(|e| Error::input(&tp, format!("control_points: {e}")))?
+            .into_iter()
+            .map(|c| (c.map, c.pixel))
+            .collect(),
+    };
+    let crs = match truth.crs {
+        Some(c @ Crs::Epsg(_)) => c,
+        _ => return Err(Error::input(&tp, "\"crs\" must be an EPSG code")),
+    };
+    let camera = load_camera(&dir.join("camera.yaml"))?;
+    let fdir = dir.join("frames");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&fdir)
+        .map_err(|e| Error::io(&fdir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png")))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(Error::input(&fdir, "no PNG frames"));
+    }
+    let frames = files
+        .iter()
+        .map(|p| {
+            image::open(p)
+                .map(|i| i.to_luma8())
+                .map_err(|e| Error::input(p, format!("cannot read image: {e}")))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let gray =
+        crate::capture::temporal_median(&frames).map_err(|e| Error::input(&fdir, e.to_string()))?;
+    if (gray.width(), gray.height()) != (camera.width(), camera.height()) {
+        return Err(Error::input(
+            &fdir,
+            format!(
+                "frames are {}×{} but camera.yaml is {}×{}",
+                gray.width(),
+                gray.height(),
+                camera.width(),
+                camera.height()
+            ),
+        ));
+    }
+    let c = truth.pose.center();
+    let (lat, lon) = crate::geo::map_to_wgs84(crs, c.x, c.y)?;
+    let tref = find_tile(&dir.join("tiles"), lat, lon, 0.0)?;
+    let tile = load_tile(&tref.dir)?;
+    Ok(SceneFiles {
+        camera,
+        gray,
+        tile,
+        truth: truth.pose,
+        control,
+    })
+}
+
+/// A control point of truth.json (the fields the study reads).
+#[derive(serde::Deserialize)]
+struct ControlPoint {
+    map: [f64; 3],
+    pixel: [f64; 2],
+}
+
+/// Parse `W,H` (pixels, each 200..=8000 so that every chart fits its labels).
+pub(crate) fn parse_size(s: &str) -> Result<(u32, u32)> {
+    let [w, h] = super::parse_list::<2>("--size", s)?;
+    let ok = |v: f64| v.fract() == 0.0 && (200.0..=8000.0).contains(&v);
+    if !(ok(w) && ok(h)) {
+        return Err(Error::Invalid(format!(
+            "--size {s}: expected W,H in pixels, each 200..8000"
+        )));
+    }
+    Ok((w as u32, h as u32))
+}
+
+/// Run `study`.
+pub fn run(a: Args) -> Result<()> {
+    if a.trials == 0 {
+        return Err(Error::Invalid("--trials 0: need at least one trial".into()));
+    }
+    let pert = Perturbation {
+        xy_m: a.perturb_xy,
+        z_m: a.perturb_z,
+        yaw_deg: a.perturb_yaw,
+    };
+    pert.validate()?;
+    let spec: SearchSpec = a.search.parse()?;
+    let size = super::study::parse_size(&a.size)?;
+    let scene = load_scene(&a.scene)?;
+    let cfg = SearchConfig {
+        spec,
+        ..Default::default()
+    };
+    let qcfg = QualityConfig::default();
+    let sel = PointSelection::default();
+    let base = match a.attitude {
+        Attitude::Truth => scene.truth,
+        Attitude::ControlPoints => {
+            attitude_from_control_points(&scene.camera, &scene.truth, &scene.control)
+                .map_err(|e| Error::input(a.scene.join("truth.json"), e.to_string()))?
+        }
+    };
+    let sc = Scene {
+        camera: &scene.camera,
+        gray: scene.gray.as_raw(),
+        tile: &scene.tile,
+        truth: &scene.truth,
+        base: &base,
+    };
+    let (_, bp, br) = base.yaw_pitch_roll();
+    let (_, tp, tr) = scene.truth.yaw_pitch_roll();
+    println!(
+        "study: starts' pitch/roll differ from the truth by {:+.3}°/{:+.3}° ({:?})",
+        (bp - tp).to_degrees(),
+        (br - tr).to_degrees(),
+        a.attitude
+    );
+    let t0 = Instant::now();
+    let now = move || t0.elapsed().as_secs_f64();
+    let starts = pert.starts(a.trials, a.seed);
+    let mut trials = Vec::with_capacity(a.trials);
+    for (i, s) in starts.iter().enumerate() {
+        let t = run_trial(&sc, i, *s, &sel, &cfg, &qcfg, &now)?;
+        println!(
+            "trial {:>3}/{}: start ({:+.3}, {:+.3}, {:+.3}) m {:+.2}° → error {:.1} cm horizontal, {:.1} cm height, {:.3}° yaw{} ({:.1} s)",
+            i + 1,
+            a.trials,
+            s[0],
+            s[1],
+            s[2],
+            s[3],
+            t.horizontal_m * 100.0,
+            t.height_m * 100.0,
+            t.yaw_deg,
+            match &t.reason {
+                Some(r) if !t.accepted => format!("; gate: {r}"),
+                _ => String::new(),
+            },
+            t.seconds
+        );
+        trials.push(t);
+    }
+    let sum = Summary::of(&trials);
+    let row = |name: &str, s: &crate::localize::study::Spread, scale: f64, unit: &str| {
+        println!(
+            "{name:<11} median {:>7.3} {unit}  p95 {:>7.3} {unit}  max {:>7.3} {unit}",
+            s.median * scale,
+            s.p95 * scale,
+            s.max * scale
+        );
+    };
+    println!("study: {} trials on {}", sum.trials, a.scene.display());
+    row("horizontal", &sum.horizontal_m, 100.0, "cm");
+    row("height", &sum.height_m, 100.0, "cm");
+    row("yaw", &sum.yaw_deg, 1.0, "° ");
+    println!(
+        "within {:.0} cm horizontal, {:.0} cm height and {}° yaw: {:.1} % ({} of {}); gate rejections: {}; time {:.1} s ({:.2} s median per trial)",
+        SUCCESS_HORIZONTAL_M * 100.0,
+        SUCCESS_HEIGHT_M * 100.0,
+        SUCCESS_YAW_DEG,
+        sum.success_fraction * 100.0,
+        trials.iter().filter(|t| t.success).count(),
+        sum.trials,
+        sum.gate_rejections,
+        sum.seconds_total,
+        sum.seconds_median
+    );
+    let doc = json!({
+        "scene": a.scene,
+        "seed": a.seed,
+        "attitude": a.attitude,
+        "perturbation": pert,
+        "search": a.search,
+        "success_bounds": {
+            "horizontal_m": SUCCESS_HORIZONTAL_M,
+            "height_m": SUCCESS_HEIGHT_M,
+            "yaw_deg": SUCCESS_YAW_DEG,
+        },
+        "summary": sum,
+        "trials": trials,
+    });
+    let jpath = a.json.unwrap_or_else(|| a.scene.join("study.json"));
+    let text = serde_json::to_string_pretty(&doc)
+        .map_err(|e| Error::Invalid(format!("{}: {e}", jpath.display())))?;
+    crate::persist::write_atomic(&jpath, (text + "\n").as_bytes())?;
+    let png = a.out.unwrap_or_else(|| a.scene.join("study.png"));
+    let note = format!(
+        "seed {}, start roll/pitch: {}",
+        a.seed,
+        match a.attitude {
+            Attitude::Truth => "truth",
+            Attitude::ControlPoints => "control-point fit",
+        }
+    );
+    let img = super::plot::study_chart(&trials, &sum, &pert, &note, size)?;
+    super::plot::save_png(&img, &png)?;
+    println!("study: wrote {} and {}", png.display(), jpath.display());
+    Ok(())
+}

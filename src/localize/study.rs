@@ -1,0 +1,427 @@
+//! The seed's robustness study and MI plots (pure; the shells are `infraloc study` and
+//! `infraloc plot mi-surface`).
+//!
+//! Study: from seeded random initial poses (truth perturbed uniformly in x, y, z and yaw) run the
+//! MI refinement exactly as the pipeline does (same search configuration, same ground-point
+//! selection around the initial camera centre) and measure the final pose against the truth.
+//! Surface: the same estimator the search uses ([`Evaluator`], fixed point set, level 0) evaluated
+//! along each axis and over an x–y grid around a pose.
+
+use super::quality::QualityConfig;
+use super::refine::refine;
+use super::search::{pose_at, Evaluator, SearchConfig, AXES};
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::map::{ground_points, Tile};
+use crate::pose::CamFromMap;
+use rand::{Rng, SeedableRng};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::f64::consts::{PI, TAU};
+
+/// A trial counts as a success within these bounds (the demo's thresholds, the refinement's
+/// 99th-percentile goal): horizontal error, metres.
+pub const SUCCESS_HORIZONTAL_M: f64 = 0.10;
+/// Success bound on the height error, metres.
+pub const SUCCESS_HEIGHT_M: f64 = 0.10;
+/// Success bound on the yaw error, degrees.
+pub const SUCCESS_YAW_DEG: f64 = 0.2;
+
+/// Largest perturbation of the initial pose on each axis (uniform in ±value).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Perturbation {
+    /// x and y, metres.
+    pub xy_m: f64,
+    /// z, metres.
+    pub z_m: f64,
+    /// Yaw, degrees.
+    pub yaw_deg: f64,
+}
+
+impl Default for Perturbation {
+    /// ±0.8 m x/y, ±0.4 m z, ±2.5° yaw: inside the default search box (±1 m, ±0.5 m, ±3°) with a
+    /// margin, like a PnP initialization that went moderately wrong.
+    fn default() -> Self {
+        Perturbation {
+            xy_m: 0.8,
+            z_m: 0.4,
+            yaw_deg: 2.5,
+        }
+    }
+}
+
+impl Perturbation {
+    /// Reject negative or non-finite bounds, naming the flag.
+    pub fn validate(&self) -> Result<()> {
+        for (flag, v) in [
+            ("--perturb-xy", self.xy_m),
+            ("--perturb-z", self.z_m),
+            ("--perturb-yaw", self.yaw_deg),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::Invalid(format!(
+                    "{flag} {v}: must be a finite number ≥ 0"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// `n` start offsets [dx, dy, dz (m), dyaw (deg)] from `seed`: the same seed gives the same
+    /// starts whatever else changes (the RNG is used for nothing else).
+    pub fn starts(&self, n: usize, seed: u64) -> Vec<[f64; 4]> {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let mut u = |a: f64| {
+            if a > 0.0 {
+                rng.random_range(-a..=a)
+            } else {
+                0.0
+            }
+        };
+        (0..n)
+            .map(|_| [u(self.xy_m), u(self.xy_m), u(self.z_m), u(self.yaw_deg)])
+            .collect()
+    }
+}
+
+/// Offsets of `pose` from `truth`: camera centre difference (map frame, m) and yaw difference
+/// wrapped to (−180°, 180°].
+pub fn offsets_from(truth: &CamFromMap, pose: &CamFromMap) -> [f64; 4] {
+    let d = pose.center() - truth.center();
+    let dyaw = (pose.yaw_pitch_roll().0 - truth.yaw_pitch_roll().0 + PI).rem_euclid(TAU) - PI;
+    [d.x, d.y, d.z, dyaw.to_degrees()]
+}
+
+/// How the refinement picks its LiDAR points around the initial camera centre (the pipeline's
+/// rule: within `max_off_nadir_deg` of nadir at the camera's height above the ground, at most
+/// `radius_m`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PointSelection {
+    /// Largest radius, metres.
+    pub radius_m: f64,
+    /// Largest off-nadir angle, degrees.
+    pub max_off_nadir_deg: f64,
+}
+
+impl Default for PointSelection {
+    /// The pipeline's defaults.
+    fn default() -> Self {
+        let p = super::pipeline::Params::default();
+        PointSelection {
+            radius_m: p.mi_radius_m,
+            max_off_nadir_deg: p.mi_max_off_nadir_deg,
+        }
+    }
+}
+
+impl PointSelection {
+    /// Ground points of `tile` for a camera at `pose`.
+    pub fn points(&self, tile: &Tile, pose: &CamFromMap) -> Vec<crate::map::GroundPoint> {
+        let c = pose.center();
+        let ground = super::init::height_at(&tile.height, c.x, c.y).unwrap_or(c.z - 8.0);
+        let r = ((c.z - ground).max(1.0) * self.max_off_nadir_deg.to_radians().tan())
+            .min(self.radius_m);
+        ground_points(tile, (c.x, c.y), r)
+    }
+}
+
+/// One trial of the study.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Trial {
+    /// Trial number (0-based).
+    pub index: usize,
+    /// Start offsets from the truth: dx, dy, dz (m, map frame), dyaw (deg).
+    pub start: [f64; 4],
+    /// Final offsets from the truth, same layout.
+    pub result: [f64; 4],
+    /// Final horizontal error, metres.
+    pub horizontal_m: f64,
+    /// Final height error (absolute), metres.
+    pub height_m: f64,
+    /// Final yaw error (absolute), degrees.
+    pub yaw_deg: f64,
+    /// Within the success bounds ([`SUCCESS_HORIZONTAL_M`], …).
+    pub success: bool,
+    /// The quality gate accepted the result.
+    pub accepted: bool,
+    /// The gate's reason when it rejected.
+    pub reason: Option<String>,
+    /// MI at the optimum, nats.
+    pub mi: f64,
+    /// Points in the fixed set.
+    pub points: usize,
+    /// Wall time of the refinement, seconds (the only field that varies between identical runs).
+    pub seconds: f64,
+}
+
+/// Median, 95th percentile and maximum of a sample.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Spread {
+    /// Median.
+    pub median: f64,
+    /// 95th percentile (nearest rank).
+    pub p95: f64,
+    /// Maximum.
+    pub max: f64,
+}
+
+impl Spread {
+    /// Of `v` (NaN for an empty sample; NaNs sort last, so they show up as the maximum).
+    pub fn of(v: &[f64]) -> Spread {
+        let mut s = v.to_vec();
+        s.sort_by(|a, b| a.total_cmp(b));
+        let rank = |q: f64| -> f64 {
+            if s.is_empty() {
+                return f64::NAN;
+            }
+            // Nearest rank: the smallest value with at least q of the sample at or below it.
+            let k = ((q * s.len() as f64).ceil() as usize).clamp(1, s.len());
+            s[k - 1]
+        };
+        let median = if s.is_empty() {
+            f64::NAN
+        } else if s.len() % 2 == 1 {
+            s[s.len() / 2]
+        } else {
+            0.5 * (s[s.len() / 2 - 1] + s[s.len() / 2])
+        };
+        Spread {
+            median,
+            p95: rank(0.95),
+            max: s.last().copied().unwrap_or(f64::NAN),
+        }
+    }
+}
+
+/// Summary of a study.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    /// Number of trials.
+    pub trials: usize,
+    /// Horizontal error, metres (all trials, gate-rejected ones included).
+    pub horizontal_m: Spread,
+    /// Height error, metres.
+    pub height_m: Spread,
+    /// Yaw error, degrees.
+    pub yaw_deg: Spread,
+    /// Fraction of trials within 10 cm horizontal, 10 cm height and 0.2° yaw.
+    pub success_fraction: f64,
+    /// Trials the quality gate rejected.
+    pub gate_rejections: usize,
+    /// Total refinement wall time, seconds.
+    pub seconds_total: f64,
+    /// Median refinement wall time per trial, seconds.
+    pub seconds_median: f64,
+}
+
+impl Summary {
+    /// Summarise trials.
+    pub fn of(trials: &[Trial]) -> Summary {
+        let col = |f: fn(&Trial) -> f64| trials.iter().map(f).collect::<Vec<_>>();
+        let n = trials.len();
+        Summary {
+            trials: n,
+            horizontal_m: Spread::of(&col(|t| t.horizontal_m)),
+            height_m: Spread::of(&col(|t| t.height_m)),
+            yaw_deg: Spread::of(&col(|t| t.yaw_deg)),
+            success_fraction: trials.iter().filter(|t| t.success).count() as f64 / n.max(1) as f64,
+            gate_rejections: trials.iter().filter(|t| !t.accepted).count(),
+            seconds_total: trials.iter().map(|t| t.seconds).sum(),
+            seconds_median: Spread::of(&col(|t| t.seconds)).median,
+        }
+    }
+}
+
+/// What a study needs: the scene in memory.
+#[derive(Debug, Clone, Copy)]
+pub struct Scene<'a> {
+    /// Intrinsics given to the localizer.
+    pub camera: &'a Camera,
+    /// Gray frame (camera size, row-major): the temporal median, as the pipeline uses.
+    pub gray: &'a [u8],
+    /// Map tile.
+    pub tile: &'a Tile,
+    /// True pose: errors are measured against it.
+    pub truth: &'a CamFromMap,
+    /// The pose the start offsets are applied to: the truth, or the truth with another roll and
+    /// pitch (see [`attitude_from_control_points`]).
+    pub base: &'a CamFromMap,
+}
+
+/// The truth's centre and yaw with the roll and pitch of the 6-DoF least-squares fit of
+/// `control` (map point, true pixel) under the intrinsics `camera`. With exact intrinsics this is
+/// the truth; with wrong ones (simulator `hard`) it is the attitude a perfect PnP would hand the
+/// refinement: a principal-point error is indistinguishable from a tilt, and the 4-DoF search
+/// cannot tilt, so starting from the true roll/pitch under wrong intrinsics forces the error into
+/// x and y. Errors when fewer than 6 control points are given.
+pub fn attitude_from_control_points(
+    camera: &Camera,
+    truth: &CamFromMap,
+    control: &[([f64; 3], [f64; 2])],
+) -> Result<CamFromMap> {
+    if control.len() < 6 {
+        return Err(Error::Invalid(format!(
+            "control points: {} given, the attitude fit needs at least 6",
+            control.len()
+        )));
+    }
+    let corr: Vec<super::pnp::Correspondence> = control
+        .iter()
+        .map(|(m, p)| super::pnp::Correspondence {
+            pixel: nalgebra::Point2::new(p[0], p[1]),
+            world: nalgebra::Point3::new(m[0], m[1], m[2]),
+        })
+        .collect();
+    let fit = super::pnp::refine_lm(camera, truth, &corr, 50);
+    let (yaw, _, _) = truth.yaw_pitch_roll();
+    let (_, pitch, roll) = fit.yaw_pitch_roll();
+    Ok(CamFromMap::from_center_ypr(
+        &truth.center(),
+        yaw,
+        pitch,
+        roll,
+    ))
+}
+
+/// Run one trial from `start` (offsets from the truth). `now` returns seconds from any origin
+/// (injected so that this module reads no clock of its own).
+pub fn run_trial(
+    scene: &Scene,
+    index: usize,
+    start: [f64; 4],
+    sel: &PointSelection,
+    cfg: &SearchConfig,
+    qcfg: &QualityConfig,
+    now: &dyn Fn() -> f64,
+) -> Result<Trial> {
+    let init = pose_at(
+        scene.base,
+        &[start[0], start[1], start[2], start[3], 0.0, 0.0],
+    );
+    let t0 = now();
+    let points = sel.points(scene.tile, &init);
+    let r = refine(scene.camera, scene.gray, &points, &init, cfg, qcfg)
+        .map_err(|e| Error::stage("study", format!("trial {index}: {e}")))?;
+    let seconds = now() - t0;
+    let result = offsets_from(scene.truth, &r.pose);
+    let horizontal_m = result[0].hypot(result[1]);
+    let (height_m, yaw_deg) = (result[2].abs(), result[3].abs());
+    Ok(Trial {
+        index,
+        start,
+        result,
+        horizontal_m,
+        height_m,
+        yaw_deg,
+        success: horizontal_m <= SUCCESS_HORIZONTAL_M
+            && height_m <= SUCCESS_HEIGHT_M
+            && yaw_deg <= SUCCESS_YAW_DEG,
+        accepted: r.quality.accepted,
+        reason: r.quality.reason.clone(),
+        mi: r.quality.mi,
+        points: r.points.1,
+        seconds,
+    })
+}
+
+/// MI along each axis and over x–y around a pose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Surface {
+    /// Per enabled axis (x, y, z, yaw): (axis name, offsets, MI values).
+    pub profiles: Vec<(String, Vec<f64>, Vec<f64>)>,
+    /// x offsets of the 2-D grid, metres.
+    pub grid_x: Vec<f64>,
+    /// y offsets of the 2-D grid, metres.
+    pub grid_y: Vec<f64>,
+    /// MI over the grid, row-major with y slowest: `mi[j * grid_x.len() + i]`.
+    pub grid_mi: Vec<f64>,
+    /// Points in the fixed set.
+    pub points: usize,
+}
+
+/// Evaluate MI around `pose` with the search's estimator: the box of `cfg.spec` (its fixed point
+/// set, full resolution), 1-D profiles at the finest step along x, y, z and yaw, and the x–y plane
+/// every `xy_stride` finest cells.
+pub fn mi_surface(
+    camera: &Camera,
+    gray: &[u8],
+    points: &[crate::map::GroundPoint],
+    pose: &CamFromMap,
+    cfg: &SearchConfig,
+    xy_stride: i64,
+) -> Result<Surface> {
+    if xy_stride < 1 {
+        return Err(Error::Invalid(format!(
+            "surface stride {xy_stride}: must be ≥ 1"
+        )));
+    }
+    let mask = crate::camera::CameraModel::valid_mask(camera);
+    let ev = Evaluator::new(camera, gray, &mask, points, pose, cfg, 0)?;
+    let g = *ev.grid();
+    let score = |cells: &[[i64; 6]]| -> Vec<f64> {
+        // Chunks keep one scratch buffer per task; collect keeps the input order.
+        cells
+            .par_chunks(16)
+            .flat_map_iter(|chunk| {
+                let mut s = super::kernel::Scratch::default();
+                chunk
+                    .iter()
+                    .map(|c| ev.score(0, g.index(c), &mut s).score)
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    };
+    let mut profiles = Vec::new();
+    for axis in 0..4 {
+        let cells: Vec<[i64; 6]> = (-g.m[axis]..=g.m[axis])
+            .map(|k| {
+                let mut c = [0i64; 6];
+                c[axis] = k;
+                c
+            })
+            .collect();
+        let offs = cells.iter().map(|c| g.offsets(c)[axis]).collect();
+        profiles.push((AXES[axis].to_string(), offs, score(&cells)));
+    }
+    let ks = |axis: usize| -> Vec<i64> {
+        let k = g.m[axis] / xy_stride;
+        (-k..=k).map(|j| j * xy_stride).collect()
+    };
+    let (kx, ky) = (ks(0), ks(1));
+    let cells: Vec<[i64; 6]> = ky
+        .iter()
+        .flat_map(|&j| kx.iter().map(move |&i| [i, j, 0, 0, 0, 0]))
+        .collect();
+    Ok(Surface {
+        profiles,
+        grid_x: kx.iter().map(|&i| i as f64 * g.step[0]).collect(),
+        grid_y: ky.iter().map(|&j| j as f64 * g.step[1]).collect(),
+        grid_mi: score(&cells),
+        points: ev.n_points,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn starts_are_seeded_and_bounded() {
+        let p = Perturbation::default();
+        let a = p.starts(50, 7);
+        assert_eq!(a, p.starts(50, 7));
+        assert_ne!(a, p.starts(50, 8));
+        assert!(a.iter().all(|s| s[0].abs() <= 0.8
+            && s[1].abs() <= 0.8
+            && s[2].abs() <= 0.4
+            && s[3].abs() <= 2.5));
+    }
+
+    #[test]
+    fn spread_nearest_rank() {
+        let v: Vec<f64> = (1..=100).map(f64::from).collect();
+        let s = Spread::of(&v);
+        assert_eq!((s.median, s.p95, s.max), (50.5, 95.0, 100.0));
+        assert!(Spread::of(&[]).median.is_nan());
+    }
+}
