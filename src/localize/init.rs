@@ -262,16 +262,19 @@ pub fn coarse_candidates(
     p: &CoarseParams,
 ) -> Vec<Candidate> {
     let nominal = nominal_field(cam, image, p);
-    let half = search_radius_m + p.template_radius_m;
-    let (gray, valid) = satellite_gray(sat, cx, cy, half, p.res_m);
-    let field: Field = orientation_field(&gray, Some(&valid));
-    let search = SearchField::new(&field, p.res_m);
     let params = SweepParams {
         yaw_step_deg: p.yaw_step_deg,
         heights: p.heights(),
         template_radius_m: p.template_radius_m,
         top_k: p.top_k,
+        max_offset_m: search_radius_m,
     };
+    // The field holds the search disk plus the template the sweep really uses (one pixel of slack
+    // for rounding): a larger one only costs FFT time.
+    let half = search_radius_m + params.effective_template_radius_m(nominal.q_max) + p.res_m;
+    let (gray, valid) = satellite_gray(sat, cx, cy, half, p.res_m);
+    let field: Field = orientation_field(&gray, Some(&valid));
+    let search = SearchField::new(&field, p.res_m);
     super::matching::sweep(&search, &nominal, &params)
 }
 
