@@ -335,55 +335,9 @@ impl Run {
 }
 
 /// Errors of each stage's pose against a simulator `truth.json`.
-pub(crate) fn truth_errors(path: &Path, camera: &Camera, o: &Outcome) -> Result<Value> {
+fn truth_errors(path: &Path, camera: &Camera, o: &Outcome) -> Result<Value> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let truth = crate::posefile::parse_pose(&text, path)?.pose;
-    let v: Value = serde_json::from_str(&text).map_err(|e| Error::input(path, e.to_string()))?;
-    let cps: Vec<([f64; 3], [f64; 2])> = v["control_points"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .filter_map(|c| {
-                    Some((
-                        serde_json::from_value(c["map"].clone()).ok()?,
-                        serde_json::from_value(c["pixel"].clone()).ok()?,
-                    ))
-                })
-                .collect()
-        })
-        .unwrap_or_default();
-    let err = |p: &crate::pose::CamFromMap| {
-        let (c, tc) = (p.center(), truth.center());
-        let dyaw = (p.yaw_pitch_roll().0 - truth.yaw_pitch_roll().0 + std::f64::consts::PI)
-            .rem_euclid(std::f64::consts::TAU)
-            - std::f64::consts::PI;
-        let reproj: Vec<f64> = cps
-            .iter()
-            .filter_map(|(m, px)| {
-                let q = camera
-                    .project(&p.transform(&nalgebra::Point3::from(*m)).coords)
-                    .ok()?;
-                Some(((q.x - px[0]).powi(2) + (q.y - px[1]).powi(2)).sqrt())
-            })
-            .collect();
-        let mean = if reproj.is_empty() {
-            f64::NAN
-        } else {
-            reproj.iter().sum::<f64>() / reproj.len() as f64
-        };
-        json!({
-            "horizontal_m": ((c.x - tc.x).powi(2) + (c.y - tc.y).powi(2)).sqrt(),
-            "height_m": (c.z - tc.z).abs(),
-            "yaw_deg": dyaw.abs().to_degrees(),
-            "rotation_deg": crate::pose::rotation_angle_between(&p.rotation, &truth.rotation).to_degrees(),
-            "control_points_mean_px": mean,
-        })
-    };
-    Ok(json!({
-        "pnp": err(&o.init.pose),
-        "mi": err(&o.pose),
-        "control_points": cps.len(),
-    }))
+    crate::localize::pipeline::truth_errors(&text, path, camera, &o.stages)
 }
 
 /// Run `localize`: write the outputs and print a one-line summary.

@@ -262,16 +262,19 @@ pub fn coarse_candidates(
     p: &CoarseParams,
 ) -> Vec<Candidate> {
     let nominal = nominal_field(cam, image, p);
-    let half = search_radius_m + p.template_radius_m;
-    let (gray, valid) = satellite_gray(sat, cx, cy, half, p.res_m);
-    let field: Field = orientation_field(&gray, Some(&valid));
-    let search = SearchField::new(&field, p.res_m);
     let params = SweepParams {
         yaw_step_deg: p.yaw_step_deg,
         heights: p.heights(),
         template_radius_m: p.template_radius_m,
         top_k: p.top_k,
+        max_offset_m: search_radius_m,
     };
+    // The field holds the search disk plus the template the sweep really uses (one pixel of slack
+    // for rounding): a larger one only costs FFT time.
+    let half = search_radius_m + params.effective_template_radius_m(nominal.q_max) + p.res_m;
+    let (gray, valid) = satellite_gray(sat, cx, cy, half, p.res_m);
+    let field: Field = orientation_field(&gray, Some(&valid));
+    let search = SearchField::new(&field, p.res_m);
     super::matching::sweep(&search, &nominal, &params)
 }
 
@@ -470,6 +473,9 @@ pub struct FineParams {
     pub min_score: f64,
     /// PnP / RANSAC settings (the threshold is overridden per iteration).
     pub pnp: super::pnp::PnpParams,
+    /// Stop trying sweep candidates once one's PnP has at least this many inliers with ≥ 2/3 of
+    /// its patch matches agreeing; `None` tries every candidate and keeps the most inliers.
+    pub convincing_inliers: Option<usize>,
 }
 
 impl Default for FineParams {
@@ -486,6 +492,7 @@ impl Default for FineParams {
             ],
             min_score: 0.35,
             pnp: super::pnp::PnpParams::default(),
+            convincing_inliers: Some(CONVINCING_INLIERS),
         }
     }
 }
@@ -680,7 +687,8 @@ pub fn focal_px(cam: &dyn CameraModel) -> f64 {
     }
 }
 
-/// PnP inliers (with ≥ 2/3 of the patch matches agreeing) that end the candidate search early.
+/// PnP inliers (with ≥ 2/3 of the patch matches agreeing) that end the candidate search early
+/// (the default of [`FineParams::convincing_inliers`]).
 pub const CONVINCING_INLIERS: usize = 30;
 
 /// Result of [`initialize`].
@@ -696,8 +704,71 @@ pub struct InitResult {
     pub inliers: usize,
     /// PnP reprojection RMS of the last iteration, px.
     pub rms_px: f64,
-    /// Candidates tried.
+    /// Candidates tried (fewer than the sweep kept when one was convincing early).
     pub candidates_tried: usize,
+    /// Rank of [`Self::candidate`] in the sweep's list, 0 = the sweep's best.
+    pub candidate_rank: usize,
+}
+
+/// What the fine stage made of one sweep candidate.
+#[derive(Debug, Clone)]
+pub struct FineOutcome {
+    /// World→camera pose of the last PnP.
+    pub pose: crate::pose::CamFromMap,
+    /// Correspondences given to the last PnP.
+    pub matches: usize,
+    /// Its inliers.
+    pub inliers: usize,
+    /// Its reprojection RMS, px.
+    pub rms_px: f64,
+}
+
+/// Fine stage of one sweep candidate (offset relative to `prior_xy`): the iterations of local
+/// patch matching + PnP of [`FineParams::iterations`], each from the previous pose. The error
+/// says which PnP failed and on how many matches.
+#[allow(clippy::too_many_arguments)]
+pub fn fine_stage<R: rand::Rng>(
+    cam: &dyn CameraModel,
+    image: &[u8],
+    sat: &Raster<[u8; 3]>,
+    heights: &Raster<f32>,
+    prior_xy: (f64, f64),
+    cand: &Candidate,
+    fine: &FineParams,
+    rng: &mut R,
+) -> std::result::Result<FineOutcome, String> {
+    let (cx, cy) = (prior_xy.0 + cand.offset[0], prior_xy.1 + cand.offset[1]);
+    let zg = height_at(heights, cx, cy).unwrap_or(0.0);
+    let mut pose = crate::pose::CamFromMap::from_center_ypr(
+        &nalgebra::Point3::new(cx, cy, zg + cand.height),
+        cand.yaw,
+        0.0,
+        0.0,
+    );
+    let mut outcome = Err("no fine iterations configured".to_string());
+    for &(ph, sh, res, tol_m) in &fine.iterations {
+        let m = match_anchors(cam, image, sat, heights, &pose, (ph, sh, res), fine);
+        let corr: Vec<_> = m.iter().map(|a| a.corr).collect();
+        let c = pose.center();
+        let cam_h = (c.z - height_at(heights, c.x, c.y).unwrap_or(c.z - cand.height)).max(1.0);
+        let params = super::pnp::PnpParams {
+            threshold_px: tol_m / cam_h * focal_px(cam),
+            ..fine.pnp
+        };
+        match super::pnp::solve_pnp_ransac(cam, &corr, &params, rng) {
+            Ok(r) => {
+                pose = r.pose;
+                outcome = Ok(FineOutcome {
+                    pose,
+                    matches: corr.len(),
+                    inliers: r.inliers.len(),
+                    rms_px: r.rms_px,
+                });
+            }
+            Err(e) => return Err(format!("{e} ({} patch matches)", corr.len())),
+        }
+    }
+    outcome
 }
 
 /// Full initialization: coarse sweep around the prior, then per candidate local matching + PnP;
@@ -735,39 +806,20 @@ pub fn initialize<R: rand::Rng>(
     }
     let mut best: Option<InitResult> = None;
     let mut last_err = String::new();
-    for cand in &cands {
-        let (cx, cy) = (prior_xy.0 + cand.offset[0], prior_xy.1 + cand.offset[1]);
-        let zg = height_at(heights, cx, cy).unwrap_or(0.0);
-        let mut pose = crate::pose::CamFromMap::from_center_ypr(
-            &nalgebra::Point3::new(cx, cy, zg + cand.height),
-            cand.yaw,
-            0.0,
-            0.0,
-        );
-        let mut outcome = None;
-        for &(ph, sh, res, tol_m) in &fine.iterations {
-            let m = match_anchors(cam, image, sat, heights, &pose, (ph, sh, res), fine);
-            let corr: Vec<_> = m.iter().map(|a| a.corr).collect();
-            let c = pose.center();
-            let cam_h = (c.z - height_at(heights, c.x, c.y).unwrap_or(c.z - cand.height)).max(1.0);
-            let params = super::pnp::PnpParams {
-                threshold_px: tol_m / cam_h * focal_px(cam),
-                ..fine.pnp
-            };
-            match super::pnp::solve_pnp_ransac(cam, &corr, &params, rng) {
-                Ok(r) => {
-                    pose = r.pose;
-                    outcome = Some((corr.len(), r.inliers.len(), r.rms_px));
-                }
-                Err(e) => {
-                    last_err = format!("{e} ({} patch matches)", corr.len());
-                    outcome = None;
-                    break;
-                }
+    let mut tried = 0;
+    for (rank, cand) in cands.iter().enumerate() {
+        tried = rank + 1;
+        let outcome = match fine_stage(cam, image, sat, heights, prior_xy, cand, fine, rng) {
+            Ok(f) => Some((f.pose, f.matches, f.inliers, f.rms_px)),
+            Err(e) => {
+                last_err = e;
+                None
             }
-        }
-        if let Some((matches, inliers, rms_px)) = outcome {
-            let convincing = inliers >= CONVINCING_INLIERS && inliers * 3 >= matches * 2;
+        };
+        if let Some((pose, matches, inliers, rms_px)) = outcome {
+            let convincing = fine
+                .convincing_inliers
+                .is_some_and(|n| inliers >= n && inliers * 3 >= matches * 2);
             if best.as_ref().is_none_or(|b| inliers > b.inliers) {
                 best = Some(InitResult {
                     pose,
@@ -775,7 +827,8 @@ pub fn initialize<R: rand::Rng>(
                     matches,
                     inliers,
                     rms_px,
-                    candidates_tried: cands.len(),
+                    candidates_tried: 0,
+                    candidate_rank: rank,
                 });
             }
             // The sweep's ranking is only a shortlist; a candidate whose fine stage agrees this
@@ -784,6 +837,9 @@ pub fn initialize<R: rand::Rng>(
                 break;
             }
         }
+    }
+    if let Some(b) = best.as_mut() {
+        b.candidates_tried = tried;
     }
     best.ok_or_else(|| {
         crate::Error::stage(

@@ -243,6 +243,19 @@ pub struct SweepParams {
     pub template_radius_m: f64,
     /// How many best candidates to return (after non-maximum suppression).
     pub top_k: usize,
+    /// Largest candidate offset from the field's centre, metres (the prior's search radius; the
+    /// field may be larger, to hold the template at the edge). `f64::INFINITY`: no limit.
+    pub max_offset_m: f64,
+}
+
+impl SweepParams {
+    /// Ground radius of the sweep's template, metres: one radius for every height (see
+    /// [`sweep`]), what the lowest height sees within `q_max`, at most `template_radius_m`. The
+    /// satellite field must reach this far beyond the search window.
+    pub fn effective_template_radius_m(&self, q_max: f64) -> f64 {
+        let h_min = self.heights.iter().copied().fold(f64::INFINITY, f64::min);
+        (h_min * q_max).min(self.template_radius_m)
+    }
 }
 
 /// Satellite-side data of a sweep: the search field and its spectra.
@@ -298,8 +311,7 @@ pub fn sweep(search: &SearchField, nominal: &NominalField, p: &SweepParams) -> V
         .map(|&h| {
             // One radius for every height: a correlation over fewer pixels has a higher noise
             // maximum, so height-dependent templates would bias the sweep towards low heights.
-            let h_min = p.heights.iter().copied().fold(f64::INFINITY, f64::min);
-            let radius_m = (h_min * nominal.q_max).min(p.template_radius_m);
+            let radius_m = p.effective_template_radius_m(nominal.q_max);
             let r_px = (radius_m / res).floor() as isize;
             let side = (2 * r_px + 1) as usize;
             if side >= search.size {
@@ -338,6 +350,9 @@ pub fn sweep(search: &SearchField, nominal: &NominalField, p: &SweepParams) -> V
             let to_level = |x0: f64| ((x0 + 0.5) / scale - 0.5) as f32;
             let inv_n2 = 1.0 / (n * n) as f64;
             let valid = search.size - side + 1; // shifts with the template fully inside
+                                                // A hypothesis outside the prior's search disk is not one the prior allows; the
+                                                // corners of the square field would only add chances for a false peak.
+            let max_off_px2 = (p.max_offset_m / res).powi(2);
             let mut best: Vec<Candidate> = Vec::new();
             let mut buf = vec![Complex32::new(0.0, 0.0); n * n];
             for k in 0..n_yaw {
@@ -386,10 +401,13 @@ pub fn sweep(search: &SearchField, nominal: &NominalField, p: &SweepParams) -> V
                         if e <= 0.0 {
                             continue;
                         }
+                        let cx = x as f64 + r_px as f64 - centre;
+                        let cy = y as f64 + r_px as f64 - centre;
+                        if cx * cx + cy * cy > max_off_px2 {
+                            continue;
+                        }
                         let sc = buf[y * n + x].re as f64 * inv_n2 / (e * tnorm).sqrt();
                         if sc > top.score {
-                            let cx = x as f64 + r_px as f64 - centre;
-                            let cy = y as f64 + r_px as f64 - centre;
                             top.score = sc;
                             top.offset = [cx * res, -cy * res];
                         }
@@ -508,6 +526,7 @@ mod tests {
             heights: (0..10).map(|i| 5.5 * 1.06f64.powi(i)).collect(),
             template_radius_m: 14.0,
             top_k: 3,
+            max_offset_m: f64::INFINITY,
         };
         let best = sweep(&search, &nominal, &params)[0];
         let dyaw = (best.yaw - true_yaw).abs().to_degrees();

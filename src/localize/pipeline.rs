@@ -52,6 +52,14 @@ impl Default for Params {
     }
 }
 
+impl Params {
+    /// Radius around the prior that initialization searches, metres.
+    pub fn search_radius_m(&self, prior_sigma_m: f64) -> f64 {
+        let (lo, hi) = self.search_radius_range_m;
+        (self.prior_sigmas * prior_sigma_m).clamp(lo, hi)
+    }
+}
+
 /// One stage's record for the report and the pose file.
 #[derive(Debug, Clone)]
 pub struct Stage {
@@ -102,8 +110,39 @@ pub fn mi_points(tile: &Tile, pose: &CamFromMap, p: &Params) -> Vec<crate::map::
 }
 
 /// Run the pipeline on a (temporally median-filtered) gray frame. `now` returns seconds from any
-/// fixed origin. Errors name the stage and the numbers.
+/// fixed origin. Errors name the stage and the numbers; a refinement the quality gate rejects is
+/// an error (see [`quality_gate`]).
 pub fn localize(
+    camera: &Camera,
+    image: &[u8],
+    tile: &Tile,
+    prior_xy: (f64, f64),
+    prior_sigma_m: f64,
+    p: &Params,
+    now: &dyn Fn() -> f64,
+) -> Result<Outcome> {
+    let outcome = localize_ungated(camera, image, tile, prior_xy, prior_sigma_m, p, now)?;
+    quality_gate(&outcome)?;
+    Ok(outcome)
+}
+
+/// The MI quality gate's verdict on an outcome as the error [`localize`] returns.
+pub fn quality_gate(o: &Outcome) -> Result<()> {
+    if o.refinement.quality.accepted {
+        return Ok(());
+    }
+    Err(Error::stage(
+        "mi",
+        format!(
+            "quality gate: {}",
+            o.refinement.quality.reason.clone().unwrap_or_default()
+        ),
+    ))
+}
+
+/// [`localize`] without the quality gate: the outcome whatever the gate would say, so that an
+/// evaluation can still see the stages of a rejected run (`examples/pipeline_accuracy.rs`).
+pub fn localize_ungated(
     camera: &Camera,
     image: &[u8],
     tile: &Tile,
@@ -125,8 +164,7 @@ pub fn localize(
             format!("unusable prior {prior_xy:?} σ {prior_sigma_m}"),
         ));
     }
-    let (lo, hi) = p.search_radius_range_m;
-    let radius = (p.prior_sigmas * prior_sigma_m).clamp(lo, hi);
+    let radius = p.search_radius_m(prior_sigma_m);
     let mut stages = vec![Stage {
         name: "prior",
         pose: None,
@@ -162,7 +200,7 @@ pub fn localize(
         seconds: t1 - t0,
         detail: json!({
             "matches": init.matches, "inliers": init.inliers, "rms_px": init.rms_px,
-            "candidates": init.candidates_tried,
+            "candidates": init.candidates_tried, "candidate_rank": init.candidate_rank,
             "coarse": { "yaw_deg": init.candidate.yaw.to_degrees(), "height_m": init.candidate.height,
                         "offset_m": init.candidate.offset, "score": init.candidate.score },
         }),
@@ -176,19 +214,77 @@ pub fn localize(
         seconds: t2 - t1,
         detail: serde_json::to_value(refinement.report(p.search.mode)).unwrap_or(Value::Null),
     });
-    if !refinement.quality.accepted {
-        return Err(Error::stage(
-            "mi",
-            format!(
-                "quality gate: {}",
-                refinement.quality.reason.clone().unwrap_or_default()
-            ),
-        ));
-    }
     Ok(Outcome {
         pose: refinement.pose,
         init,
         refinement,
         stages,
     })
+}
+
+/// Errors of each stage against a simulator `truth.json` (its text; `origin` names it in errors):
+/// for `prior` the horizontal distance of the GPS prior, for each stage with a pose (`pnp`, `mi`)
+/// horizontal, height, yaw and full-rotation errors and the mean reprojection error of the truth's
+/// control points (the seed paper's accuracy figure), and the number of control points. The
+/// report of `infraloc localize --truth` and `examples/pipeline_accuracy.rs` both use this.
+pub fn truth_errors(
+    text: &str,
+    origin: &std::path::Path,
+    camera: &Camera,
+    stages: &[Stage],
+) -> Result<Value> {
+    let truth = crate::posefile::parse_pose(text, origin)?.pose;
+    let v: Value = serde_json::from_str(text).map_err(|e| Error::input(origin, e.to_string()))?;
+    let cps: Vec<([f64; 3], [f64; 2])> = v["control_points"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|c| {
+                    Some((
+                        serde_json::from_value(c["map"].clone()).ok()?,
+                        serde_json::from_value(c["pixel"].clone()).ok()?,
+                    ))
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let tc = truth.center();
+    let err = |p: &CamFromMap| {
+        let c = p.center();
+        let dyaw = (p.yaw_pitch_roll().0 - truth.yaw_pitch_roll().0 + std::f64::consts::PI)
+            .rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI;
+        let reproj: Vec<f64> = cps
+            .iter()
+            .filter_map(|(m, px)| {
+                let q = camera
+                    .project(&p.transform(&nalgebra::Point3::from(*m)).coords)
+                    .ok()?;
+                Some(((q.x - px[0]).powi(2) + (q.y - px[1]).powi(2)).sqrt())
+            })
+            .collect();
+        let mean = if reproj.is_empty() {
+            f64::NAN
+        } else {
+            reproj.iter().sum::<f64>() / reproj.len() as f64
+        };
+        json!({
+            "horizontal_m": ((c.x - tc.x).powi(2) + (c.y - tc.y).powi(2)).sqrt(),
+            "height_m": (c.z - tc.z).abs(),
+            "yaw_deg": dyaw.abs().to_degrees(),
+            "rotation_deg": crate::pose::rotation_angle_between(&p.rotation, &truth.rotation).to_degrees(),
+            "control_points_mean_px": mean,
+        })
+    };
+    let mut out = json!({ "control_points": cps.len() });
+    for s in stages {
+        if let Some(p) = &s.pose {
+            out[s.name] = err(p);
+        } else if let (Some(x), Some(y)) = (s.detail["x"].as_f64(), s.detail["y"].as_f64()) {
+            // The prior is a position only: no height, no heading.
+            out[s.name] =
+                json!({ "horizontal_m": ((x - tc.x).powi(2) + (y - tc.y).powi(2)).sqrt() });
+        }
+    }
+    Ok(out)
 }

@@ -1,0 +1,474 @@
+//! Accuracy of the whole pipeline on seeded simulated scenes (issue 4's acceptance).
+//!
+//! ```sh
+//! cargo run --release --example pipeline_accuracy -- --preset small --seeds 1..100 --json out.json
+//! ```
+//!
+//! For each seed it generates the scene `infraloc simulate --seed N` writes (hard, Mei lens,
+//! 5 frames unless told otherwise), hands the localizer the same inputs `infraloc localize` reads
+//! from that scene directory (camera through its YAML, the temporal median of the frames, the
+//! tile through the GeoTIFF cache in a temporary directory, the prior from the NMEA log with the
+//! default `[gps]` settings), runs [`pipeline::localize_ungated`] with the default parameters and
+//! applies [`pipeline::quality_gate`] — exactly `localize`, except that a run the gate rejects
+//! still shows its stages — and scores each stage with [`pipeline::truth_errors`], the function
+//! behind `infraloc localize --truth`. A failing seed is reproduced with
+//! `infraloc simulate --seed N --preset P --out DIR` and `infraloc localize --config DIR/infraloc.toml`.
+//!
+//! `--top-k N` and `--no-early-stop` change the initializer's candidate list for before/after
+//! comparisons on the same seeds. The JSON (per-seed records and the summary) is rewritten after
+//! every seed, so an interrupted run keeps what it measured.
+
+use infraloc::camera::import::{parse_camera, to_opencv_yaml};
+use infraloc::config::{Config, GpsSourceKind};
+use infraloc::localize::pipeline::{self, Params};
+use infraloc::sim::{self, Difficulty, Lens, Preset, Settings};
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Initialization inside the MI search basin (issue 4): horizontal and yaw error bounds.
+const BASIN_M: f64 = 1.0;
+const BASIN_DEG: f64 = 5.0;
+/// Final pose "within": horizontal and height, metres; yaw, degrees (as `infraloc demo`).
+const WITHIN_M: f64 = 0.10;
+const WITHIN_DEG: f64 = 0.2;
+
+struct Opts {
+    preset: Preset,
+    difficulty: Difficulty,
+    seeds: Vec<u64>,
+    frames: u32,
+    json: Option<PathBuf>,
+    threads: Option<usize>,
+    top_k: Option<usize>,
+    no_early_stop: bool,
+    init_only: bool,
+}
+
+fn usage() -> ! {
+    eprintln!(
+        "usage: pipeline_accuracy [--preset small|5mp] [--difficulty hard|easy] --seeds A..B|A,B,C \
+         [--frames N] [--json OUT] [--threads N] [--top-k N] [--no-early-stop] [--init-only]\n  \
+         A..B is inclusive: 1..100 is 100 seeds"
+    );
+    std::process::exit(2)
+}
+
+fn parse_seeds(s: &str) -> Option<Vec<u64>> {
+    if let Some((a, b)) = s.split_once("..") {
+        let (a, b): (u64, u64) = (a.parse().ok()?, b.trim_start_matches('=').parse().ok()?);
+        return (a <= b).then(|| (a..=b).collect());
+    }
+    s.split(',').map(|t| t.trim().parse().ok()).collect()
+}
+
+fn opts() -> Opts {
+    let mut o = Opts {
+        preset: Preset::Small,
+        difficulty: Difficulty::Hard,
+        seeds: Vec::new(),
+        frames: 5,
+        json: None,
+        threads: None,
+        top_k: None,
+        no_early_stop: false,
+        init_only: false,
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(a) = it.next() {
+        let mut val = || it.next().unwrap_or_else(|| usage());
+        match a.as_str() {
+            "--preset" => {
+                o.preset = match val().as_str() {
+                    "small" => Preset::Small,
+                    "5mp" => Preset::FiveMp,
+                    _ => usage(),
+                }
+            }
+            "--difficulty" => {
+                o.difficulty = match val().as_str() {
+                    "hard" => Difficulty::Hard,
+                    "easy" => Difficulty::Easy,
+                    _ => usage(),
+                }
+            }
+            "--seeds" => o.seeds = parse_seeds(&val()).unwrap_or_else(|| usage()),
+            "--frames" => o.frames = val().parse().unwrap_or_else(|_| usage()),
+            "--json" => o.json = Some(PathBuf::from(val())),
+            "--threads" => o.threads = Some(val().parse().unwrap_or_else(|_| usage())),
+            "--top-k" => o.top_k = Some(val().parse().unwrap_or_else(|_| usage())),
+            "--no-early-stop" => o.no_early_stop = true,
+            "--init-only" => o.init_only = true,
+            _ => usage(),
+        }
+    }
+    if o.seeds.is_empty() {
+        usage()
+    }
+    o
+}
+
+/// One seed: simulate, localize as `infraloc localize` does, score against truth.
+fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
+    let settings = Settings {
+        seed,
+        preset: o.preset,
+        difficulty: o.difficulty,
+        lens: Lens::Mei,
+        frames: o.frames,
+    };
+    let t0 = Instant::now();
+    let scene = sim::generate(&settings)?;
+    let sim_s = t0.elapsed().as_secs_f64();
+    let tmp = tempfile::tempdir().map_err(|e| infraloc::Error::io(std::env::temp_dir(), e))?;
+    let dir = tmp.path();
+    let io = |p: &Path, e| infraloc::Error::io(p, e);
+    // The scene directory's files `localize` reads (the frames are PNG, lossless: kept in memory).
+    let tiles = dir.join("tiles");
+    infraloc::map::cache::write_tile(&tiles, &scene.tile)?;
+    let nmea = dir.join("gps.nmea");
+    std::fs::write(&nmea, &scene.nmea).map_err(|e| io(&nmea, e))?;
+    let cam_yaml = dir.join("camera.yaml");
+    let cam_text = to_opencv_yaml(&scene.camera_given);
+
+    let t1 = Instant::now();
+    let camera = parse_camera(&cam_text, &cam_yaml)?;
+    let (w, h) = scene.frame_size();
+    let frames: Vec<image::GrayImage> = scene
+        .frames
+        .iter()
+        .filter_map(|f| image::GrayImage::from_raw(w, h, f.clone()))
+        .collect();
+    let image = infraloc::capture::temporal_median(&frames)?;
+    let cfg = Config::default();
+    let mut g = cfg.gps.clone();
+    g.source = GpsSourceKind::NmeaFile;
+    g.path = Some(nmea);
+    let prior = infraloc::gps_serial::acquire_prior(&g)?;
+    let (lat, lon, sigma) = prior
+        .position()
+        .ok_or_else(|| infraloc::Error::stage("prior", "no position from the NMEA log"))?;
+    let tref = infraloc::map::cache::find_tile(&tiles, lat, lon, cfg.map.search_margin_m)?;
+    let tile = infraloc::map::cache::load_tile(&tref.dir)?;
+    let xy = infraloc::geo::wgs84_to_map(tile.reflectivity.grid.crs, lat, lon)?;
+    let inputs_s = t1.elapsed().as_secs_f64();
+    let clock = Instant::now();
+    if o.init_only {
+        return init_only(
+            &scene,
+            &camera,
+            image.as_raw(),
+            &tile,
+            xy,
+            sigma,
+            params,
+            sim_s,
+        );
+    }
+    let outcome =
+        pipeline::localize_ungated(&camera, image.as_raw(), &tile, xy, sigma, params, &|| {
+            clock.elapsed().as_secs_f64()
+        });
+    let acq = &scene.acquisition;
+    let mut rec = json!({
+        "seed": seed,
+        "scene": {
+            "camera_height_m": acq.camera_height_above_ground_m,
+            "approaches": acq.approaches,
+            "overcast": acq.camera_overcast,
+            "traffic": acq.traffic_vehicles_pedestrians,
+            "gps_sigma_bias_noise_m": acq.gps_sigma_bias_noise_m,
+            "prior_sigma_m": sigma,
+        },
+        "seconds": { "simulate": sim_s, "inputs": inputs_s },
+    });
+    let truth_text = serde_json::to_string(&scene.truth_json())
+        .map_err(|e| infraloc::Error::Invalid(format!("truth: {e}")))?;
+    let truth_path = dir.join("truth.json");
+    match outcome {
+        Err(e) => {
+            rec["failure"] = json!(e.to_string());
+            // The prior alone can still be scored.
+            let prior_stage = pipeline::Stage {
+                name: "prior",
+                pose: None,
+                seconds: 0.0,
+                detail: json!({ "x": xy.0, "y": xy.1 }),
+            };
+            rec["errors"] =
+                pipeline::truth_errors(&truth_text, &truth_path, &camera, &[prior_stage])?;
+        }
+        Ok(out) => {
+            if let Err(e) = pipeline::quality_gate(&out) {
+                rec["failure"] = json!(e.to_string());
+            }
+            rec["errors"] = pipeline::truth_errors(&truth_text, &truth_path, &camera, &out.stages)?;
+            rec["seconds"]["init"] = json!(out.stages[1].seconds);
+            rec["seconds"]["mi"] = json!(out.stages[2].seconds);
+            rec["seconds"]["localize"] =
+                json!(inputs_s + out.stages[2].seconds + out.stages[1].seconds);
+            rec["init"] = out.stages[1].detail.clone();
+            rec["mi_quality"] =
+                serde_json::to_value(&out.refinement.quality).unwrap_or(Value::Null);
+        }
+    }
+    Ok(rec)
+}
+
+/// `--init-only`: the pipeline's initialization step alone (same search radius, seed and
+/// parameters), scored like the full run; for comparing initializer variants cheaply.
+#[allow(clippy::too_many_arguments)]
+fn init_only(
+    scene: &sim::Scene,
+    camera: &infraloc::camera::Camera,
+    image: &[u8],
+    tile: &infraloc::map::Tile,
+    xy: (f64, f64),
+    sigma: f64,
+    p: &Params,
+    sim_s: f64,
+) -> infraloc::Result<Value> {
+    use rand::SeedableRng;
+    let t = Instant::now();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(p.seed);
+    let init = infraloc::localize::init::initialize(
+        camera,
+        image,
+        &tile.satellite,
+        &tile.height,
+        xy,
+        p.search_radius_m(sigma),
+        &p.coarse,
+        &p.fine,
+        &mut rng,
+    );
+    let secs = t.elapsed().as_secs_f64();
+    let truth_text = serde_json::to_string(&scene.truth_json())
+        .map_err(|e| infraloc::Error::Invalid(format!("truth: {e}")))?;
+    let prior = pipeline::Stage {
+        name: "prior",
+        pose: None,
+        seconds: 0.0,
+        detail: json!({ "x": xy.0, "y": xy.1 }),
+    };
+    let mut rec =
+        json!({ "seed": scene.settings.seed, "seconds": { "simulate": sim_s, "init": secs } });
+    let stages = match init {
+        Ok(r) => {
+            rec["init"] = json!({ "candidates": r.candidates_tried, "candidate_rank": r.candidate_rank,
+                "inliers": r.inliers, "matches": r.matches, "rms_px": r.rms_px });
+            vec![
+                prior,
+                pipeline::Stage {
+                    name: "pnp",
+                    pose: Some(r.pose),
+                    seconds: secs,
+                    detail: Value::Null,
+                },
+            ]
+        }
+        Err(e) => {
+            rec["failure"] = json!(e.to_string());
+            vec![prior]
+        }
+    };
+    rec["errors"] = pipeline::truth_errors(
+        &truth_text,
+        std::path::Path::new("truth.json"),
+        camera,
+        &stages,
+    )?;
+    Ok(rec)
+}
+
+fn f(v: &Value, stage: &str, key: &str) -> Option<f64> {
+    v["errors"][stage][key].as_f64().filter(|x| x.is_finite())
+}
+
+/// Median, 95th percentile (nearest rank) and maximum.
+fn stats(mut xs: Vec<f64>) -> Option<[f64; 3]> {
+    if xs.is_empty() {
+        return None;
+    }
+    xs.sort_by(f64::total_cmp);
+    let n = xs.len();
+    let med = if n % 2 == 1 {
+        xs[n / 2]
+    } else {
+        0.5 * (xs[n / 2 - 1] + xs[n / 2])
+    };
+    let p95 = xs[((0.95 * n as f64).ceil() as usize).clamp(1, n) - 1];
+    Some([med, p95, xs[n - 1]])
+}
+
+fn in_basin(r: &Value) -> bool {
+    f(r, "pnp", "horizontal_m").is_some_and(|x| x <= BASIN_M)
+        && f(r, "pnp", "yaw_deg").is_some_and(|x| x <= BASIN_DEG)
+}
+
+fn final_within(r: &Value) -> bool {
+    r.get("failure").is_none()
+        && f(r, "mi", "horizontal_m").is_some_and(|x| x <= WITHIN_M)
+        && f(r, "mi", "height_m").is_some_and(|x| x <= WITHIN_M)
+        && f(r, "mi", "yaw_deg").is_some_and(|x| x <= WITHIN_DEG)
+}
+
+fn summary(recs: &[Value]) -> Value {
+    let n = recs.len();
+    let mut s = json!({ "seeds": n });
+    for stage in ["prior", "pnp", "mi"] {
+        for key in [
+            "horizontal_m",
+            "height_m",
+            "yaw_deg",
+            "rotation_deg",
+            "control_points_mean_px",
+        ] {
+            let xs: Vec<f64> = recs.iter().filter_map(|r| f(r, stage, key)).collect();
+            if let Some([m, p, x]) = stats(xs.clone()) {
+                s[stage][key] = json!({ "median": m, "p95": p, "max": x, "n": xs.len(),
+                    "mean": xs.iter().sum::<f64>() / xs.len() as f64 });
+            }
+        }
+    }
+    for key in ["init", "mi", "localize", "simulate"] {
+        let xs: Vec<f64> = recs
+            .iter()
+            .filter_map(|r| r["seconds"][key].as_f64())
+            .collect();
+        if let Some([m, p, x]) = stats(xs) {
+            s["seconds"][key] = json!({ "median": m, "p95": p, "max": x });
+        }
+    }
+    let count = |p: &dyn Fn(&Value) -> bool| recs.iter().filter(|r| p(r)).count();
+    s["init_in_basin"] = json!(count(&in_basin));
+    s["final_within"] = json!(count(&final_within));
+    s["failures"] = recs
+        .iter()
+        .filter_map(|r| Some(json!({ "seed": r["seed"], "reason": r.get("failure")? })))
+        .collect();
+    s
+}
+
+fn print_summary(s: &Value) {
+    let n = s["seeds"].as_u64().unwrap_or(0);
+    println!(
+        "\n{:<6} {:<22} {:>10} {:>10} {:>10} {:>5}",
+        "stage", "error", "median", "p95", "max", "n"
+    );
+    for stage in ["prior", "pnp", "mi"] {
+        for key in [
+            "horizontal_m",
+            "height_m",
+            "yaw_deg",
+            "control_points_mean_px",
+        ] {
+            let v = &s[stage][key];
+            if v.is_null() {
+                continue;
+            }
+            let g = |k: &str| v[k].as_f64().unwrap_or(f64::NAN);
+            println!(
+                "{:<6} {:<22} {:>10.4} {:>10.4} {:>10.4} {:>5}",
+                stage,
+                key,
+                g("median"),
+                g("p95"),
+                g("max"),
+                v["n"]
+            );
+        }
+    }
+    for key in ["init", "mi", "localize"] {
+        let v = &s["seconds"][key];
+        if !v.is_null() {
+            println!(
+                "seconds {:<9} median {:.2}  p95 {:.2}  max {:.2}",
+                key,
+                v["median"].as_f64().unwrap_or(f64::NAN),
+                v["p95"].as_f64().unwrap_or(f64::NAN),
+                v["max"].as_f64().unwrap_or(f64::NAN)
+            );
+        }
+    }
+    let pct = |k: &str| {
+        let c = s[k].as_u64().unwrap_or(0);
+        format!("{c}/{n} ({:.1} %)", 100.0 * c as f64 / n.max(1) as f64)
+    };
+    println!(
+        "init in basin (≤ {BASIN_M} m, ≤ {BASIN_DEG}°): {}",
+        pct("init_in_basin")
+    );
+    println!(
+        "final within {WITHIN_M} m horizontal and height, {WITHIN_DEG}° yaw, gate passed: {}",
+        pct("final_within")
+    );
+    for fl in s["failures"].as_array().into_iter().flatten() {
+        println!("failure seed {}: {}", fl["seed"], fl["reason"]);
+    }
+}
+
+fn main() {
+    let o = opts();
+    if let Some(n) = o.threads {
+        let _ = rayon::ThreadPoolBuilder::new()
+            .num_threads(n.max(1))
+            .build_global();
+    }
+    let mut params = Params::default();
+    if let Some(k) = o.top_k {
+        params.coarse.top_k = k;
+    }
+    if o.no_early_stop {
+        params.fine.convincing_inliers = None;
+    }
+    println!(
+        "{:>5} {:>9} {:>8} {:>8} {:>9} {:>8} {:>8} {:>8} {:>6} {:>7} {:>7}  note",
+        "seed",
+        "prior m",
+        "pnp m",
+        "pnp °",
+        "mi m",
+        "mi z m",
+        "mi °",
+        "mi px",
+        "cand",
+        "init s",
+        "mi s"
+    );
+    let mut recs = Vec::new();
+    for &seed in &o.seeds {
+        let rec = run_seed(&o, seed, &params)
+            .unwrap_or_else(|e| json!({ "seed": seed, "failure": format!("harness: {e}") }));
+        let g = |st: &str, k: &str| f(&rec, st, k).unwrap_or(f64::NAN);
+        println!(
+            "{:>5} {:>9.2} {:>8.3} {:>8.3} {:>9.4} {:>8.4} {:>8.4} {:>8.2} {:>3}/{:<2} {:>7.1} {:>7.1}  {}",
+            seed,
+            g("prior", "horizontal_m"),
+            g("pnp", "horizontal_m"),
+            g("pnp", "yaw_deg"),
+            g("mi", "horizontal_m"),
+            g("mi", "height_m"),
+            g("mi", "yaw_deg"),
+            g("mi", "control_points_mean_px"),
+            rec["init"]["candidate_rank"].as_u64().map_or(-1, |r| r as i64),
+            rec["init"]["candidates"].as_u64().unwrap_or(0),
+            rec["seconds"]["init"].as_f64().unwrap_or(f64::NAN),
+            rec["seconds"]["mi"].as_f64().unwrap_or(f64::NAN),
+            rec.get("failure").and_then(|v| v.as_str()).unwrap_or("")
+        );
+        recs.push(rec);
+        if let Some(p) = &o.json {
+            let doc = json!({
+                "command": std::env::args().collect::<Vec<_>>().join(" "),
+                "summary": summary(&recs),
+                "seeds": recs,
+            });
+            let text = serde_json::to_string_pretty(&doc).unwrap_or_default();
+            if let Err(e) = std::fs::write(p, text) {
+                eprintln!("{}: {e}", p.display());
+            }
+        }
+    }
+    print_summary(&summary(&recs));
+}
