@@ -38,9 +38,10 @@ pub const SOCKET_MODE: u32 = 0o660;
 #[serde(tag = "request", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum Request {
     /// The service's state, served pose, last run, schedules.
-    Status,
+    // Struct variants (not unit) so that `deny_unknown_fields` also rejects stray keys here.
+    Status {},
     /// The served pose file (contracts §4) as JSON.
-    GetPose,
+    GetPose {},
     /// Localize now. With `wait`, progress is streamed and the final answer is the run's result;
     /// `force` serves the result even if its quality is below the served pose's.
     Relocalize {
@@ -52,9 +53,9 @@ pub enum Request {
         force: bool,
     },
     /// The LiDAR-over-image overlay of the latest run, as a PNG frame after the answer.
-    DumpOverlay,
+    DumpOverlay {},
     /// Validate the daemon's config file as a reload would read it.
-    Validate,
+    Validate {},
 }
 
 /// Write one frame.
@@ -181,12 +182,32 @@ pub fn bind(path: &Path) -> Result<UnixListener> {
     Ok(l)
 }
 
+/// The server's limits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Limits {
+    /// Clients served at once.
+    pub max_connections: usize,
+    /// How long to wait for a client's request.
+    pub request_timeout: Duration,
+}
+
+impl Default for Limits {
+    /// [`MAX_CONNECTIONS`], [`REQUEST_TIMEOUT`].
+    fn default() -> Self {
+        Limits {
+            max_connections: MAX_CONNECTIONS,
+            request_timeout: REQUEST_TIMEOUT,
+        }
+    }
+}
+
 /// Serve connections on `listener` until the process ends, one thread per client, at most
-/// [`MAX_CONNECTIONS`] at once. `log` receives one line per client and per protocol fault.
+/// `limits.max_connections` at once. `log` receives one line per client and per protocol fault.
 pub fn serve(
     listener: UnixListener,
     handler: Arc<Handler>,
     log: Arc<dyn Fn(&str) + Send + Sync>,
+    limits: Limits,
 ) -> std::thread::JoinHandle<()> {
     let active = Arc::new(AtomicUsize::new(0));
     std::thread::Builder::new()
@@ -201,12 +222,13 @@ pub fn serve(
                         continue;
                     }
                 };
-                if active.fetch_add(1, Ordering::SeqCst) >= MAX_CONNECTIONS {
+                let max = limits.max_connections;
+                if active.fetch_add(1, Ordering::SeqCst) >= max {
                     active.fetch_sub(1, Ordering::SeqCst);
-                    let _ = stream.set_write_timeout(Some(REQUEST_TIMEOUT));
+                    let _ = stream.set_write_timeout(Some(limits.request_timeout));
                     let _ = write_json(
                         &mut stream,
-                        &json!({"ok": false, "error": format!("busy: {MAX_CONNECTIONS} clients connected")}),
+                        &json!({"ok": false, "error": format!("busy: {max} clients connected")}),
                     );
                     continue;
                 }
@@ -214,7 +236,7 @@ pub fn serve(
                 let spawned = std::thread::Builder::new()
                     .name("control-client".into())
                     .spawn(move || {
-                        serve_one(&mut stream, h.as_ref(), l.as_ref());
+                        serve_one(&mut stream, h.as_ref(), l.as_ref(), limits.request_timeout);
                         a.fetch_sub(1, Ordering::SeqCst);
                     });
                 if spawned.is_err() {
@@ -226,12 +248,17 @@ pub fn serve(
         .unwrap_or_else(|e| panic!("cannot start the control thread: {e}"))
 }
 
-fn serve_one(stream: &mut UnixStream, handler: &Handler, log: &(dyn Fn(&str) + Send + Sync)) {
+fn serve_one(
+    stream: &mut UnixStream,
+    handler: &Handler,
+    log: &(dyn Fn(&str) + Send + Sync),
+    timeout: Duration,
+) {
     let who = match peer_cred(stream) {
         Some(c) => format!("pid {} uid {} gid {}", c.pid, c.uid, c.gid),
         None => "unknown peer".into(),
     };
-    let _ = stream.set_read_timeout(Some(REQUEST_TIMEOUT));
+    let _ = stream.set_read_timeout(Some(timeout));
     let _ = stream.set_write_timeout(Some(WRITE_TIMEOUT));
     let req = match read_frame(stream, MAX_REQUEST_BYTES) {
         Ok(Some(b)) => serde_json::from_slice::<Request>(&b).map_err(|e| e.to_string()),
@@ -301,7 +328,7 @@ impl Client {
                 on_progress(&v);
                 continue;
             }
-            let payload = if matches!(req, Request::DumpOverlay) && v["ok"] == json!(true) {
+            let payload = if matches!(req, Request::DumpOverlay {}) && v["ok"] == json!(true) {
                 read_frame(&mut self.stream, MAX_RESPONSE_BYTES).map_err(io)?
             } else {
                 None
@@ -318,14 +345,14 @@ mod tests {
     #[test]
     fn requests_round_trip_and_reject_unknown_fields() {
         for r in [
-            Request::Status,
-            Request::GetPose,
+            Request::Status {},
+            Request::GetPose {},
             Request::Relocalize {
                 wait: true,
                 force: false,
             },
-            Request::DumpOverlay,
-            Request::Validate,
+            Request::DumpOverlay {},
+            Request::Validate {},
         ] {
             let s = serde_json::to_string(&r).unwrap();
             assert_eq!(serde_json::from_str::<Request>(&s).unwrap(), r, "{s}");
@@ -375,13 +402,19 @@ mod tests {
                 reply.progress(&json!({"progress": "capture"})).unwrap();
                 (json!({"ok": true, "result": "done"}), None)
             }
-            Request::DumpOverlay => (json!({"ok": true}), Some(vec![1, 2, 3])),
+            Request::DumpOverlay {} => (json!({"ok": true}), Some(vec![1, 2, 3])),
             _ => (json!({"ok": true, "state": "ok"}), None),
         });
-        serve(l, handler, Arc::new(|_| {}));
+        // A long request timeout: the idle clients below must keep their slots however slowly
+        // this test runs on a loaded machine.
+        let limits = Limits {
+            request_timeout: Duration::from_secs(120),
+            ..Limits::default()
+        };
+        serve(l, handler, Arc::new(|_| {}), limits);
         let mut c = Client::connect(&path).unwrap();
         let (v, _) = c
-            .call(&Request::Status, Duration::from_secs(5), |_| {})
+            .call(&Request::Status {}, Duration::from_secs(5), |_| {})
             .unwrap();
         assert_eq!(v["state"], "ok");
         let mut seen = Vec::new();
@@ -399,7 +432,7 @@ mod tests {
         assert_eq!((v["result"].as_str(), seen.len()), (Some("done"), 1));
         let (_, png) = Client::connect(&path)
             .unwrap()
-            .call(&Request::DumpOverlay, Duration::from_secs(5), |_| {})
+            .call(&Request::DumpOverlay {}, Duration::from_secs(5), |_| {})
             .unwrap();
         assert_eq!(png, Some(vec![1, 2, 3]));
 

@@ -113,7 +113,7 @@ fn failed(v: &Value) -> Error {
 
 /// `status`: returns the exit code (0 ok/starting, 3 degraded, 4 failed).
 pub fn status(t: Target) -> Result<i32> {
-    let (v, _) = t.call(Request::Status)?;
+    let (v, _) = t.call(Request::Status {})?;
     if v["ok"] != true {
         return Err(failed(&v));
     }
@@ -343,7 +343,7 @@ pub fn relocalize(a: RelocalizeArgs) -> Result<()> {
 
 /// `pose`: the served pose document.
 pub fn pose(t: Target) -> Result<()> {
-    let (v, _) = t.call(Request::GetPose)?;
+    let (v, _) = t.call(Request::GetPose {})?;
     if v["ok"] != true {
         return Err(failed(&v));
     }
@@ -356,7 +356,7 @@ pub fn pose(t: Target) -> Result<()> {
 
 /// `overlay --out PNG`.
 pub fn overlay(a: OverlayArgs) -> Result<()> {
-    let (v, png) = a.target.call(Request::DumpOverlay)?;
+    let (v, png) = a.target.call(Request::DumpOverlay {})?;
     if v["ok"] != true {
         return Err(failed(&v));
     }
@@ -380,7 +380,7 @@ pub fn validate_running(socket: Option<&Path>, config: &Path, json: bool) -> Res
         config: config.to_path_buf(),
         json,
     };
-    let (v, _) = t.call(Request::Validate)?;
+    let (v, _) = t.call(Request::Validate {})?;
     if json {
         println!("{v}");
     }

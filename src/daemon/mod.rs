@@ -226,7 +226,12 @@ pub fn run(config_path: &Path) -> Result<()> {
     start_signals(tx.clone())?;
     let handler = make_handler(shared.clone(), store.clone(), tx.clone(), config_path);
     let l2 = log.clone();
-    control::serve(listener, handler, Arc::new(move |m| l2.log(Level::Info, m)));
+    control::serve(
+        listener,
+        handler,
+        Arc::new(move |m| l2.log(Level::Info, m)),
+        control::Limits::default(),
+    );
     log.log(
         Level::Info,
         &format!(
@@ -301,18 +306,18 @@ fn make_handler(
     let config_path = config_path.to_path_buf();
     // mpsc::Sender is Sync since Rust 1.72, so the handler can be shared by client threads.
     Arc::new(move |req: Request, reply: &mut dyn Reply| match req {
-        Request::Status => {
+        Request::Status {} => {
             let s = lock(&shared.status).clone();
             let mut v = serde_json::to_value(s).unwrap_or(Value::Null);
             v["ok"] = json!(true);
             (v, None)
         }
-        Request::GetPose => match store.current() {
+        Request::GetPose {} => match store.current() {
             Ok(Some(p)) => (json!({"ok": true, "pose": p}), None),
             Ok(None) => (json!({"ok": false, "error": "no pose served yet"}), None),
             Err(e) => (json!({"ok": false, "error": e.to_string()}), None),
         },
-        Request::Validate => match load_config(&config_path) {
+        Request::Validate {} => match load_config(&config_path) {
             Ok(c) => (
                 json!({"ok": true, "config": config_path, "warnings": c.check()}),
                 None,
@@ -322,7 +327,7 @@ fn make_handler(
                 None,
             ),
         },
-        Request::DumpOverlay => {
+        Request::DumpOverlay {} => {
             let run = lock(&shared.last_run).clone();
             match run {
                 Some(r) => match r.overlay_png() {
