@@ -14,7 +14,9 @@ fuzz_target!(|data: &[u8]| {
             let text = serde_json::to_vec(&req).unwrap();
             let mut framed = Vec::new();
             write_frame(&mut framed, &text).unwrap();
-            let back = read_frame(&mut &framed[..], MAX_REQUEST_BYTES).unwrap().unwrap();
+            let back = read_frame(&mut &framed[..], MAX_REQUEST_BYTES)
+                .unwrap()
+                .unwrap();
             assert_eq!(serde_json::from_slice::<Request>(&back).unwrap(), req);
         }
     }

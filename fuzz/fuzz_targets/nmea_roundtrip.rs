@@ -30,7 +30,9 @@ fuzz_target!(|data: &[u8]| {
     };
     let quality = q % 8 + 1;
     let hdop = hd as f64 / 10.0;
-    let Some(date) = Date::new(2000 + (yy % 80) as u16, mm % 12 + 1, dd % 31 + 1) else { return };
+    let Some(date) = Date::new(2000 + (yy % 80) as u16, mm % 12 + 1, dd % 31 + 1) else {
+        return;
+    };
     let pos = LatLon { lat, lon };
     // Half a unit of the last written minute digit, in degrees, plus float slack.
     let tol = 0.5 * 10f64.powi(-(WRITE_MINUTE_DECIMALS as i32)) / 60.0 + 1e-12;
@@ -38,9 +40,14 @@ fuzz_target!(|data: &[u8]| {
     let mut line = String::new();
     nmea::write_gga(&mut line, &time, pos, quality, sats % 100, hdop, alt, 0.0);
     let p = nmea::parse(line.as_bytes()).unwrap_or_else(|e| panic!("{line}: {e}"));
-    let Body::Gga(g) = p.body else { panic!("{line}") };
+    let Body::Gga(g) = p.body else {
+        panic!("{line}")
+    };
     let back = g.pos.unwrap();
-    assert!((back.lat - lat).abs() <= tol && (back.lon - lon).abs() <= tol, "{line}");
+    assert!(
+        (back.lat - lat).abs() <= tol && (back.lon - lon).abs() <= tol,
+        "{line}"
+    );
     assert_eq!(g.time, Some(time), "{line}");
     assert_eq!(g.quality, quality);
     assert!((g.alt_msl.unwrap() - alt).abs() <= 0.0005 + 1e-9, "{line}");
@@ -50,10 +57,15 @@ fuzz_target!(|data: &[u8]| {
     let mode = b"ADPRFEMS"[(q % 8) as usize];
     nmea::write_rmc(&mut line, &time, &date, pos, mode);
     let p = nmea::parse(line.as_bytes()).unwrap_or_else(|e| panic!("{line}: {e}"));
-    let Body::Rmc(r) = p.body else { panic!("{line}") };
+    let Body::Rmc(r) = p.body else {
+        panic!("{line}")
+    };
     assert_eq!(r.date, Some(date), "{line}");
     assert_eq!(r.time, Some(time), "{line}");
     let (back, q2) = p.position().unwrap();
     assert_eq!(q2, nmea::quality::from_mode(mode));
-    assert!((back.lat - lat).abs() <= tol && (back.lon - lon).abs() <= tol, "{line}");
+    assert!(
+        (back.lat - lat).abs() <= tol && (back.lon - lon).abs() <= tol,
+        "{line}"
+    );
 });
