@@ -397,7 +397,20 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("another infraloc daemon"));
-        let handler: Arc<Handler> = Arc::new(|req, reply: &mut dyn Reply| match req {
+        // `Validate` blocks while `release` is set (holding its client's slot); `entered` counts
+        // the handlers that started.
+        let release = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let entered = Arc::new(AtomicUsize::new(0));
+        let (r2, e2) = (release.clone(), entered.clone());
+        let handler: Arc<Handler> = Arc::new(move |req, reply: &mut dyn Reply| match req {
+            Request::Validate {} => {
+                e2.fetch_add(1, Ordering::SeqCst);
+                let start = std::time::Instant::now();
+                while r2.load(Ordering::SeqCst) && start.elapsed() < Duration::from_secs(60) {
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+                (json!({"ok": true}), None)
+            }
             Request::Relocalize { .. } => {
                 reply.progress(&json!({"progress": "capture"})).unwrap();
                 (json!({"ok": true, "result": "done"}), None)
@@ -405,13 +418,7 @@ mod tests {
             Request::DumpOverlay {} => (json!({"ok": true}), Some(vec![1, 2, 3])),
             _ => (json!({"ok": true, "state": "ok"}), None),
         });
-        // A long request timeout: the idle clients below must keep their slots however slowly
-        // this test runs on a loaded machine.
-        let limits = Limits {
-            request_timeout: Duration::from_secs(120),
-            ..Limits::default()
-        };
-        serve(l, handler, Arc::new(|_| {}), limits);
+        serve(l, handler, Arc::new(|_| {}), Limits::default());
         let mut c = Client::connect(&path).unwrap();
         let (v, _) = c
             .call(&Request::Status {}, Duration::from_secs(5), |_| {})
@@ -449,15 +456,36 @@ mod tests {
             serde_json::from_slice(&read_frame(&mut s, 1 << 20).unwrap().unwrap()).unwrap();
         assert!(v["error"].as_str().unwrap().contains("limit"), "{v}");
 
-        // Idle clients beyond the limit are turned away while the first ones hold their slot.
-        let idle: Vec<UnixStream> = (0..MAX_CONNECTIONS)
-            .map(|_| UnixStream::connect(&path).unwrap())
+        // Clients beyond the limit are turned away while the first ones hold their slot: each of
+        // those sends a request whose handler blocks until released, so the slots are held
+        // whatever the timing.
+        release.store(true, Ordering::SeqCst);
+        let held: Vec<_> = (0..MAX_CONNECTIONS)
+            .map(|_| {
+                let p = path.clone();
+                std::thread::spawn(move || {
+                    Client::connect(&p)
+                        .unwrap()
+                        .call(&Request::Validate {}, Duration::from_secs(60), |_| {})
+                        .unwrap()
+                })
+            })
             .collect();
-        std::thread::sleep(Duration::from_millis(200));
+        let start = std::time::Instant::now();
+        while entered.load(Ordering::SeqCst) < MAX_CONNECTIONS {
+            assert!(
+                start.elapsed() < Duration::from_secs(60),
+                "clients never held their slots"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
         let mut extra = UnixStream::connect(&path).unwrap();
         let v: Value =
             serde_json::from_slice(&read_frame(&mut extra, 1 << 20).unwrap().unwrap()).unwrap();
         assert!(v["error"].as_str().unwrap().starts_with("busy"), "{v}");
-        drop(idle);
+        release.store(false, Ordering::SeqCst);
+        for h in held {
+            assert_eq!(h.join().unwrap().0["ok"], true);
+        }
     }
 }
