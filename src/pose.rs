@@ -163,6 +163,11 @@ impl CamFromMap {
     }
 }
 
+/// `a − b` wrapped to [−π, π): the signed difference of two yaw angles, radians.
+pub fn angle_difference(a: f64, b: f64) -> f64 {
+    (a - b + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+}
+
 /// Angle in radians between two rotations. Goes through a quaternion because
 /// `Rotation3::angle` takes `acos` of a trace that rounding can push past 3 (→ NaN).
 pub fn rotation_angle_between(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {

@@ -239,9 +239,12 @@ fn errors(pose: &Path) -> (f64, f64, f64) {
     let p = read_pose(pose).unwrap().pose;
     let t = read_pose(&scene().join("truth.json")).unwrap().pose;
     let (c, tc) = (p.center(), t.center());
-    let dyaw = (p.yaw_pitch_roll().0 - t.yaw_pitch_roll().0).to_degrees();
-    let dyaw = (dyaw + 180.0).rem_euclid(360.0) - 180.0;
-    ((c.xy() - tc.xy()).norm(), (c.z - tc.z).abs(), dyaw.abs())
+    let dyaw = infraloc::pose::angle_difference(p.yaw_pitch_roll().0, t.yaw_pitch_roll().0);
+    (
+        (c.xy() - tc.xy()).norm(),
+        (c.z - tc.z).abs(),
+        dyaw.abs().to_degrees(),
+    )
 }
 
 /// The prior the scene's NMEA log gives (what `[gps] source = "nmea-file"` would use).

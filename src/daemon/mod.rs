@@ -890,8 +890,8 @@ pub fn drift_search(
 /// Horizontal distance (m) and absolute yaw difference (deg) between two poses.
 fn pose_distance(a: &crate::pose::CamFromMap, b: &crate::pose::CamFromMap) -> (f64, f64) {
     let d = (a.center() - b.center()).xy().norm();
-    let dyaw = (a.yaw_pitch_roll().0 - b.yaw_pitch_roll().0).to_degrees();
-    (d, ((dyaw + 180.0).rem_euclid(360.0) - 180.0).abs())
+    let dyaw = crate::pose::angle_difference(a.yaw_pitch_roll().0, b.yaw_pitch_roll().0);
+    (d, dyaw.abs().to_degrees())
 }
 
 /// When a new result lands away from the served pose, ask the new frames whether the served

@@ -412,9 +412,7 @@ mod tests {
             ..CoarseParams::default()
         };
         let best = coarse_candidates(&cam, &img, &sat, (0.0, 0.0), 12.0, &p)[0];
-        let dyaw = ((best.yaw - yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
-            - std::f64::consts::PI)
-            .abs();
+        let dyaw = crate::pose::angle_difference(best.yaw, yaw).abs();
         let dpos =
             ((best.offset[0] - centre[0]).powi(2) + (best.offset[1] - centre[1]).powi(2)).sqrt();
         assert!(
@@ -445,9 +443,7 @@ mod tests {
         .unwrap();
         let c = r.pose.center();
         let (yaw, _, _) = r.pose.yaw_pitch_roll();
-        let dyaw = ((yaw - sc.yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
-            - std::f64::consts::PI)
-            .abs();
+        let dyaw = crate::pose::angle_difference(yaw, sc.yaw).abs();
         let dxy = ((c.x - sc.centre[0]).powi(2) + (c.y - sc.centre[1]).powi(2)).sqrt();
         assert!(
             dxy < 0.3 && (c.z - sc.h).abs() < 0.3 && dyaw.to_degrees() < 1.0,

@@ -432,9 +432,7 @@ pub fn sweep(search: &SearchField, nominal: &NominalField, p: &SweepParams) -> V
     let mut kept: Vec<Candidate> = Vec::new();
     for c in all {
         let near = kept.iter().any(|k| {
-            let dyaw = ((c.yaw - k.yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
-                - std::f64::consts::PI)
-                .abs();
+            let dyaw = crate::pose::angle_difference(c.yaw, k.yaw).abs();
             let dpos =
                 ((c.offset[0] - k.offset[0]).powi(2) + (c.offset[1] - k.offset[1]).powi(2)).sqrt();
             dyaw < 10f64.to_radians() && dpos < 2.0

@@ -251,9 +251,7 @@ pub fn truth_errors(
     let tc = truth.center();
     let err = |p: &CamFromMap| {
         let c = p.center();
-        let dyaw = (p.yaw_pitch_roll().0 - truth.yaw_pitch_roll().0 + std::f64::consts::PI)
-            .rem_euclid(std::f64::consts::TAU)
-            - std::f64::consts::PI;
+        let dyaw = crate::pose::angle_difference(p.yaw_pitch_roll().0, truth.yaw_pitch_roll().0);
         let reproj: Vec<f64> = cps
             .iter()
             .filter_map(|(m, px)| {

@@ -17,7 +17,6 @@ use crate::pose::CamFromMap;
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use std::f64::consts::{PI, TAU};
 
 /// A trial counts as a success within these bounds (the demo's thresholds, the refinement's
 /// 99th-percentile goal): horizontal error, metres.
@@ -85,10 +84,10 @@ impl Perturbation {
 }
 
 /// Offsets of `pose` from `truth`: camera centre difference (map frame, m) and yaw difference
-/// wrapped to (−180°, 180°].
+/// wrapped to [−180°, 180°).
 pub fn offsets_from(truth: &CamFromMap, pose: &CamFromMap) -> [f64; 4] {
     let d = pose.center() - truth.center();
-    let dyaw = (pose.yaw_pitch_roll().0 - truth.yaw_pitch_roll().0 + PI).rem_euclid(TAU) - PI;
+    let dyaw = crate::pose::angle_difference(pose.yaw_pitch_roll().0, truth.yaw_pitch_roll().0);
     [d.x, d.y, d.z, dyaw.to_degrees()]
 }
 
