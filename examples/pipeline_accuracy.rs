@@ -21,6 +21,8 @@
 use infraloc::camera::import::{parse_camera, to_opencv_yaml};
 use infraloc::config::{Config, GpsSourceKind};
 use infraloc::localize::pipeline::{self, Params};
+use infraloc::localize::pnp::{refine_lm, Correspondence};
+use infraloc::pose::CamFromMap;
 use infraloc::sim::{self, Difficulty, Lens, Preset, Settings};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
@@ -202,12 +204,42 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
             if let Err(e) = pipeline::quality_gate(&out) {
                 rec["failure"] = json!(e.to_string());
             }
-            rec["errors"] = pipeline::truth_errors(&truth_text, &truth_path, &camera, &out.stages)?;
+            // The floor: the 6-DoF least-squares fit of the truth's control points under the
+            // given (in `hard`, wrong) intrinsics — the best pose these intrinsics allow.
+            let mut stages = out.stages.clone();
+            if let Some(floor) = control_point_fit(&camera, &scene.truth_json()) {
+                stages.push(pipeline::Stage {
+                    name: "floor",
+                    pose: Some(floor),
+                    seconds: 0.0,
+                    detail: Value::Null,
+                });
+            }
+            rec["errors"] = pipeline::truth_errors(&truth_text, &truth_path, &camera, &stages)?;
+            // The MI objective at each stage's pose and at the floor, on one point set: whether
+            // a miss is the search's (the floor scores higher) or the objective's (it doesn't).
+            let pts = pipeline::mi_points(&tile, &out.pose, params);
+            for st in &stages {
+                if let Some(pose) = &st.pose {
+                    rec["objective"][st.name] =
+                        json!(objective_at(&camera, image.as_raw(), &pts, pose, params));
+                    let (y, p, r) = pose.yaw_pitch_roll();
+                    rec["poses"][st.name] = json!([
+                        pose.center().x,
+                        pose.center().y,
+                        pose.center().z,
+                        y.to_degrees(),
+                        p.to_degrees(),
+                        r.to_degrees()
+                    ]);
+                }
+            }
             rec["seconds"]["init"] = json!(out.stages[1].seconds);
             rec["seconds"]["mi"] = json!(out.stages[2].seconds);
             rec["seconds"]["localize"] =
                 json!(inputs_s + out.stages[2].seconds + out.stages[1].seconds);
             rec["init"] = out.stages[1].detail.clone();
+            rec["polish"] = out.stages[2].detail["polish"].clone();
             rec["mi_quality"] =
                 serde_json::to_value(&out.refinement.quality).unwrap_or(Value::Null);
         }
@@ -316,7 +348,7 @@ fn final_within(r: &Value) -> bool {
 fn summary(recs: &[Value]) -> Value {
     let n = recs.len();
     let mut s = json!({ "seeds": n });
-    for stage in ["prior", "pnp", "mi"] {
+    for stage in ["prior", "pnp", "mi", "floor"] {
         for key in [
             "horizontal_m",
             "height_m",
@@ -356,7 +388,7 @@ fn print_summary(s: &Value) {
         "\n{:<6} {:<22} {:>10} {:>10} {:>10} {:>5}",
         "stage", "error", "median", "p95", "max", "n"
     );
-    for stage in ["prior", "pnp", "mi"] {
+    for stage in ["prior", "pnp", "mi", "floor"] {
         for key in [
             "horizontal_m",
             "height_m",
@@ -406,6 +438,60 @@ fn print_summary(s: &Value) {
     for fl in s["failures"].as_array().into_iter().flatten() {
         println!("failure seed {}: {}", fl["seed"], fl["reason"]);
     }
+}
+
+/// The search's objective (NMI by default) at `pose`, on the points visible from a 1-cell box.
+fn objective_at(
+    camera: &infraloc::camera::Camera,
+    gray: &[u8],
+    pts: &[infraloc::map::GroundPoint],
+    pose: &CamFromMap,
+    params: &Params,
+) -> Option<f64> {
+    use infraloc::camera::CameraModel;
+    use infraloc::localize::search::{AxisRange, Evaluator, SearchConfig, SearchSpec};
+    let held = AxisRange {
+        half: 0.0,
+        step: 0.01,
+    };
+    let cfg = SearchConfig {
+        spec: SearchSpec {
+            x: AxisRange {
+                half: 0.01,
+                step: 0.01,
+            },
+            y: held,
+            z: held,
+            yaw: held,
+            pitch: None,
+            roll: None,
+            tilt_pivot_m: None,
+        },
+        ..params.search
+    };
+    let ev = Evaluator::new(camera, gray, &camera.valid_mask(), pts, pose, &cfg, 0).ok()?;
+    let centre = ev.grid().index(&[0; 6]);
+    Some(ev.score(0, centre, &mut Default::default()).score)
+}
+
+/// LM fit of truth.json's control points (map point ↔ true pixel) from the true pose.
+fn control_point_fit(camera: &infraloc::camera::Camera, truth: &Value) -> Option<CamFromMap> {
+    let pose = infraloc::posefile::parse_pose(&truth.to_string(), Path::new("truth.json"))
+        .ok()?
+        .pose;
+    let corr: Vec<Correspondence> = truth["control_points"]
+        .as_array()?
+        .iter()
+        .filter_map(|c| {
+            let m: [f64; 3] = serde_json::from_value(c["map"].clone()).ok()?;
+            let p: [f64; 2] = serde_json::from_value(c["pixel"].clone()).ok()?;
+            Some(Correspondence {
+                pixel: nalgebra::Point2::new(p[0], p[1]),
+                world: nalgebra::Point3::new(m[0], m[1], m[2]),
+            })
+        })
+        .collect();
+    (corr.len() >= 6).then(|| refine_lm(camera, &pose, &corr, 50))
 }
 
 fn main() {

@@ -132,6 +132,7 @@ fn tiled_finds_the_exhaustive_cell() {
         },
         pitch: None,
         roll: None,
+        tilt_pivot_m: None,
     };
     let mut agree = 0;
     let trials = 100;
@@ -237,6 +238,7 @@ fn fixed_point_set_removes_the_fewer_points_bias() {
         },
         pitch: None,
         roll: None,
+        tilt_pivot_m: None,
     };
     let mut picks = Vec::new();
     for fixed in [false, true] {

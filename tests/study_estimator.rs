@@ -162,6 +162,7 @@ fn study_estimator() {
                 },
                 pitch: None,
                 roll: None,
+                tilt_pivot_m: None,
             };
             let cfg = SearchConfig {
                 spec,

@@ -56,6 +56,7 @@ pub const DRIFT_SPEC: SearchSpec = SearchSpec {
     },
     pitch: None,
     roll: None,
+    tilt_pivot_m: None,
 };
 
 /// What the service is doing, as `infraloc status` shows it.

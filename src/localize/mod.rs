@@ -5,7 +5,7 @@
 //! reflectivity and the fisheye grayscale at the points' projections over Θ = [x, y, z, ψ].
 //! [`points`] (the point type and its f32 hot-loop form), [`mi`] (the pure estimator), [`kernel`]
 //! (project + sample + joint histogram, the hot loop), [`search`] (exhaustive and tiled
-//! coarse-to-fine grid search), [`quality`] (peak statistics and the gate), [`refine`] (one call).
+//! coarse-to-fine grid search), [`polish`] (a local 6-DoF Nelder–Mead after it), [`quality`] (peak statistics and the gate), [`refine`] (one call).
 //! [`points_io`] is the I/O shell that reads CSV / PCD / LAS point files. Design and measurements:
 //! `docs/refine.md`.
 
@@ -17,6 +17,7 @@ pub mod pipeline;
 pub mod pnp;
 pub mod points;
 pub mod points_io;
+pub mod polish;
 pub mod poly;
 pub mod quality;
 pub mod refine;

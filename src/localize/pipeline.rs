@@ -3,6 +3,7 @@
 //! the outputs; the clock for stage timings is injected.
 
 use super::init::{initialize, CoarseParams, FineParams, InitResult};
+use super::polish::{polish_pose, PolishParams};
 use super::quality::QualityConfig;
 use super::refine::{refine, Refinement};
 use super::search::SearchConfig;
@@ -34,6 +35,9 @@ pub struct Params {
     pub mi_radius_m: f64,
     /// … and within this off-nadir angle, degrees.
     pub mi_max_off_nadir_deg: f64,
+    /// The local 6-DoF polish after the 4-DoF search (pitch/roll about the ground under the
+    /// camera, see [`super::polish`]); `None` keeps PnP's roll and pitch.
+    pub polish: Option<PolishParams>,
 }
 
 impl Default for Params {
@@ -48,6 +52,7 @@ impl Default for Params {
             search_radius_range_m: (5.0, 40.0),
             mi_radius_m: 30.0,
             mi_max_off_nadir_deg: 70.0,
+            polish: Some(PolishParams::default()),
         }
     }
 }
@@ -206,13 +211,32 @@ pub fn localize_ungated(
         }),
     });
     let points = mi_points(tile, &init.pose, p);
-    let refinement = refine(camera, image, &points, &init.pose, &p.search, &p.quality)?;
+    let (mut refinement, mut polish) =
+        refine_and_polish(camera, image, tile, &points, &init.pose, p)?;
+    // The 4-DoF box was centred on PnP's pose, whose tilt error the 4-DoF search had to trade
+    // for position; once the polish has fixed the tilt, an optimum on the box's edge may be that
+    // trade rather than a wrong start. One search re-centred on the polished pose decides (a
+    // wrong start metres away stays on the edge and is still rejected).
+    if p.polish.is_some()
+        && !refinement.quality.accepted
+        && refinement.quality.axes.iter().any(|a| a.on_edge)
+    {
+        let (again, polish_again) =
+            refine_and_polish(camera, image, tile, &points, &refinement.pose, p)?;
+        refinement = again;
+        polish = json!({ "first": polish, "recentred": polish_again });
+    }
     let t2 = now();
     stages.push(Stage {
         name: "mi",
         pose: Some(refinement.pose),
         seconds: t2 - t1,
-        detail: serde_json::to_value(refinement.report(p.search.mode)).unwrap_or(Value::Null),
+        detail: {
+            let mut d =
+                serde_json::to_value(refinement.report(p.search.mode)).unwrap_or(Value::Null);
+            d["polish"] = polish;
+            d
+        },
     });
     Ok(Outcome {
         pose: refinement.pose,
@@ -220,6 +244,71 @@ pub fn localize_ungated(
         refinement,
         stages,
     })
+}
+
+/// The 4-DoF search from `start`, then the 6-DoF polish (when configured): the refinement (the
+/// search's quality, the polished pose) and the polish record.
+fn refine_and_polish(
+    camera: &Camera,
+    image: &[u8],
+    tile: &Tile,
+    points: &[crate::map::GroundPoint],
+    start: &CamFromMap,
+    p: &Params,
+) -> Result<(Refinement, Value)> {
+    let mut refinement = refine(camera, image, points, start, &p.search, &p.quality)?;
+    let Some(pp) = &p.polish else {
+        return Ok((refinement, Value::Null));
+    };
+    // A polish that ends on its box's edge restarts from there (PnP's tilt can be 2–3° off), a
+    // bounded number of times.
+    let mut rounds = Vec::new();
+    for _ in 0..POLISH_ROUNDS {
+        let (pose, detail, on_edge) =
+            polish_6dof(camera, image, tile, points, &refinement.pose, p, pp)?;
+        refinement.pose = pose;
+        rounds.push(detail);
+        if !on_edge {
+            break;
+        }
+    }
+    Ok((refinement, Value::Array(rounds)))
+}
+
+/// Polish rounds at most (each from the previous one's result when it ended on its box's edge).
+pub const POLISH_ROUNDS: usize = 3;
+
+/// The 6-DoF polish of `pose` (see [`super::polish`]): pitch and roll pivot about the ground under
+/// the camera (height from the tile's height layer), so that a tilt leaves the nadir ground in
+/// place. The fixed point set is the one visible from the whole polish box. Returns the polished
+/// pose, a JSON record of what moved, and whether it ended on the box's edge.
+fn polish_6dof(
+    camera: &Camera,
+    image: &[u8],
+    tile: &Tile,
+    points: &[crate::map::GroundPoint],
+    pose: &CamFromMap,
+    p: &Params,
+    pp: &PolishParams,
+) -> Result<(CamFromMap, Value, bool)> {
+    let c = pose.center();
+    let pivot = super::init::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0));
+    let (polished, res, n_points) = polish_pose(
+        camera,
+        image,
+        &camera.valid_mask(),
+        points,
+        pose,
+        pivot,
+        &p.search,
+        pp,
+    )?;
+    let detail = json!({
+        "offsets": res.offsets, "start": res.start_value, "value": res.value,
+        "evaluations": res.evaluations, "points": n_points, "pivot_m": pivot,
+    });
+    let on_edge = (0..6).any(|i| res.offsets[i].abs() >= 0.95 * pp.bound[i]);
+    Ok((polished, detail, on_edge))
 }
 
 /// Errors of each stage against a simulator `truth.json` (its text; `origin` names it in errors):

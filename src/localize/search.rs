@@ -85,6 +85,13 @@ pub struct SearchSpec {
     pub pitch: Option<AxisRange>,
     /// Roll, degrees (6-DoF only; off by default).
     pub roll: Option<AxisRange>,
+    /// Pivot of the pitch/roll axes: the point on the optical axis this many metres below the
+    /// camera (the ground under a downward-looking camera). `None` tilts about the camera centre.
+    /// About the ground point a tilt leaves the nadir ground where it was and moves only the
+    /// oblique view, so tilt and x/y stop trading against each other along a ridge of the MI
+    /// surface that an axis-aligned grid follows badly.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tilt_pivot_m: Option<f64>,
 }
 
 impl Default for SearchSpec {
@@ -109,6 +116,7 @@ impl Default for SearchSpec {
             },
             pitch: None,
             roll: None,
+            tilt_pivot_m: None,
         }
     }
 }
@@ -131,6 +139,11 @@ impl std::str::FromStr for SearchSpec {
                 half: h.trim().parse().map_err(|_| bad())?,
                 step: st.trim().parse().map_err(|_| bad())?,
             };
+            if r.half == 0.0 {
+                return Err(Error::Invalid(format!(
+                    "--search {item}: half range and step must be positive"
+                )));
+            }
             match axis.trim() {
                 "x" => spec.x = r,
                 "y" => spec.y = r,
@@ -186,6 +199,11 @@ impl SearchSpec {
                 continue;
             }
             let name = AXES[i];
+            // A zero half range holds the axis (used by the pipeline's tilt pass); `--search`
+            // itself refuses it (see `FromStr`).
+            if a.half == 0.0 && a.step.is_finite() && a.step > 0.0 {
+                continue;
+            }
             let positive = a.half.is_finite() && a.step.is_finite() && a.half > 0.0 && a.step > 0.0;
             if !positive {
                 return Err(Error::Invalid(format!(
@@ -207,6 +225,11 @@ impl SearchSpec {
             }
         }
         let cells = self.grid().cells();
+        if cells <= 1 {
+            return Err(Error::Invalid(
+                "--search: every axis is held: nothing to search".into(),
+            ));
+        }
         if cells > MAX_CELLS {
             return Err(Error::Invalid(format!(
                 "--search: {cells} grid cells, more than the limit {MAX_CELLS}"
@@ -221,14 +244,14 @@ impl SearchSpec {
         let mut m = [0i64; 6];
         let mut step = [0f64; 6];
         for i in 0..6 {
-            m[i] = if i >= 4 && axes[i].half == 0.0 {
-                0
-            } else {
-                axes[i].m()
-            };
+            m[i] = if axes[i].half == 0.0 { 0 } else { axes[i].m() };
             step[i] = axes[i].step;
         }
-        Grid { m, step }
+        Grid {
+            m,
+            step,
+            pivot: self.tilt_pivot_m,
+        }
     }
 }
 
@@ -239,6 +262,8 @@ pub struct Grid {
     pub m: [i64; 6],
     /// Step per axis (m for x, y, z; degrees for angles).
     pub step: [f64; 6],
+    /// Pivot depth of pitch/roll ([`SearchSpec::tilt_pivot_m`]).
+    pub pivot: Option<f64>,
 }
 
 /// Integer cell offsets from the centre, per axis.
@@ -294,20 +319,45 @@ impl Grid {
 }
 
 /// The pose of a cell: centre moved by (dx, dy, dz) in the map frame, yaw about the map's up axis
-/// through the camera centre; pitch and roll (6-DoF) are added to the pose's own yaw/pitch/roll.
+/// through the camera centre; pitch and roll (6-DoF) are added to the pose's own yaw/pitch/roll,
+/// about the camera centre.
 pub fn pose_at(init: &CamFromMap, offsets: &[f64; 6]) -> CamFromMap {
+    pose_at_pivot(init, offsets, None)
+}
+
+/// Optical axes steeper than this (|z| of the unit axis in the map) have a ground pivot; a
+/// near-horizontal axis (a forward-looking camera) meets the ground too far away to pivot on.
+const MIN_PIVOT_AXIS_Z: f64 = 0.3;
+
+/// [`pose_at`] with the pitch/roll pivot `pivot` metres below the camera on its optical axis
+/// (see [`SearchSpec::tilt_pivot_m`]): after the tilt the centre moves horizontally so that the
+/// optical axis meets the pivot's height at the same point as before; the centre's height is kept.
+pub fn pose_at_pivot(init: &CamFromMap, offsets: &[f64; 6], pivot: Option<f64>) -> CamFromMap {
     let dc = Vector3::new(offsets[0], offsets[1], offsets[2]);
+    let moved = init.perturbed(&dc, offsets[3].to_radians());
     if offsets[4] == 0.0 && offsets[5] == 0.0 {
-        init.perturbed(&dc, offsets[3].to_radians())
-    } else {
-        let (y, p, r) = init.yaw_pitch_roll();
-        CamFromMap::from_center_ypr(
-            &(init.center() + dc),
-            y + offsets[3].to_radians(),
-            p + offsets[4].to_radians(),
-            r + offsets[5].to_radians(),
-        )
+        return moved;
     }
+    let c = moved.center();
+    let (y, p, r) = moved.yaw_pitch_roll();
+    let tilted = CamFromMap::from_center_ypr(
+        &c,
+        y,
+        p + offsets[4].to_radians(),
+        r + offsets[5].to_radians(),
+    );
+    let Some(depth) = pivot.filter(|d| d.is_finite() && *d > 0.0) else {
+        return tilted;
+    };
+    let axis = |q: &CamFromMap| q.rotation.inverse() * Vector3::z();
+    let (d0, d1) = (axis(&moved), axis(&tilted));
+    if d0.z > -MIN_PIVOT_AXIS_Z || d1.z > -MIN_PIVOT_AXIS_Z {
+        return tilted;
+    }
+    // Ground point of the old axis, then the centre at the same height on the new axis through it.
+    let g = c + d0 * (depth / -d0.z);
+    let c1 = g - d1 * (depth / -d1.z);
+    CamFromMap::from_center(tilted.rotation, &c1)
 }
 
 /// Search mode.
@@ -486,7 +536,10 @@ impl Evaluator {
             let mut keep = vec![true; raw.len()];
             let mut vis = vec![false; raw.len()];
             for cell in box_lattice(&grid) {
-                let p = PoseF32::new(&pose_at(init, &grid.offsets(&cell)), origin);
+                let p = PoseF32::new(
+                    &pose_at_pivot(init, &grid.offsets(&cell), grid.pivot),
+                    origin,
+                );
                 visible(&raw, &p, &cam0, &img_e, invalid, &mut vis);
                 keep.iter_mut().zip(&vis).for_each(|(k, &v)| *k &= v);
             }
@@ -558,7 +611,7 @@ impl Evaluator {
 
     /// The pose of a cell.
     pub fn pose(&self, cell: &Cell) -> CamFromMap {
-        pose_at(&self.init, &self.grid.offsets(cell))
+        pose_at_pivot(&self.init, &self.grid.offsets(cell), self.grid.pivot)
     }
 
     /// Joint histogram of a cell at a level.
@@ -568,6 +621,29 @@ impl Evaluator {
         let p = PoseF32::new(&self.pose(cell), self.origin);
         accumulate(&lv.pts, &p, &lv.cam, &lv.img, &mut h, scratch);
         h
+    }
+
+    /// MI and NMI at continuous offsets from the initial pose (not restricted to the grid's
+    /// cells), on the fixed point set at `level`; for local continuous polishing after the grid
+    /// search ([`super::polish`]).
+    pub fn value_at(&self, level: u32, offsets: &[f64; 6], scratch: &mut Scratch) -> MiValue {
+        let lv = &self.levels[level as usize];
+        let mut h = JointHist::new(self.mi.bins_reflectivity, self.mi.bins_gray);
+        let pose = pose_at_pivot(&self.init, offsets, self.grid.pivot);
+        accumulate(
+            &lv.pts,
+            &PoseF32::new(&pose, self.origin),
+            &lv.cam,
+            &lv.img,
+            &mut h,
+            scratch,
+        );
+        mutual_information(&h, self.mi.parzen)
+    }
+
+    /// The objective the search maximises (MI or NMI, per the configuration).
+    pub fn objective(&self) -> super::mi::Objective {
+        self.mi.objective
     }
 
     /// Score a cell at a level.
@@ -943,4 +1019,67 @@ fn climb(ev: &Evaluator, start: u64, max_iter: usize) -> (Scored, u64) {
         }
     }
     (cur, evals)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Point3;
+
+    fn axis_ground_hit(p: &CamFromMap, ground_z: f64) -> Point3<f64> {
+        let c = p.center();
+        let d = p.rotation.inverse() * Vector3::z();
+        c + d * ((ground_z - c.z) / d.z)
+    }
+
+    #[test]
+    fn tilt_about_the_ground_pivot_keeps_the_axis_ground_point() {
+        let init = CamFromMap::from_center_ypr(&Point3::new(10.0, -4.0, 8.0), 0.7, 0.02, -0.01);
+        let offsets = [0.0, 0.0, 0.0, 0.0, 1.2, -0.8];
+        let before = axis_ground_hit(&init, 0.0);
+        let p = pose_at_pivot(&init, &offsets, Some(8.0));
+        let after = axis_ground_hit(&p, 0.0);
+        assert!((after - before).norm() < 1e-9, "{before} → {after}");
+        assert!((p.center().z - 8.0).abs() < 1e-12);
+        // The tilt itself is the one the centre pivot applies.
+        let q = pose_at(&init, &offsets);
+        assert!(crate::pose::rotation_angle_between(&p.rotation, &q.rotation) < 1e-12);
+        // About the centre the ground point moves by ≈ h·tan(tilt).
+        let moved = (axis_ground_hit(&q, 0.0) - before).norm();
+        assert!(moved > 8.0 * 1.0f64.to_radians(), "{moved}");
+    }
+
+    #[test]
+    fn a_near_horizontal_axis_tilts_about_the_centre() {
+        // A forward-looking camera (pitched 80° up from nadir): its axis meets no near ground.
+        let init =
+            CamFromMap::from_center_ypr(&Point3::new(0.0, 0.0, 2.0), 0.0, 80f64.to_radians(), 0.0);
+        let offsets = [0.0, 0.0, 0.0, 0.0, 0.5, 0.5];
+        let p = pose_at_pivot(&init, &offsets, Some(2.0));
+        assert!((p.center() - init.center()).norm() < 1e-12);
+    }
+
+    #[test]
+    fn held_axes_are_allowed_in_code_but_not_on_the_command_line() {
+        let held = AxisRange {
+            half: 0.0,
+            step: 0.02,
+        };
+        let spec = SearchSpec {
+            x: held,
+            ..SearchSpec::default()
+        };
+        assert!(spec.validate().is_ok());
+        assert_eq!(spec.grid().m[0], 0);
+        assert!("x=0:0.02".parse::<SearchSpec>().is_err());
+        let all_held = SearchSpec {
+            x: held,
+            y: held,
+            z: held,
+            yaw: held,
+            ..SearchSpec::default()
+        };
+        let err = all_held.validate().unwrap_err().to_string();
+        assert!(err.contains("nothing to search"), "{err}");
+    }
 }

@@ -1,0 +1,231 @@
+//! Local continuous polish of a grid optimum over all six pose parameters (pure).
+//!
+//! The grid search runs over [x, y, z, yaw] with PnP's roll and pitch held. PnP's tilt is
+//! typically 0.3–1° off (satellite misregistration, intrinsics error), and from a wrong tilt the
+//! 4-DoF optimum trades it for centimetres of x, y, z and tenths of a degree of yaw. A grid over
+//! six axes is too costly here (the tiled search's ±2-step windows are 5^6 poses per candidate),
+//! and alternating 2-D tilt / 4-D grids zig-zags along the coupled directions. Nelder–Mead
+//! adapts its simplex to those couplings, needs no gradient (the single-image MI surface is not
+//! smooth at the pixel scale), and converges in a few hundred evaluations of one pose each.
+//! Deterministic: no randomness, ties broken by order.
+
+use super::kernel::Scratch;
+use super::points::GroundPoint;
+use super::search::{pose_at_pivot, AxisRange, Evaluator, SearchConfig, SearchSpec};
+use crate::camera::Camera;
+use crate::error::Result;
+use crate::pose::CamFromMap;
+
+/// Settings of [`nelder_mead`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PolishParams {
+    /// Initial simplex edge per parameter (m, m, m, deg, deg, deg).
+    pub initial_step: [f64; 6],
+    /// The search stays inside ±this per parameter (clamped).
+    pub bound: [f64; 6],
+    /// Stop when every vertex is within this of the best, per parameter …
+    pub tolerance: [f64; 6],
+    /// … or after this many objective evaluations.
+    pub max_evaluations: usize,
+}
+
+impl Default for PolishParams {
+    /// Tilt ±1.5°, x/y/z ±15 cm, yaw ±0.5° around the grid optimum; tolerance 2 mm / 0.005°.
+    fn default() -> Self {
+        PolishParams {
+            initial_step: [0.03, 0.03, 0.03, 0.1, 0.3, 0.3],
+            bound: [0.15, 0.15, 0.15, 0.5, 1.5, 1.5],
+            tolerance: [0.002, 0.002, 0.002, 0.005, 0.005, 0.005],
+            max_evaluations: 400,
+        }
+    }
+}
+
+/// Result of [`nelder_mead`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Polished {
+    /// Best parameters found (offsets from the start).
+    pub offsets: [f64; 6],
+    /// Objective there.
+    pub value: f64,
+    /// Objective at the start.
+    pub start_value: f64,
+    /// Evaluations used.
+    pub evaluations: usize,
+}
+
+/// Maximise `f` from the origin with Nelder–Mead (standard coefficients: reflection 1,
+/// expansion 2, contraction ½, shrink ½), every vertex clamped to ±`bound`.
+pub fn nelder_mead(f: &mut dyn FnMut(&[f64; 6]) -> f64, p: &PolishParams) -> Polished {
+    let clamp = |mut x: [f64; 6]| {
+        for (v, b) in x.iter_mut().zip(&p.bound) {
+            *v = v.clamp(-b, *b);
+        }
+        x
+    };
+    let mut evals = 0usize;
+    let mut eval = |x: &[f64; 6], evals: &mut usize| {
+        *evals += 1;
+        let v = f(x);
+        if v.is_finite() {
+            v
+        } else {
+            f64::NEG_INFINITY
+        }
+    };
+    let start_value = eval(&[0.0; 6], &mut evals);
+    let mut simplex: Vec<([f64; 6], f64)> = vec![([0.0; 6], start_value)];
+    for i in 0..6 {
+        let mut x = [0.0; 6];
+        x[i] = p.initial_step[i];
+        let x = clamp(x);
+        let v = eval(&x, &mut evals);
+        simplex.push((x, v));
+    }
+    let order = |s: &mut Vec<([f64; 6], f64)>| {
+        // Best first; a stable sort keeps the earlier vertex on ties (deterministic).
+        s.sort_by(|a, b| b.1.total_cmp(&a.1));
+    };
+    let lerp = |a: &[f64; 6], b: &[f64; 6], t: f64| {
+        let mut x = [0.0; 6];
+        for i in 0..6 {
+            x[i] = a[i] + t * (b[i] - a[i]);
+        }
+        x
+    };
+    while evals < p.max_evaluations {
+        order(&mut simplex);
+        let best = simplex[0].0;
+        let converged = simplex
+            .iter()
+            .all(|(x, _)| (0..6).all(|i| (x[i] - best[i]).abs() <= p.tolerance[i]));
+        if converged {
+            break;
+        }
+        let mut centroid = [0.0; 6];
+        for (x, _) in &simplex[..6] {
+            for i in 0..6 {
+                centroid[i] += x[i] / 6.0;
+            }
+        }
+        let (worst, worst_v) = simplex[6];
+        let xr = clamp(lerp(&centroid, &worst, -1.0));
+        let vr = eval(&xr, &mut evals);
+        if vr > simplex[0].1 {
+            let xe = clamp(lerp(&centroid, &worst, -2.0));
+            let ve = eval(&xe, &mut evals);
+            simplex[6] = if ve > vr { (xe, ve) } else { (xr, vr) };
+        } else if vr > simplex[5].1 {
+            simplex[6] = (xr, vr);
+        } else {
+            // Contract towards the better of the worst and its reflection.
+            let (xc, vc) = if vr > worst_v {
+                let xc = lerp(&centroid, &xr, 0.5);
+                (xc, eval(&xc, &mut evals))
+            } else {
+                let xc = lerp(&centroid, &worst, 0.5);
+                (xc, eval(&xc, &mut evals))
+            };
+            if vc > worst_v.max(vr) {
+                simplex[6] = (xc, vc);
+            } else {
+                for vertex in simplex.iter_mut().skip(1) {
+                    let x = lerp(&best, &vertex.0, 0.5);
+                    *vertex = (x, eval(&x, &mut evals));
+                }
+            }
+        }
+    }
+    order(&mut simplex);
+    Polished {
+        offsets: simplex[0].0,
+        value: simplex[0].1,
+        start_value,
+        evaluations: evals,
+    }
+}
+
+/// Polish `pose` over all six parameters on `gray` (camera size, `mask` non-zero = valid pixel):
+/// pitch and roll pivot `pivot` metres below the camera on its axis (see
+/// [`SearchSpec::tilt_pivot_m`]); the objective and estimator are `search`'s; the fixed point set
+/// is the one visible from every lattice pose of the ±`bound` box. Returns the polished pose, the
+/// optimiser's record and the size of the point set.
+#[allow(clippy::too_many_arguments)]
+pub fn polish_pose(
+    camera: &Camera,
+    gray: &[u8],
+    mask: &[u8],
+    points: &[GroundPoint],
+    pose: &CamFromMap,
+    pivot: Option<f64>,
+    search: &SearchConfig,
+    p: &PolishParams,
+) -> Result<(CamFromMap, Polished, usize)> {
+    // The grid only selects the point set; two cells per side.
+    let r = |i: usize| AxisRange {
+        half: p.bound[i],
+        step: p.bound[i] / 2.0,
+    };
+    let cfg = SearchConfig {
+        spec: SearchSpec {
+            x: r(0),
+            y: r(1),
+            z: r(2),
+            yaw: r(3),
+            pitch: Some(r(4)),
+            roll: Some(r(5)),
+            tilt_pivot_m: pivot,
+        },
+        ..*search
+    };
+    let ev = Evaluator::new(camera, gray, mask, points, pose, &cfg, 0)?;
+    let objective = ev.objective();
+    let mut scratch = Scratch::default();
+    let res = nelder_mead(
+        &mut |x: &[f64; 6]| ev.value_at(0, x, &mut scratch).get(objective),
+        p,
+    );
+    Ok((pose_at_pivot(pose, &res.offsets, pivot), res, ev.n_points))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn finds_the_peak_of_a_coupled_quadratic() {
+        // A ridge coupling x with pitch (the tilt/translation trade) and z with yaw.
+        let peak = [0.05, -0.03, 0.02, 0.1, 0.6, -0.4];
+        let mut f = |x: &[f64; 6]| {
+            let d: Vec<f64> = (0..6).map(|i| x[i] - peak[i]).collect();
+            let ridge = (d[0] * 10.0 - d[4]).powi(2) + (d[2] * 5.0 + d[3]).powi(2);
+            -(d.iter().map(|v| v * v).sum::<f64>() * 0.1 + ridge)
+        };
+        let r = nelder_mead(&mut f, &PolishParams::default());
+        for i in 0..6 {
+            assert!(
+                (r.offsets[i] - peak[i]).abs() < 0.02,
+                "axis {i}: {:?} vs {peak:?}",
+                r.offsets
+            );
+        }
+        assert!(r.value > r.start_value && r.evaluations <= 400);
+    }
+
+    #[test]
+    fn stays_inside_the_bounds() {
+        let mut f = |x: &[f64; 6]| x.iter().sum::<f64>();
+        let p = PolishParams::default();
+        let r = nelder_mead(&mut f, &p);
+        for i in 0..6 {
+            assert!(r.offsets[i].abs() <= p.bound[i] + 1e-12);
+        }
+    }
+
+    #[test]
+    fn non_finite_objective_is_never_chosen() {
+        let mut f = |x: &[f64; 6]| if x[0] > 0.0 { f64::NAN } else { -x[1].abs() };
+        let r = nelder_mead(&mut f, &PolishParams::default());
+        assert!(r.value.is_finite() && r.offsets[0] <= 0.0);
+    }
+}
