@@ -5,7 +5,7 @@ use infraloc::camera::import::to_opencv_yaml;
 use infraloc::camera::{Camera, Mei};
 use infraloc::localize::synth::{ground_points, render, Texture};
 use infraloc::map::Crs;
-use infraloc::pose::CamFromMap;
+use infraloc::pose::{rotation_angle_between, CamFromMap};
 use infraloc::posefile::{read_pose, PoseFile};
 use nalgebra::{Point3, Vector3};
 use std::path::Path;
@@ -160,4 +160,42 @@ fn refine_cli_end_to_end_and_bad_input() {
         &["--search", "yaw=400:1"],
         "--search",
     );
+}
+
+#[test]
+fn refine_cli_polish_recovers_a_wrong_tilt() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let truth = write_scene(dir);
+    // An initial pose whose roll/pitch are off, as PnP's are.
+    let (y, p, r) = truth.yaw_pitch_roll();
+    let init = CamFromMap::from_center_ypr(
+        &(truth.center() + Vector3::new(0.05, -0.04, 0.02)),
+        y + 0.2f64.to_radians(),
+        p + 1.0f64.to_radians(),
+        r - 0.8f64.to_radians(),
+    );
+    let pf = PoseFile::new(&init, Crs::Epsg(32617), "t", "2026-11-21T12:00:00Z".into());
+    std::fs::write(dir.join("init.json"), pf.to_json()).unwrap();
+    let rot_err = |dir: &Path| {
+        let out = read_pose(&dir.join("out.json")).unwrap().pose;
+        rotation_angle_between(&out.rotation, &truth.rotation).to_degrees()
+    };
+    // A box wide enough for the 4-DoF search's tilt-for-position trade (≈ h·tilt ≈ 10 cm).
+    let search = ["--search", "x=0.4:0.02,y=0.4:0.02,z=0.2:0.02,yaw=1.5:0.05"];
+    let (ok, err) = refine(dir, &search);
+    assert!(ok, "{err}");
+    let plain = rot_err(dir);
+    let (ok, err) = refine(dir, &[&search[..], &["--polish"]].concat());
+    assert!(ok, "{err}");
+    let polished = rot_err(dir);
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+    assert!(
+        report["polish"]["evaluations"].as_u64().unwrap() > 10,
+        "{report}"
+    );
+    eprintln!("rotation error: 4-DoF {plain:.3}°, polished {polished:.3}°");
+    assert!(plain > 1.0, "the 4-DoF search cannot tilt: {plain}°");
+    assert!(polished < 0.3, "polished rotation error {polished}°");
 }

@@ -5,6 +5,7 @@ use crate::camera::CameraModel;
 use crate::error::{Error, Result};
 use crate::localize::points::GroundPoint;
 use crate::localize::points_io::read_points;
+use crate::localize::polish::{polish_pose, PolishParams};
 use crate::localize::quality::QualityConfig;
 use crate::localize::refine::refine;
 use crate::localize::search::{Mode, SearchConfig, SearchSpec};
@@ -50,6 +51,12 @@ pub struct Args {
     /// Write a JSON report (search counters, quality) here, accepted or not.
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// After the grid search, polish all six pose parameters (roll and pitch too) with the
+    /// pipeline's local Nelder–Mead (docs/refine.md "6-DoF polish"): for an initial pose whose
+    /// roll/pitch are not trusted. Tilts pivot about the ground under the camera (the points'
+    /// median height) unless the optical axis is near horizontal.
+    #[arg(long)]
+    pub polish: bool,
 }
 
 fn load_gray(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
@@ -122,7 +129,7 @@ pub fn run(a: Args) -> Result<()> {
         mode,
         ..Default::default()
     };
-    let r = refine(
+    let mut r = refine(
         &cam,
         &gray,
         &points,
@@ -130,8 +137,33 @@ pub fn run(a: Args) -> Result<()> {
         &cfg,
         &QualityConfig::default(),
     )?;
+    let mut polish = serde_json::Value::Null;
+    if a.polish && r.quality.accepted {
+        let mut zs: Vec<f64> = points.iter().map(|p| p.z).collect();
+        zs.sort_by(f64::total_cmp);
+        let c = r.pose.center();
+        let pivot = zs.get(zs.len() / 2).map(|g| c.z - g).filter(|d| *d > 0.5);
+        let (pose, res, n) = polish_pose(
+            &cam,
+            &gray,
+            &cam.valid_mask(),
+            &points,
+            &r.pose,
+            pivot,
+            &cfg,
+            &PolishParams::default(),
+        )?;
+        r.pose = pose;
+        polish = serde_json::json!({
+            "offsets": res.offsets, "start": res.start_value, "value": res.value,
+            "evaluations": res.evaluations, "points": n, "pivot_m": pivot,
+        });
+    }
     if let Some(path) = &a.report {
-        let text = serde_json::to_string_pretty(&r.report(mode))
+        let mut report = serde_json::to_value(r.report(mode))
+            .map_err(|e| Error::Invalid(format!("report: {e}")))?;
+        report["polish"] = polish.clone();
+        let text = serde_json::to_string_pretty(&report)
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;
         crate::persist::write_atomic(path, (text + "\n").as_bytes())?;
     }
@@ -155,6 +187,14 @@ pub fn run(a: Args) -> Result<()> {
         r.points.1,
         r.stats.exhaustive_point_evaluations as f64 / r.stats.point_evaluations.max(1) as f64
     );
+    if let Some(o) = polish["offsets"].as_array() {
+        let v: Vec<f64> = o.iter().filter_map(|v| v.as_f64()).collect();
+        if let [x, y, z, yaw, pitch, roll] = v[..] {
+            println!(
+                "polish: moved ({x:+.3}, {y:+.3}, {z:+.3}) m, yaw {yaw:+.3}°, pitch {pitch:+.3}°, roll {roll:+.3}°"
+            );
+        }
+    }
     if let Some(path) = &a.out {
         let now = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
@@ -162,7 +202,9 @@ pub fn run(a: Args) -> Result<()> {
             .unwrap_or(0);
         let mut pf = PoseFile::new(&r.pose, crs, &tile_id, format_utc(now, None));
         pf.quality = serde_json::to_value(&r.quality).unwrap_or_default();
-        pf.stages = vec![serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search })];
+        pf.stages = vec![
+            serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.polish }),
+        ];
         crate::persist::write_atomic(path, pf.to_json().as_bytes())?;
     }
     Ok(())
