@@ -23,6 +23,7 @@ use super::points::{GroundPoint, PreparedPoints};
 use crate::camera::{Camera, CameraModel};
 use crate::pose::CamFromMap;
 use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
 
 /// Points per chunk: the index buffer (1 KiB) stays in L1 between the two passes.
 const CHUNK: usize = 256;
@@ -216,22 +217,26 @@ impl GrayLevel {
         let (w, h) = (self.width.div_ceil(2), self.height.div_ceil(2));
         let mut gray = vec![0u8; w * h];
         let mut mask = vec![0u8; w * h];
-        for v in 0..h {
-            for u in 0..w {
-                let (mut sum, mut n) = (0u32, 0u32);
-                for (du, dv) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                    let (x, y) = (2 * u + du, 2 * v + dv);
-                    if x < self.width && y < self.height && self.mask[y * self.width + x] != 0 {
-                        sum += self.gray[y * self.width + x] as u32;
-                        n += 1;
+        // Output rows in parallel (each reads only the input level).
+        gray.par_chunks_mut(w.max(1))
+            .zip(mask.par_chunks_mut(w.max(1)))
+            .enumerate()
+            .for_each(|(v, (grow, mrow))| {
+                for u in 0..w {
+                    let (mut sum, mut n) = (0u32, 0u32);
+                    for (du, dv) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (x, y) = (2 * u + du, 2 * v + dv);
+                        if x < self.width && y < self.height && self.mask[y * self.width + x] != 0 {
+                            sum += self.gray[y * self.width + x] as u32;
+                            n += 1;
+                        }
+                    }
+                    if let Some(mean) = (sum + n / 2).checked_div(n) {
+                        grow[u] = mean as u8;
+                        mrow[u] = 255;
                     }
                 }
-                if let Some(mean) = (sum + n / 2).checked_div(n) {
-                    gray[v * w + u] = mean as u8;
-                    mask[v * w + u] = 255;
-                }
-            }
-        }
+            });
         GrayLevel {
             width: w,
             height: h,
@@ -496,7 +501,45 @@ fn accumulate_impl(
 }
 
 /// Visibility of each point from `pose` (lands on a valid pixel of `img`).
+///
+/// Dispatched like [`accumulate`] (AVX2 + FMA copy where the CPU has them; same results).
 pub fn visible(
+    pts: &PreparedPoints,
+    pose: &PoseF32,
+    cam: &FastCamera,
+    img: &BinnedImage,
+    invalid: u8,
+    out: &mut [bool],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports the features the function is compiled for (checked above).
+        unsafe { visible_avx2(pts, pose, cam, img, invalid, out) };
+        return;
+    }
+    visible_impl(pts, pose, cam, img, invalid, out);
+}
+
+/// [`visible`] compiled for AVX2 + FMA.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn visible_avx2(
+    pts: &PreparedPoints,
+    pose: &PoseF32,
+    cam: &FastCamera,
+    img: &BinnedImage,
+    invalid: u8,
+    out: &mut [bool],
+) {
+    visible_impl(pts, pose, cam, img, invalid, out);
+}
+
+/// The body of [`visible`].
+#[inline(always)]
+fn visible_impl(
     pts: &PreparedPoints,
     pose: &PoseF32,
     cam: &FastCamera,

@@ -483,14 +483,29 @@ impl Evaluator {
         let keep = if cfg.fixed_point_set {
             let eroded = erode(mask, w, h, cfg.visibility_margin_px);
             let img_e = BinnedImage::new(w, h, gray, &eroded, &lut_gray, invalid);
-            let mut keep = vec![true; raw.len()];
-            let mut vis = vec![false; raw.len()];
-            for cell in box_lattice(&grid) {
-                let p = PoseF32::new(&pose_at(init, &grid.offsets(&cell)), origin);
-                visible(&raw, &p, &cam0, &img_e, invalid, &mut vis);
-                keep.iter_mut().zip(&vis).for_each(|(k, &v)| *k &= v);
-            }
-            keep
+            // The 3^d lattice poses in parallel, each thread AND-ing into its own flags, then
+            // the threads' flags AND-ed: AND is associative and commutative, so the set does not
+            // depend on how rayon splits the work.
+            let n = raw.len();
+            box_lattice(&grid)
+                .par_iter()
+                .fold(
+                    || (vec![true; n], vec![false; n]),
+                    |(mut keep, mut vis), cell| {
+                        let p = PoseF32::new(&pose_at(init, &grid.offsets(cell)), origin);
+                        visible(&raw, &p, &cam0, &img_e, invalid, &mut vis);
+                        keep.iter_mut().zip(&vis).for_each(|(k, &v)| *k &= v);
+                        (keep, vis)
+                    },
+                )
+                .map(|(keep, _)| keep)
+                .reduce(
+                    || vec![true; n],
+                    |mut a, b| {
+                        a.iter_mut().zip(&b).for_each(|(x, &y)| *x &= y);
+                        a
+                    },
+                )
         } else {
             let mut vis = vec![false; raw.len()];
             let p = PoseF32::new(init, origin);
@@ -581,18 +596,26 @@ impl Evaluator {
         }
     }
 
-    /// Score many cells in parallel (order kept), adding to the stats.
-    fn score_many(&self, level: u32, idxs: &[u64], stats: &mut SearchStats) -> Vec<Scored> {
-        const TILE: usize = 64;
-        let out: Vec<Scored> = idxs
-            .par_chunks(TILE)
+    /// Score cells (by number) at a level in parallel, in tiles of consecutive cells (one scratch
+    /// per tile), order kept. A score is a pure function of (level, cell), so neither the tiling
+    /// nor the thread count can change a result.
+    pub fn score_cells(&self, level: u32, idxs: &[u64]) -> Vec<Scored> {
+        // Up to 64 cells a tile, but at least ~4 tiles per thread so that the small batches of the
+        // descent and the climb (tens to hundreds of cells) still keep every thread busy.
+        let tile = (idxs.len() / (4 * rayon::current_num_threads()).max(1)).clamp(1, 64);
+        idxs.par_chunks(tile)
             .flat_map_iter(|tile| {
                 let mut s = Scratch::default();
                 tile.iter()
                     .map(|&i| self.score(level, i, &mut s))
                     .collect::<Vec<_>>()
             })
-            .collect();
+            .collect()
+    }
+
+    /// Score many cells in parallel (order kept), adding to the stats.
+    fn score_many(&self, level: u32, idxs: &[u64], stats: &mut SearchStats) -> Vec<Scored> {
+        let out = self.score_cells(level, idxs);
         let n = self.points_at(level) as u64;
         stats.poses += idxs.len() as u64;
         stats.point_evaluations += idxs.len() as u64 * n;
@@ -614,29 +637,32 @@ impl Evaluator {
 fn blur3(gray: &[u8], mask: &[u8], w: usize, h: usize) -> Vec<u8> {
     const K: [u32; 3] = [1, 2, 1];
     let mut out = gray.to_vec();
-    for v in 0..h {
-        for u in 0..w {
-            if mask[v * w + u] == 0 {
-                continue;
-            }
-            let (mut acc, mut wsum) = (0u32, 0u32);
-            for (j, kj) in K.iter().enumerate() {
-                let y = v + j;
-                if y < 1 || y > h {
+    // Rows in parallel: each output row reads only the input, so the result is the same.
+    out.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(v, row)| {
+            for (u, o) in row.iter_mut().enumerate() {
+                if mask[v * w + u] == 0 {
                     continue;
                 }
-                for (i, ki) in K.iter().enumerate() {
-                    let x = u + i;
-                    if x < 1 || x > w || mask[(y - 1) * w + x - 1] == 0 {
+                let (mut acc, mut wsum) = (0u32, 0u32);
+                for (j, kj) in K.iter().enumerate() {
+                    let y = v + j;
+                    if y < 1 || y > h {
                         continue;
                     }
-                    acc += kj * ki * gray[(y - 1) * w + x - 1] as u32;
-                    wsum += kj * ki;
+                    for (i, ki) in K.iter().enumerate() {
+                        let x = u + i;
+                        if x < 1 || x > w || mask[(y - 1) * w + x - 1] == 0 {
+                            continue;
+                        }
+                        acc += kj * ki * gray[(y - 1) * w + x - 1] as u32;
+                        wsum += kj * ki;
+                    }
                 }
+                *o = ((acc + wsum / 2) / wsum.max(1)) as u8;
             }
-            out[v * w + u] = ((acc + wsum / 2) / wsum.max(1)) as u8;
-        }
-    }
+        });
     out
 }
 
@@ -646,30 +672,35 @@ fn erode(mask: &[u8], w: usize, h: usize, r: usize) -> Vec<u8> {
     if r == 0 {
         return mask.to_vec();
     }
+    // Both passes row-parallel: each output row reads only the previous pass.
     let mut tmp = vec![0u8; w * h];
-    for v in 0..h {
-        for u in 0..w {
-            let lo = u.saturating_sub(r);
-            let hi = (u + r).min(w - 1);
-            tmp[v * w + u] = if (lo..=hi).all(|x| mask[v * w + x] != 0) && u >= r && u + r < w {
-                255
-            } else {
-                0
-            };
-        }
-    }
+    tmp.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(v, row)| {
+            for (u, t) in row.iter_mut().enumerate() {
+                let lo = u.saturating_sub(r);
+                let hi = (u + r).min(w - 1);
+                *t = if (lo..=hi).all(|x| mask[v * w + x] != 0) && u >= r && u + r < w {
+                    255
+                } else {
+                    0
+                };
+            }
+        });
     let mut out = vec![0u8; w * h];
-    for v in 0..h {
-        let lo = v.saturating_sub(r);
-        let hi = (v + r).min(h - 1);
-        for u in 0..w {
-            out[v * w + u] = if (lo..=hi).all(|y| tmp[y * w + u] != 0) && v >= r && v + r < h {
-                255
-            } else {
-                0
-            };
-        }
-    }
+    out.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(v, row)| {
+            let lo = v.saturating_sub(r);
+            let hi = (v + r).min(h - 1);
+            for (u, o) in row.iter_mut().enumerate() {
+                *o = if (lo..=hi).all(|y| tmp[y * w + u] != 0) && v >= r && v + r < h {
+                    255
+                } else {
+                    0
+                };
+            }
+        });
     out
 }
 
@@ -915,27 +946,35 @@ fn window(g: &Grid, c: &Cell, f: i64) -> Vec<u64> {
 /// the peak and the number of poses scored.
 fn climb(ev: &Evaluator, start: u64, max_iter: usize) -> (Scored, u64) {
     let g = ev.grid;
-    let mut s = Scratch::default();
     let mut cache: HashMap<u64, Scored> = HashMap::new();
     let mut evals = 0u64;
-    let mut score = |i: u64, s: &mut Scratch| -> Scored {
-        *cache.entry(i).or_insert_with(|| {
-            evals += 1;
-            ev.score(0, i, s)
-        })
+    // Scores of `idxs`, the ones not seen yet scored in parallel (the climb itself is sequential,
+    // and often only one or two candidates climb, so the parallelism has to be inside a step).
+    let mut score = |idxs: &[u64]| -> Vec<Scored> {
+        let mut missing: Vec<u64> = idxs
+            .iter()
+            .copied()
+            .filter(|i| !cache.contains_key(i))
+            .collect();
+        missing.sort_unstable();
+        missing.dedup();
+        evals += missing.len() as u64;
+        for s in ev.score_cells(0, &missing) {
+            cache.insert(s.idx, s);
+        }
+        idxs.iter().map(|i| cache[i]).collect()
     };
-    let mut cur = score(start, &mut s);
+    let mut cur = score(&[start])[0];
     for _ in 0..max_iter {
-        let nb = neighbours(&g, &g.cell(cur.idx), 1);
-        let cands: Vec<Scored> = nb.iter().map(|n| score(g.index(n), &mut s)).collect();
-        match best_of(&cands) {
+        let nb: Vec<u64> = neighbours(&g, &g.cell(cur.idx), 1)
+            .iter()
+            .map(|n| g.index(n))
+            .collect();
+        match best_of(&score(&nb)) {
             Some(b) if better(&b, &cur) => cur = b,
             _ => {
-                let wide: Vec<Scored> = window(&g, &g.cell(cur.idx), 1)
-                    .into_iter()
-                    .map(|i| score(i, &mut s))
-                    .collect();
-                match best_of(&wide) {
+                let wide = window(&g, &g.cell(cur.idx), 1);
+                match best_of(&score(&wide)) {
                     Some(b) if better(&b, &cur) => cur = b,
                     _ => break,
                 }
