@@ -10,9 +10,10 @@
 //! - [`Mode::Tiled`] (default) is coarse-to-fine on sub-lattices of the same grid: level L surveys
 //!   the whole box at step 2^L cells — split into tiles evaluated in parallel — against a 2^L
 //!   downsampled image with a point subsample; the top-k local maxima go down a level, where each is
-//!   re-examined on a ±2-cell window at half the step, down to level 0 (finest step, full image,
-//!   all points); finally each candidate hill-climbs on the finest grid to a local maximum. The
-//!   result is always a cell of the exhaustive grid, scored by the same estimator.
+//!   re-examined on a ±2-cell window at half the step and the top-k local maxima of all that was
+//!   scored go on, down to level 0 (finest step, full image, all points); finally each candidate
+//!   hill-climbs on the finest grid to a local maximum (every step's cells scored in parallel).
+//!   The result is always a cell of the exhaustive grid, scored by the same estimator.
 //!
 //! Bias remedy: MI computed on fewer points is biased upward (≈ (bx−1)(by−1)/2N nats), so a pose
 //! that pushes points out of the image would be favoured. The search therefore uses a *fixed point
@@ -884,23 +885,33 @@ fn tiled(ev: &Evaluator, cfg: &SearchConfig, stats: &mut SearchStats) -> (Scored
         union.dedup();
         let scored = ev.score_many(level, &union, stats);
         let map: HashMap<u64, Scored> = scored.iter().map(|s| (s.idx, *s)).collect();
-        let mut next: Vec<Scored> = windows
+        // The next candidates: the top-k local maxima of everything scored at this level (each
+        // cell against its lattice-f neighbours that were scored). Taking only each window's best
+        // would collapse overlapping windows onto one cell and drop the runner-up hills that the
+        // finer levels sometimes prove better (a near-tie of two ripples of the objective).
+        let mut next: Vec<Scored> = scored
             .iter()
-            .filter_map(|w| best_of(w.iter().filter_map(|i| map.get(i))))
+            .filter(|s| {
+                neighbours(&g, &g.cell(s.idx), f)
+                    .iter()
+                    .filter_map(|n| map.get(&g.index(n)))
+                    .all(|n| better(s, n))
+            })
+            .copied()
             .collect();
         sort_best_first(&mut next);
-        next.dedup_by_key(|s| s.idx);
-        let mut seen = std::collections::HashSet::new();
-        next.retain(|s| seen.insert(s.idx));
         next.truncate(k);
         cands = next.iter().map(|s| s.idx).collect();
     }
 
-    // Hill-climb each candidate to a local maximum of the finest grid (in parallel; each climb is
-    // sequential and deterministic).
+    // Hill-climb each candidate to a local maximum of the finest grid. The climbs run one after
+    // the other (each step scores its cells in parallel) and share one cache: candidates are often
+    // close, and their climbs meet. A cached score is the same number as a recomputed one, so the
+    // sharing changes only the count, and the order is fixed, so the count is deterministic too.
+    let mut cache: HashMap<u64, Scored> = HashMap::new();
     let climbs: Vec<(Scored, u64)> = cands
-        .par_iter()
-        .map(|&c| climb(ev, c, cfg.max_climb))
+        .iter()
+        .map(|&c| climb(ev, c, cfg.max_climb, &mut cache))
         .collect();
     let n0 = ev.points_at(0) as u64;
     for (_, evals) in &climbs {
@@ -916,15 +927,21 @@ fn tiled(ev: &Evaluator, cfg: &SearchConfig, stats: &mut SearchStats) -> (Scored
 
 /// The lattice-`f` cells within ±2f of `c` on every axis.
 fn window(g: &Grid, c: &Cell, f: i64) -> Vec<u64> {
+    window_r(g, c, f, [2; 6])
+}
+
+/// The lattice-`f` cells within ±`r[i]`·f of `c` on axis i.
+fn window_r(g: &Grid, c: &Cell, f: i64, r: [i64; 6]) -> Vec<u64> {
     let mut cells = vec![*c];
     for i in 0..6 {
         if g.m[i] == 0 {
             continue;
         }
+        let ri = r[i];
         cells = cells
             .into_iter()
             .flat_map(|d| {
-                (-2..=2).map(move |k| {
+                (-ri..=ri).map(move |k| {
                     let mut e = d;
                     e[i] += k * f;
                     e
@@ -939,14 +956,27 @@ fn window(g: &Grid, c: &Cell, f: i64) -> Vec<u64> {
         .collect()
 }
 
+/// Half widths (finest cells) of the climb's wider look, per axis: ±2 on x, y, z, ±3 on the
+/// angles. The objective's pose-to-pose ripples are broadest along the angles: in the
+/// tiled-vs-exhaustive trials (tests/refine_synthetic.rs) every remaining miss with a ±2 look was
+/// a near-tie exactly 3 yaw steps away. ±3 on every axis would also catch them but costs 7⁴ − 5⁴ =
+/// 1776 more full-resolution poses per look (≈ doubling the default search); this costs 250.
+const WIDE_LOOK: [i64; 6] = [2, 2, 2, 3, 3, 3];
+
 /// Steepest-ascent on the finest grid from `start` until no neighbour is better, then a wider look:
-/// if a cell within ±2 steps on every axis beats the peak, climb on from it. The MI surface over a
-/// nearest-pixel sampler has small pose-to-pose ripples; the ±2 window steps over them so that the
-/// result is the maximum of its 5^d neighbourhood, as the exhaustive search would see it. Returns
-/// the peak and the number of poses scored.
-fn climb(ev: &Evaluator, start: u64, max_iter: usize) -> (Scored, u64) {
+/// if a cell within [`WIDE_LOOK`] steps beats the peak, climb on from it. The MI surface over a
+/// nearest-pixel sampler has small pose-to-pose ripples; the wide look steps over them so that the
+/// result is the maximum of its neighbourhood (±2 positions, ±3 angles), as the exhaustive search
+/// would see it. Returns
+/// the peak and the number of poses scored that were not in `cache` (level-0 scores, shared
+/// between the climbs of one search).
+fn climb(
+    ev: &Evaluator,
+    start: u64,
+    max_iter: usize,
+    cache: &mut HashMap<u64, Scored>,
+) -> (Scored, u64) {
     let g = ev.grid;
-    let mut cache: HashMap<u64, Scored> = HashMap::new();
     let mut evals = 0u64;
     // Scores of `idxs`, the ones not seen yet scored in parallel (the climb itself is sequential,
     // and often only one or two candidates climb, so the parallelism has to be inside a step).
@@ -973,7 +1003,7 @@ fn climb(ev: &Evaluator, start: u64, max_iter: usize) -> (Scored, u64) {
         match best_of(&score(&nb)) {
             Some(b) if better(&b, &cur) => cur = b,
             _ => {
-                let wide = window(&g, &g.cell(cur.idx), 1);
+                let wide = window_r(&g, &g.cell(cur.idx), 1, WIDE_LOOK);
                 match best_of(&score(&wide)) {
                     Some(b) if better(&b, &cur) => cur = b,
                     _ => break,
