@@ -860,48 +860,23 @@ fn tiled(ev: &Evaluator, cfg: &SearchConfig, stats: &mut SearchStats) -> (Scored
     }
     let idxs: Vec<u64> = lattice.iter().map(|c| g.index(c)).collect();
     let survey = ev.score_many(top, &idxs, stats);
-    let by_idx: HashMap<u64, Scored> = survey.iter().map(|s| (s.idx, *s)).collect();
-    let f = 1i64 << top;
-    let mut maxima: Vec<Scored> = survey
-        .iter()
-        .filter(|s| {
-            neighbours(&g, &g.cell(s.idx), f)
-                .iter()
-                .filter_map(|n| by_idx.get(&g.index(n)))
-                .all(|n| better(s, n))
-        })
-        .copied()
-        .collect();
-    sort_best_first(&mut maxima);
-    maxima.truncate(k);
-    let mut cands: Vec<u64> = maxima.iter().map(|s| s.idx).collect();
+    let mut cands = top_local_maxima(&g, &survey, 1i64 << top, k);
 
     // Descend: each candidate is re-examined on a ±2-step window of the next finer lattice.
     for level in (0..top).rev() {
         let f = 1i64 << level;
-        let windows: Vec<Vec<u64>> = cands.iter().map(|&c| window(&g, &g.cell(c), f)).collect();
-        let mut union: Vec<u64> = windows.iter().flatten().copied().collect();
+        let mut union: Vec<u64> = cands
+            .iter()
+            .flat_map(|&c| window(&g, &g.cell(c), f))
+            .collect();
         union.sort_unstable();
         union.dedup();
         let scored = ev.score_many(level, &union, stats);
-        let map: HashMap<u64, Scored> = scored.iter().map(|s| (s.idx, *s)).collect();
-        // The next candidates: the top-k local maxima of everything scored at this level (each
-        // cell against its lattice-f neighbours that were scored). Taking only each window's best
-        // would collapse overlapping windows onto one cell and drop the runner-up hills that the
-        // finer levels sometimes prove better (a near-tie of two ripples of the objective).
-        let mut next: Vec<Scored> = scored
-            .iter()
-            .filter(|s| {
-                neighbours(&g, &g.cell(s.idx), f)
-                    .iter()
-                    .filter_map(|n| map.get(&g.index(n)))
-                    .all(|n| better(s, n))
-            })
-            .copied()
-            .collect();
-        sort_best_first(&mut next);
-        next.truncate(k);
-        cands = next.iter().map(|s| s.idx).collect();
+        // The next candidates: the top-k local maxima of everything scored at this level. Taking
+        // only each window's best would collapse overlapping windows onto one cell and drop the
+        // runner-up hills that the finer levels sometimes prove better (a near-tie of two ripples
+        // of the objective).
+        cands = top_local_maxima(&g, &scored, f, k);
     }
 
     // Hill-climb each candidate to a local maximum of the finest grid. The climbs run one after
@@ -923,6 +898,25 @@ fn tiled(ev: &Evaluator, cfg: &SearchConfig, stats: &mut SearchStats) -> (Scored
     peaks.dedup_by_key(|s| s.idx);
     let best = peaks[0];
     (best, peaks[1..].to_vec())
+}
+
+/// The best `k` (best first) of the `scored` cells that beat each of their lattice-`f` neighbours
+/// that were scored too.
+fn top_local_maxima(g: &Grid, scored: &[Scored], f: i64, k: usize) -> Vec<u64> {
+    let map: HashMap<u64, Scored> = scored.iter().map(|s| (s.idx, *s)).collect();
+    let mut maxima: Vec<Scored> = scored
+        .iter()
+        .filter(|s| {
+            neighbours(g, &g.cell(s.idx), f)
+                .iter()
+                .filter_map(|n| map.get(&g.index(n)))
+                .all(|n| better(s, n))
+        })
+        .copied()
+        .collect();
+    sort_best_first(&mut maxima);
+    maxima.truncate(k);
+    maxima.iter().map(|s| s.idx).collect()
 }
 
 /// The lattice-`f` cells within ±2f of `c` on every axis.
