@@ -90,16 +90,20 @@ pub trait CameraModel: Send + Sync + std::fmt::Debug {
     }
 
     /// Validity mask (255 = valid) of the image circle, row-major `width × height`.
+    ///
+    /// Rows in parallel (rayon): every pixel is an unprojection, ≈ 0.3 s of CPU for 5 MP, which
+    /// the MI refinement pays on every call.
     fn valid_mask(&self) -> Vec<u8> {
+        use rayon::prelude::*;
         let (w, h) = (self.width() as usize, self.height() as usize);
         let mut m = vec![0u8; w * h];
-        for v in 0..h {
-            for u in 0..w {
+        m.par_chunks_mut(w.max(1)).enumerate().for_each(|(v, row)| {
+            for (u, px) in row.iter_mut().enumerate() {
                 if self.is_valid_pixel(&Point2::new(u as f64, v as f64)) {
-                    m[v * w + u] = 255;
+                    *px = 255;
                 }
             }
-        }
+        });
         m
     }
 }

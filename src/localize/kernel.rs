@@ -10,7 +10,9 @@
 //! - the image is pre-binned ([`BinnedImage`], one u8 per pixel holding the gray bin, invalid
 //!   pixels and the sentinel hold the histogram's invalid column), so a sample is one load;
 //! - the histogram is u32 counts in four interleaved copies (breaking the store→load dependency of
-//!   consecutive equal bins), 32×33×4×4 B = 17 KiB, so it stays in L1.
+//!   consecutive equal bins), 32×33×4×4 B = 17 KiB, so it stays in L1;
+//! - on x86-64 a copy compiled for AVX2 + FMA is chosen at run time (8 lanes instead of SSE2's 4),
+//!   bit-identical to the baseline copy.
 //!
 //! [`accumulate_scalar`] is the straightforward f64 version through [`CameraModel`], kept as the
 //! reference the fast kernel is tested against and as the benchmark's baseline.
@@ -23,11 +25,16 @@ use super::points::{GroundPoint, PreparedPoints};
 use crate::camera::{Camera, CameraModel};
 use crate::pose::CamFromMap;
 use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
 
 /// Points per chunk: the index buffer (1 KiB) stays in L1 between the two passes.
 const CHUNK: usize = 256;
 /// Interleaved histogram copies.
 const SUB_HISTS: usize = 4;
+/// Pixels beyond this column or row are treated as outside the image: it keeps every accepted
+/// coordinate exactly representable in f32 and in range of the i32 conversion ([`pixel_index`]).
+/// No real camera comes near it.
+const MAX_SIDE: usize = 1 << 24;
 
 /// A camera model specialised for the hot loop (f32, precomputed validity limits), optionally for
 /// a 2^level downsampled image.
@@ -212,22 +219,26 @@ impl GrayLevel {
         let (w, h) = (self.width.div_ceil(2), self.height.div_ceil(2));
         let mut gray = vec![0u8; w * h];
         let mut mask = vec![0u8; w * h];
-        for v in 0..h {
-            for u in 0..w {
-                let (mut sum, mut n) = (0u32, 0u32);
-                for (du, dv) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                    let (x, y) = (2 * u + du, 2 * v + dv);
-                    if x < self.width && y < self.height && self.mask[y * self.width + x] != 0 {
-                        sum += self.gray[y * self.width + x] as u32;
-                        n += 1;
+        // Output rows in parallel (each reads only the input level).
+        gray.par_chunks_mut(w.max(1))
+            .zip(mask.par_chunks_mut(w.max(1)))
+            .enumerate()
+            .for_each(|(v, (grow, mrow))| {
+                for u in 0..w {
+                    let (mut sum, mut n) = (0u32, 0u32);
+                    for (du, dv) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (x, y) = (2 * u + du, 2 * v + dv);
+                        if x < self.width && y < self.height && self.mask[y * self.width + x] != 0 {
+                            sum += self.gray[y * self.width + x] as u32;
+                            n += 1;
+                        }
+                    }
+                    if let Some(mean) = (sum + n / 2).checked_div(n) {
+                        grow[u] = mean as u8;
+                        mrow[u] = 255;
                     }
                 }
-                if let Some(mean) = (sum + n / 2).checked_div(n) {
-                    gray[v * w + u] = mean as u8;
-                    mask[v * w + u] = 255;
-                }
-            }
-        }
+            });
         GrayLevel {
             width: w,
             height: h,
@@ -256,15 +267,18 @@ fn project_chunk_mei(
     out: &mut [u32],
 ) {
     let r = p.r;
-    let (wf, hf) = (w as f32, h as f32);
+    let (wf, hf) = (w.min(MAX_SIDE) as f32, h.min(MAX_SIDE) as f32);
     for i in 0..out.len().min(xs.len()).min(ys.len()).min(zs.len()) {
         let (x, y, z) = (xs[i], ys[i], zs[i]);
         let cx = r[0] * x + r[1] * y + r[2] * z + p.t[0];
         let cy = r[3] * x + r[4] * y + r[5] * z + p.t[1];
         let cz = r[6] * x + r[7] * y + r[8] * z + p.t[2];
-        let inv_n = 1.0 / (cx * cx + cy * cy + cz * cz).sqrt();
-        let sz = cz * inv_n;
-        let f = inv_n / (sz + xi);
+        // Unit sphere then normalised plane, x_u = x_s / (z_s + ξ), with the sphere's 1/‖X‖
+        // folded into the plane's denominator: x_u = X / (Z + ξ‖X‖). One sqrt and one division
+        // per point instead of a sqrt and two divisions (the projection's dominant cost); the
+        // sphere test z_s > zmin becomes Z > zmin·‖X‖ (same set: ‖X‖ = 0 fails both).
+        let n = (cx * cx + cy * cy + cz * cz).sqrt();
+        let f = 1.0 / (cz + xi * n);
         let (xu, yu) = (cx * f, cy * f);
         let r2 = xu * xu + yu * yu;
         let radial = 1.0 + d[0] * r2 + d[1] * r2 * r2;
@@ -273,11 +287,28 @@ fn project_chunk_mei(
         // Shifted by ½ so that truncation is rounding to the nearest pixel centre.
         let u = k[0] * xd + k[2] * yd + k[3] + 0.5;
         let v = k[1] * yd + k[4] + 0.5;
-        let ok = sz > zmin && r2 < r2max && u >= 0.0 && u < wf && v >= 0.0 && v < hf;
-        let uc = if ok { u } else { 0.0 };
-        let vc = if ok { v } else { 0.0 };
-        let idx = vc as u32 * w as u32 + uc as u32;
-        out[i] = if ok { idx } else { sentinel };
+        let ok = cz > zmin * n && r2 < r2max && u >= 0.0 && u < wf && v >= 0.0 && v < hf;
+        out[i] = pixel_index(ok, u, v, w, sentinel);
+    }
+}
+
+/// Pixel index of the (½-shifted) position (u, v), or `sentinel` when `!ok`. `ok` must imply
+/// 0 ≤ u < w and 0 ≤ v < h (the callers' range tests), so the truncating conversions are in range.
+#[inline(always)]
+fn pixel_index(ok: bool, u: f32, v: f32, w: usize, sentinel: u32) -> u32 {
+    // Not-ok lanes (which may hold NaN or ±∞) are replaced by 0 first, so both conversions below
+    // see values in [0, 2^24): the plain (non-saturating) i32 truncation is exact and vectorises
+    // to one instruction, where `as u32` needs a saturation and NaN fix-up sequence per lane.
+    let uc = if ok { u } else { 0.0 };
+    let vc = if ok { v } else { 0.0 };
+    // SAFETY: uc and vc are finite and in [0, 2^24) (see above; the callers clamp the side
+    // lengths to MAX_SIDE), so they truncate to i32 without overflow.
+    let (ui, vi) = unsafe { (uc.to_int_unchecked::<i32>(), vc.to_int_unchecked::<i32>()) };
+    let idx = vi as u32 * w as u32 + ui as u32;
+    if ok {
+        idx
+    } else {
+        sentinel
     }
 }
 
@@ -308,7 +339,7 @@ fn project_chunk_equidistant(
     out: &mut [u32],
 ) {
     let r = p.r;
-    let (wf, hf) = (w as f32, h as f32);
+    let (wf, hf) = (w.min(MAX_SIDE) as f32, h.min(MAX_SIDE) as f32);
     const HALF_PI: f32 = std::f32::consts::FRAC_PI_2;
     const PI: f32 = std::f32::consts::PI;
     for i in 0..out.len().min(xs.len()).min(ys.len()).min(zs.len()) {
@@ -330,10 +361,7 @@ fn project_chunk_equidistant(
         let u = k[0] * (xd + k[2] * yd) + k[3] + 0.5;
         let v = k[1] * yd + k[4] + 0.5;
         let ok = theta <= theta_max && u >= 0.0 && u < wf && v >= 0.0 && v < hf;
-        let uc = if ok { u } else { 0.0 };
-        let vc = if ok { v } else { 0.0 };
-        let idx = vc as u32 * w as u32 + uc as u32;
-        out[i] = if ok { idx } else { sentinel };
+        out[i] = pixel_index(ok, u, v, w, sentinel);
     }
 }
 
@@ -383,7 +411,50 @@ impl Default for Scratch {
 
 /// The fast kernel: add the joint histogram of `pts` seen from `pose` to `hist` (which must have
 /// as many rows as reflectivity bins and `cols` = the image's invalid value).
+///
+/// On x86-64 CPUs with AVX2 and FMA (detected at run time) a copy of the kernel compiled for them
+/// runs (8-wide projection instead of SSE2's 4-wide). Both copies perform the same IEEE operations
+/// in the same order — Rust never contracts `a·b + c` into an FMA on its own — so the histogram is
+/// bit-identical whichever runs (tested).
 pub fn accumulate(
+    pts: &PreparedPoints,
+    pose: &PoseF32,
+    cam: &FastCamera,
+    img: &BinnedImage,
+    hist: &mut JointHist,
+    scratch: &mut Scratch,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports the features the function is compiled for (checked above).
+        unsafe { accumulate_avx2(pts, pose, cam, img, hist, scratch) };
+        return;
+    }
+    // The target's baseline features (SSE2 on x86-64).
+    accumulate_impl(pts, pose, cam, img, hist, scratch);
+}
+
+/// [`accumulate`] compiled for AVX2 + FMA.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn accumulate_avx2(
+    pts: &PreparedPoints,
+    pose: &PoseF32,
+    cam: &FastCamera,
+    img: &BinnedImage,
+    hist: &mut JointHist,
+    scratch: &mut Scratch,
+) {
+    accumulate_impl(pts, pose, cam, img, hist, scratch);
+}
+
+/// The kernel's body, inlined into each feature-specific copy (and into [`accumulate`] itself for
+/// the baseline features).
+#[inline(always)]
+fn accumulate_impl(
     pts: &PreparedPoints,
     pose: &PoseF32,
     cam: &FastCamera,
@@ -432,7 +503,45 @@ pub fn accumulate(
 }
 
 /// Visibility of each point from `pose` (lands on a valid pixel of `img`).
+///
+/// Dispatched like [`accumulate`] (AVX2 + FMA copy where the CPU has them; same results).
 pub fn visible(
+    pts: &PreparedPoints,
+    pose: &PoseF32,
+    cam: &FastCamera,
+    img: &BinnedImage,
+    invalid: u8,
+    out: &mut [bool],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports the features the function is compiled for (checked above).
+        unsafe { visible_avx2(pts, pose, cam, img, invalid, out) };
+        return;
+    }
+    visible_impl(pts, pose, cam, img, invalid, out);
+}
+
+/// [`visible`] compiled for AVX2 + FMA.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn visible_avx2(
+    pts: &PreparedPoints,
+    pose: &PoseF32,
+    cam: &FastCamera,
+    img: &BinnedImage,
+    invalid: u8,
+    out: &mut [bool],
+) {
+    visible_impl(pts, pose, cam, img, invalid, out);
+}
+
+/// The body of [`visible`].
+#[inline(always)]
+fn visible_impl(
     pts: &PreparedPoints,
     pose: &PoseF32,
     cam: &FastCamera,
@@ -522,15 +631,25 @@ mod tests {
         let origin = [c.x + 0.3, c.y - 0.2, c.z];
         let prepared = PreparedPoints::new(&pts, origin, &lut);
         let img = BinnedImage::new(w, h, &gray, &mask, &lut, 16);
-        let mut fast = JointHist::new(16, 16);
-        accumulate(
-            &prepared,
-            &PoseF32::new(&pose, origin),
-            &FastCamera::new(&cam, 0),
-            &img,
-            &mut fast,
-            &mut Scratch::default(),
-        );
+        type Kernel =
+            fn(&PreparedPoints, &PoseF32, &FastCamera, &BinnedImage, &mut JointHist, &mut Scratch);
+        let hist_of = |kernel: Kernel| {
+            let mut h = JointHist::new(16, 16);
+            let p = PoseF32::new(&pose, origin);
+            kernel(
+                &prepared,
+                &p,
+                &FastCamera::new(&cam, 0),
+                &img,
+                &mut h,
+                &mut Scratch::default(),
+            );
+            h
+        };
+        let fast = hist_of(accumulate);
+        // The dispatched copy (AVX2 where available) and the baseline copy agree to the bit.
+        let generic = hist_of(accumulate_impl);
+        assert_eq!(fast, generic);
         let mut slow = JointHist::new(16, 16);
         accumulate_scalar(&pts, &pose, &cam, &gray, &mask, &lut, &lut, &mut slow);
         let n = pts.len() as u64;

@@ -1,6 +1,7 @@
 //! Ground points (map CRS, f64) and their hot-loop form (origin-shifted f32, structure of arrays).
 
 use crate::error::{Error, Result};
+use rayon::prelude::*;
 
 /// One LiDAR ground point: map-CRS coordinates (f64 metres) and reflectivity (0–255). The same
 /// type the tile cache's [`crate::map::ground_points`] produces.
@@ -74,7 +75,8 @@ impl PreparedPoints {
                 let iy = ((p.y - y0) * scale) as u64;
                 order.push((morton2(ix, iy), i));
             }
-            order.sort_unstable();
+            // Keys are unique (point index), so the parallel sort's order is fully determined.
+            order.par_sort_unstable();
         }
         let mut out = PreparedPoints::default();
         for &(_, i) in &order {

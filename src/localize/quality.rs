@@ -21,7 +21,6 @@
 // Axis-indexed loops over parallel fixed-size arrays ([_; 6]) read clearer with the index.
 #![allow(clippy::needless_range_loop)]
 
-use super::kernel::Scratch;
 use super::search::{Evaluator, SearchResult, AXES};
 use serde::{Deserialize, Serialize};
 
@@ -142,7 +141,6 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
     let g = *ev.grid();
     let best_cell = g.cell(res.best.idx);
     let n = res.best.value.n.max(1) as f64;
-    let mut scratch = Scratch::default();
     let mut poses = 0u64;
     let mut axes = Vec::new();
     let mut background = res.best.score;
@@ -152,21 +150,30 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
         if g.m[i] == 0 {
             continue;
         }
-        let mut prof: Vec<(i64, f64, f64)> = Vec::new(); // (k, objective, mi)
-        for k in -cfg.profile_half_steps..=cfg.profile_half_steps {
-            let mut c = best_cell;
-            c[i] += k;
-            if !g.contains(&c) {
-                continue;
-            }
-            let s = if k == 0 {
-                res.best
-            } else {
-                poses += 1;
-                ev.score(0, g.index(&c), &mut scratch)
-            };
-            prof.push((k, s.score, s.value.mi));
-        }
+        // The profile's cells (k ≠ 0 inside the grid), scored in parallel.
+        let ks: Vec<i64> = (-cfg.profile_half_steps..=cfg.profile_half_steps)
+            .filter(|&k| {
+                let mut c = best_cell;
+                c[i] += k;
+                k != 0 && g.contains(&c)
+            })
+            .collect();
+        let idxs: Vec<u64> = ks
+            .iter()
+            .map(|&k| {
+                let mut c = best_cell;
+                c[i] += k;
+                g.index(&c)
+            })
+            .collect();
+        poses += idxs.len() as u64;
+        let mut prof: Vec<(i64, f64, f64)> = ks
+            .iter()
+            .zip(ev.score_cells(0, &idxs))
+            .map(|(&k, s)| (k, s.score, s.value.mi))
+            .collect(); // (k, objective, mi)
+        let at = prof.partition_point(|p| p.0 < 0);
+        prof.insert(at, (0, res.best.score, res.best.value.mi));
         background = prof.iter().map(|p| p.1).fold(background, f64::min);
         let step = g.step[i];
         let fit: Vec<(f64, f64)> = prof

@@ -10,9 +10,10 @@
 //! - [`Mode::Tiled`] (default) is coarse-to-fine on sub-lattices of the same grid: level L surveys
 //!   the whole box at step 2^L cells — split into tiles evaluated in parallel — against a 2^L
 //!   downsampled image with a point subsample; the top-k local maxima go down a level, where each is
-//!   re-examined on a ±2-cell window at half the step, down to level 0 (finest step, full image,
-//!   all points); finally each candidate hill-climbs on the finest grid to a local maximum. The
-//!   result is always a cell of the exhaustive grid, scored by the same estimator.
+//!   re-examined on a ±2-cell window at half the step and the top-k local maxima of all that was
+//!   scored go on, down to level 0 (finest step, full image, all points); finally each candidate
+//!   hill-climbs on the finest grid to a local maximum (every step's cells scored in parallel).
+//!   The result is always a cell of the exhaustive grid, scored by the same estimator.
 //!
 //! Bias remedy: MI computed on fewer points is biased upward (≈ (bx−1)(by−1)/2N nats), so a pose
 //! that pushes points out of the image would be favoured. The search therefore uses a *fixed point
@@ -533,17 +534,32 @@ impl Evaluator {
         let keep = if cfg.fixed_point_set {
             let eroded = erode(mask, w, h, cfg.visibility_margin_px);
             let img_e = BinnedImage::new(w, h, gray, &eroded, &lut_gray, invalid);
-            let mut keep = vec![true; raw.len()];
-            let mut vis = vec![false; raw.len()];
-            for cell in box_lattice(&grid) {
-                let p = PoseF32::new(
-                    &pose_at_pivot(init, &grid.offsets(&cell), grid.pivot),
-                    origin,
-                );
-                visible(&raw, &p, &cam0, &img_e, invalid, &mut vis);
-                keep.iter_mut().zip(&vis).for_each(|(k, &v)| *k &= v);
-            }
-            keep
+            // The 3^d lattice poses in parallel, each thread AND-ing into its own flags, then
+            // the threads' flags AND-ed: AND is associative and commutative, so the set does not
+            // depend on how rayon splits the work.
+            let n = raw.len();
+            box_lattice(&grid)
+                .par_iter()
+                .fold(
+                    || (vec![true; n], vec![false; n]),
+                    |(mut keep, mut vis), cell| {
+                        let p = PoseF32::new(
+                            &pose_at_pivot(init, &grid.offsets(cell), grid.pivot),
+                            origin,
+                        );
+                        visible(&raw, &p, &cam0, &img_e, invalid, &mut vis);
+                        keep.iter_mut().zip(&vis).for_each(|(k, &v)| *k &= v);
+                        (keep, vis)
+                    },
+                )
+                .map(|(keep, _)| keep)
+                .reduce(
+                    || vec![true; n],
+                    |mut a, b| {
+                        a.iter_mut().zip(&b).for_each(|(x, &y)| *x &= y);
+                        a
+                    },
+                )
         } else {
             let mut vis = vec![false; raw.len()];
             let p = PoseF32::new(init, origin);
@@ -657,18 +673,26 @@ impl Evaluator {
         }
     }
 
-    /// Score many cells in parallel (order kept), adding to the stats.
-    fn score_many(&self, level: u32, idxs: &[u64], stats: &mut SearchStats) -> Vec<Scored> {
-        const TILE: usize = 64;
-        let out: Vec<Scored> = idxs
-            .par_chunks(TILE)
+    /// Score cells (by number) at a level in parallel, in tiles of consecutive cells (one scratch
+    /// per tile), order kept. A score is a pure function of (level, cell), so neither the tiling
+    /// nor the thread count can change a result.
+    pub fn score_cells(&self, level: u32, idxs: &[u64]) -> Vec<Scored> {
+        // Up to 64 cells a tile, but at least ~4 tiles per thread so that the small batches of the
+        // descent and the climb (tens to hundreds of cells) still keep every thread busy.
+        let tile = (idxs.len() / (4 * rayon::current_num_threads()).max(1)).clamp(1, 64);
+        idxs.par_chunks(tile)
             .flat_map_iter(|tile| {
                 let mut s = Scratch::default();
                 tile.iter()
                     .map(|&i| self.score(level, i, &mut s))
                     .collect::<Vec<_>>()
             })
-            .collect();
+            .collect()
+    }
+
+    /// Score many cells in parallel (order kept), adding to the stats.
+    fn score_many(&self, level: u32, idxs: &[u64], stats: &mut SearchStats) -> Vec<Scored> {
+        let out = self.score_cells(level, idxs);
         let n = self.points_at(level) as u64;
         stats.poses += idxs.len() as u64;
         stats.point_evaluations += idxs.len() as u64 * n;
@@ -690,29 +714,32 @@ impl Evaluator {
 fn blur3(gray: &[u8], mask: &[u8], w: usize, h: usize) -> Vec<u8> {
     const K: [u32; 3] = [1, 2, 1];
     let mut out = gray.to_vec();
-    for v in 0..h {
-        for u in 0..w {
-            if mask[v * w + u] == 0 {
-                continue;
-            }
-            let (mut acc, mut wsum) = (0u32, 0u32);
-            for (j, kj) in K.iter().enumerate() {
-                let y = v + j;
-                if y < 1 || y > h {
+    // Rows in parallel: each output row reads only the input, so the result is the same.
+    out.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(v, row)| {
+            for (u, o) in row.iter_mut().enumerate() {
+                if mask[v * w + u] == 0 {
                     continue;
                 }
-                for (i, ki) in K.iter().enumerate() {
-                    let x = u + i;
-                    if x < 1 || x > w || mask[(y - 1) * w + x - 1] == 0 {
+                let (mut acc, mut wsum) = (0u32, 0u32);
+                for (j, kj) in K.iter().enumerate() {
+                    let y = v + j;
+                    if y < 1 || y > h {
                         continue;
                     }
-                    acc += kj * ki * gray[(y - 1) * w + x - 1] as u32;
-                    wsum += kj * ki;
+                    for (i, ki) in K.iter().enumerate() {
+                        let x = u + i;
+                        if x < 1 || x > w || mask[(y - 1) * w + x - 1] == 0 {
+                            continue;
+                        }
+                        acc += kj * ki * gray[(y - 1) * w + x - 1] as u32;
+                        wsum += kj * ki;
+                    }
                 }
+                *o = ((acc + wsum / 2) / wsum.max(1)) as u8;
             }
-            out[v * w + u] = ((acc + wsum / 2) / wsum.max(1)) as u8;
-        }
-    }
+        });
     out
 }
 
@@ -722,30 +749,35 @@ fn erode(mask: &[u8], w: usize, h: usize, r: usize) -> Vec<u8> {
     if r == 0 {
         return mask.to_vec();
     }
+    // Both passes row-parallel: each output row reads only the previous pass.
     let mut tmp = vec![0u8; w * h];
-    for v in 0..h {
-        for u in 0..w {
-            let lo = u.saturating_sub(r);
-            let hi = (u + r).min(w - 1);
-            tmp[v * w + u] = if (lo..=hi).all(|x| mask[v * w + x] != 0) && u >= r && u + r < w {
-                255
-            } else {
-                0
-            };
-        }
-    }
+    tmp.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(v, row)| {
+            for (u, t) in row.iter_mut().enumerate() {
+                let lo = u.saturating_sub(r);
+                let hi = (u + r).min(w - 1);
+                *t = if (lo..=hi).all(|x| mask[v * w + x] != 0) && u >= r && u + r < w {
+                    255
+                } else {
+                    0
+                };
+            }
+        });
     let mut out = vec![0u8; w * h];
-    for v in 0..h {
-        let lo = v.saturating_sub(r);
-        let hi = (v + r).min(h - 1);
-        for u in 0..w {
-            out[v * w + u] = if (lo..=hi).all(|y| tmp[y * w + u] != 0) && v >= r && v + r < h {
-                255
-            } else {
-                0
-            };
-        }
-    }
+    out.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(v, row)| {
+            let lo = v.saturating_sub(r);
+            let hi = (v + r).min(h - 1);
+            for (u, o) in row.iter_mut().enumerate() {
+                *o = if (lo..=hi).all(|y| tmp[y * w + u] != 0) && v >= r && v + r < h {
+                    255
+                } else {
+                    0
+                };
+            }
+        });
     out
 }
 
@@ -904,48 +936,33 @@ fn tiled(ev: &Evaluator, cfg: &SearchConfig, stats: &mut SearchStats) -> (Scored
     }
     let idxs: Vec<u64> = lattice.iter().map(|c| g.index(c)).collect();
     let survey = ev.score_many(top, &idxs, stats);
-    let by_idx: HashMap<u64, Scored> = survey.iter().map(|s| (s.idx, *s)).collect();
-    let f = 1i64 << top;
-    let mut maxima: Vec<Scored> = survey
-        .iter()
-        .filter(|s| {
-            neighbours(&g, &g.cell(s.idx), f)
-                .iter()
-                .filter_map(|n| by_idx.get(&g.index(n)))
-                .all(|n| better(s, n))
-        })
-        .copied()
-        .collect();
-    sort_best_first(&mut maxima);
-    maxima.truncate(k);
-    let mut cands: Vec<u64> = maxima.iter().map(|s| s.idx).collect();
+    let mut cands = top_local_maxima(&g, &survey, 1i64 << top, k);
 
     // Descend: each candidate is re-examined on a ±2-step window of the next finer lattice.
     for level in (0..top).rev() {
         let f = 1i64 << level;
-        let windows: Vec<Vec<u64>> = cands.iter().map(|&c| window(&g, &g.cell(c), f)).collect();
-        let mut union: Vec<u64> = windows.iter().flatten().copied().collect();
+        let mut union: Vec<u64> = cands
+            .iter()
+            .flat_map(|&c| window(&g, &g.cell(c), f))
+            .collect();
         union.sort_unstable();
         union.dedup();
         let scored = ev.score_many(level, &union, stats);
-        let map: HashMap<u64, Scored> = scored.iter().map(|s| (s.idx, *s)).collect();
-        let mut next: Vec<Scored> = windows
-            .iter()
-            .filter_map(|w| best_of(w.iter().filter_map(|i| map.get(i))))
-            .collect();
-        sort_best_first(&mut next);
-        next.dedup_by_key(|s| s.idx);
-        let mut seen = std::collections::HashSet::new();
-        next.retain(|s| seen.insert(s.idx));
-        next.truncate(k);
-        cands = next.iter().map(|s| s.idx).collect();
+        // The next candidates: the top-k local maxima of everything scored at this level. Taking
+        // only each window's best would collapse overlapping windows onto one cell and drop the
+        // runner-up hills that the finer levels sometimes prove better (a near-tie of two ripples
+        // of the objective).
+        cands = top_local_maxima(&g, &scored, f, k);
     }
 
-    // Hill-climb each candidate to a local maximum of the finest grid (in parallel; each climb is
-    // sequential and deterministic).
+    // Hill-climb each candidate to a local maximum of the finest grid. The climbs run one after
+    // the other (each step scores its cells in parallel) and share one cache: candidates are often
+    // close, and their climbs meet. A cached score is the same number as a recomputed one, so the
+    // sharing changes only the count, and the order is fixed, so the count is deterministic too.
+    let mut cache: HashMap<u64, Scored> = HashMap::new();
     let climbs: Vec<(Scored, u64)> = cands
-        .par_iter()
-        .map(|&c| climb(ev, c, cfg.max_climb))
+        .iter()
+        .map(|&c| climb(ev, c, cfg.max_climb, &mut cache))
         .collect();
     let n0 = ev.points_at(0) as u64;
     for (_, evals) in &climbs {
@@ -959,17 +976,42 @@ fn tiled(ev: &Evaluator, cfg: &SearchConfig, stats: &mut SearchStats) -> (Scored
     (best, peaks[1..].to_vec())
 }
 
+/// The best `k` (best first) of the `scored` cells that beat each of their lattice-`f` neighbours
+/// that were scored too.
+fn top_local_maxima(g: &Grid, scored: &[Scored], f: i64, k: usize) -> Vec<u64> {
+    let map: HashMap<u64, Scored> = scored.iter().map(|s| (s.idx, *s)).collect();
+    let mut maxima: Vec<Scored> = scored
+        .iter()
+        .filter(|s| {
+            neighbours(g, &g.cell(s.idx), f)
+                .iter()
+                .filter_map(|n| map.get(&g.index(n)))
+                .all(|n| better(s, n))
+        })
+        .copied()
+        .collect();
+    sort_best_first(&mut maxima);
+    maxima.truncate(k);
+    maxima.iter().map(|s| s.idx).collect()
+}
+
 /// The lattice-`f` cells within ±2f of `c` on every axis.
 fn window(g: &Grid, c: &Cell, f: i64) -> Vec<u64> {
+    window_r(g, c, f, [2; 6])
+}
+
+/// The lattice-`f` cells within ±`r[i]`·f of `c` on axis i.
+fn window_r(g: &Grid, c: &Cell, f: i64, r: [i64; 6]) -> Vec<u64> {
     let mut cells = vec![*c];
     for i in 0..6 {
         if g.m[i] == 0 {
             continue;
         }
+        let ri = r[i];
         cells = cells
             .into_iter()
             .flat_map(|d| {
-                (-2..=2).map(move |k| {
+                (-ri..=ri).map(move |k| {
                     let mut e = d;
                     e[i] += k * f;
                     e
@@ -984,34 +1026,55 @@ fn window(g: &Grid, c: &Cell, f: i64) -> Vec<u64> {
         .collect()
 }
 
+/// Half widths (finest cells) of the climb's wider look, per axis: ±2 on x, y, z, ±3 on the
+/// angles. The objective's pose-to-pose ripples are broadest along the angles: in the
+/// tiled-vs-exhaustive trials (tests/refine_synthetic.rs) every remaining miss with a ±2 look was
+/// a near-tie exactly 3 yaw steps away. ±3 on every axis would also catch them but costs 7⁴ − 5⁴ =
+/// 1776 more full-resolution poses per look (≈ doubling the default search); this costs 250.
+const WIDE_LOOK: [i64; 6] = [2, 2, 2, 3, 3, 3];
+
 /// Steepest-ascent on the finest grid from `start` until no neighbour is better, then a wider look:
-/// if a cell within ±2 steps on every axis beats the peak, climb on from it. The MI surface over a
-/// nearest-pixel sampler has small pose-to-pose ripples; the ±2 window steps over them so that the
-/// result is the maximum of its 5^d neighbourhood, as the exhaustive search would see it. Returns
-/// the peak and the number of poses scored.
-fn climb(ev: &Evaluator, start: u64, max_iter: usize) -> (Scored, u64) {
+/// if a cell within [`WIDE_LOOK`] steps beats the peak, climb on from it. The MI surface over a
+/// nearest-pixel sampler has small pose-to-pose ripples; the wide look steps over them so that the
+/// result is the maximum of its neighbourhood (±2 positions, ±3 angles), as the exhaustive search
+/// would see it. Returns
+/// the peak and the number of poses scored that were not in `cache` (level-0 scores, shared
+/// between the climbs of one search).
+fn climb(
+    ev: &Evaluator,
+    start: u64,
+    max_iter: usize,
+    cache: &mut HashMap<u64, Scored>,
+) -> (Scored, u64) {
     let g = ev.grid;
-    let mut s = Scratch::default();
-    let mut cache: HashMap<u64, Scored> = HashMap::new();
     let mut evals = 0u64;
-    let mut score = |i: u64, s: &mut Scratch| -> Scored {
-        *cache.entry(i).or_insert_with(|| {
-            evals += 1;
-            ev.score(0, i, s)
-        })
+    // Scores of `idxs`, the ones not seen yet scored in parallel (the climb itself is sequential,
+    // and often only one or two candidates climb, so the parallelism has to be inside a step).
+    let mut score = |idxs: &[u64]| -> Vec<Scored> {
+        let mut missing: Vec<u64> = idxs
+            .iter()
+            .copied()
+            .filter(|i| !cache.contains_key(i))
+            .collect();
+        missing.sort_unstable();
+        missing.dedup();
+        evals += missing.len() as u64;
+        for s in ev.score_cells(0, &missing) {
+            cache.insert(s.idx, s);
+        }
+        idxs.iter().map(|i| cache[i]).collect()
     };
-    let mut cur = score(start, &mut s);
+    let mut cur = score(&[start])[0];
     for _ in 0..max_iter {
-        let nb = neighbours(&g, &g.cell(cur.idx), 1);
-        let cands: Vec<Scored> = nb.iter().map(|n| score(g.index(n), &mut s)).collect();
-        match best_of(&cands) {
+        let nb: Vec<u64> = neighbours(&g, &g.cell(cur.idx), 1)
+            .iter()
+            .map(|n| g.index(n))
+            .collect();
+        match best_of(&score(&nb)) {
             Some(b) if better(&b, &cur) => cur = b,
             _ => {
-                let wide: Vec<Scored> = window(&g, &g.cell(cur.idx), 1)
-                    .into_iter()
-                    .map(|i| score(i, &mut s))
-                    .collect();
-                match best_of(&wide) {
+                let wide = window_r(&g, &g.cell(cur.idx), 1, WIDE_LOOK);
+                match best_of(&score(&wide)) {
                     Some(b) if better(&b, &cur) => cur = b,
                     _ => break,
                 }
