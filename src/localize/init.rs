@@ -963,7 +963,10 @@ fn initialize_verified<R: rand::Rng>(
     for (pos, &rank) in order.iter().enumerate().take(fine.verify.max_fine.max(1)) {
         tried = pos + 1;
         let cand = &cands[rank];
-        let sweep = screened[rank];
+        // Re-scored with the full verification (more points, finer grid) so that it competes
+        // with PnP poses on equal terms; the screening only orders.
+        let sweep =
+            screened[rank].and_then(|_| verifier.verify(&candidate_pose(heights, prior_xy, cand)));
         let hyp = match fine_stage(cam, image, sat, heights, prior_xy, cand, fine, rng) {
             Ok(f) => {
                 any_pnp = true;

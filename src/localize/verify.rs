@@ -46,8 +46,10 @@ pub struct VerifyParams {
     pub yaw_deg: (f64, f64),
     /// Local grid around a sweep candidate ([`MiVerifier::screen`]): x/y half range and step, m …
     pub screen_xy: (f64, f64),
-    /// … yaw half range and step, degrees.
+    /// … yaw half range and step, degrees …
     pub screen_yaw_deg: (f64, f64),
+    /// … and points per evaluation (screening ranks dozens of candidates: it must be cheap).
+    pub screen_points: usize,
 }
 
 impl Default for VerifyParams {
@@ -61,8 +63,9 @@ impl Default for VerifyParams {
             blur_m: 0.15,
             xy: (0.4, 0.2),
             yaw_deg: (2.0, 1.0),
-            screen_xy: (0.4, 0.2),
-            screen_yaw_deg: (2.0, 1.0),
+            screen_xy: (0.2, 0.2),
+            screen_yaw_deg: (1.5, 1.5),
+            screen_points: 2000,
         }
     }
 }
@@ -111,6 +114,7 @@ impl<'a> MiVerifier<'a> {
         pose: &CamFromMap,
         pts: &[(Point3<f64>, u8)],
         footprint: f64,
+        points: usize,
     ) -> Option<(f64, usize)> {
         let mut pairs: Vec<(u8, u8)> = Vec::with_capacity(pts.len());
         for (p, r) in pts {
@@ -125,7 +129,7 @@ impl<'a> MiVerifier<'a> {
             return None;
         }
         // Same count for every evaluation where possible: stride subsample, deterministic.
-        let stride = (pairs.len() / self.p.points).max(1);
+        let stride = (pairs.len() / points.max(1)).max(1);
         let pairs: Vec<(u8, u8)> = pairs.into_iter().step_by(stride).collect();
         let (mut cr, mut cg) = ([0u64; 256], [0u64; 256]);
         for &(r, g) in &pairs {
@@ -151,18 +155,30 @@ impl<'a> MiVerifier<'a> {
     /// Verify a hypothesis: the best bias-corrected MI over the local grid around it. `None` when
     /// too few LiDAR points are seen (no evidence either way).
     pub fn verify(&self, pose: &CamFromMap) -> Option<Verdict> {
-        self.best_near(pose, self.p.xy, self.p.yaw_deg)
+        self.best_near(pose, self.p.xy, self.p.yaw_deg, self.p.points)
     }
 
     /// Screen a sweep candidate: as [`Self::verify`] on the grid of
     /// [`VerifyParams::screen_xy`] / [`VerifyParams::screen_yaw_deg`] (a sweep candidate is off by
-    /// up to half its sweep steps: 0.2 m, 1.5°, a few % of height).
+    /// up to half its sweep steps: 0.2 m, 1.5°, a few % of height) with
+    /// [`VerifyParams::screen_points`] points.
     pub fn screen(&self, pose: &CamFromMap) -> Option<Verdict> {
-        self.best_near(pose, self.p.screen_xy, self.p.screen_yaw_deg)
+        self.best_near(
+            pose,
+            self.p.screen_xy,
+            self.p.screen_yaw_deg,
+            self.p.screen_points,
+        )
     }
 
     /// Best bias-corrected MI over the x/y/yaw grid around `pose`.
-    fn best_near(&self, pose: &CamFromMap, xy: (f64, f64), yaw_deg: (f64, f64)) -> Option<Verdict> {
+    fn best_near(
+        &self,
+        pose: &CamFromMap,
+        xy: (f64, f64),
+        yaw_deg: (f64, f64),
+        points: usize,
+    ) -> Option<Verdict> {
         let c = pose.center();
         let zg = height_at(&self.tile.height, c.x, c.y).unwrap_or(c.z - 8.0);
         let cam_h = (c.z - zg).max(1.0);
@@ -172,7 +188,7 @@ impl<'a> MiVerifier<'a> {
             .map(|g| (Point3::new(g.x, g.y, g.z), g.reflectivity))
             .collect();
         // Thin the map points too: the projections are the cost, and a few × `points` suffice.
-        let stride = (pts.len() / (3 * self.p.points / 2).max(1)).max(1);
+        let stride = (pts.len() / (3 * points / 2).max(1)).max(1);
         let pts: Vec<_> = pts.into_iter().step_by(stride).collect();
         let footprint = self.p.blur_m / cam_h * self.focal;
         let steps = |(half, step): (f64, f64)| -> Vec<f64> {
@@ -196,7 +212,7 @@ impl<'a> MiVerifier<'a> {
             .par_iter()
             .map(|&(dx, dy, a)| {
                 let q = pose.perturbed(&Vector3::new(dx, dy, 0.0), a.to_radians());
-                self.mi_at(&q, &pts, footprint)
+                self.mi_at(&q, &pts, footprint, points)
                     .map(|(mi, n)| Verdict { mi, pose: q, n })
             })
             .collect::<Vec<_>>()
