@@ -46,7 +46,15 @@ fn main() {
         .map(|f| image::GrayImage::from_raw(w, h, f.clone()).unwrap())
         .collect();
     let img = infraloc::capture::temporal_median(&frames).unwrap();
-    let p = Params::default();
+    let mut p = Params::default();
+    // DIAG_TOPK=N: a longer sweep list; DIAG_FINE=N: fine stage only for the first N.
+    if let Some(k) = std::env::var("DIAG_TOPK").ok().and_then(|s| s.parse().ok()) {
+        p.coarse.top_k = k;
+    }
+    let n_fine: usize = std::env::var("DIAG_FINE")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(usize::MAX);
     let radius =
         (p.prior_sigmas * sigma).clamp(p.search_radius_range_m.0, p.search_radius_range_m.1);
     let truth = scene.pose;
@@ -70,9 +78,50 @@ fn main() {
         cands.len()
     );
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(p.seed);
+    // MI against the LiDAR map (the initializer's independent verifier), at the truth first.
+    let ver = infraloc::localize::verify::MiVerifier::new(cam, img.as_raw(), tile, {
+        // DIAG_VERIFY="off_nadir_deg,max_radius_m,blur_m,bins,points" overrides for experiments.
+        let mut v = infraloc::localize::verify::VerifyParams::default();
+        if let Ok(s) = std::env::var("DIAG_VERIFY") {
+            let f: Vec<f64> = s.split(',').filter_map(|t| t.parse().ok()).collect();
+            if f.len() == 5 {
+                v.max_off_nadir_deg = f[0];
+                v.max_radius_m = f[1];
+                v.blur_m = f[2];
+                v.bins = f[3] as usize;
+                v.points = f[4] as usize;
+            }
+        }
+        v
+    });
+    let vs = |pose: &infraloc::pose::CamFromMap| {
+        ver.verify(pose).map_or("mi –".to_string(), |v| {
+            format!("mi {:.4} (n {})", v.mi, v.n)
+        })
+    };
+    let flip = |pose: &infraloc::pose::CamFromMap| {
+        pose.perturbed(&nalgebra::Vector3::zeros(), std::f64::consts::PI)
+    };
+    println!(
+        "truth: {}  truth half-turned: {}",
+        vs(&truth),
+        vs(&flip(&truth))
+    );
     let wrap = |a: f64| {
         (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
     };
+    // DIAG_ORDER=mi: candidates in decreasing screening MI, as the verified initializer tries them.
+    let mut cands = cands;
+    if std::env::var("DIAG_ORDER").is_ok_and(|s| s == "mi") {
+        let key = |k: &infraloc::localize::matching::Candidate| {
+            ver.screen(&candidate_pose(&tile.height, prior, k))
+                .map_or(f64::NEG_INFINITY, |v| v.mi)
+        };
+        let mut keyed: Vec<(f64, infraloc::localize::matching::Candidate)> =
+            cands.iter().map(|k| (key(k), *k)).collect();
+        keyed.sort_by(|a, b| b.0.total_cmp(&a.0));
+        cands = keyed.into_iter().map(|(_, k)| k).collect();
+    }
     for (i, k) in cands.iter().enumerate() {
         let (ex, ey) = (prior.0 + k.offset[0] - c.x, prior.1 + k.offset[1] - c.y);
         print!(
@@ -83,6 +132,26 @@ fn main() {
             ex.hypot(ey),
             k.score
         );
+        let zg =
+            height_at(&tile.height, prior.0 + k.offset[0], prior.1 + k.offset[1]).unwrap_or(0.0);
+        let coarse_pose = infraloc::pose::CamFromMap::from_center_ypr(
+            &nalgebra::Point3::new(prior.0 + k.offset[0], prior.1 + k.offset[1], zg + k.height),
+            k.yaw,
+            0.0,
+            0.0,
+        );
+        print!(
+            "sweep {} | ",
+            ver.screen(&coarse_pose)
+                .map_or("mi –".to_string(), |v| format!(
+                    "mi {:.4} (n {})",
+                    v.mi, v.n
+                ))
+        );
+        if i >= n_fine {
+            println!();
+            continue;
+        }
         let t = std::time::Instant::now();
         match fine_stage(
             cam,
@@ -96,15 +165,20 @@ fn main() {
         ) {
             Ok(f) => {
                 let pc = f.pose.center();
+                let (_, pp, pr) = f.pose.yaw_pitch_roll();
                 println!(
-                    "pnp {}/{} rms {:.2} px: err {:.3} m z {:.3} yaw {:.2}° ({:.1} s)",
+                    "pnp {}/{} rms {:.2} px: err {:.3} m z {:.3} yaw {:.2}° tilt {:.1}/{:.1} ({:.1} s) {} flip {}",
                     f.inliers,
                     f.matches,
                     f.rms_px,
                     (pc.x - c.x).hypot(pc.y - c.y),
                     pc.z - c.z,
                     wrap(f.pose.yaw_pitch_roll().0 - ty).to_degrees(),
-                    t.elapsed().as_secs_f64()
+                    pp.to_degrees(),
+                    pr.to_degrees(),
+                    t.elapsed().as_secs_f64(),
+                    vs(&f.pose),
+                    vs(&flip(&f.pose)),
                 );
             }
             Err(e) => println!("pnp failed: {e}"),

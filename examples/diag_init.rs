@@ -111,6 +111,7 @@ fn main() {
         15.0,
         &CoarseParams::default(),
         &FineParams::default(),
+        None,
         &mut rng,
     )
     .unwrap();

@@ -15,7 +15,8 @@
 //! `infraloc simulate --seed N --preset P --out DIR` and `infraloc localize --config DIR/infraloc.toml`.
 //!
 //! `--top-k N` and `--no-early-stop` change the initializer's candidate list for before/after
-//! comparisons on the same seeds. The JSON (per-seed records and the summary) is rewritten after
+//! comparisons on the same seeds; `--no-verify` turns off the LiDAR-MI verification of the
+//! initializer's hypotheses (the satellite-only initializer before it). The JSON (per-seed records and the summary) is rewritten after
 //! every seed, so an interrupted run keeps what it measured.
 
 use infraloc::camera::import::{parse_camera, to_opencv_yaml};
@@ -44,13 +45,14 @@ struct Opts {
     threads: Option<usize>,
     top_k: Option<usize>,
     no_early_stop: bool,
+    no_verify: bool,
     init_only: bool,
 }
 
 fn usage() -> ! {
     eprintln!(
         "usage: pipeline_accuracy [--preset small|5mp] [--difficulty hard|easy] --seeds A..B|A,B,C \
-         [--frames N] [--json OUT] [--threads N] [--top-k N] [--no-early-stop] [--init-only]\n  \
+         [--frames N] [--json OUT] [--threads N] [--top-k N] [--no-early-stop] [--no-verify] [--init-only]\n  \
          A..B is inclusive: 1..100 is 100 seeds"
     );
     std::process::exit(2)
@@ -74,6 +76,7 @@ fn opts() -> Opts {
         threads: None,
         top_k: None,
         no_early_stop: false,
+        no_verify: false,
         init_only: false,
     };
     let mut it = std::env::args().skip(1);
@@ -100,6 +103,7 @@ fn opts() -> Opts {
             "--threads" => o.threads = Some(val().parse().unwrap_or_else(|_| usage())),
             "--top-k" => o.top_k = Some(val().parse().unwrap_or_else(|_| usage())),
             "--no-early-stop" => o.no_early_stop = true,
+            "--no-verify" => o.no_verify = true,
             "--init-only" => o.init_only = true,
             _ => usage(),
         }
@@ -263,6 +267,10 @@ fn init_only(
     use rand::SeedableRng;
     let t = Instant::now();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(p.seed);
+    // As the pipeline does: the LiDAR map verifies the hypotheses.
+    let verifier = p.fine.verify.enabled.then(|| {
+        infraloc::localize::verify::MiVerifier::new(camera, image, tile, p.fine.verify.mi.clone())
+    });
     let init = infraloc::localize::init::initialize(
         camera,
         image,
@@ -272,6 +280,7 @@ fn init_only(
         p.search_radius_m(sigma),
         &p.coarse,
         &p.fine,
+        verifier.as_ref(),
         &mut rng,
     );
     let secs = t.elapsed().as_secs_f64();
@@ -288,7 +297,8 @@ fn init_only(
     let stages = match init {
         Ok(r) => {
             rec["init"] = json!({ "candidates": r.candidates_tried, "candidate_rank": r.candidate_rank,
-                "inliers": r.inliers, "matches": r.matches, "rms_px": r.rms_px });
+                "inliers": r.inliers, "matches": r.matches, "rms_px": r.rms_px,
+                "mi": r.mi.map(|m| m.0), "mi_runner_up": r.mi.and_then(|m| m.1) });
             vec![
                 prior,
                 pipeline::Stage {
@@ -504,6 +514,9 @@ fn main() {
     let mut params = Params::default();
     if let Some(k) = o.top_k {
         params.coarse.top_k = k;
+    }
+    if o.no_verify {
+        params.fine.verify.enabled = false;
     }
     if o.no_early_stop {
         params.fine.convincing_inliers = None;

@@ -8,6 +8,7 @@
 use super::matching::{
     orientation_field, Candidate, Field, GrayF32, NominalField, SearchField, SweepParams,
 };
+use super::verify::MiVerifier;
 use crate::camera::CameraModel;
 use crate::map::Raster;
 use nalgebra::{Point2, Vector3};
@@ -438,6 +439,7 @@ mod tests {
             12.0,
             &coarse,
             &FineParams::default(),
+            None,
             &mut rng,
         )
         .unwrap();
@@ -471,7 +473,43 @@ pub struct FineParams {
     pub pnp: super::pnp::PnpParams,
     /// Stop trying sweep candidates once one's PnP has at least this many inliers with ≥ 2/3 of
     /// its patch matches agreeing; `None` tries every candidate and keeps the most inliers.
+    /// With a verifier ([`initialize`]'s `verifier`) the stop also needs the MI evidence, see there.
     pub convincing_inliers: Option<usize>,
+    /// Independent verification of hypotheses against the LiDAR map, when [`initialize`] is given
+    /// a verifier: how long a sweep list it screens and how many fine stages it may run.
+    pub verify: VerifySchedule,
+}
+
+/// How [`initialize`] uses an [`MiVerifier`] (see there).
+#[derive(Debug, Clone, PartialEq)]
+pub struct VerifySchedule {
+    /// Whether the pipeline verifies at all (off = the satellite-only initializer, for
+    /// comparisons and for maps without usable reflectivity).
+    pub enabled: bool,
+    /// Sweep candidates screened by MI (the sweep list is lengthened to this; the satellite
+    /// ranking alone often has no correct candidate in its top 10 on low poles).
+    pub shortlist: usize,
+    /// Most fine stages (satellite matching + PnP) run, in decreasing screening MI.
+    pub max_fine: usize,
+    /// A tried candidate stands for its sweep pose rather than its PnP pose only if the sweep
+    /// pose's MI is higher by more than this fraction: the PnP pose carries tilt and height the
+    /// sweep pose lacks, and MI is nearly flat over a few decimetres (`5mp` seed 4: PnP 0.35 m
+    /// off at MI 0.437, its sweep pose 1.02 m off at 0.440).
+    pub sweep_margin: f64,
+    /// The verifier's own settings.
+    pub mi: super::verify::VerifyParams,
+}
+
+impl Default for VerifySchedule {
+    fn default() -> Self {
+        VerifySchedule {
+            enabled: true,
+            shortlist: 60,
+            max_fine: 10,
+            sweep_margin: 0.1,
+            mi: super::verify::VerifyParams::default(),
+        }
+    }
 }
 
 impl Default for FineParams {
@@ -489,6 +527,7 @@ impl Default for FineParams {
             min_score: 0.35,
             pnp: super::pnp::PnpParams::default(),
             convincing_inliers: Some(CONVINCING_INLIERS),
+            verify: VerifySchedule::default(),
         }
     }
 }
@@ -694,16 +733,19 @@ pub struct InitResult {
     pub pose: crate::pose::CamFromMap,
     /// The coarse candidate it grew from.
     pub candidate: Candidate,
-    /// Correspondences given to the last PnP.
+    /// Correspondences given to the last PnP (0 when the pose is a verified sweep pose).
     pub matches: usize,
-    /// PnP inliers of the last iteration.
+    /// PnP inliers of the last iteration (0 when the pose is a verified sweep pose).
     pub inliers: usize,
-    /// PnP reprojection RMS of the last iteration, px.
+    /// PnP reprojection RMS of the last iteration, px (NaN when the pose is a verified sweep pose).
     pub rms_px: f64,
-    /// Candidates tried (fewer than the sweep kept when one was convincing early).
+    /// Candidates whose fine stage ran (fewer than the sweep kept when one was convincing early).
     pub candidates_tried: usize,
     /// Rank of [`Self::candidate`] in the sweep's list, 0 = the sweep's best.
     pub candidate_rank: usize,
+    /// With a verifier: the pose's bias-corrected MI with the LiDAR map (nats), and the runner-up
+    /// hypothesis' (another PnP pose or, if none, the best screened sweep candidate not tried).
+    pub mi: Option<(f64, Option<f64>)>,
 }
 
 /// What the fine stage made of one sweep candidate.
@@ -767,8 +809,17 @@ pub fn fine_stage<R: rand::Rng>(
     outcome
 }
 
-/// Full initialization: coarse sweep around the prior, then per candidate local matching + PnP;
-/// the candidate with the most inliers wins. Errors name the stage and the numbers.
+/// Full initialization: coarse sweep around the prior, then per candidate local matching + PnP.
+///
+/// Without a verifier the candidate with the most inliers wins (sweep order, early stop on a
+/// convincing PnP). With one ([`MiVerifier`], the LiDAR map), the hypotheses are judged by
+/// evidence the satellite matching cannot fake: the sweep list is lengthened to
+/// [`VerifySchedule::shortlist`], every candidate is screened by its MI with the LiDAR map, the
+/// fine stages run in decreasing screening MI (at most [`VerifySchedule::max_fine`]), and the
+/// hypothesis with the highest MI wins (a PnP pose, or a tried candidate's screened sweep pose
+/// where that has the higher MI, see `initialize_verified`). The search stops once the best PnP pose is convincing (inliers
+/// as above) and its MI is at least the screening MI of every candidate not yet tried — no
+/// remaining hypothesis has better evidence. Errors name the stage and the numbers.
 #[allow(clippy::too_many_arguments)]
 pub fn initialize<R: rand::Rng>(
     cam: &dyn CameraModel,
@@ -779,6 +830,7 @@ pub fn initialize<R: rand::Rng>(
     search_radius_m: f64,
     coarse: &CoarseParams,
     fine: &FineParams,
+    verifier: Option<&MiVerifier>,
     rng: &mut R,
 ) -> crate::Result<InitResult> {
     let expected = (cam.width() as usize) * (cam.height() as usize);
@@ -793,12 +845,24 @@ pub fn initialize<R: rand::Rng>(
             ),
         ));
     }
-    let cands = coarse_candidates(cam, image, sat, prior_xy, search_radius_m, coarse);
+    let cands = match verifier {
+        Some(_) => {
+            let longer = CoarseParams {
+                top_k: coarse.top_k.max(fine.verify.shortlist),
+                ..coarse.clone()
+            };
+            coarse_candidates(cam, image, sat, prior_xy, search_radius_m, &longer)
+        }
+        None => coarse_candidates(cam, image, sat, prior_xy, search_radius_m, coarse),
+    };
     if cands.is_empty() {
         return Err(crate::Error::stage(
             "match",
             "no hypothesis scored (featureless view or satellite?)",
         ));
+    }
+    if let Some(v) = verifier {
+        return initialize_verified(cam, image, sat, heights, prior_xy, &cands, fine, v, rng);
     }
     let mut best: Option<InitResult> = None;
     let mut last_err = String::new();
@@ -825,6 +889,7 @@ pub fn initialize<R: rand::Rng>(
                     rms_px,
                     candidates_tried: 0,
                     candidate_rank: rank,
+                    mi: None,
                 });
             }
             // The sweep's ranking is only a shortlist; a candidate whose fine stage agrees this
@@ -846,4 +911,161 @@ pub fn initialize<R: rand::Rng>(
             ),
         )
     })
+}
+
+/// The pose a sweep candidate stands for (offset relative to `prior_xy`, roll = pitch = 0), as the
+/// fine stage starts from it.
+pub fn candidate_pose(
+    heights: &Raster<f32>,
+    prior_xy: (f64, f64),
+    cand: &Candidate,
+) -> crate::pose::CamFromMap {
+    let (cx, cy) = (prior_xy.0 + cand.offset[0], prior_xy.1 + cand.offset[1]);
+    let zg = height_at(heights, cx, cy).unwrap_or(0.0);
+    crate::pose::CamFromMap::from_center_ypr(
+        &nalgebra::Point3::new(cx, cy, zg + cand.height),
+        cand.yaw,
+        0.0,
+        0.0,
+    )
+}
+
+/// [`initialize`] with a verifier: screen, fine stages in screening order, best MI wins.
+///
+/// Each tried candidate stands for the better (by MI, with [`VerifySchedule::sweep_margin`] in
+/// favour of PnP) of its PnP pose and its screened sweep pose:
+/// on low poles the fine stage sometimes fails on, or tilts away from, the very candidate the
+/// LiDAR map confirms best, and then the sweep pose (zero tilt, ≤ 0.2 m / 1° from the candidate)
+/// is the better start for the refinement. At least one fine stage must give a pose: a frame
+/// the satellite matching cannot confirm anywhere is an error, not a guess.
+#[allow(clippy::too_many_arguments)]
+fn initialize_verified<R: rand::Rng>(
+    cam: &dyn CameraModel,
+    image: &[u8],
+    sat: &Raster<[u8; 3]>,
+    heights: &Raster<f32>,
+    prior_xy: (f64, f64),
+    cands: &[Candidate],
+    fine: &FineParams,
+    verifier: &MiVerifier,
+    rng: &mut R,
+) -> crate::Result<InitResult> {
+    // Screening: MI of each sweep candidate's own pose. Candidates whose view holds too few LiDAR
+    // points have no evidence and go last, in sweep order.
+    let screened: Vec<Option<super::verify::Verdict>> = cands
+        .iter()
+        .map(|c| verifier.screen(&candidate_pose(heights, prior_xy, c)))
+        .collect();
+    let screen_mi = |i: usize| screened[i].map(|v| v.mi);
+    let mut order: Vec<usize> = (0..cands.len()).collect();
+    order.sort_by(|&a, &b| {
+        let key = |i: usize| screen_mi(i).unwrap_or(f64::NEG_INFINITY);
+        key(b).total_cmp(&key(a)).then(a.cmp(&b))
+    });
+    // Every tried candidate's hypothesis, in try order (ties go to the earlier one).
+    let mut pool: Vec<(f64, InitResult)> = Vec::new();
+    let mut any_pnp = false;
+    let mut last_err = String::new();
+    let mut tried = 0;
+    for (pos, &rank) in order.iter().enumerate().take(fine.verify.max_fine.max(1)) {
+        tried = pos + 1;
+        let cand = &cands[rank];
+        // Re-scored with the full verification (more points, finer grid) so that it competes
+        // with PnP poses on equal terms; the screening only orders.
+        let sweep =
+            screened[rank].and_then(|_| verifier.verify(&candidate_pose(heights, prior_xy, cand)));
+        let hyp = match fine_stage(cam, image, sat, heights, prior_xy, cand, fine, rng) {
+            Ok(f) => {
+                any_pnp = true;
+                let v = verifier.verify(&f.pose);
+                let pnp = InitResult {
+                    pose: f.pose,
+                    candidate: *cand,
+                    matches: f.matches,
+                    inliers: f.inliers,
+                    rms_px: f.rms_px,
+                    candidates_tried: 0,
+                    candidate_rank: rank,
+                    mi: v.map(|v| (v.mi, None)),
+                };
+                match (v, sweep) {
+                    (Some(v), Some(s)) if s.mi > v.mi * (1.0 + fine.verify.sweep_margin) => {
+                        Some((s.mi, sweep_result(cand, rank, &s)))
+                    }
+                    (Some(v), _) => Some((v.mi, pnp)),
+                    (None, Some(s)) => Some((s.mi, sweep_result(cand, rank, &s))),
+                    (None, None) => None,
+                }
+            }
+            Err(e) => {
+                last_err = e;
+                sweep.map(|s| (s.mi, sweep_result(cand, rank, &s)))
+            }
+        };
+        let Some((mi, h)) = hyp else { continue };
+        let convincing_pnp = h.inliers > 0
+            && fine
+                .convincing_inliers
+                .is_none_or(|n| h.inliers >= n && h.inliers * 3 >= h.matches * 2);
+        pool.push((mi, h));
+        // Stop once a convincing PnP pose is the best of the pool and no untried candidate
+        // screened better: the rest are in decreasing screening MI, so the next bounds them all.
+        let best_mi = pool.iter().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max);
+        let next = order.get(pos + 1).and_then(|&i| screen_mi(i));
+        if convincing_pnp && mi >= best_mi && next.is_none_or(|n| mi >= n) {
+            break;
+        }
+    }
+    if !any_pnp {
+        return Err(crate::Error::stage(
+            "pnp",
+            format!(
+                "none of the {tried} best-screened of {} candidates gave a PnP pose; last: {last_err}",
+                cands.len()
+            ),
+        ));
+    }
+    let Some(bi) = pool
+        .iter()
+        .enumerate()
+        .fold(None, |b: Option<usize>, (i, p)| match b {
+            Some(j) if pool[j].0 >= p.0 => Some(j),
+            _ => Some(i),
+        })
+    else {
+        return Err(crate::Error::stage(
+            "pnp",
+            format!(
+                "no hypothesis of {tried} tried sees enough LiDAR points ({} needed) to verify",
+                verifier.params().min_points
+            ),
+        ));
+    };
+    // The strongest competitor: another tried hypothesis, or the best untried screening.
+    let others = pool
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| i != bi)
+        .map(|(_, p)| p.0)
+        .chain(order.iter().skip(tried).filter_map(|&i| screen_mi(i)))
+        .fold(None, |m: Option<f64>, x| Some(m.map_or(x, |m| m.max(x))));
+    let (mi, mut best) = pool.swap_remove(bi);
+    best.candidates_tried = tried;
+    best.mi = Some((mi, others));
+    Ok(best)
+}
+
+/// The hypothesis a screened sweep candidate stands for: the verifier's best pose near it, no
+/// PnP figures (0 matches and inliers).
+fn sweep_result(cand: &Candidate, rank: usize, s: &super::verify::Verdict) -> InitResult {
+    InitResult {
+        pose: s.pose,
+        candidate: *cand,
+        matches: 0,
+        inliers: 0,
+        rms_px: f64::NAN,
+        candidates_tried: 0,
+        candidate_rank: rank,
+        mi: Some((s.mi, None)),
+    }
 }

@@ -24,3 +24,4 @@ pub mod refine;
 pub mod search;
 pub mod study;
 pub mod synth;
+pub mod verify;

@@ -7,6 +7,7 @@ use super::polish::{polish_pose, PolishParams};
 use super::quality::QualityConfig;
 use super::refine::{refine, Refinement};
 use super::search::SearchConfig;
+use super::verify::MiVerifier;
 use crate::camera::{Camera, CameraModel};
 use crate::error::{Error, Result};
 use crate::map::{ground_points, Tile};
@@ -187,6 +188,12 @@ pub fn localize_ungated(
     }
     let t0 = now();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(p.seed);
+    // The LiDAR map judges the satellite matching's hypotheses (independent evidence).
+    let verifier = p
+        .fine
+        .verify
+        .enabled
+        .then(|| MiVerifier::new(camera, image, tile, p.fine.verify.mi.clone()));
     let init = initialize(
         camera,
         image,
@@ -196,6 +203,7 @@ pub fn localize_ungated(
         radius,
         &p.coarse,
         &p.fine,
+        verifier.as_ref(),
         &mut rng,
     )?;
     let t1 = now();
@@ -206,6 +214,7 @@ pub fn localize_ungated(
         detail: json!({
             "matches": init.matches, "inliers": init.inliers, "rms_px": init.rms_px,
             "candidates": init.candidates_tried, "candidate_rank": init.candidate_rank,
+            "mi": init.mi.map(|m| m.0), "mi_runner_up": init.mi.and_then(|m| m.1),
             "coarse": { "yaw_deg": init.candidate.yaw.to_degrees(), "height_m": init.candidate.height,
                         "offset_m": init.candidate.offset, "score": init.candidate.score },
         }),

@@ -1,0 +1,309 @@
+//! Independent verification of initialization hypotheses by mutual information with the LiDAR map.
+//!
+//! The initializer's hypotheses come from satellite matching, and its own evidence (PnP inliers)
+//! cannot tell a right pose from a self-consistent wrong one: road markings look alike after a
+//! half turn, and the fine stage converges to agreeing local matches around whatever pose it starts
+//! from (`docs/accuracy.md`, "What fails, and why"). The LiDAR ground reflectivity is a second,
+//! satellite-independent modality of the same ground, so the MI between it and the fisheye image
+//! at a hypothesis is evidence the satellite matching cannot fake.
+//!
+//! The score is meant to *compare hypotheses of one frame*, so it is built to be comparable
+//! across them: both variables are histogram-equalised per evaluation (the marginal entropies are
+//! then ≈ log B whatever the exposure or reflectivity calibration, and MI measures only how well
+//! one predicts the other), every evaluation uses the same number of points where it can, and the
+//! first-order small-sample bias (B−1)²/2N is subtracted so a hypothesis that sees fewer points is
+//! not favoured. A PnP pose is off by decimetres and a few tenths of a degree, where MI on a sharp
+//! image already drops, so the image is sampled blurred (a mip level of about
+//! [`VerifyParams::blur_m`] on the ground) and the score is the best over a small x/y/yaw grid
+//! around the hypothesis.
+
+use super::init::{focal_px, height_at, Mip};
+use super::mi::{bin_lut, mutual_information, Binning, JointHist};
+use crate::camera::CameraModel;
+use crate::map::{ground_points, Tile};
+use crate::pose::CamFromMap;
+use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
+
+/// Settings of [`MiVerifier`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct VerifyParams {
+    /// Bins per variable (both equalised).
+    pub bins: usize,
+    /// Points per evaluation (a deterministic stride subsample of the visible ones).
+    pub points: usize,
+    /// Fewest visible points for a score at all.
+    pub min_points: usize,
+    /// Ground disc used: within this off-nadir angle of the camera, degrees …
+    pub max_off_nadir_deg: f64,
+    /// … and this radius, metres.
+    pub max_radius_m: f64,
+    /// Image blur on the ground at nadir, metres (chooses the mip level).
+    pub blur_m: f64,
+    /// Local grid around a PnP pose ([`MiVerifier::verify`]): x/y half range and step, metres …
+    pub xy: (f64, f64),
+    /// … yaw half range and step, degrees.
+    pub yaw_deg: (f64, f64),
+    /// Local grid around a sweep candidate ([`MiVerifier::screen`]): x/y half range and step, m …
+    pub screen_xy: (f64, f64),
+    /// … yaw half range and step, degrees …
+    pub screen_yaw_deg: (f64, f64),
+    /// … and points per evaluation (screening ranks dozens of candidates: it must be cheap).
+    pub screen_points: usize,
+}
+
+impl Default for VerifyParams {
+    fn default() -> Self {
+        VerifyParams {
+            bins: 16,
+            points: 4000,
+            min_points: 500,
+            max_off_nadir_deg: 75.0,
+            max_radius_m: 30.0,
+            blur_m: 0.15,
+            xy: (0.4, 0.2),
+            yaw_deg: (2.0, 1.0),
+            screen_xy: (0.2, 0.2),
+            screen_yaw_deg: (1.5, 1.5),
+            screen_points: 2000,
+        }
+    }
+}
+
+/// A hypothesis' verification score.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Verdict {
+    /// Bias-corrected MI (nats) at the best pose of the local grid.
+    pub mi: f64,
+    /// That pose.
+    pub pose: CamFromMap,
+    /// Points that counted there.
+    pub n: usize,
+}
+
+/// Scores poses by MI between LiDAR reflectivity and the (blurred) image; built once per frame.
+pub struct MiVerifier<'a> {
+    cam: &'a dyn CameraModel,
+    tile: &'a Tile,
+    mip: Mip,
+    focal: f64,
+    p: VerifyParams,
+}
+
+impl<'a> MiVerifier<'a> {
+    /// Prepare for one frame (`image` row-major at the camera's size, as [`super::init::initialize`]
+    /// takes it).
+    pub fn new(cam: &'a dyn CameraModel, image: &[u8], tile: &'a Tile, p: VerifyParams) -> Self {
+        MiVerifier {
+            cam,
+            tile,
+            mip: Mip::new(image, cam.width() as usize, cam.height() as usize),
+            focal: focal_px(cam),
+            p,
+        }
+    }
+
+    /// The settings.
+    pub fn params(&self) -> &VerifyParams {
+        &self.p
+    }
+
+    /// Bias-corrected MI at exactly `pose` with the given points (`None` below `min_points`).
+    fn mi_at(
+        &self,
+        pose: &CamFromMap,
+        pts: &[(Point3<f64>, u8)],
+        footprint: f64,
+        points: usize,
+    ) -> Option<(f64, usize)> {
+        let mut pairs: Vec<(u8, u8)> = Vec::with_capacity(pts.len());
+        for (p, r) in pts {
+            let Ok(px) = self.cam.project_visible(&pose.transform(p).coords) else {
+                continue;
+            };
+            if let Some(g) = self.mip.sample(px.x, px.y, footprint) {
+                pairs.push((*r, g.clamp(0.0, 255.0) as u8));
+            }
+        }
+        if pairs.len() < self.p.min_points {
+            return None;
+        }
+        // Same count for every evaluation where possible: stride subsample, deterministic.
+        let stride = (pairs.len() / points.max(1)).max(1);
+        let pairs: Vec<(u8, u8)> = pairs.into_iter().step_by(stride).collect();
+        let (mut cr, mut cg) = ([0u64; 256], [0u64; 256]);
+        for &(r, g) in &pairs {
+            cr[r as usize] += 1;
+            cg[g as usize] += 1;
+        }
+        let b = self.p.bins;
+        let (lr, lg) = (
+            bin_lut(Binning::Equalized, b, &cr),
+            bin_lut(Binning::Equalized, b, &cg),
+        );
+        let mut h = JointHist::new(b, b);
+        let s = h.stride();
+        for &(r, g) in &pairs {
+            h.counts[lr[r as usize] as usize * s + lg[g as usize] as usize] += 1;
+        }
+        let n = pairs.len();
+        let v = mutual_information(&h, false);
+        let bias = ((b - 1) * (b - 1)) as f64 / (2.0 * n as f64);
+        Some((v.mi - bias, n))
+    }
+
+    /// Verify a hypothesis: the best bias-corrected MI over the local grid around it. `None` when
+    /// too few LiDAR points are seen (no evidence either way).
+    pub fn verify(&self, pose: &CamFromMap) -> Option<Verdict> {
+        self.best_near(pose, self.p.xy, self.p.yaw_deg, self.p.points)
+    }
+
+    /// Screen a sweep candidate: as [`Self::verify`] on the grid of
+    /// [`VerifyParams::screen_xy`] / [`VerifyParams::screen_yaw_deg`] (a sweep candidate is off by
+    /// up to half its sweep steps: 0.2 m, 1.5°, a few % of height) with
+    /// [`VerifyParams::screen_points`] points.
+    pub fn screen(&self, pose: &CamFromMap) -> Option<Verdict> {
+        self.best_near(
+            pose,
+            self.p.screen_xy,
+            self.p.screen_yaw_deg,
+            self.p.screen_points,
+        )
+    }
+
+    /// Best bias-corrected MI over the x/y/yaw grid around `pose`.
+    fn best_near(
+        &self,
+        pose: &CamFromMap,
+        xy: (f64, f64),
+        yaw_deg: (f64, f64),
+        points: usize,
+    ) -> Option<Verdict> {
+        let c = pose.center();
+        let zg = height_at(&self.tile.height, c.x, c.y).unwrap_or(c.z - 8.0);
+        let cam_h = (c.z - zg).max(1.0);
+        let radius = (cam_h * self.p.max_off_nadir_deg.to_radians().tan()).min(self.p.max_radius_m);
+        let pts: Vec<(Point3<f64>, u8)> = ground_points(self.tile, (c.x, c.y), radius)
+            .into_iter()
+            .map(|g| (Point3::new(g.x, g.y, g.z), g.reflectivity))
+            .collect();
+        // Thin the map points too: the projections are the cost, and a few × `points` suffice.
+        let stride = (pts.len() / (3 * points / 2).max(1)).max(1);
+        let pts: Vec<_> = pts.into_iter().step_by(stride).collect();
+        let footprint = self.p.blur_m / cam_h * self.focal;
+        let steps = |(half, step): (f64, f64)| -> Vec<f64> {
+            let m = if step > 0.0 {
+                (half / step).round() as i64
+            } else {
+                0
+            };
+            (-m..=m).map(|k| k as f64 * step).collect()
+        };
+        let (xs, ys) = (steps(xy), steps(yaw_deg));
+        let mut cells = Vec::with_capacity(xs.len() * xs.len() * ys.len());
+        for &dx in &xs {
+            for &dy in &xs {
+                for &a in &ys {
+                    cells.push((dx, dy, a));
+                }
+            }
+        }
+        cells
+            .par_iter()
+            .map(|&(dx, dy, a)| {
+                let q = pose.perturbed(&Vector3::new(dx, dy, 0.0), a.to_radians());
+                self.mi_at(&q, &pts, footprint, points)
+                    .map(|(mi, n)| Verdict { mi, pose: q, n })
+            })
+            .collect::<Vec<_>>()
+            .into_iter()
+            .flatten()
+            // First of equal scores: the cell order is fixed, so the result is deterministic.
+            .fold(None, |best: Option<Verdict>, v| match best {
+                Some(b) if b.mi >= v.mi => Some(b),
+                _ => Some(v),
+            })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Mei;
+    use crate::localize::synth::{render, Texture};
+    use crate::map::{Crs, GeoGrid, Raster};
+
+    /// A 400 px fisheye 6 m above a synthetic ground whose LiDAR reflectivity and camera gray are
+    /// different (non-monotonic) functions of one texture, as `synth` builds them.
+    fn scene() -> (Mei, Vec<u8>, Tile, CamFromMap) {
+        let cam = Mei {
+            width: 400,
+            height: 400,
+            fx: 115.0,
+            fy: 115.0,
+            cx: 200.0,
+            cy: 200.0,
+            skew: 0.0,
+            xi: 1.0,
+            k1: -0.02,
+            k2: 0.0,
+            p1: 0.0,
+            p2: 0.0,
+            fov_deg: Some(185.0),
+        };
+        let tex = Texture::new(7);
+        let pose = CamFromMap::from_center_ypr(&Point3::new(1.3, -0.7, 6.0), 0.6, 0.0, 0.0);
+        let (gray, _) = render(&tex, &cam, &pose, 0.0, 4.0, 1);
+        let grid = GeoGrid {
+            crs: Crs::Local,
+            x0: -40.0,
+            y0: 40.0,
+            res: 0.2,
+            width: 400,
+            height: 400,
+        };
+        let mut refl = Raster::filled(grid, 0u8, None);
+        for row in 0..grid.height {
+            for col in 0..grid.width {
+                let (x, y) = grid.pixel_center(col, row);
+                refl.data[row * grid.width + col] =
+                    Texture::reflectivity(tex.value(x, y)).round() as u8;
+            }
+        }
+        let tile = Tile {
+            id: "synthetic".into(),
+            satellite: Raster::filled(grid, [0u8; 3], None),
+            reflectivity: refl,
+            height: Raster::filled(grid, 0f32, None),
+            control_points: Vec::new(),
+        };
+        (cam, gray, tile, pose)
+    }
+
+    #[test]
+    fn true_pose_beats_half_turn_and_displaced_hypotheses() {
+        let (cam, gray, tile, truth) = scene();
+        let v = MiVerifier::new(&cam, &gray, &tile, VerifyParams::default());
+        // A start 0.25 m and 1.5° off, as a PnP pose is: the local grid recovers the peak.
+        let near = truth.perturbed(&Vector3::new(0.25, -0.15, 0.0), 1.5f64.to_radians());
+        let right = v.verify(&near).expect("enough points").mi;
+        let half_turn = truth.perturbed(&Vector3::zeros(), std::f64::consts::PI);
+        let wrong = v.verify(&half_turn).expect("enough points").mi;
+        let moved = truth.perturbed(&Vector3::new(7.0, 3.0, 0.0), 0.0);
+        let elsewhere = v.verify(&moved).expect("enough points").mi;
+        assert!(
+            right > 2.0 * wrong.max(elsewhere),
+            "{right} {wrong} {elsewhere}"
+        );
+        // Deterministic: the same score twice.
+        assert_eq!(v.verify(&near).map(|x| x.mi), Some(right));
+    }
+
+    #[test]
+    fn no_points_no_verdict() {
+        let (cam, gray, tile, truth) = scene();
+        let v = MiVerifier::new(&cam, &gray, &tile, VerifyParams::default());
+        let far = truth.perturbed(&Vector3::new(500.0, 0.0, 0.0), 0.0);
+        assert!(v.verify(&far).is_none());
+    }
+}
