@@ -223,10 +223,17 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
             // The MI objective at each stage's pose and at the floor, on one point set: whether
             // a miss is the search's (the floor scores higher) or the objective's (it doesn't).
             let pts = pipeline::mi_points(&tile, &out.pose, params);
+            let mask = infraloc::camera::CameraModel::valid_mask(&camera);
             for st in &stages {
                 if let Some(pose) = &st.pose {
-                    rec["objective"][st.name] =
-                        json!(objective_at(&camera, image.as_raw(), &pts, pose, params));
+                    rec["objective"][st.name] = json!(objective_at(
+                        &camera,
+                        image.as_raw(),
+                        &mask,
+                        &pts,
+                        pose,
+                        params
+                    ));
                     let (y, p, r) = pose.yaw_pitch_roll();
                     rec["poses"][st.name] = json!([
                         pose.center().x,
@@ -454,11 +461,11 @@ fn print_summary(s: &Value) {
 fn objective_at(
     camera: &infraloc::camera::Camera,
     gray: &[u8],
+    mask: &[u8],
     pts: &[infraloc::map::GroundPoint],
     pose: &CamFromMap,
     params: &Params,
 ) -> Option<f64> {
-    use infraloc::camera::CameraModel;
     use infraloc::localize::search::{AxisRange, Evaluator, SearchConfig, SearchSpec};
     let held = AxisRange {
         half: 0.0,
@@ -479,7 +486,7 @@ fn objective_at(
         },
         ..params.search
     };
-    let ev = Evaluator::new(camera, gray, &camera.valid_mask(), pts, pose, &cfg, 0).ok()?;
+    let ev = Evaluator::new(camera, gray, mask, pts, pose, &cfg, 0).ok()?;
     let centre = ev.grid().index(&[0; 6]);
     Some(ev.score(0, centre, &mut Default::default()).score)
 }

@@ -62,12 +62,12 @@ fn polish_recovers_a_wrong_tilt_that_the_4dof_search_cannot() {
         )
         .unwrap()
     };
-    let (polished, res, n) = polish();
+    let (polished, res) = polish();
     let (e4, r4) = err(&four);
     let (e6, r6) = err(&polished);
     eprintln!(
-        "4-DoF: {e4:.4} m, {r4:.3}°; polished: {e6:.4} m, {r6:.3}° ({} evaluations, {n} points, NMI {:.4} → {:.4})",
-        res.evaluations, res.start_value, res.value
+        "4-DoF: {e4:.4} m, {r4:.3}°; polished: {e6:.4} m, {r6:.3}° ({} evaluations, {} points, NMI {:.4} → {:.4})",
+        res.evaluations, res.points, res.start_value, res.value
     );
     // The 4-DoF search keeps the wrong tilt (≈ 0.78° of rotation error) …
     assert!(r4 > 0.5, "4-DoF rotation error {r4}°");

@@ -5,9 +5,9 @@ use crate::camera::CameraModel;
 use crate::error::{Error, Result};
 use crate::localize::points::GroundPoint;
 use crate::localize::points_io::read_points;
-use crate::localize::polish::{polish_pose, PolishParams};
+use crate::localize::polish::{polish_pose, PolishParams, PolishRecord};
 use crate::localize::quality::QualityConfig;
-use crate::localize::refine::refine;
+use crate::localize::refine::refine_masked;
 use crate::localize::search::{Mode, SearchConfig, SearchSpec};
 use crate::map::{cache, Crs};
 use crate::posefile::{format_utc, read_pose, PoseFile};
@@ -129,24 +129,27 @@ pub fn run(a: Args) -> Result<()> {
         mode,
         ..Default::default()
     };
-    let mut r = refine(
+    // Computed once for the search and the polish (the image size was checked above).
+    let mask = cam.valid_mask();
+    let mut r = refine_masked(
         &cam,
         &gray,
+        &mask,
         &points,
         &init.pose,
         &cfg,
         &QualityConfig::default(),
     )?;
-    let mut polish = serde_json::Value::Null;
+    let mut polish = None;
     if a.polish && r.quality.accepted {
         let mut zs: Vec<f64> = points.iter().map(|p| p.z).collect();
         zs.sort_by(f64::total_cmp);
         let c = r.pose.center();
         let pivot = zs.get(zs.len() / 2).map(|g| c.z - g).filter(|d| *d > 0.5);
-        let (pose, res, n) = polish_pose(
+        let (pose, record) = polish_pose(
             &cam,
             &gray,
-            &cam.valid_mask(),
+            &mask,
             &points,
             &r.pose,
             pivot,
@@ -154,15 +157,12 @@ pub fn run(a: Args) -> Result<()> {
             &PolishParams::default(),
         )?;
         r.pose = pose;
-        polish = serde_json::json!({
-            "offsets": res.offsets, "start": res.start_value, "value": res.value,
-            "evaluations": res.evaluations, "points": n, "pivot_m": pivot,
-        });
+        polish = Some(record);
     }
     if let Some(path) = &a.report {
         let mut report = serde_json::to_value(r.report(mode))
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;
-        report["polish"] = polish.clone();
+        report["polish"] = serde_json::to_value(polish).unwrap_or_default();
         let text = serde_json::to_string_pretty(&report)
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;
         crate::persist::write_atomic(path, (text + "\n").as_bytes())?;
@@ -187,13 +187,11 @@ pub fn run(a: Args) -> Result<()> {
         r.points.1,
         r.stats.exhaustive_point_evaluations as f64 / r.stats.point_evaluations.max(1) as f64
     );
-    if let Some(o) = polish["offsets"].as_array() {
-        let v: Vec<f64> = o.iter().filter_map(|v| v.as_f64()).collect();
-        if let [x, y, z, yaw, pitch, roll] = v[..] {
-            println!(
-                "polish: moved ({x:+.3}, {y:+.3}, {z:+.3}) m, yaw {yaw:+.3}°, pitch {pitch:+.3}°, roll {roll:+.3}°"
-            );
-        }
+    if let Some(PolishRecord { offsets: o, .. }) = polish {
+        println!(
+            "polish: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°, pitch {:+.3}°, roll {:+.3}°",
+            o[0], o[1], o[2], o[3], o[4], o[5]
+        );
     }
     if let Some(path) = &a.out {
         let now = std::time::SystemTime::now()

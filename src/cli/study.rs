@@ -200,9 +200,11 @@ pub fn run(a: Args) -> Result<()> {
                 .map_err(|e| Error::input(a.scene.join("truth.json"), e.to_string()))?
         }
     };
+    let mask = scene.camera.valid_mask();
     let sc = Scene {
         camera: &scene.camera,
         gray: scene.gray.as_raw(),
+        mask: &mask,
         tile: &scene.tile,
         truth: &scene.truth,
         base: &base,

@@ -556,6 +556,26 @@ pub fn height_at(hl: &Raster<f32>, x: f64, y: f64) -> Option<f64> {
     Some(acc)
 }
 
+/// Assumed camera height above ground where the height layer has no data under the camera, m.
+pub const FALLBACK_HEIGHT_M: f64 = 8.0;
+
+/// The camera centre `c`'s height above the LiDAR ground under it (at least 1 m;
+/// [`FALLBACK_HEIGHT_M`] on no-data) and the radius of the ground disc it sees within
+/// `max_off_nadir_deg` of nadir, capped at `max_radius_m`.
+pub fn ground_disc(
+    heights: &Raster<f32>,
+    c: &nalgebra::Point3<f64>,
+    max_off_nadir_deg: f64,
+    max_radius_m: f64,
+) -> (f64, f64) {
+    let ground = height_at(heights, c.x, c.y).unwrap_or(c.z - FALLBACK_HEIGHT_M);
+    let cam_h = (c.z - ground).max(1.0);
+    (
+        cam_h,
+        (cam_h * max_off_nadir_deg.to_radians().tan()).min(max_radius_m),
+    )
+}
+
 /// One matched anchor: where the fisheye sees it, and where the satellite says it is.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AnchorMatch {
@@ -577,9 +597,7 @@ pub fn match_anchors(
     p: &FineParams,
 ) -> Vec<AnchorMatch> {
     let c = pose.center();
-    let z_ground = height_at(heights, c.x, c.y).unwrap_or(c.z - 8.0);
-    let cam_h = (c.z - z_ground).max(1.0);
-    let radius = (cam_h * p.max_off_nadir_deg.to_radians().tan()).min(p.max_radius_m);
+    let (_, radius) = ground_disc(heights, &c, p.max_off_nadir_deg, p.max_radius_m);
     let n = (radius / p.anchor_spacing_m).floor() as i64;
     let mut anchors = Vec::new();
     for j in -n..=n {

@@ -425,7 +425,7 @@ pub fn accumulate(
     scratch: &mut Scratch,
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+    if has_avx2_fma() {
         // SAFETY: the CPU supports the features the function is compiled for (checked above).
         unsafe { accumulate_avx2(pts, pose, cam, img, hist, scratch) };
         return;
@@ -449,6 +449,12 @@ unsafe fn accumulate_avx2(
     scratch: &mut Scratch,
 ) {
     accumulate_impl(pts, pose, cam, img, hist, scratch);
+}
+
+/// Whether this CPU runs the AVX2 + FMA copies of the kernel (the detection is cached by std).
+#[cfg(target_arch = "x86_64")]
+fn has_avx2_fma() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }
 
 /// The kernel's body, inlined into each feature-specific copy (and into [`accumulate`] itself for
@@ -514,7 +520,7 @@ pub fn visible(
     out: &mut [bool],
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+    if has_avx2_fma() {
         // SAFETY: the CPU supports the features the function is compiled for (checked above).
         unsafe { visible_avx2(pts, pose, cam, img, invalid, out) };
         return;

@@ -5,7 +5,7 @@
 use super::init::{initialize, CoarseParams, FineParams, InitResult};
 use super::polish::{polish_pose, PolishParams};
 use super::quality::QualityConfig;
-use super::refine::{refine, Refinement};
+use super::refine::{refine_masked, Refinement};
 use super::search::SearchConfig;
 use super::verify::MiVerifier;
 use crate::camera::{Camera, CameraModel};
@@ -109,9 +109,8 @@ pub struct Outcome {
 /// point and within [`Params::mi_max_off_nadir_deg`] of nadir as seen from the camera's height.
 pub fn mi_points(tile: &Tile, pose: &CamFromMap, p: &Params) -> Vec<crate::map::GroundPoint> {
     let c = pose.center();
-    let ground = super::init::height_at(&tile.height, c.x, c.y).unwrap_or(c.z - 8.0);
-    let radius =
-        ((c.z - ground).max(1.0) * p.mi_max_off_nadir_deg.to_radians().tan()).min(p.mi_radius_m);
+    let (_, radius) =
+        super::init::ground_disc(&tile.height, &c, p.mi_max_off_nadir_deg, p.mi_radius_m);
     ground_points(tile, (c.x, c.y), radius)
 }
 
@@ -220,8 +219,9 @@ pub fn localize_ungated(
         }),
     });
     let points = mi_points(tile, &init.pose, p);
+    let mask = camera.valid_mask();
     let (mut refinement, mut polish) =
-        refine_and_polish(camera, image, tile, &points, &init.pose, p)?;
+        refine_and_polish(camera, image, &mask, tile, &points, &init.pose, p)?;
     // The 4-DoF box was centred on PnP's pose, whose tilt error the 4-DoF search had to trade
     // for position; once the polish has fixed the tilt, an optimum on the box's edge may be that
     // trade rather than a wrong start. One search re-centred on the polished pose decides (a
@@ -231,7 +231,7 @@ pub fn localize_ungated(
         && refinement.quality.axes.iter().any(|a| a.on_edge)
     {
         let (again, polish_again) =
-            refine_and_polish(camera, image, tile, &points, &refinement.pose, p)?;
+            refine_and_polish(camera, image, &mask, tile, &points, &refinement.pose, p)?;
         refinement = again;
         polish = json!({ "first": polish, "recentred": polish_again });
     }
@@ -256,28 +256,42 @@ pub fn localize_ungated(
 }
 
 /// The 4-DoF search from `start`, then the 6-DoF polish (when configured): the refinement (the
-/// search's quality, the polished pose) and the polish record.
+/// search's quality, the polished pose) and the polish record. `mask` is the camera's validity
+/// mask, computed once per frame by the caller.
+#[allow(clippy::too_many_arguments)]
 fn refine_and_polish(
     camera: &Camera,
     image: &[u8],
+    mask: &[u8],
     tile: &Tile,
     points: &[crate::map::GroundPoint],
     start: &CamFromMap,
     p: &Params,
 ) -> Result<(Refinement, Value)> {
-    let mut refinement = refine(camera, image, points, start, &p.search, &p.quality)?;
+    let mut refinement = refine_masked(camera, image, mask, points, start, &p.search, &p.quality)?;
     let Some(pp) = &p.polish else {
         return Ok((refinement, Value::Null));
     };
-    // A polish that ends on its box's edge restarts from there (PnP's tilt can be 2–3° off), a
-    // bounded number of times.
+    // Pitch and roll pivot about the ground under the camera (height from the tile's height
+    // layer), so that a tilt leaves the nadir ground in place. A polish that ends on its box's
+    // edge restarts from there (PnP's tilt can be 2–3° off), a bounded number of times.
     let mut rounds = Vec::new();
     for _ in 0..POLISH_ROUNDS {
-        let (pose, detail, on_edge) =
-            polish_6dof(camera, image, tile, points, &refinement.pose, p, pp)?;
+        let c = refinement.pose.center();
+        let pivot = super::init::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0));
+        let (pose, record) = polish_pose(
+            camera,
+            image,
+            mask,
+            points,
+            &refinement.pose,
+            pivot,
+            &p.search,
+            pp,
+        )?;
         refinement.pose = pose;
-        rounds.push(detail);
-        if !on_edge {
+        rounds.push(serde_json::to_value(record).unwrap_or(Value::Null));
+        if !record.on_edge(pp) {
             break;
         }
     }
@@ -286,39 +300,6 @@ fn refine_and_polish(
 
 /// Polish rounds at most (each from the previous one's result when it ended on its box's edge).
 pub const POLISH_ROUNDS: usize = 3;
-
-/// The 6-DoF polish of `pose` (see [`super::polish`]): pitch and roll pivot about the ground under
-/// the camera (height from the tile's height layer), so that a tilt leaves the nadir ground in
-/// place. The fixed point set is the one visible from the whole polish box. Returns the polished
-/// pose, a JSON record of what moved, and whether it ended on the box's edge.
-fn polish_6dof(
-    camera: &Camera,
-    image: &[u8],
-    tile: &Tile,
-    points: &[crate::map::GroundPoint],
-    pose: &CamFromMap,
-    p: &Params,
-    pp: &PolishParams,
-) -> Result<(CamFromMap, Value, bool)> {
-    let c = pose.center();
-    let pivot = super::init::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0));
-    let (polished, res, n_points) = polish_pose(
-        camera,
-        image,
-        &camera.valid_mask(),
-        points,
-        pose,
-        pivot,
-        &p.search,
-        pp,
-    )?;
-    let detail = json!({
-        "offsets": res.offsets, "start": res.start_value, "value": res.value,
-        "evaluations": res.evaluations, "points": n_points, "pivot_m": pivot,
-    });
-    let on_edge = (0..6).any(|i| res.offsets[i].abs() >= 0.95 * pp.bound[i]);
-    Ok((polished, detail, on_edge))
-}
 
 /// Errors of each stage against a simulator `truth.json` (its text; `origin` names it in errors):
 /// for `prior` the horizontal distance of the GPS prior, for each stage with a pose (`pnp`, `mi`)

@@ -15,6 +15,7 @@ use super::search::{pose_at_pivot, AxisRange, Evaluator, SearchConfig, SearchSpe
 use crate::camera::Camera;
 use crate::error::Result;
 use crate::pose::CamFromMap;
+use serde::Serialize;
 
 /// Settings of [`nelder_mead`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -145,11 +146,37 @@ pub fn nelder_mead(f: &mut dyn FnMut(&[f64; 6]) -> f64, p: &PolishParams) -> Pol
     }
 }
 
+/// What a polish did: the optimiser's record, the point set's size and the pivot used.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PolishRecord {
+    /// Offsets of the polished pose from the start (m, m, m, deg, deg, deg).
+    pub offsets: [f64; 6],
+    /// Objective at the start.
+    #[serde(rename = "start")]
+    pub start_value: f64,
+    /// Objective at the polished pose.
+    pub value: f64,
+    /// Objective evaluations used.
+    pub evaluations: usize,
+    /// Size of the fixed point set.
+    pub points: usize,
+    /// Pivot depth of pitch/roll, metres (`None`: about the camera centre).
+    pub pivot_m: Option<f64>,
+}
+
+impl PolishRecord {
+    /// Whether the polish ended on (within 5 % of) its box's edge on some parameter: the optimum
+    /// may lie outside, and a caller may polish again from there.
+    pub fn on_edge(&self, p: &PolishParams) -> bool {
+        (0..6).any(|i| self.offsets[i].abs() >= 0.95 * p.bound[i])
+    }
+}
+
 /// Polish `pose` over all six parameters on `gray` (camera size, `mask` non-zero = valid pixel):
 /// pitch and roll pivot `pivot` metres below the camera on its axis (see
 /// [`SearchSpec::tilt_pivot_m`]); the objective and estimator are `search`'s; the fixed point set
-/// is the one visible from every lattice pose of the ±`bound` box. Returns the polished pose, the
-/// optimiser's record and the size of the point set.
+/// is the one visible from every lattice pose of the ±`bound` box. Returns the polished pose and
+/// what the polish did.
 #[allow(clippy::too_many_arguments)]
 pub fn polish_pose(
     camera: &Camera,
@@ -160,7 +187,7 @@ pub fn polish_pose(
     pivot: Option<f64>,
     search: &SearchConfig,
     p: &PolishParams,
-) -> Result<(CamFromMap, Polished, usize)> {
+) -> Result<(CamFromMap, PolishRecord)> {
     // The grid only selects the point set; two cells per side.
     let r = |i: usize| AxisRange {
         half: p.bound[i],
@@ -185,7 +212,15 @@ pub fn polish_pose(
         &mut |x: &[f64; 6]| ev.value_at(0, x, &mut scratch).get(objective),
         p,
     );
-    Ok((pose_at_pivot(pose, &res.offsets, pivot), res, ev.n_points))
+    let record = PolishRecord {
+        offsets: res.offsets,
+        start_value: res.start_value,
+        value: res.value,
+        evaluations: res.evaluations,
+        points: ev.n_points,
+        pivot_m: pivot,
+    };
+    Ok((pose_at_pivot(pose, &res.offsets, pivot), record))
 }
 
 #[cfg(test)]

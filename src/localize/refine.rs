@@ -71,20 +71,29 @@ pub fn refine(
     cfg: &SearchConfig,
     qcfg: &QualityConfig,
 ) -> Result<Refinement> {
-    let (w, h) = (cam.width() as usize, cam.height() as usize);
-    if gray.len() != w * h {
-        return Err(Error::Invalid(format!(
-            "image has {} pixels but the camera is {w}×{h}",
-            gray.len()
-        )));
-    }
-    let mask = cam.valid_mask();
+    // A frame of the wrong size is refused by `Evaluator::new` (one line, both sizes).
+    refine_masked(cam, gray, &cam.valid_mask(), points, init, cfg, qcfg)
+}
+
+/// [`refine`] with the camera's validity mask ([`CameraModel::valid_mask`]) computed by the
+/// caller: callers that refine one camera many times (the pipeline's search + polish, a study's
+/// trials) compute it once — on a 5 MP frame it costs about as much as a small search.
+pub fn refine_masked(
+    cam: &Camera,
+    gray: &[u8],
+    mask: &[u8],
+    points: &[GroundPoint],
+    init: &CamFromMap,
+    cfg: &SearchConfig,
+    qcfg: &QualityConfig,
+) -> Result<Refinement> {
+    // `Evaluator::new` checks the image and mask sizes.
     let levels = if cfg.mode == Mode::Exhaustive {
         0
     } else {
         MAX_LEVEL
     };
-    let ev = Evaluator::new(cam, gray, &mask, points, init, cfg, levels)?;
+    let ev = Evaluator::new(cam, gray, mask, points, init, cfg, levels)?;
     let res = search(&ev, cfg);
     let quality = assess(&ev, &res, qcfg);
     if !res.pose.translation.iter().all(|v| v.is_finite()) {

@@ -8,7 +8,7 @@
 //! along each axis and over an x–y grid around a pose.
 
 use super::quality::QualityConfig;
-use super::refine::refine;
+use super::refine::refine_masked;
 use super::search::{pose_at, Evaluator, SearchConfig, AXES};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -117,9 +117,8 @@ impl PointSelection {
     /// Ground points of `tile` for a camera at `pose`.
     pub fn points(&self, tile: &Tile, pose: &CamFromMap) -> Vec<crate::map::GroundPoint> {
         let c = pose.center();
-        let ground = super::init::height_at(&tile.height, c.x, c.y).unwrap_or(c.z - 8.0);
-        let r = ((c.z - ground).max(1.0) * self.max_off_nadir_deg.to_radians().tan())
-            .min(self.radius_m);
+        let (_, r) =
+            super::init::ground_disc(&tile.height, &c, self.max_off_nadir_deg, self.radius_m);
         ground_points(tile, (c.x, c.y), r)
     }
 }
@@ -238,6 +237,9 @@ pub struct Scene<'a> {
     pub camera: &'a Camera,
     /// Gray frame (camera size, row-major): the temporal median, as the pipeline uses.
     pub gray: &'a [u8],
+    /// The camera's validity mask ([`crate::camera::CameraModel::valid_mask`]), computed once for
+    /// all trials.
+    pub mask: &'a [u8],
     /// Map tile.
     pub tile: &'a Tile,
     /// True pose: errors are measured against it.
@@ -299,8 +301,16 @@ pub fn run_trial(
     );
     let t0 = now();
     let points = sel.points(scene.tile, &init);
-    let r = refine(scene.camera, scene.gray, &points, &init, cfg, qcfg)
-        .map_err(|e| Error::stage("study", format!("trial {index}: {e}")))?;
+    let r = refine_masked(
+        scene.camera,
+        scene.gray,
+        scene.mask,
+        &points,
+        &init,
+        cfg,
+        qcfg,
+    )
+    .map_err(|e| Error::stage("study", format!("trial {index}: {e}")))?;
     let seconds = now() - t0;
     let result = offsets_from(scene.truth, &r.pose);
     let horizontal_m = result[0].hypot(result[1]);

@@ -17,7 +17,7 @@
 //! [`VerifyParams::blur_m`] on the ground) and the score is the best over a small x/y/yaw grid
 //! around the hypothesis.
 
-use super::init::{focal_px, height_at, Mip};
+use super::init::{focal_px, ground_disc, Mip};
 use super::mi::{bin_lut, mutual_information, Binning, JointHist};
 use crate::camera::CameraModel;
 use crate::map::{ground_points, Tile};
@@ -180,9 +180,12 @@ impl<'a> MiVerifier<'a> {
         points: usize,
     ) -> Option<Verdict> {
         let c = pose.center();
-        let zg = height_at(&self.tile.height, c.x, c.y).unwrap_or(c.z - 8.0);
-        let cam_h = (c.z - zg).max(1.0);
-        let radius = (cam_h * self.p.max_off_nadir_deg.to_radians().tan()).min(self.p.max_radius_m);
+        let (cam_h, radius) = ground_disc(
+            &self.tile.height,
+            &c,
+            self.p.max_off_nadir_deg,
+            self.p.max_radius_m,
+        );
         let pts: Vec<(Point3<f64>, u8)> = ground_points(self.tile, (c.x, c.y), radius)
             .into_iter()
             .map(|g| (Point3::new(g.x, g.y, g.z), g.reflectivity))
