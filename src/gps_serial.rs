@@ -326,12 +326,17 @@ pub fn spawn(mut reader: SerialReader) -> ReaderHandle {
     let join = thread::Builder::new()
         .name("gps-serial".into())
         .spawn(move || {
+            let mut batch = Vec::new();
             while !sp.load(Ordering::Relaxed) {
-                reader.poll(|f| {
-                    let _ = tx.send(f);
-                });
+                reader.poll(|f| batch.push(f));
+                // Publish the status before the fixes it counts: a consumer that has received a
+                // fix then sees a status that includes it (sending first let `status().fixes`
+                // lag the fixes received: the pty test's 49-of-50 failures).
                 if let Ok(mut s) = st.lock() {
                     *s = reader.status();
+                }
+                for f in batch.drain(..) {
+                    let _ = tx.send(f);
                 }
             }
         })
