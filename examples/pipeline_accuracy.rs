@@ -250,7 +250,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
             rec["seconds"]["localize"] =
                 json!(inputs_s + out.stages[2].seconds + out.stages[1].seconds);
             rec["init"] = out.stages[1].detail.clone();
-            rec["polish"] = out.stages[2].detail["polish"].clone();
+            rec["rounds"] = out.stages[2].detail["rounds"].clone();
             rec["mi_quality"] =
                 serde_json::to_value(&out.refinement.quality).unwrap_or(Value::Null);
         }

@@ -15,6 +15,7 @@ use super::search::{pose_at_pivot, AxisRange, Evaluator, SearchConfig, SearchSpe
 use crate::camera::Camera;
 use crate::error::Result;
 use crate::pose::CamFromMap;
+use rayon::prelude::*;
 use serde::Serialize;
 
 /// Settings of [`nelder_mead`].
@@ -26,18 +27,25 @@ pub struct PolishParams {
     pub bound: [f64; 6],
     /// Stop when every vertex is within this of the best, per parameter …
     pub tolerance: [f64; 6],
-    /// … or after this many objective evaluations.
+    /// … or after this many objective evaluations (per start).
     pub max_evaluations: usize,
+    /// Extra starts on the tilt axes, degrees: besides the grid optimum itself, the polish also
+    /// starts at pitch ±this and roll ±this (each within `bound`) and keeps the best end. 0: one
+    /// start. A 4-DoF optimum found at a tilt 2–3° off is often a local maximum of the 6-DoF
+    /// objective (the search traded the tilt for position), which a single local start cannot leave.
+    pub tilt_starts_deg: f64,
 }
 
 impl Default for PolishParams {
-    /// Tilt ±1.5°, x/y/z ±15 cm, yaw ±0.5° around the grid optimum; tolerance 2 mm / 0.005°.
+    /// Tilt ±3° (starts at 0 and ±1.5° on each tilt axis), x/y/z ±15 cm, yaw ±0.5° around the
+    /// grid optimum; tolerance 2 mm / 0.005°.
     fn default() -> Self {
         PolishParams {
             initial_step: [0.03, 0.03, 0.03, 0.1, 0.3, 0.3],
-            bound: [0.15, 0.15, 0.15, 0.5, 1.5, 1.5],
+            bound: [0.15, 0.15, 0.15, 0.5, 3.0, 3.0],
             tolerance: [0.002, 0.002, 0.002, 0.005, 0.005, 0.005],
             max_evaluations: 400,
+            tilt_starts_deg: 1.5,
         }
     }
 }
@@ -58,6 +66,16 @@ pub struct Polished {
 /// Maximise `f` from the origin with Nelder–Mead (standard coefficients: reflection 1,
 /// expansion 2, contraction ½, shrink ½), every vertex clamped to ±`bound`.
 pub fn nelder_mead(f: &mut dyn FnMut(&[f64; 6]) -> f64, p: &PolishParams) -> Polished {
+    nelder_mead_from(f, p, [0.0; 6])
+}
+
+/// [`nelder_mead`] from `x0` (clamped to ±`bound`) instead of the origin; `start_value` is the
+/// objective at `x0`.
+pub fn nelder_mead_from(
+    f: &mut dyn FnMut(&[f64; 6]) -> f64,
+    p: &PolishParams,
+    x0: [f64; 6],
+) -> Polished {
     let clamp = |mut x: [f64; 6]| {
         for (v, b) in x.iter_mut().zip(&p.bound) {
             *v = v.clamp(-b, *b);
@@ -74,11 +92,17 @@ pub fn nelder_mead(f: &mut dyn FnMut(&[f64; 6]) -> f64, p: &PolishParams) -> Pol
             f64::NEG_INFINITY
         }
     };
-    let start_value = eval(&[0.0; 6], &mut evals);
-    let mut simplex: Vec<([f64; 6], f64)> = vec![([0.0; 6], start_value)];
+    let x0 = clamp(x0);
+    let start_value = eval(&x0, &mut evals);
+    let mut simplex: Vec<([f64; 6], f64)> = vec![(x0, start_value)];
     for i in 0..6 {
-        let mut x = [0.0; 6];
-        x[i] = p.initial_step[i];
+        let mut x = x0;
+        // Step towards the box's interior when x0 sits on its edge.
+        x[i] += if x0[i] + p.initial_step[i] > p.bound[i] {
+            -p.initial_step[i]
+        } else {
+            p.initial_step[i]
+        };
         let x = clamp(x);
         let v = eval(&x, &mut evals);
         simplex.push((x, v));
@@ -146,6 +170,44 @@ pub fn nelder_mead(f: &mut dyn FnMut(&[f64; 6]) -> f64, p: &PolishParams) -> Pol
     }
 }
 
+/// [`nelder_mead`] from the origin and, when [`PolishParams::tilt_starts_deg`] > 0, from pitch
+/// and roll ±that; the best end wins (ties: the earlier start, in the order origin, +pitch,
+/// −pitch, +roll, −roll). The starts run in parallel, each on its own objective from `make`
+/// (e.g. with its own scratch buffers); the result does not depend on the thread count.
+/// `start_value` is the objective at the origin, `evaluations` the total.
+pub fn nelder_mead_multi<F, M>(make: M, p: &PolishParams) -> Polished
+where
+    F: FnMut(&[f64; 6]) -> f64,
+    M: Fn() -> F + Sync,
+{
+    let mut starts = vec![[0.0; 6]];
+    let a = p.tilt_starts_deg;
+    if a > 0.0 {
+        for (axis, sign) in [(4, 1.0), (4, -1.0), (5, 1.0), (5, -1.0)] {
+            let mut x0 = [0.0; 6];
+            x0[axis] = sign * a;
+            starts.push(x0);
+        }
+    }
+    let ends: Vec<Polished> = starts
+        .par_iter()
+        .map(|x0| nelder_mead_from(&mut make(), p, *x0))
+        .collect();
+    let evaluations = ends.iter().map(|r| r.evaluations).sum();
+    let start_value = ends[0].start_value;
+    let mut best = ends[0];
+    for r in &ends[1..] {
+        if r.value > best.value {
+            best = *r;
+        }
+    }
+    Polished {
+        start_value,
+        evaluations,
+        ..best
+    }
+}
+
 /// What a polish did: the optimiser's record, the point set's size and the pivot used.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct PolishRecord {
@@ -207,9 +269,12 @@ pub fn polish_pose(
     };
     let ev = Evaluator::new(camera, gray, mask, points, pose, &cfg, 0)?;
     let objective = ev.objective();
-    let mut scratch = Scratch::default();
-    let res = nelder_mead(
-        &mut |x: &[f64; 6]| ev.value_at(0, x, &mut scratch).get(objective),
+    let ev = &ev;
+    let res = nelder_mead_multi(
+        || {
+            let mut scratch = Scratch::default();
+            move |x: &[f64; 6]| ev.value_at(0, x, &mut scratch).get(objective)
+        },
         p,
     );
     let record = PolishRecord {
@@ -245,6 +310,31 @@ mod tests {
             );
         }
         assert!(r.value > r.start_value && r.evaluations <= 400);
+    }
+
+    #[test]
+    fn tilt_starts_leave_a_local_maximum_at_the_origin() {
+        // A narrow local peak at the origin (the 4-DoF compromise) and the real, higher peak
+        // 2.2° away in pitch: one start stays at the origin, the extra tilt starts find the peak.
+        let f = |x: &[f64; 6]| {
+            let d2 = |c: [f64; 6]| (0..6).map(|i| (x[i] - c[i]).powi(2)).sum::<f64>();
+            let real = [0.02, 0.0, 0.0, 0.0, 2.2, 0.0];
+            0.5 * (-d2([0.0; 6]) / 0.05).exp() + (-d2(real) / 0.5).exp()
+        };
+        let single = PolishParams {
+            tilt_starts_deg: 0.0,
+            ..PolishParams::default()
+        };
+        let r1 = nelder_mead_multi(|| f, &single);
+        assert!(r1.offsets[4].abs() < 0.3, "single start: {:?}", r1.offsets);
+        let r = nelder_mead_multi(|| f, &PolishParams::default());
+        assert!(
+            (r.offsets[4] - 2.2).abs() < 0.05,
+            "multi start: {:?}",
+            r.offsets
+        );
+        assert!(r.value > r1.value && r.start_value == r1.start_value);
+        assert!(r.evaluations > r1.evaluations);
     }
 
     #[test]
