@@ -148,6 +148,23 @@ fn main() {
                     v.mi, v.n
                 ))
         );
+        // DIAG_CLIMB=N: the verifier's MI climb from the first N candidates' sweep poses.
+        let n_climb: usize = std::env::var("DIAG_CLIMB")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(0);
+        if i < n_climb {
+            if let Some(up) = ver.climb(&coarse_pose) {
+                let uc = up.pose.center();
+                print!(
+                    "climb: mi {:.4} err {:.2} m z {:.2} yaw {:.1}° | ",
+                    up.mi,
+                    (uc.x - c.x).hypot(uc.y - c.y),
+                    uc.z - c.z,
+                    wrap(up.pose.yaw_pitch_roll().0 - ty).to_degrees()
+                );
+            }
+        }
         if i >= n_fine {
             println!();
             continue;

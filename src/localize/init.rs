@@ -556,6 +556,9 @@ pub fn height_at(hl: &Raster<f32>, x: f64, y: f64) -> Option<f64> {
     Some(acc)
 }
 
+/// Best-screened sweep candidates climbed on the LiDAR MI when no fine stage gave a pose.
+pub const CLIMB_CANDIDATES: usize = 5;
+
 /// Assumed camera height above ground where the height layer has no data under the camera, m.
 pub const FALLBACK_HEIGHT_M: f64 = 8.0;
 
@@ -1032,6 +1035,51 @@ fn initialize_verified<R: rand::Rng>(
         let next = order.get(pos + 1).and_then(|&i| screen_mi(i));
         if convincing_pnp && mi >= best_mi && next.is_none_or(|n| mi >= n) {
             break;
+        }
+    }
+    if !any_pnp {
+        // Second chance: the sweep found the view but too coarsely for patch matching (on low
+        // poles a 1–3 m / 5–15° / one-height-step error leaves too few patches inside their
+        // search windows). Climb the best-screened candidates on the LiDAR MI and run the fine
+        // stage again from there; the satellite must still confirm (a PnP pose), so a frame it
+        // cannot confirm anywhere stays an error.
+        for &rank in order.iter().take(CLIMB_CANDIDATES) {
+            let cand = &cands[rank];
+            if screened[rank].is_none() {
+                continue;
+            }
+            let Some(up) = verifier.climb(&candidate_pose(heights, prior_xy, cand)) else {
+                continue;
+            };
+            let c = up.pose.center();
+            let ground = height_at(heights, c.x, c.y).unwrap_or(c.z - FALLBACK_HEIGHT_M);
+            let climbed = Candidate {
+                yaw: up.pose.yaw_pitch_roll().0,
+                height: c.z - ground,
+                offset: [c.x - prior_xy.0, c.y - prior_xy.1],
+                score: cand.score,
+            };
+            match fine_stage(cam, image, sat, heights, prior_xy, &climbed, fine, rng) {
+                Ok(f) => {
+                    any_pnp = true;
+                    if let Some(v) = verifier.verify(&f.pose) {
+                        pool.push((
+                            v.mi,
+                            InitResult {
+                                pose: f.pose,
+                                candidate: climbed,
+                                matches: f.matches,
+                                inliers: f.inliers,
+                                rms_px: f.rms_px,
+                                candidates_tried: 0,
+                                candidate_rank: rank,
+                                mi: Some((v.mi, None)),
+                            },
+                        ));
+                    }
+                }
+                Err(e) => last_err = e,
+            }
         }
     }
     if !any_pnp {
