@@ -191,8 +191,15 @@ fn refine_cli_polish_recovers_a_wrong_tilt() {
     let polished = rot_err(dir);
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+    // The first search's polish, then (the polish moved the tilt > 0.5°) at least one more.
+    let rounds = report["rounds"].as_array().unwrap();
+    assert_eq!(rounds[0]["start"], "init", "{report}");
     assert!(
-        report["polish"]["evaluations"].as_u64().unwrap() > 10,
+        rounds[0]["polish"][0]["evaluations"].as_u64().unwrap() > 10,
+        "{report}"
+    );
+    assert!(
+        rounds.len() >= 2 && rounds[1]["start"] == "polish moved",
         "{report}"
     );
     eprintln!("rotation error: 4-DoF {plain:.3}°, polished {polished:.3}°");

@@ -5,9 +5,8 @@ use crate::camera::CameraModel;
 use crate::error::{Error, Result};
 use crate::localize::points::GroundPoint;
 use crate::localize::points_io::read_points;
-use crate::localize::polish::{polish_pose, PolishParams, PolishRecord};
 use crate::localize::quality::QualityConfig;
-use crate::localize::refine::refine_masked;
+use crate::localize::refine::{refine_masked, refine_polished, PolishedSearch};
 use crate::localize::search::{Mode, SearchConfig, SearchSpec};
 use crate::map::{cache, Crs};
 use crate::posefile::{format_utc, read_pose, PoseFile};
@@ -52,9 +51,10 @@ pub struct Args {
     #[arg(long)]
     pub report: Option<PathBuf>,
     /// After the grid search, polish all six pose parameters (roll and pitch too) with the
-    /// pipeline's local Nelder–Mead (docs/refine.md "6-DoF polish"): for an initial pose whose
-    /// roll/pitch are not trusted. Tilts pivot about the ground under the camera (the points'
-    /// median height) unless the optical axis is near horizontal.
+    /// pipeline's local Nelder–Mead and search again while the polish moves the pose, as
+    /// `localize` does (docs/refine.md "6-DoF polish"): for an initial pose whose roll/pitch are
+    /// not trusted. Tilts pivot about the ground under the camera (the points' median height)
+    /// unless the optical axis is near horizontal.
     #[arg(long)]
     pub polish: bool,
 }
@@ -131,38 +131,43 @@ pub fn run(a: Args) -> Result<()> {
     };
     // Computed once for the search and the polish (the image size was checked above).
     let mask = cam.valid_mask();
-    let mut r = refine_masked(
-        &cam,
-        &gray,
-        &mask,
-        &points,
-        &init.pose,
-        &cfg,
-        &QualityConfig::default(),
-    )?;
-    let mut polish = None;
-    if a.polish && r.quality.accepted {
+    let (r, rounds) = if a.polish {
+        // Tilts pivot about the ground under the camera: the points' median height stands for it.
         let mut zs: Vec<f64> = points.iter().map(|p| p.z).collect();
         zs.sort_by(f64::total_cmp);
-        let c = r.pose.center();
-        let pivot = zs.get(zs.len() / 2).map(|g| c.z - g).filter(|d| *d > 0.5);
-        let (pose, record) = polish_pose(
+        let ground = zs.get(zs.len() / 2).copied();
+        let pivot = |pose: &crate::pose::CamFromMap| {
+            ground.map(|g| pose.center().z - g).filter(|d| *d > 0.5)
+        };
+        refine_polished(
             &cam,
             &gray,
             &mask,
             &points,
-            &r.pose,
-            pivot,
+            &init.pose,
             &cfg,
-            &PolishParams::default(),
+            &QualityConfig::default(),
+            &PolishedSearch::default(),
+            &pivot,
+        )?
+    } else {
+        let r = refine_masked(
+            &cam,
+            &gray,
+            &mask,
+            &points,
+            &init.pose,
+            &cfg,
+            &QualityConfig::default(),
         )?;
-        r.pose = pose;
-        polish = Some(record);
-    }
+        (r, Vec::new())
+    };
     if let Some(path) = &a.report {
         let mut report = serde_json::to_value(r.report(mode))
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;
-        report["polish"] = serde_json::to_value(polish).unwrap_or_default();
+        if a.polish {
+            report["rounds"] = serde_json::to_value(&rounds).unwrap_or_default();
+        }
         let text = serde_json::to_string_pretty(&report)
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;
         crate::persist::write_atomic(path, (text + "\n").as_bytes())?;
@@ -187,10 +192,16 @@ pub fn run(a: Args) -> Result<()> {
         r.points.1,
         r.stats.exhaustive_point_evaluations as f64 / r.stats.point_evaluations.max(1) as f64
     );
-    if let Some(PolishRecord { offsets: o, .. }) = polish {
+    for round in &rounds {
+        let mut o = [0.0; 6];
+        for rec in &round.polish {
+            for (t, v) in o.iter_mut().zip(rec.offsets) {
+                *t += v;
+            }
+        }
         println!(
-            "polish: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°, pitch {:+.3}°, roll {:+.3}°",
-            o[0], o[1], o[2], o[3], o[4], o[5]
+            "polish after the {} search: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°, pitch {:+.3}°, roll {:+.3}°",
+            round.start, o[0], o[1], o[2], o[3], o[4], o[5]
         );
     }
     if let Some(path) = &a.out {

@@ -3,9 +3,8 @@
 //! the outputs; the clock for stage timings is injected.
 
 use super::init::{initialize, CoarseParams, FineParams, InitResult};
-use super::polish::{polish_pose, PolishParams, PolishRecord};
 use super::quality::QualityConfig;
-use super::refine::{refine_masked, Refinement};
+use super::refine::{refine_masked, refine_polished, PolishedSearch, Refinement};
 use super::search::SearchConfig;
 use super::verify::MiVerifier;
 use crate::camera::{Camera, CameraModel};
@@ -36,13 +35,10 @@ pub struct Params {
     pub mi_radius_m: f64,
     /// … and within this off-nadir angle, degrees.
     pub mi_max_off_nadir_deg: f64,
-    /// The local 6-DoF polish after the 4-DoF search (pitch/roll about the ground under the
-    /// camera, see [`super::polish`]); `None` keeps PnP's roll and pitch.
-    pub polish: Option<PolishParams>,
-    /// Searches at most (with a polish after each): another 4-DoF search is run from the
-    /// polished pose when the polish moved the search's optimum by more than
-    /// [`RESEARCH_MOVE_DEG`] / [`RESEARCH_MOVE_M`], since that optimum was found at a stale tilt.
-    pub search_rounds: usize,
+    /// The local 6-DoF polish after the 4-DoF search and the search rounds (pitch/roll about the
+    /// ground under the camera, see [`super::polish`] and [`refine_polished`]); `None` keeps
+    /// PnP's roll and pitch and searches once.
+    pub polish: Option<PolishedSearch>,
 }
 
 impl Default for Params {
@@ -57,8 +53,7 @@ impl Default for Params {
             search_radius_range_m: (5.0, 40.0),
             mi_radius_m: 30.0,
             mi_max_off_nadir_deg: 70.0,
-            polish: Some(PolishParams::default()),
-            search_rounds: 3,
+            polish: Some(PolishedSearch::default()),
         }
     }
 }
@@ -225,35 +220,23 @@ pub fn localize_ungated(
     });
     let points = mi_points(tile, &init.pose, p);
     let mask = camera.valid_mask();
-    // Search → polish rounds. The 4-DoF search holds its start's roll and pitch, and PnP's tilt
-    // can be 2–3° off: from there the search trades the tilt for position, height and yaw, and its
-    // quality (the gate's evidence) describes that compromise, not the peak. So the search runs
-    // again, centred on the polished pose, when the polish moved the pose by more than
-    // RESEARCH_MOVE_M / RESEARCH_MOVE_DEG (the optimum was found at a stale tilt), or when the gate
-    // refused an optimum on the box's edge (the edge may be the tilt trade rather than a wrong
-    // start; a start metres off stays on the edge and is still refused). The last search's quality
-    // is the one gated and reported.
-    let mut rounds = Vec::new();
-    let mut start = init.pose;
-    let mut why = "init";
-    let refinement = loop {
-        let (r, polish) = refine_and_polish(camera, image, &mask, tile, &points, &start, p)?;
-        let moved = polish_moved(&polish);
-        let edge = !r.quality.accepted && r.quality.axes.iter().any(|a| a.on_edge);
-        rounds.push(json!({ "start": why, "polish": polish }));
-        let next = match (moved, edge) {
-            _ if p.polish.is_none() || rounds.len() >= p.search_rounds.max(1) => None,
-            (true, _) => Some("polish moved"),
-            (false, true) => Some("edge"),
-            (false, false) => None,
-        };
-        match next {
-            Some(n) => {
-                start = r.pose;
-                why = n;
-            }
-            None => break r,
+    let (refinement, rounds) = match &p.polish {
+        Some(ps) => {
+            // Pitch and roll pivot about the ground under the camera (the tile's height layer).
+            let pivot = |pose: &CamFromMap| {
+                let c = pose.center();
+                super::init::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
+            };
+            refine_polished(
+                camera, image, &mask, &points, &init.pose, &p.search, &p.quality, ps, &pivot,
+            )?
         }
+        None => (
+            refine_masked(
+                camera, image, &mask, &points, &init.pose, &p.search, &p.quality,
+            )?,
+            Vec::new(),
+        ),
     };
     let t2 = now();
     stages.push(Stage {
@@ -263,7 +246,7 @@ pub fn localize_ungated(
         detail: {
             let mut d =
                 serde_json::to_value(refinement.report(p.search.mode)).unwrap_or(Value::Null);
-            d["rounds"] = Value::Array(rounds);
+            d["rounds"] = serde_json::to_value(&rounds).unwrap_or(Value::Null);
             d
         },
     });
@@ -274,71 +257,6 @@ pub fn localize_ungated(
         stages,
     })
 }
-
-/// The 4-DoF search from `start`, then the 6-DoF polish (when configured): the refinement (the
-/// search's quality, the polished pose) and the polish record. `mask` is the camera's validity
-/// mask, computed once per frame by the caller.
-#[allow(clippy::too_many_arguments)]
-fn refine_and_polish(
-    camera: &Camera,
-    image: &[u8],
-    mask: &[u8],
-    tile: &Tile,
-    points: &[crate::map::GroundPoint],
-    start: &CamFromMap,
-    p: &Params,
-) -> Result<(Refinement, Vec<PolishRecord>)> {
-    let mut refinement = refine_masked(camera, image, mask, points, start, &p.search, &p.quality)?;
-    let Some(pp) = &p.polish else {
-        return Ok((refinement, Vec::new()));
-    };
-    // Pitch and roll pivot about the ground under the camera (height from the tile's height
-    // layer), so that a tilt leaves the nadir ground in place. A polish that ends on its box's
-    // edge restarts from there (PnP's tilt can be 2–3° off), a bounded number of times.
-    let mut rounds = Vec::new();
-    for _ in 0..POLISH_ROUNDS {
-        let c = refinement.pose.center();
-        let pivot = super::init::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0));
-        let (pose, record) = polish_pose(
-            camera,
-            image,
-            mask,
-            points,
-            &refinement.pose,
-            pivot,
-            &p.search,
-            pp,
-        )?;
-        refinement.pose = pose;
-        rounds.push(record);
-        if !record.on_edge(pp) {
-            break;
-        }
-    }
-    Ok((refinement, rounds))
-}
-
-/// Whether the polish rounds of one [`refine_and_polish`] moved the pose by more than the
-/// re-search thresholds in total.
-fn polish_moved(rounds: &[PolishRecord]) -> bool {
-    let mut total = [0.0f64; 6];
-    for r in rounds {
-        for (t, v) in total.iter_mut().zip(r.offsets) {
-            *t += v;
-        }
-    }
-    let moved_m = (total[0].powi(2) + total[1].powi(2) + total[2].powi(2)).sqrt();
-    let moved_deg = total[3..].iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    moved_m > RESEARCH_MOVE_M || moved_deg > RESEARCH_MOVE_DEG
-}
-
-/// A polish that moved the search's optimum by more than this (metres) triggers another search.
-pub const RESEARCH_MOVE_M: f64 = 0.05;
-/// … or by more than this on any angle (degrees).
-pub const RESEARCH_MOVE_DEG: f64 = 0.5;
-
-/// Polish rounds at most (each from the previous one's result when it ended on its box's edge).
-pub const POLISH_ROUNDS: usize = 3;
 
 /// Errors of each stage against a simulator `truth.json` (its text; `origin` names it in errors):
 /// for `prior` the horizontal distance of the GPS prior, for each stage with a pose (`pnp`, `mi`)
@@ -403,37 +321,4 @@ pub fn truth_errors(
         }
     }
     Ok(out)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn record(offsets: [f64; 6]) -> PolishRecord {
-        PolishRecord {
-            offsets,
-            start_value: 0.3,
-            value: 0.31,
-            evaluations: 150,
-            points: 40_000,
-            pivot_m: Some(5.0),
-        }
-    }
-
-    #[test]
-    fn polish_moved_sums_the_rounds_and_uses_both_thresholds() {
-        // Nothing to re-search: no polish, or a polish that stayed within 5 cm and 0.5°.
-        assert!(!polish_moved(&[]));
-        assert!(!polish_moved(&[record([0.03, 0.03, 0.02, 0.1, 0.4, -0.4])]));
-        // A tilt move beyond 0.5° (pitch or roll, either sign) or a 6 cm translation.
-        assert!(polish_moved(&[record([0.0, 0.0, 0.0, 0.0, 0.0, -0.6])]));
-        assert!(polish_moved(&[record([0.06, 0.0, 0.0, 0.0, 0.0, 0.0])]));
-        // Two rounds of 0.3° each add up to 0.6°; opposite moves cancel.
-        let half = record([0.0, 0.0, 0.0, 0.0, 0.3, 0.0]);
-        assert!(polish_moved(&[half, half]));
-        assert!(!polish_moved(&[
-            half,
-            record([0.0, 0.0, 0.0, 0.0, -0.3, 0.0])
-        ]));
-    }
 }

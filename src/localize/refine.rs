@@ -107,3 +107,154 @@ pub fn refine_masked(
         points: (ev.n_input, ev.n_points),
     })
 }
+
+/// Settings of [`refine_polished`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PolishedSearch {
+    /// The 6-DoF polish after each search.
+    pub polish: super::polish::PolishParams,
+    /// Polishes per search at most (each from the previous one's result when it ended on its
+    /// box's edge).
+    pub polish_rounds: usize,
+    /// Searches at most, see [`refine_polished`].
+    pub search_rounds: usize,
+}
+
+impl Default for PolishedSearch {
+    fn default() -> Self {
+        PolishedSearch {
+            polish: super::polish::PolishParams::default(),
+            polish_rounds: POLISH_ROUNDS,
+            search_rounds: SEARCH_ROUNDS,
+        }
+    }
+}
+
+/// Polish rounds per search at most (default of [`PolishedSearch::polish_rounds`]).
+pub const POLISH_ROUNDS: usize = 3;
+/// Searches at most (default of [`PolishedSearch::search_rounds`]).
+pub const SEARCH_ROUNDS: usize = 3;
+/// A polish that moved the search's optimum by more than this (metres) triggers another search.
+pub const RESEARCH_MOVE_M: f64 = 0.05;
+/// … or by more than this on any angle (degrees).
+pub const RESEARCH_MOVE_DEG: f64 = 0.5;
+
+/// One search of [`refine_polished`] and the polishes after it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Round {
+    /// Why this search ran: `init` (the first), `polish moved` or `edge`.
+    pub start: &'static str,
+    /// The polishes after it.
+    pub polish: Vec<super::polish::PolishRecord>,
+}
+
+/// The 4-DoF search, then the 6-DoF polish, in rounds. The search holds its start's roll and
+/// pitch, and an initial tilt can be 2–3° off: from there the search trades the tilt for
+/// position, height and yaw, and its quality (the gate's evidence) describes that compromise, not
+/// the peak. So the search runs again, centred on the polished pose, when the polish moved the
+/// pose by more than [`RESEARCH_MOVE_M`] / [`RESEARCH_MOVE_DEG`] (the optimum was found at a stale
+/// tilt), or when the gate refused an optimum on the box's edge (the edge may be the tilt trade
+/// rather than a wrong start; a start metres off stays on the edge and is still refused), at most
+/// `p.search_rounds` searches. The answer is the last polished pose with the last search's
+/// quality. `pivot` gives the tilt pivot depth for a pose (see [`super::polish::polish_pose`]).
+#[allow(clippy::too_many_arguments)]
+pub fn refine_polished(
+    cam: &Camera,
+    gray: &[u8],
+    mask: &[u8],
+    points: &[GroundPoint],
+    init: &CamFromMap,
+    cfg: &SearchConfig,
+    qcfg: &QualityConfig,
+    p: &PolishedSearch,
+    pivot: &dyn Fn(&CamFromMap) -> Option<f64>,
+) -> Result<(Refinement, Vec<Round>)> {
+    let mut rounds = Vec::new();
+    let mut start = *init;
+    let mut why = "init";
+    loop {
+        let mut r = refine_masked(cam, gray, mask, points, &start, cfg, qcfg)?;
+        let mut polish = Vec::new();
+        for _ in 0..p.polish_rounds.max(1) {
+            let (pose, record) = super::polish::polish_pose(
+                cam,
+                gray,
+                mask,
+                points,
+                &r.pose,
+                pivot(&r.pose),
+                cfg,
+                &p.polish,
+            )?;
+            r.pose = pose;
+            polish.push(record);
+            if !record.on_edge(&p.polish) {
+                break;
+            }
+        }
+        let moved = polish_moved(&polish);
+        let edge = !r.quality.accepted && r.quality.axes.iter().any(|a| a.on_edge);
+        rounds.push(Round { start: why, polish });
+        let next = match (moved, edge) {
+            _ if rounds.len() >= p.search_rounds.max(1) => None,
+            (true, _) => Some("polish moved"),
+            (false, true) => Some("edge"),
+            (false, false) => None,
+        };
+        match next {
+            Some(n) => {
+                start = r.pose;
+                why = n;
+            }
+            None => return Ok((r, rounds)),
+        }
+    }
+}
+
+/// Whether the polishes after one search moved the pose by more than the re-search thresholds
+/// in total.
+fn polish_moved(rounds: &[super::polish::PolishRecord]) -> bool {
+    let mut total = [0.0f64; 6];
+    for r in rounds {
+        for (t, v) in total.iter_mut().zip(r.offsets) {
+            *t += v;
+        }
+    }
+    let moved_m = (total[0].powi(2) + total[1].powi(2) + total[2].powi(2)).sqrt();
+    let moved_deg = total[3..].iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    moved_m > RESEARCH_MOVE_M || moved_deg > RESEARCH_MOVE_DEG
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::localize::polish::PolishRecord;
+
+    fn record(offsets: [f64; 6]) -> PolishRecord {
+        PolishRecord {
+            offsets,
+            start_value: 0.3,
+            value: 0.31,
+            evaluations: 150,
+            points: 40_000,
+            pivot_m: Some(5.0),
+        }
+    }
+
+    #[test]
+    fn polish_moved_sums_the_rounds_and_uses_both_thresholds() {
+        // Nothing to re-search: no polish, or a polish that stayed within 5 cm and 0.5°.
+        assert!(!polish_moved(&[]));
+        assert!(!polish_moved(&[record([0.03, 0.03, 0.02, 0.1, 0.4, -0.4])]));
+        // A tilt move beyond 0.5° (pitch or roll, either sign) or a 6 cm translation.
+        assert!(polish_moved(&[record([0.0, 0.0, 0.0, 0.0, 0.0, -0.6])]));
+        assert!(polish_moved(&[record([0.06, 0.0, 0.0, 0.0, 0.0, 0.0])]));
+        // Two rounds of 0.3° each add up to 0.6°; opposite moves cancel.
+        let half = record([0.0, 0.0, 0.0, 0.0, 0.3, 0.0]);
+        assert!(polish_moved(&[half, half]));
+        assert!(!polish_moved(&[
+            half,
+            record([0.0, 0.0, 0.0, 0.0, -0.3, 0.0])
+        ]));
+    }
+}
