@@ -96,14 +96,15 @@ pub trait CameraModel: Send + Sync + std::fmt::Debug {
     /// its eight neighbours, all agree is filled with that value; every other block (the image
     /// circle's rim, the sensor's edge) is evaluated pixel by pixel. That equals the per-pixel
     /// mask when the invalid set has no island or sliver narrower than a block between lattice
-    /// points — true of the image circle of every model here (a disc, a lens's fold beyond it);
+    /// points (nor a chord that short where the circle grazes the sensor's edge) — true of the
+    /// image circle of every model here (a disc, a lens's fold beyond it);
     /// [`CameraModel::valid_mask_exact`] is the per-pixel reference, and what sensors with a side
     /// under [`MASK_MIN_SIDE`] get. Rows in parallel (rayon).
     fn valid_mask(&self) -> Vec<u8> {
         use rayon::prelude::*;
         let (w, h) = (self.width() as usize, self.height() as usize);
         if w.min(h) < MASK_MIN_SIDE {
-            // Too small for the lattice to resolve its image circle: at most a few thousand pixels.
+            // Too narrow for the lattice to resolve its image circle.
             return self.valid_mask_exact();
         }
         let lattice = |n: usize| -> Vec<usize> {
@@ -359,9 +360,9 @@ mod tests {
             Box::new(fisheye(301, 203, Some(120.0))),
             Box::new(fisheye(257, 257, None)),
             Box::new(kitti()),
-            Box::new(fisheye(1, 1, Some(185.0))),
-            Box::new(fisheye(1, 9, Some(185.0))),
-            Box::new(fisheye(17, 1, Some(185.0))),
+            // Just above the lattice's minimum side, with a 1-px last block.
+            Box::new(fisheye(65, 73, Some(185.0))),
+            Box::new(fisheye(64, 200, Some(150.0))),
             Box::new(Equidistant {
                 width: 333,
                 height: 250,
@@ -384,9 +385,14 @@ mod tests {
             let differ = m.iter().zip(&e).filter(|(a, b)| a != b).count();
             assert_eq!(differ, 0, "camera {i}: {differ} pixels differ");
         }
-        // The lattice matters: the 612 × 512 circle has both valid and invalid pixels.
-        let m = cams[0].valid_mask();
-        assert!(m.contains(&0) && m.contains(&255));
+        // The lattice matters: these sensors have both valid and invalid pixels.
+        for i in [0, 1, 4, 5] {
+            let m = cams[i].valid_mask();
+            assert!(m.contains(&0) && m.contains(&255), "camera {i}");
+        }
+        // Sensors under the lattice's minimum side take the per-pixel path.
+        let tiny = fisheye(17, 1, Some(185.0));
+        assert_eq!(tiny.valid_mask(), tiny.valid_mask_exact());
     }
 
     #[test]

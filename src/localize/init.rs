@@ -958,7 +958,9 @@ pub fn candidate_pose(
 /// on low poles the fine stage sometimes fails on, or tilts away from, the very candidate the
 /// LiDAR map confirms best, and then the sweep pose (zero tilt, ≤ 0.2 m / 1° from the candidate)
 /// is the better start for the refinement. At least one fine stage must give a pose: a frame
-/// the satellite matching cannot confirm anywhere is an error, not a guess.
+/// the satellite matching cannot confirm anywhere is an error, not a guess. When none does, the
+/// [`CLIMB_CANDIDATES`] best-screened candidates get a second chance: climbed on the LiDAR MI
+/// ([`MiVerifier::climb`]), then the fine stage again.
 #[allow(clippy::too_many_arguments)]
 fn initialize_verified<R: rand::Rng>(
     cam: &dyn CameraModel,
@@ -1052,7 +1054,8 @@ fn initialize_verified<R: rand::Rng>(
                 continue;
             };
             let c = up.pose.center();
-            let ground = height_at(heights, c.x, c.y).unwrap_or(c.z - FALLBACK_HEIGHT_M);
+            // As `candidate_pose` rebuilds it: ground 0 where the height layer has no data.
+            let ground = height_at(heights, c.x, c.y).unwrap_or(0.0);
             let climbed = Candidate {
                 yaw: up.pose.yaw_pitch_roll().0,
                 height: c.z - ground,
@@ -1086,7 +1089,7 @@ fn initialize_verified<R: rand::Rng>(
         return Err(crate::Error::stage(
             "pnp",
             format!(
-                "none of the {tried} best-screened of {} candidates gave a PnP pose; last: {last_err}",
+                "none of the {tried} best-screened of {} candidates, nor {CLIMB_CANDIDATES} of them climbed on the LiDAR map, gave a PnP pose; last: {last_err}",
                 cands.len()
             ),
         ));

@@ -18,7 +18,7 @@ use crate::pose::CamFromMap;
 use rayon::prelude::*;
 use serde::Serialize;
 
-/// Settings of [`nelder_mead`].
+/// Settings of [`nelder_mead`] and of [`polish_pose`] (box, steps, stopping rule, tilt starts).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PolishParams {
     /// Initial simplex edge per parameter (m, m, m, deg, deg, deg).
@@ -335,6 +335,25 @@ mod tests {
         );
         assert!(r.value > r1.value && r.start_value == r1.start_value);
         assert!(r.evaluations > r1.evaluations);
+    }
+
+    #[test]
+    fn multi_start_result_does_not_depend_on_the_thread_count() {
+        // A rugged objective (ties and many local maxima), so the winner depends on every start.
+        let f = |x: &[f64; 6]| {
+            let r: f64 = x.iter().map(|v| v * v).sum();
+            (x[4] * 7.0).cos() + (x[5] * 5.0).sin() - 0.1 * r + (x[0] * 40.0).sin() * 0.01
+        };
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| nelder_mead_multi(|| f, &PolishParams::default()))
+        };
+        let (one, two) = (run(1), run(2));
+        assert_eq!(one, two);
+        assert_eq!(one.offsets.map(f64::to_bits), two.offsets.map(f64::to_bits));
     }
 
     #[test]

@@ -134,7 +134,8 @@ impl Default for PolishedSearch {
 pub const POLISH_ROUNDS: usize = 3;
 /// Searches at most (default of [`PolishedSearch::search_rounds`]).
 pub const SEARCH_ROUNDS: usize = 3;
-/// A polish that moved the search's optimum by more than this (metres) triggers another search.
+/// A polish that moved the search's optimum by more than this (metres, in its x, y, z parameters)
+/// triggers another search.
 pub const RESEARCH_MOVE_M: f64 = 0.05;
 /// … or by more than this on any angle (degrees).
 pub const RESEARCH_MOVE_DEG: f64 = 0.5;
@@ -154,9 +155,15 @@ pub struct Round {
 /// the peak. So the search runs again, centred on the polished pose, when the polish moved the
 /// pose by more than [`RESEARCH_MOVE_M`] / [`RESEARCH_MOVE_DEG`] (the optimum was found at a stale
 /// tilt), or when the gate refused an optimum on the box's edge (the edge may be the tilt trade
-/// rather than a wrong start; a start metres off stays on the edge and is still refused), at most
-/// `p.search_rounds` searches. The answer is the last polished pose with the last search's
-/// quality. `pivot` gives the tilt pivot depth for a pose (see [`super::polish::polish_pose`]).
+/// rather than a wrong start), at most `p.search_rounds` searches. Each search is centred on the
+/// previous polished pose, so the answer can lie up to `search_rounds` box half-widths from
+/// `init` (a start metres off walks to the edge in every search and is still refused). The
+/// answer is the last polished pose with the last search's quality, its `offsets` taken from
+/// `init`. `pivot` gives the tilt pivot depth for a pose (see [`super::polish::polish_pose`]).
+///
+/// "Moved" is measured on the polish's parameters: x, y, z offsets and the three angles, with
+/// pitch and roll about the pivot (a tilt of 0.4° about a 10 m pivot also moves the camera centre
+/// ≈ 7 cm, which the 0.5° threshold, not the 5 cm one, stands for).
 #[allow(clippy::too_many_arguments)]
 pub fn refine_polished(
     cam: &Camera,
@@ -206,9 +213,30 @@ pub fn refine_polished(
                 start = r.pose;
                 why = n;
             }
-            None => return Ok((r, rounds)),
+            None => {
+                // Offsets of the answer from `init` (the last search's own offsets start from the
+                // previous polished pose and leave out the polish).
+                r.offsets = offsets_between(init, &r.pose);
+                return Ok((r, rounds));
+            }
         }
     }
+}
+
+/// Offsets of `b` from `a`: centre x, y, z (m), then yaw, pitch, roll differences (deg).
+fn offsets_between(a: &CamFromMap, b: &CamFromMap) -> [f64; 6] {
+    let (ca, cb) = (a.center(), b.center());
+    let (ya, pa, ra) = a.yaw_pitch_roll();
+    let (yb, pb, rb) = b.yaw_pitch_roll();
+    let d = |x: f64, y: f64| crate::pose::angle_difference(y, x).to_degrees();
+    [
+        cb.x - ca.x,
+        cb.y - ca.y,
+        cb.z - ca.z,
+        d(ya, yb),
+        d(pa, pb),
+        d(ra, rb),
+    ]
 }
 
 /// Whether the polishes after one search moved the pose by more than the re-search thresholds

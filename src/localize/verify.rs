@@ -74,6 +74,10 @@ impl Default for VerifyParams {
 pub const CLIMB_HALVINGS: usize = 3;
 /// Evaluation budget of one [`MiVerifier::climb`].
 pub const CLIMB_MAX_EVALUATIONS: usize = 400;
+/// [`MiVerifier::climb`] stays within this of its start in x and y, metres …
+pub const CLIMB_MAX_XY_M: f64 = 4.0;
+/// … and in yaw, degrees (and at least 1 m above the ground).
+pub const CLIMB_MAX_YAW_DEG: f64 = 20.0;
 
 /// A hypothesis' verification score.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -195,7 +199,8 @@ impl<'a> MiVerifier<'a> {
     }
 
     /// Climb the MI from `pose` over x, y, yaw and height: coordinate ascent with steps
-    /// (1 m, 4°, 8 % of the height above ground) halved [`CLIMB_HALVINGS`] times, on one fixed
+    /// (1 m, 4°, 8 % of the height above ground) halved [`CLIMB_HALVINGS`] times, within
+    /// [`CLIMB_MAX_XY_M`] / [`CLIMB_MAX_YAW_DEG`] of the start and 1 m above ground, on one fixed
     /// point set (the ground disc seen from `pose`, thinned to 3 × [`VerifyParams::points`]), at most
     /// [`CLIMB_MAX_EVALUATIONS`] evaluations. For a sweep candidate whose satellite match was too
     /// coarse for the fine stage (1–3 m, 5–15°, a height step off): the LiDAR map pulls it to where
@@ -229,6 +234,16 @@ impl<'a> MiVerifier<'a> {
                     for sign in [1.0, -1.0] {
                         let mut o = best;
                         o[axis] += sign * step[axis];
+                        // Stay near the start (the sweep's error is a few metres and degrees)
+                        // and above the ground.
+                        if o[0].abs() > CLIMB_MAX_XY_M
+                            || o[1].abs() > CLIMB_MAX_XY_M
+                            || o[2].abs() > CLIMB_MAX_YAW_DEG
+                            || cam_h + o[3] < 1.0
+                            || evals >= CLIMB_MAX_EVALUATIONS
+                        {
+                            continue;
+                        }
                         evals += 1;
                         if let Some(v) = score(&o) {
                             if v > best_mi {
