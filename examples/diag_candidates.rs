@@ -55,6 +55,11 @@ fn main() {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(usize::MAX);
+    // DIAG_CLIMB=N: the verifier's MI climb from the first N candidates' sweep poses.
+    let n_climb: usize = std::env::var("DIAG_CLIMB")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0);
     let radius =
         (p.prior_sigmas * sigma).clamp(p.search_radius_range_m.0, p.search_radius_range_m.1);
     let truth = scene.pose;
@@ -148,11 +153,6 @@ fn main() {
                     v.mi, v.n
                 ))
         );
-        // DIAG_CLIMB=N: the verifier's MI climb from the first N candidates' sweep poses.
-        let n_climb: usize = std::env::var("DIAG_CLIMB")
-            .ok()
-            .and_then(|s| s.parse().ok())
-            .unwrap_or(0);
         if i < n_climb {
             if let Some(up) = ver.climb(&coarse_pose) {
                 let uc = up.pose.center();

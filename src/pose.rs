@@ -168,6 +168,16 @@ pub fn angle_difference(a: f64, b: f64) -> f64 {
     (a - b + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
 }
 
+/// Offsets of `to` from `from`: camera-centre difference x, y, z (map frame, m), then the yaw,
+/// pitch and roll differences (`to − from`, wrapped to [−180°, 180°), degrees).
+pub fn offsets_between(from: &CamFromMap, to: &CamFromMap) -> [f64; 6] {
+    let d = to.center() - from.center();
+    let (ya, pa, ra) = from.yaw_pitch_roll();
+    let (yb, pb, rb) = to.yaw_pitch_roll();
+    let deg = |b: f64, a: f64| angle_difference(b, a).to_degrees();
+    [d.x, d.y, d.z, deg(yb, ya), deg(pb, pa), deg(rb, ra)]
+}
+
 /// Angle in radians between two rotations. Goes through a quaternion because
 /// `Rotation3::angle` takes `acos` of a trace that rounding can push past 3 (→ NaN).
 pub fn rotation_angle_between(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {

@@ -134,20 +134,18 @@ pub trait CameraModel: Send + Sync + std::fmt::Debug {
                 .all(|jj| (i0..=i1).all(|ii| corner[jj][ii] == c))
                 .then_some(c)
         };
-        let fill: Vec<Vec<Option<bool>>> = (0..bh.max(1))
-            .map(|j| (0..bw.max(1)).map(|i| uniform(i, j)).collect())
+        // The sides are ≥ MASK_MIN_SIDE, so there are several blocks each way.
+        let fill: Vec<Vec<Option<bool>>> = (0..bh)
+            .map(|j| (0..bw).map(|i| uniform(i, j)).collect())
             .collect();
-        let block_of = |lat: &[usize], x: usize| -> usize {
-            // The block whose start is the last lattice point ≤ x (the last point closes a block).
-            lat.partition_point(|&p| p <= x)
-                .saturating_sub(1)
-                .min(lat.len().saturating_sub(2))
-        };
+        // Lattice points are multiples of the block size (plus the last pixel, which closes the
+        // last block).
+        let block_of = |x: usize, blocks: usize| (x / MASK_BLOCK).min(blocks - 1);
         let mut m = vec![0u8; w * h];
         m.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
-            let j = block_of(&ys, v);
+            let j = block_of(v, bh);
             for (u, px) in row.iter_mut().enumerate() {
-                let valid = match fill[j][block_of(&xs, u)] {
+                let valid = match fill[j][block_of(u, bw)] {
                     Some(c) => c,
                     None => self.is_valid_pixel(&Point2::new(u as f64, v as f64)),
                 };

@@ -6,7 +6,7 @@ use crate::error::{Error, Result};
 use crate::localize::points::GroundPoint;
 use crate::localize::points_io::read_points;
 use crate::localize::quality::QualityConfig;
-use crate::localize::refine::{refine_masked, refine_polished, PolishedSearch};
+use crate::localize::refine::{refine_polished, PolishedSearch};
 use crate::localize::search::{Mode, SearchConfig, SearchSpec};
 use crate::map::{cache, Crs};
 use crate::posefile::{format_utc, read_pose, PoseFile};
@@ -131,37 +131,28 @@ pub fn run(a: Args) -> Result<()> {
     };
     // Computed once for the search and the polish (the image size was checked above).
     let mask = cam.valid_mask();
-    let (r, rounds) = if a.polish {
-        // Tilts pivot about the ground under the camera: the points' median height stands for it.
+    // Tilts pivot about the ground under the camera: the points' median height stands for it
+    // (only the polish tilts).
+    let ground = a.polish.then(|| {
         let mut zs: Vec<f64> = points.iter().map(|p| p.z).collect();
         zs.sort_by(f64::total_cmp);
-        let ground = zs.get(zs.len() / 2).copied();
-        let pivot = |pose: &crate::pose::CamFromMap| {
-            ground.map(|g| pose.center().z - g).filter(|d| *d > 0.5)
-        };
-        refine_polished(
-            &cam,
-            &gray,
-            &mask,
-            &points,
-            &init.pose,
-            &cfg,
-            &QualityConfig::default(),
-            &PolishedSearch::default(),
-            &pivot,
-        )?
-    } else {
-        let r = refine_masked(
-            &cam,
-            &gray,
-            &mask,
-            &points,
-            &init.pose,
-            &cfg,
-            &QualityConfig::default(),
-        )?;
-        (r, Vec::new())
-    };
+        zs.get(zs.len() / 2).copied()
+    });
+    let ground = ground.flatten();
+    let pivot =
+        |pose: &crate::pose::CamFromMap| ground.map(|g| pose.center().z - g).filter(|d| *d > 0.5);
+    let polish = PolishedSearch::default();
+    let (r, rounds) = refine_polished(
+        &cam,
+        &gray,
+        &mask,
+        &points,
+        &init.pose,
+        &cfg,
+        &QualityConfig::default(),
+        a.polish.then_some(&polish),
+        &pivot,
+    )?;
     if let Some(path) = &a.report {
         let mut report = serde_json::to_value(r.report(mode))
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;

@@ -4,7 +4,7 @@
 
 use super::init::{initialize, CoarseParams, FineParams, InitResult};
 use super::quality::QualityConfig;
-use super::refine::{refine_masked, refine_polished, PolishedSearch, Refinement};
+use super::refine::{refine_polished, PolishedSearch, Refinement};
 use super::search::SearchConfig;
 use super::verify::MiVerifier;
 use crate::camera::{Camera, CameraModel};
@@ -220,24 +220,22 @@ pub fn localize_ungated(
     });
     let points = mi_points(tile, &init.pose, p);
     let mask = camera.valid_mask();
-    let (refinement, rounds) = match &p.polish {
-        Some(ps) => {
-            // Pitch and roll pivot about the ground under the camera (the tile's height layer).
-            let pivot = |pose: &CamFromMap| {
-                let c = pose.center();
-                super::init::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
-            };
-            refine_polished(
-                camera, image, &mask, &points, &init.pose, &p.search, &p.quality, ps, &pivot,
-            )?
-        }
-        None => (
-            refine_masked(
-                camera, image, &mask, &points, &init.pose, &p.search, &p.quality,
-            )?,
-            Vec::new(),
-        ),
+    // Pitch and roll pivot about the ground under the camera (the tile's height layer).
+    let pivot = |pose: &CamFromMap| {
+        let c = pose.center();
+        super::init::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
     };
+    let (refinement, rounds) = refine_polished(
+        camera,
+        image,
+        &mask,
+        &points,
+        &init.pose,
+        &p.search,
+        &p.quality,
+        p.polish.as_ref(),
+        &pivot,
+    )?;
     let t2 = now();
     stages.push(Stage {
         name: "mi",

@@ -160,6 +160,7 @@ pub struct Round {
 /// `init` (a start metres off walks to the edge in every search and is still refused). The
 /// answer is the last polished pose with the last search's quality, its `offsets` taken from
 /// `init`. `pivot` gives the tilt pivot depth for a pose (see [`super::polish::polish_pose`]).
+/// With `p = None`: the one 4-DoF search, no polish, no rounds (PnP's tilt kept).
 ///
 /// "Moved" is measured on the polish's parameters: x, y, z offsets and the three angles, with
 /// pitch and roll about the pivot (a tilt of 0.4° about a 10 m pivot also moves the camera centre
@@ -173,9 +174,15 @@ pub fn refine_polished(
     init: &CamFromMap,
     cfg: &SearchConfig,
     qcfg: &QualityConfig,
-    p: &PolishedSearch,
+    p: Option<&PolishedSearch>,
     pivot: &dyn Fn(&CamFromMap) -> Option<f64>,
 ) -> Result<(Refinement, Vec<Round>)> {
+    let Some(p) = p else {
+        return Ok((
+            refine_masked(cam, gray, mask, points, init, cfg, qcfg)?,
+            Vec::new(),
+        ));
+    };
     let mut rounds = Vec::new();
     let mut start = *init;
     let mut why = "init";
@@ -216,27 +223,11 @@ pub fn refine_polished(
             None => {
                 // Offsets of the answer from `init` (the last search's own offsets start from the
                 // previous polished pose and leave out the polish).
-                r.offsets = offsets_between(init, &r.pose);
+                r.offsets = crate::pose::offsets_between(init, &r.pose);
                 return Ok((r, rounds));
             }
         }
     }
-}
-
-/// Offsets of `b` from `a`: centre x, y, z (m), then yaw, pitch, roll differences (deg).
-fn offsets_between(a: &CamFromMap, b: &CamFromMap) -> [f64; 6] {
-    let (ca, cb) = (a.center(), b.center());
-    let (ya, pa, ra) = a.yaw_pitch_roll();
-    let (yb, pb, rb) = b.yaw_pitch_roll();
-    let d = |x: f64, y: f64| crate::pose::angle_difference(y, x).to_degrees();
-    [
-        cb.x - ca.x,
-        cb.y - ca.y,
-        cb.z - ca.z,
-        d(ya, yb),
-        d(pa, pb),
-        d(ra, rb),
-    ]
 }
 
 /// Whether the polishes after one search moved the pose by more than the re-search thresholds

@@ -86,9 +86,8 @@ impl Perturbation {
 /// Offsets of `pose` from `truth`: camera centre difference (map frame, m) and yaw difference
 /// wrapped to [−180°, 180°).
 pub fn offsets_from(truth: &CamFromMap, pose: &CamFromMap) -> [f64; 4] {
-    let d = pose.center() - truth.center();
-    let dyaw = crate::pose::angle_difference(pose.yaw_pitch_roll().0, truth.yaw_pitch_roll().0);
-    [d.x, d.y, d.z, dyaw.to_degrees()]
+    let o = crate::pose::offsets_between(truth, pose);
+    [o[0], o[1], o[2], o[3]]
 }
 
 /// How the refinement picks its LiDAR points around the initial camera centre (the pipeline's

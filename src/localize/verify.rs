@@ -221,9 +221,9 @@ impl<'a> MiVerifier<'a> {
                 roll,
             )
         };
-        let score = |o: &[f64; 4]| self.mi_at(&at(o), &pts, footprint, points).map(|v| v.0);
+        let score = |o: &[f64; 4]| self.mi_at(&at(o), &pts, footprint, points);
         let mut best = [0.0; 4];
-        let mut best_mi = score(&best)?;
+        let (mut best_mi, mut best_n) = score(&best)?;
         let mut evals = 1;
         let mut step = [1.0, 1.0, 4.0, 0.08 * cam_h];
         for _ in 0..=CLIMB_HALVINGS {
@@ -245,9 +245,9 @@ impl<'a> MiVerifier<'a> {
                             continue;
                         }
                         evals += 1;
-                        if let Some(v) = score(&o) {
+                        if let Some((v, n)) = score(&o) {
                             if v > best_mi {
-                                (best, best_mi, improved) = (o, v, true);
+                                (best, best_mi, best_n, improved) = (o, v, n, true);
                             }
                         }
                     }
@@ -257,11 +257,10 @@ impl<'a> MiVerifier<'a> {
                 *s /= 2.0;
             }
         }
-        let n = self.mi_at(&at(&best), &pts, footprint, points)?.1;
         Some(Verdict {
             mi: best_mi,
             pose: at(&best),
-            n,
+            n: best_n,
         })
     }
 
