@@ -47,12 +47,16 @@ struct Opts {
     no_early_stop: bool,
     no_verify: bool,
     init_only: bool,
+    mi_off_nadir: Option<f64>,
+    true_intrinsics: bool,
+    search_rounds: Option<usize>,
 }
 
 fn usage() -> ! {
     eprintln!(
         "usage: pipeline_accuracy [--preset small|5mp] [--difficulty hard|easy] --seeds A..B|A,B,C \
          [--frames N] [--json OUT] [--threads N] [--top-k N] [--no-early-stop] [--no-verify] [--init-only]\n  \
+         [--mi-off-nadir DEG] [--true-intrinsics] [--search-rounds N]\n  \
          A..B is inclusive: 1..100 is 100 seeds"
     );
     std::process::exit(2)
@@ -78,6 +82,9 @@ fn opts() -> Opts {
         no_early_stop: false,
         no_verify: false,
         init_only: false,
+        mi_off_nadir: None,
+        true_intrinsics: false,
+        search_rounds: None,
     };
     let mut it = std::env::args().skip(1);
     while let Some(a) = it.next() {
@@ -105,6 +112,9 @@ fn opts() -> Opts {
             "--no-early-stop" => o.no_early_stop = true,
             "--no-verify" => o.no_verify = true,
             "--init-only" => o.init_only = true,
+            "--true-intrinsics" => o.true_intrinsics = true,
+            "--search-rounds" => o.search_rounds = Some(val().parse().unwrap_or_else(|_| usage())),
+            "--mi-off-nadir" => o.mi_off_nadir = Some(val().parse().unwrap_or_else(|_| usage())),
             _ => usage(),
         }
     }
@@ -135,7 +145,13 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
     let nmea = dir.join("gps.nmea");
     std::fs::write(&nmea, &scene.nmea).map_err(|e| io(&nmea, e))?;
     let cam_yaml = dir.join("camera.yaml");
-    let cam_text = to_opencv_yaml(&scene.camera_given);
+    // `--true-intrinsics`: hand the localizer the camera's true intrinsics (in `hard` it gets
+    // deliberately wrong ones), to separate the intrinsics' bias from the method's.
+    let cam_text = to_opencv_yaml(if o.true_intrinsics {
+        &scene.camera_true
+    } else {
+        &scene.camera_given
+    });
 
     let t1 = Instant::now();
     let camera = parse_camera(&cam_text, &cam_yaml)?;
@@ -527,6 +543,12 @@ fn main() {
     }
     if o.no_early_stop {
         params.fine.convincing_inliers = None;
+    }
+    if let (Some(n), Some(ps)) = (o.search_rounds, params.polish.as_mut()) {
+        ps.search_rounds = n;
+    }
+    if let Some(d) = o.mi_off_nadir {
+        params.mi_max_off_nadir_deg = d;
     }
     println!(
         "{:>5} {:>9} {:>8} {:>8} {:>9} {:>8} {:>8} {:>8} {:>6} {:>7} {:>7}  note",

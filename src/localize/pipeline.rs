@@ -33,13 +33,24 @@ pub struct Params {
     pub search_radius_range_m: (f64, f64),
     /// LiDAR points used by MI lie within this radius of the nadir point, metres …
     pub mi_radius_m: f64,
-    /// … and within this off-nadir angle, degrees.
+    /// … and within this off-nadir angle, degrees (default [`MI_MAX_OFF_NADIR_DEG`]).
     pub mi_max_off_nadir_deg: f64,
     /// The local 6-DoF polish after the 4-DoF search and the search rounds (pitch/roll about the
     /// ground under the camera, see [`super::polish`] and [`refine_polished`]); `None` keeps
     /// PnP's roll and pitch and searches once.
     pub polish: Option<PolishedSearch>,
 }
+
+/// Default of [`Params::mi_max_off_nadir_deg`]. The far ground is what pins down tilt and yaw
+/// (a tilt moves it most, and yaw has the longest lever arm there); on low poles a 70° disc has
+/// only an ≈ 11–14 m radius and the 6-DoF objective has ridges where roll trades for yaw and
+/// position. Measured on the simulator (docs/accuracy.md, "Ground disc for MI: 70° → 78°"):
+/// `small` 1–100 within 10 cm / 0.2° went from 95 to 99, `5mp` 1–20 from 19 to 20 (with the
+/// fourth search round, [`super::refine::SEARCH_ROUNDS`]), and with the true intrinsics the medians
+/// halved (`small` 1–12: 2.6 → 1.2 cm horizontal, 1.8 → 0.8 cm height). The price: a wrong focal
+/// length or principal point is amplified in the far field, so with `hard`'s deliberately wrong
+/// intrinsics the medians rise by ≈ 1 cm.
+pub const MI_MAX_OFF_NADIR_DEG: f64 = 78.0;
 
 impl Default for Params {
     fn default() -> Self {
@@ -52,7 +63,7 @@ impl Default for Params {
             prior_sigmas: 3.0,
             search_radius_range_m: (5.0, 40.0),
             mi_radius_m: 30.0,
-            mi_max_off_nadir_deg: 70.0,
+            mi_max_off_nadir_deg: MI_MAX_OFF_NADIR_DEG,
             polish: Some(PolishedSearch::default()),
         }
     }
