@@ -133,8 +133,8 @@ impl Default for PolishedSearch {
 /// Polish rounds per search at most (default of [`PolishedSearch::polish_rounds`]).
 pub const POLISH_ROUNDS: usize = 3;
 /// Searches at most (default of [`PolishedSearch::search_rounds`]). A round only starts when the
-/// previous polish moved, so the limit only bites on a polish that is still walking along a
-/// ridge; with 3, `5mp` seed 3's last polish moved roll by 2° after its search and the gate judged
+/// previous polish moved (or the gate refused an optimum on the box's edge), so the limit only
+/// bites on a polish that is still walking along a ridge; with 3, `5mp` seed 3's last polish moved roll by 2° after its search and the gate judged
 /// that stale search (refused a 1 cm / 0.04° pose); the 4th search confirms it. No other seed of
 /// `small` 1–100 and `5mp` 1–20 reaches a 4th round.
 pub const SEARCH_ROUNDS: usize = 4;
