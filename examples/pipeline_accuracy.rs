@@ -50,13 +50,14 @@ struct Opts {
     mi_off_nadir: Option<f64>,
     true_intrinsics: bool,
     search_rounds: Option<usize>,
+    fine_off_nadir: Option<f64>,
 }
 
 fn usage() -> ! {
     eprintln!(
         "usage: pipeline_accuracy [--preset small|5mp] [--difficulty hard|easy] --seeds A..B|A,B,C \
          [--frames N] [--json OUT] [--threads N] [--top-k N] [--no-early-stop] [--no-verify] [--init-only]\n  \
-         [--mi-off-nadir DEG] [--true-intrinsics] [--search-rounds N]\n  \
+         [--mi-off-nadir DEG] [--true-intrinsics] [--search-rounds N] [--fine-off-nadir DEG]\n  \
          A..B is inclusive: 1..100 is 100 seeds"
     );
     std::process::exit(2)
@@ -85,6 +86,7 @@ fn opts() -> Opts {
         mi_off_nadir: None,
         true_intrinsics: false,
         search_rounds: None,
+        fine_off_nadir: None,
     };
     let mut it = std::env::args().skip(1);
     while let Some(a) = it.next() {
@@ -113,6 +115,7 @@ fn opts() -> Opts {
             "--no-verify" => o.no_verify = true,
             "--init-only" => o.init_only = true,
             "--true-intrinsics" => o.true_intrinsics = true,
+            "--fine-off-nadir" => o.fine_off_nadir = Some(val().parse().unwrap_or_else(|_| usage())),
             "--search-rounds" => o.search_rounds = Some(val().parse().unwrap_or_else(|_| usage())),
             "--mi-off-nadir" => o.mi_off_nadir = Some(val().parse().unwrap_or_else(|_| usage())),
             _ => usage(),
@@ -546,6 +549,9 @@ fn main() {
     }
     if let (Some(n), Some(ps)) = (o.search_rounds, params.polish.as_mut()) {
         ps.search_rounds = n;
+    }
+    if let Some(d) = o.fine_off_nadir {
+        params.fine.max_off_nadir_deg = d;
     }
     if let Some(d) = o.mi_off_nadir {
         params.mi_max_off_nadir_deg = d;
