@@ -115,7 +115,9 @@ fn opts() -> Opts {
             "--no-verify" => o.no_verify = true,
             "--init-only" => o.init_only = true,
             "--true-intrinsics" => o.true_intrinsics = true,
-            "--fine-off-nadir" => o.fine_off_nadir = Some(val().parse().unwrap_or_else(|_| usage())),
+            "--fine-off-nadir" => {
+                o.fine_off_nadir = Some(val().parse().unwrap_or_else(|_| usage()))
+            }
             "--search-rounds" => o.search_rounds = Some(val().parse().unwrap_or_else(|_| usage())),
             "--mi-off-nadir" => o.mi_off_nadir = Some(val().parse().unwrap_or_else(|_| usage())),
             _ => usage(),
