@@ -74,11 +74,22 @@ pub trait CameraModel: Send + Sync + std::fmt::Debug {
 
     /// Project a camera-frame point only if it is seen: inside the field of view and on the sensor.
     fn project_visible(&self, p_cam: &Vector3<f64>) -> Result<Point2<f64>, Reject> {
+        self.project_visible_within(p_cam, self.max_theta())
+    }
+
+    /// [`Self::project_visible`] with the field-of-view limit given (`max_theta` =
+    /// [`Self::max_theta`], which some models derive with a few transcendental calls: a loop over
+    /// many points computes it once and passes it here).
+    fn project_visible_within(
+        &self,
+        p_cam: &Vector3<f64>,
+        max_theta: f64,
+    ) -> Result<Point2<f64>, Reject> {
         let n = p_cam.norm();
         if !(n > 0.0) {
             return Err(Reject::Degenerate);
         }
-        if (p_cam.z / n).clamp(-1.0, 1.0).acos() > self.max_theta() {
+        if (p_cam.z / n).clamp(-1.0, 1.0).acos() > max_theta {
             return Err(Reject::OutsideFov);
         }
         let px = self.project(p_cam)?;

@@ -126,8 +126,12 @@ impl<'a> MiVerifier<'a> {
         points: usize,
     ) -> Option<(f64, usize)> {
         let mut pairs: Vec<(u8, u8)> = Vec::with_capacity(pts.len());
+        let max_theta = self.cam.max_theta();
         for (p, r) in pts {
-            let Ok(px) = self.cam.project_visible(&pose.transform(p).coords) else {
+            let Ok(px) = self
+                .cam
+                .project_visible_within(&pose.transform(p).coords, max_theta)
+            else {
                 continue;
             };
             if let Some(g) = self.mip.sample(px.x, px.y, footprint) {
