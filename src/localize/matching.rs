@@ -178,41 +178,39 @@ impl Fft2 {
 
     fn run(&self, f: &Arc<dyn Fft<f32>>, buf: &mut [Complex32], scratch: &mut Vec<Complex32>) {
         let n = self.n;
-        f.process(buf);
-        transpose(buf, n, scratch);
-        f.process(buf);
+        // rustfft's `process` allocates this scratch on every call; keep it across calls.
+        scratch.resize(f.get_inplace_scratch_len(), Complex32::default());
+        f.process_with_scratch(buf, scratch);
+        transpose(buf, n);
+        f.process_with_scratch(buf, scratch);
     }
 
-    /// Forward transform in place (output transposed).
+    /// Forward transform in place (output transposed). `scratch` is reused between calls.
     pub fn forward(&self, buf: &mut [Complex32], scratch: &mut Vec<Complex32>) {
         self.run(&self.fwd, buf, scratch)
     }
 
     /// Inverse transform in place of a transposed spectrum (output in image layout, unscaled:
-    /// multiply by 1/n² for a true inverse).
+    /// multiply by 1/n² for a true inverse). `scratch` is reused between calls.
     pub fn inverse(&self, buf: &mut [Complex32], scratch: &mut Vec<Complex32>) {
-        let n = self.n;
-        self.inv.process(buf);
-        transpose(buf, n, scratch);
-        self.inv.process(buf);
+        self.run(&self.inv, buf, scratch)
     }
 }
 
-/// Side of the square blocks [`transpose`] moves at a time: two 32×32 blocks of `Complex32`
+/// Side of the square blocks [`transpose`] swaps at a time: two 32×32 blocks of `Complex32`
 /// (8 KiB each) stay in L1, where a whole column of a 512² spectrum (one cache line per element)
 /// would not.
 const TRANSPOSE_BLOCK: usize = 32;
 
-/// `buf` (n × n, row-major) transposed in place, block by block (pure data movement: the result is
-/// the same as the element-by-element loop's).
-fn transpose(buf: &mut [Complex32], n: usize, scratch: &mut Vec<Complex32>) {
-    scratch.clear();
-    scratch.extend_from_slice(buf);
-    for by in (0..n).step_by(TRANSPOSE_BLOCK) {
-        for bx in (0..n).step_by(TRANSPOSE_BLOCK) {
-            for y in by..(by + TRANSPOSE_BLOCK).min(n) {
-                for x in bx..(bx + TRANSPOSE_BLOCK).min(n) {
-                    buf[x * n + y] = scratch[y * n + x];
+/// `buf` (n × n, row-major) transposed in place by swapping mirrored elements, block by block
+/// (pure data movement: the result is the same as the element-by-element loop's, without a copy).
+fn transpose(buf: &mut [Complex32], n: usize) {
+    for bi in (0..n).step_by(TRANSPOSE_BLOCK) {
+        for bj in (bi..n).step_by(TRANSPOSE_BLOCK) {
+            for i in bi..(bi + TRANSPOSE_BLOCK).min(n) {
+                let j0 = if bi == bj { i + 1 } else { bj };
+                for j in j0..(bj + TRANSPOSE_BLOCK).min(n) {
+                    buf.swap(i * n + j, j * n + i);
                 }
             }
         }
@@ -503,7 +501,7 @@ mod tests {
                 .map(|i| Complex32::new(i as f32, -(i as f32) * 0.5))
                 .collect();
             let mut buf = orig.clone();
-            transpose(&mut buf, n, &mut Vec::new());
+            transpose(&mut buf, n);
             for y in 0..n {
                 for x in 0..n {
                     assert_eq!(buf[x * n + y], orig[y * n + x], "n {n} at ({x}, {y})");
