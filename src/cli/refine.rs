@@ -6,7 +6,7 @@ use crate::error::{Error, Result};
 use crate::localize::points::GroundPoint;
 use crate::localize::points_io::read_points;
 use crate::localize::quality::QualityConfig;
-use crate::localize::refine::{refine_polished, PolishedSearch};
+use crate::localize::refine::{refine_polished, summed_offsets, PolishedSearch};
 use crate::localize::search::{Mode, SearchConfig, SearchSpec};
 use crate::map::{cache, Crs};
 use crate::posefile::{format_utc, read_pose, PoseFile};
@@ -184,12 +184,7 @@ pub fn run(a: Args) -> Result<()> {
         r.stats.exhaustive_point_evaluations as f64 / r.stats.point_evaluations.max(1) as f64
     );
     for round in &rounds {
-        let mut o = [0.0; 6];
-        for rec in &round.polish {
-            for (t, v) in o.iter_mut().zip(rec.offsets) {
-                *t += v;
-            }
-        }
+        let o = summed_offsets(&round.polish);
         println!(
             "polish after the {} search: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°, pitch {:+.3}°, roll {:+.3}°",
             round.start, o[0], o[1], o[2], o[3], o[4], o[5]

@@ -234,15 +234,22 @@ pub fn refine_polished(
     }
 }
 
-/// Whether the polishes after one search moved the pose by more than the re-search thresholds
-/// in total.
-fn polish_moved(rounds: &[super::polish::PolishRecord]) -> bool {
+/// The polishes' offsets added up (m, m, m, deg, deg, deg): how far the polishes after one search
+/// moved its optimum.
+pub fn summed_offsets(records: &[super::polish::PolishRecord]) -> [f64; 6] {
     let mut total = [0.0f64; 6];
-    for r in rounds {
+    for r in records {
         for (t, v) in total.iter_mut().zip(r.offsets) {
             *t += v;
         }
     }
+    total
+}
+
+/// Whether the polishes after one search moved the pose by more than the re-search thresholds
+/// in total.
+fn polish_moved(rounds: &[super::polish::PolishRecord]) -> bool {
+    let total = summed_offsets(rounds);
     let moved_m = (total[0].powi(2) + total[1].powi(2) + total[2].powi(2)).sqrt();
     let moved_deg = total[3..].iter().fold(0.0f64, |m, v| m.max(v.abs()));
     moved_m > RESEARCH_MOVE_M || moved_deg > RESEARCH_MOVE_DEG

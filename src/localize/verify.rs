@@ -405,8 +405,8 @@ mod tests {
             c.y,
             c.z
         );
-        let at_start = v.climb(&start).map(|x| x.mi);
-        assert_eq!(at_start, Some(up.mi), "deterministic");
+        let again = v.climb(&start).map(|x| x.mi);
+        assert_eq!(again, Some(up.mi), "deterministic");
         assert!(up.mi > v.screen(&start).map_or(0.0, |x| x.mi));
     }
 
