@@ -29,7 +29,8 @@ pub struct Args {
     /// Tile cache: ground points within --radius of the camera come from the tile covering it.
     #[arg(long)]
     pub tiles: Option<PathBuf>,
-    /// Point file: CSV (x,y,z,reflectivity header), PCD or LAS; all points used as given.
+    /// Point file: CSV (x,y,z,reflectivity header; reflectivity 0–255, or 0–1 normalised), PCD or
+    /// LAS; all points used as given.
     #[arg(long)]
     pub points: Option<PathBuf>,
     /// Initial pose (pose-like JSON: rotation_cam_from_map + translation_cam_from_map).

@@ -1,13 +1,14 @@
 //! Point-file readers (I/O shell): CSV, PCD and LAS → [`GroundPoint`]s in the file's frame.
 //!
-//! - **CSV**: header required, naming at least `x`, `y`, `z`, `reflectivity` (any order, extra
-//!   columns ignored); reflectivity 0–255 (rounded to the nearest integer).
+//! - **CSV**: header required, naming at least `x`, `y`, `z`, `reflectivity` (or `intensity`; any
+//!   order, extra columns ignored); reflectivity 0–255 (rounded to the nearest integer), or 0–1
+//!   when every value of the file lies in [0, 1] (e.g. KITTI's normalised reflectance), scaled ×255.
 //! - **PCD** (`.pcd`), `DATA ascii` or `DATA binary` (not `binary_compressed`): fields `x y z` and
 //!   `intensity` or `reflectivity` (SIZE/TYPE/COUNT honoured, other fields skipped).
 //! - **LAS** 1.0–1.4 (`.las`), point formats 0–10 (X, Y, Z and intensity have the same offsets in
 //!   all of them); coordinates = integer · scale + offset; LAZ (compressed) is rejected.
 //!
-//! Intensity scaling to 0–255 (PCD and LAS; CSV values are used as given), from the file's own
+//! Intensity scaling to 0–255 (PCD and LAS; CSV only the [0, 1] case), from the file's own
 //! range so that one file is scaled uniformly:
 //! - integers: taken as they are if the largest ≤ 255; otherwise divided by the smallest full-scale
 //!   2^b − 1 (b = 12 or 16 in practice) that holds the largest value, times 255 — so a 16-bit LAS
@@ -67,8 +68,10 @@ pub fn parse_csv(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> 
             format!("header {header:?} has no column {name:?} (need x,y,z,reflectivity)")
         })
     };
-    let (ix, iy, iz, ir) = (find("x")?, find("y")?, find("z")?, find("reflectivity")?);
+    let ir = find("reflectivity").or_else(|e| find("intensity").map_err(|_| e))?;
+    let (ix, iy, iz) = (find("x")?, find("y")?, find("z")?);
     let mut out = Vec::new();
+    let mut raw = Vec::new();
     for (ln, line) in lines {
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
         let get = |i: usize, name: &str| -> std::result::Result<f64, String> {
@@ -85,12 +88,21 @@ pub fn parse_csv(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> 
             x: get(ix, "x")?,
             y: get(iy, "y")?,
             z: get(iz, "z")?,
-            reflectivity: r.round() as u8,
+            reflectivity: 0,
         };
         if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
             return Err(format!("line {}: non-finite coordinate", ln + 1));
         }
         out.push(p);
+        raw.push(r);
+    }
+    // 0–255 as given; a file whose every value lies in [0, 1] is normalised reflectance (×255):
+    // read as given it would round to two bins and leave MI nothing to measure.
+    for (p, r) in out
+        .iter_mut()
+        .zip(scale_intensity(RawIntensity::Float(raw))?)
+    {
+        p.reflectivity = r;
     }
     Ok(out)
 }
@@ -462,6 +474,19 @@ mod tests {
         assert!(parse_csv(b"x,y,z,reflectivity\n1,2,nan,3\n")
             .unwrap_err()
             .contains("non-finite"));
+    }
+
+    #[test]
+    fn csv_normalised_reflectance_and_intensity_header() {
+        // KITTI-style reflectance in [0, 1] under an `intensity` header: scaled to 0–255, order
+        // kept (read as given it would round to 0 and 1).
+        let p =
+            parse_csv(b"x,y,z,intensity\n0,0,0,0.0\n1,0,0,0.25\n2,0,0,0.5\n3,0,0,1.0\n").unwrap();
+        let r: Vec<u8> = p.iter().map(|p| p.reflectivity).collect();
+        assert_eq!(r, vec![0, 64, 128, 255]);
+        // One value above 1: the file is 0–255, taken as given.
+        let p = parse_csv(b"x,y,z,reflectivity\n0,0,0,0.4\n1,0,0,2\n").unwrap();
+        assert_eq!((p[0].reflectivity, p[1].reflectivity), (0, 2));
     }
 
     /// A LAS 1.2 file written field by field from the ASPRS table (independent of the reader's
