@@ -98,6 +98,32 @@ fn refine_cli_end_to_end_and_bad_input() {
         serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["quality"]["accepted"], true);
     assert!(report["evaluation_ratio"].as_f64().unwrap() > 1.0);
+    // By default a 4-DoF polish follows the search: one round, roll and pitch untouched.
+    assert_eq!(report["polish"], "4-dof");
+    let rounds = report["rounds"].as_array().unwrap();
+    assert_eq!(rounds.len(), 1, "{rounds:?}");
+    let moved = &rounds[0]["polish"][0]["offsets"];
+    assert_eq!(
+        (moved[4].as_f64(), moved[5].as_f64()),
+        (Some(0.0), Some(0.0))
+    );
+    let tilt = |p: &infraloc::pose::CamFromMap| {
+        let (_, pitch, roll) = p.yaw_pitch_roll();
+        (pitch, roll)
+    };
+    let init = read_pose(&dir.join("init.json")).unwrap().pose;
+    let ((p0, r0), (p1, r1)) = (tilt(&init), tilt(&out));
+    assert!((p0 - p1).abs() < 1e-12 && (r0 - r1).abs() < 1e-12);
+
+    // --grid-only answers the search's cell (no rounds); --polish and --grid-only conflict.
+    let (ok, err) = refine(dir, &["--grid-only"]);
+    assert!(ok, "{err}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["polish"], "none");
+    assert!(report.get("rounds").is_none());
+    let (ok, err) = refine(dir, &["--grid-only", "--polish"]);
+    assert!(!ok && err.contains("cannot be used with"), "{err}");
 
     // Bad inputs: one line on stderr, non-zero exit, no pose written.
     let bad = |name: &str, setup: &dyn Fn(&Path), extra: &[&str], want: &str| {

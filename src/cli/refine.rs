@@ -55,9 +55,35 @@ pub struct Args {
     /// pipeline's local Nelder–Mead and search again while the polish moves the pose, as
     /// `localize` does (docs/refine.md "6-DoF polish"): for an initial pose whose roll/pitch are
     /// not trusted. Tilts pivot about the ground under the camera (the points' median height)
-    /// unless the optical axis is near horizontal.
-    #[arg(long)]
+    /// unless the optical axis is near horizontal. Without it (and without --grid-only) the
+    /// polish after the search moves x, y, z and yaw only.
+    #[arg(long, conflicts_with = "grid_only")]
     pub polish: bool,
+    /// Answer the grid search's cell, with no continuous polish after it (the seed's method:
+    /// the exhaustive argmax at the grid's step, on the point set the whole search box sees).
+    #[arg(long)]
+    pub grid_only: bool,
+}
+
+impl Args {
+    /// What runs after the grid search: `--polish` the 6-DoF polish and search rounds,
+    /// `--grid-only` nothing, by default the 4-DoF polish ([`PolishedSearch::four_dof`]).
+    fn finish(&self) -> Option<PolishedSearch> {
+        match (self.polish, self.grid_only) {
+            (true, _) => Some(PolishedSearch::default()),
+            (false, true) => None,
+            (false, false) => Some(PolishedSearch::four_dof()),
+        }
+    }
+
+    /// The finish's name in reports: `6-dof`, `4-dof` or `none`.
+    fn finish_name(&self) -> &'static str {
+        match (self.polish, self.grid_only) {
+            (true, _) => "6-dof",
+            (false, true) => "none",
+            (false, false) => "4-dof",
+        }
+    }
 }
 
 fn load_gray(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
@@ -133,7 +159,7 @@ pub fn run(a: Args) -> Result<()> {
     // Computed once for the search and the polish (the image size was checked above).
     let mask = cam.valid_mask();
     // Tilts pivot about the ground under the camera: the points' median height stands for it
-    // (only the polish tilts).
+    // (only the 6-DoF polish tilts).
     let ground = a.polish.then(|| {
         let mut zs: Vec<f64> = points.iter().map(|p| p.z).collect();
         zs.sort_by(f64::total_cmp);
@@ -142,7 +168,7 @@ pub fn run(a: Args) -> Result<()> {
     let ground = ground.flatten();
     let pivot =
         |pose: &crate::pose::CamFromMap| ground.map(|g| pose.center().z - g).filter(|d| *d > 0.5);
-    let polish = PolishedSearch::default();
+    let finish = a.finish();
     let (r, rounds) = refine_polished(
         &cam,
         &gray,
@@ -151,13 +177,14 @@ pub fn run(a: Args) -> Result<()> {
         &init.pose,
         &cfg,
         &QualityConfig::default(),
-        a.polish.then_some(&polish),
+        finish.as_ref(),
         &pivot,
     )?;
     if let Some(path) = &a.report {
         let mut report = serde_json::to_value(r.report(mode))
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;
-        if a.polish {
+        report["polish"] = a.finish_name().into();
+        if finish.is_some() {
             report["rounds"] = serde_json::to_value(&rounds).unwrap_or_default();
         }
         let text = serde_json::to_string_pretty(&report)
@@ -199,7 +226,7 @@ pub fn run(a: Args) -> Result<()> {
         let mut pf = PoseFile::new(&r.pose, crs, &tile_id, format_utc(now, None));
         pf.quality = serde_json::to_value(&r.quality).unwrap_or_default();
         pf.stages = vec![
-            serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.polish }),
+            serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.finish_name() }),
         ];
         crate::persist::write_atomic(path, pf.to_json().as_bytes())?;
     }

@@ -7,6 +7,7 @@ use crate::camera::import::load_camera;
 use crate::camera::{Camera, CameraModel};
 use crate::error::{Error, Result};
 use crate::localize::quality::QualityConfig;
+use crate::localize::refine::PolishedSearch;
 use crate::localize::search::{SearchConfig, SearchSpec};
 use crate::localize::study::{
     attitude_from_control_points, run_trial, Perturbation, PointSelection, Scene, Summary,
@@ -59,6 +60,10 @@ pub struct Args {
     /// Plot size W,H in pixels.
     #[arg(long, default_value = "1400,1200")]
     pub size: String,
+    /// Each trial answers the grid search's cell, with no continuous 4-DoF polish after it (as
+    /// `refine --grid-only`).
+    #[arg(long)]
+    pub grid_only: bool,
 }
 
 /// Where the starts' roll and pitch come from.
@@ -220,9 +225,10 @@ pub fn run(a: Args) -> Result<()> {
     let t0 = Instant::now();
     let now = move || t0.elapsed().as_secs_f64();
     let starts = pert.starts(a.trials, a.seed);
+    let finish = (!a.grid_only).then(PolishedSearch::four_dof);
     let mut trials = Vec::with_capacity(a.trials);
     for (i, s) in starts.iter().enumerate() {
-        let t = run_trial(&sc, i, *s, &sel, &cfg, &qcfg, &now)?;
+        let t = run_trial(&sc, i, *s, &sel, &cfg, &qcfg, finish.as_ref(), &now)?;
         println!(
             "trial {:>3}/{}: start ({:+.3}, {:+.3}, {:+.3}) m {:+.2}° → error {:.1} cm horizontal, {:.1} cm height, {:.3}° yaw{} ({:.1} s)",
             i + 1,
@@ -273,6 +279,7 @@ pub fn run(a: Args) -> Result<()> {
         "attitude": a.attitude,
         "perturbation": pert,
         "search": a.search,
+        "polish": if a.grid_only { "none" } else { "4-dof" },
         "success_bounds": {
             "horizontal_m": SUCCESS_HORIZONTAL_M,
             "height_m": SUCCESS_HEIGHT_M,

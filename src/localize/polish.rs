@@ -50,6 +50,20 @@ impl Default for PolishParams {
     }
 }
 
+impl PolishParams {
+    /// The default box and stopping rule over x, y, z and yaw only, roll and pitch held (no tilt
+    /// starts): the continuous finish of a 4-DoF refinement ([`super::refine::PolishedSearch::four_dof`]).
+    pub fn four_dof() -> Self {
+        let mut p = PolishParams::default();
+        for i in 4..6 {
+            p.initial_step[i] = 0.0;
+            p.bound[i] = 0.0;
+        }
+        p.tilt_starts_deg = 0.0;
+        p
+    }
+}
+
 /// Result of [`nelder_mead`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Polished {
@@ -64,7 +78,8 @@ pub struct Polished {
 }
 
 /// Maximise `f` from the origin with Nelder–Mead (standard coefficients: reflection 1,
-/// expansion 2, contraction ½, shrink ½), every vertex clamped to ±`bound`.
+/// expansion 2, contraction ½, shrink ½), every vertex clamped to ±`bound`. A parameter whose
+/// initial step or bound is 0 stays at its start (the simplex spans the others).
 pub fn nelder_mead(f: &mut dyn FnMut(&[f64; 6]) -> f64, p: &PolishParams) -> Polished {
     nelder_mead_from(f, p, [0.0; 6])
 }
@@ -94,8 +109,14 @@ pub fn nelder_mead_from(
     };
     let x0 = clamp(x0);
     let start_value = eval(&x0, &mut evals);
+    // The parameters that move: a zero initial step or bound holds one at x0 (e.g. pitch and roll
+    // in a 4-DoF polish), and the simplex spans the others only (n + 1 vertices).
+    let free: Vec<usize> = (0..6)
+        .filter(|&i| p.initial_step[i] > 0.0 && p.bound[i] > 0.0)
+        .collect();
+    let n = free.len();
     let mut simplex: Vec<([f64; 6], f64)> = vec![(x0, start_value)];
-    for i in 0..6 {
+    for &i in &free {
         let mut x = x0;
         // Step towards the box's interior when x0 sits on its edge.
         x[i] += if x0[i] + p.initial_step[i] > p.bound[i] {
@@ -118,7 +139,7 @@ pub fn nelder_mead_from(
         }
         x
     };
-    while evals < p.max_evaluations {
+    while n > 0 && evals < p.max_evaluations {
         order(&mut simplex);
         let best = simplex[0].0;
         let converged = simplex
@@ -128,20 +149,20 @@ pub fn nelder_mead_from(
             break;
         }
         let mut centroid = [0.0; 6];
-        for (x, _) in &simplex[..6] {
+        for (x, _) in &simplex[..n] {
             for i in 0..6 {
-                centroid[i] += x[i] / 6.0;
+                centroid[i] += x[i] / n as f64;
             }
         }
-        let (worst, worst_v) = simplex[6];
+        let (worst, worst_v) = simplex[n];
         let xr = clamp(lerp(&centroid, &worst, -1.0));
         let vr = eval(&xr, &mut evals);
         if vr > simplex[0].1 {
             let xe = clamp(lerp(&centroid, &worst, -2.0));
             let ve = eval(&xe, &mut evals);
-            simplex[6] = if ve > vr { (xe, ve) } else { (xr, vr) };
-        } else if vr > simplex[5].1 {
-            simplex[6] = (xr, vr);
+            simplex[n] = if ve > vr { (xe, ve) } else { (xr, vr) };
+        } else if vr > simplex[n - 1].1 {
+            simplex[n] = (xr, vr);
         } else {
             // Contract towards the better of the worst and its reflection.
             let (xc, vc) = if vr > worst_v {
@@ -152,7 +173,7 @@ pub fn nelder_mead_from(
                 (xc, eval(&xc, &mut evals))
             };
             if vc > worst_v.max(vr) {
-                simplex[6] = (xc, vc);
+                simplex[n] = (xc, vc);
             } else {
                 for vertex in simplex.iter_mut().skip(1) {
                     let x = lerp(&best, &vertex.0, 0.5);
@@ -184,6 +205,9 @@ where
     let a = p.tilt_starts_deg;
     if a > 0.0 {
         for (axis, sign) in [(4, 1.0), (4, -1.0), (5, 1.0), (5, -1.0)] {
+            if p.bound[axis] <= 0.0 || p.initial_step[axis] <= 0.0 {
+                continue; // a held tilt has no start of its own
+            }
             let mut x0 = [0.0; 6];
             x0[axis] = sign * a;
             starts.push(x0);
@@ -229,8 +253,9 @@ pub struct PolishRecord {
 impl PolishRecord {
     /// Whether the polish ended on (within 5 % of) its box's edge on some parameter: the optimum
     /// may lie outside, and a caller may polish again from there.
+    /// A held parameter (bound 0) is never on an edge.
     pub fn on_edge(&self, p: &PolishParams) -> bool {
-        (0..6).any(|i| self.offsets[i].abs() >= 0.95 * p.bound[i])
+        (0..6).any(|i| p.bound[i] > 0.0 && self.offsets[i].abs() >= 0.95 * p.bound[i])
     }
 }
 
@@ -261,8 +286,9 @@ pub fn polish_pose(
             y: r(1),
             z: r(2),
             yaw: r(3),
-            pitch: Some(r(4)),
-            roll: Some(r(5)),
+            // A tilt held fixed (bound 0, a 4-DoF polish) is not an axis of the box.
+            pitch: (p.bound[4] > 0.0).then(|| r(4)),
+            roll: (p.bound[5] > 0.0).then(|| r(5)),
             tilt_pivot_m: pivot,
         },
         ..*search
@@ -354,6 +380,37 @@ mod tests {
         let (one, two) = (run(1), run(2));
         assert_eq!(one, two);
         assert_eq!(one.offsets.map(f64::to_bits), two.offsets.map(f64::to_bits));
+    }
+
+    #[test]
+    fn four_dof_holds_the_tilt_and_finds_the_rest() {
+        // The peak is tilted too, but a 4-DoF polish must not move pitch or roll: it finds the
+        // best x, y, z, yaw at the held tilt, with a 5-vertex simplex (fewer evaluations).
+        let peak = [0.05, -0.03, 0.02, 0.1, 0.6, -0.4];
+        let f = |x: &[f64; 6]| -(0..6).map(|i| (x[i] - peak[i]).powi(2)).sum::<f64>();
+        let p = PolishParams::four_dof();
+        let r = nelder_mead_multi(|| f, &p);
+        assert_eq!((r.offsets[4], r.offsets[5]), (0.0, 0.0));
+        for (got, want) in r.offsets.iter().zip(&peak).take(4) {
+            assert!((got - want).abs() < 0.005, "{:?}", r.offsets);
+        }
+        // The held tilt sits at its (zero) bound but is not an edge to polish on from.
+        let record = PolishRecord {
+            offsets: r.offsets,
+            start_value: r.start_value,
+            value: r.value,
+            evaluations: r.evaluations,
+            points: 1,
+            pivot_m: None,
+        };
+        assert!(!record.on_edge(&p));
+        let six = nelder_mead(&mut { f }, &PolishParams::default());
+        assert!(
+            r.evaluations < six.evaluations,
+            "{} vs {}",
+            r.evaluations,
+            six.evaluations
+        );
     }
 
     #[test]

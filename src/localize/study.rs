@@ -8,7 +8,7 @@
 //! along each axis and over an x–y grid around a pose.
 
 use super::quality::QualityConfig;
-use super::refine::refine_masked;
+use super::refine::{refine_polished, PolishedSearch};
 use super::search::{pose_at, Evaluator, SearchConfig, AXES};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -283,8 +283,11 @@ pub fn attitude_from_control_points(
     ))
 }
 
-/// Run one trial from `start` (offsets from the truth). `now` returns seconds from any origin
-/// (injected so that this module reads no clock of its own).
+/// Run one trial from `start` (offsets from the truth): the grid search, then `finish` (as
+/// `infraloc refine`: by default [`PolishedSearch::four_dof`]; `None` answers the grid's cell).
+/// `now` returns seconds from any origin (injected so that this module reads no clock of its
+/// own).
+#[allow(clippy::too_many_arguments)]
 pub fn run_trial(
     scene: &Scene,
     index: usize,
@@ -292,6 +295,7 @@ pub fn run_trial(
     sel: &PointSelection,
     cfg: &SearchConfig,
     qcfg: &QualityConfig,
+    finish: Option<&PolishedSearch>,
     now: &dyn Fn() -> f64,
 ) -> Result<Trial> {
     let init = pose_at(
@@ -300,7 +304,7 @@ pub fn run_trial(
     );
     let t0 = now();
     let points = sel.points(scene.tile, &init);
-    let r = refine_masked(
+    let (r, _) = refine_polished(
         scene.camera,
         scene.gray,
         scene.mask,
@@ -308,6 +312,8 @@ pub fn run_trial(
         &init,
         cfg,
         qcfg,
+        finish,
+        &|_| None,
     )
     .map_err(|e| Error::stage("study", format!("trial {index}: {e}")))?;
     let seconds = now() - t0;

@@ -125,6 +125,56 @@ pub fn ground_points(
     out
 }
 
+/// The pose of a camera `height` metres above (x, y) = `center` looking horizontally along
+/// `heading` (radians from north, clockwise), image up = map up: a vehicle's forward camera.
+/// (Roll 90° turns the north-up nadir view of [`CamFromMap::from_center_ypr`] to look north; yaw
+/// is counter-clockwise, so the clockwise heading enters negated.)
+pub fn forward_view(center: (f64, f64), height: f64, heading: f64) -> CamFromMap {
+    CamFromMap::from_center_ypr(
+        &Point3::new(center.0, center.1, height),
+        -heading,
+        0.0,
+        std::f64::consts::FRAC_PI_2,
+    )
+}
+
+/// Ground returns of a spinning multi-beam LiDAR `lidar_h` metres above the plane z = 0 at
+/// `center`, as a vehicle's scanner sees the road ahead: one ring per beam at elevations −24.8° to
+/// −2° in 0.4° steps (a 64-beam scanner's lower block), 0.09° azimuth steps within ±50° of
+/// `heading` (radians from north, clockwise). Rings are dense near the vehicle and metres apart
+/// far out, unlike [`ground_points`]' uniform grid. Reflectivity from the texture plus noise of σ
+/// ≈ 6 (0–255 units), seeded.
+pub fn lidar_rings(
+    tex: &Texture,
+    center: (f64, f64),
+    heading: f64,
+    lidar_h: f64,
+    seed: u64,
+) -> Vec<GroundPoint> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut out = Vec::new();
+    // Integer steps, so the rings and azimuths do not depend on accumulated rounding.
+    for e in 0..=57 {
+        let el = (24.8 - 0.4 * e as f64).to_radians();
+        let d = lidar_h / el.tan();
+        for k in 0..=1111 {
+            let a = heading + (-50.0 + 0.09 * k as f64).to_radians();
+            let (x, y) = (center.0 + d * a.sin(), center.1 + d * a.cos());
+            let noise: f64 = (0..4).map(|_| rng.random::<f64>() - 0.5).sum::<f64>() * 6.0;
+            let r = (Texture::reflectivity(tex.value(x, y)) + noise)
+                .round()
+                .clamp(0.0, 255.0);
+            out.push(GroundPoint {
+                x,
+                y,
+                z: 0.0,
+                reflectivity: r as u8,
+            });
+        }
+    }
+    out
+}
+
 /// Render the ground plane z = `ground_z` through `cam` at `pose`: 2×2 supersampled texture →
 /// [`Texture::gray`] + noise of `noise` gray levels. Pixels outside the valid image circle are 0;
 /// rays above the horizon see a uniform sky (gray 210). Returns (gray, valid mask).

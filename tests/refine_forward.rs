@@ -1,0 +1,115 @@
+//! MI refinement with a forward-looking pinhole (Mei ξ = 0) over a spinning LiDAR's ground
+//! rings: the geometry of issue 3's real-data check (a vehicle camera), on synthetic scenes.
+//! The study behind it: `cargo run --release --example forward_pinhole -- --seeds 1..30`
+//! (docs/refine.md "Forward-looking cameras").
+
+use infraloc::camera::{Camera, CameraModel, Mei};
+use infraloc::localize::quality::QualityConfig;
+use infraloc::localize::refine::{refine_polished, PolishedSearch, Refinement};
+use infraloc::localize::search::{pose_at, SearchConfig};
+use infraloc::localize::synth::{forward_view, lidar_rings, render, Texture};
+use infraloc::pose::{offsets_between, CamFromMap};
+
+/// KITTI's left colour camera (1242×375, f = 721.5 px), 1.65 m above the ground, looking
+/// horizontally along `heading` (radians from north, clockwise); the LiDAR 1.73 m up.
+struct Scene {
+    cam: Camera,
+    truth: CamFromMap,
+    heading: f64,
+    gray: Vec<u8>,
+    mask: Vec<u8>,
+    points: Vec<infraloc::localize::points::GroundPoint>,
+}
+
+fn scene(seed: u64, heading_deg: f64) -> Scene {
+    let cam = Camera::Mei(Mei::pinhole(1242, 375, 721.5, 721.5, 609.6, 172.9));
+    let tex = Texture::new(seed);
+    let heading = heading_deg.to_radians();
+    let c = (12.0, -7.0);
+    let truth = forward_view(c, 1.65, heading);
+    let (gray, _) = render(&tex, &cam, &truth, 0.0, 4.0, seed + 100);
+    let mask = cam.valid_mask();
+    let points = lidar_rings(&tex, c, heading, 1.73, seed + 200);
+    Scene {
+        cam,
+        truth,
+        heading,
+        gray,
+        mask,
+        points,
+    }
+}
+
+/// Refine from the truth moved by `start` (x, y, z m, yaw °) with `finish` after the search.
+/// Returns the refinement and the error (along the view, across it, height, yaw).
+fn run(s: &Scene, start: [f64; 4], finish: Option<&PolishedSearch>) -> (Refinement, [f64; 4]) {
+    let init = pose_at(
+        &s.truth,
+        &[start[0], start[1], start[2], start[3], 0.0, 0.0],
+    );
+    let (r, _) = refine_polished(
+        &s.cam,
+        &s.gray,
+        &s.mask,
+        &s.points,
+        &init,
+        &SearchConfig::default(),
+        &QualityConfig::default(),
+        finish,
+        &|_| None,
+    )
+    .expect("refinement runs");
+    let o = offsets_between(&s.truth, &r.pose);
+    let (sin, cos) = s.heading.sin_cos();
+    (
+        r,
+        [o[0] * sin + o[1] * cos, o[0] * cos - o[1] * sin, o[2], o[3]],
+    )
+}
+
+#[test]
+fn four_dof_polish_pins_the_along_track_position_of_a_forward_camera() {
+    // Starts up to ±0.45 m / ±0.25 m / ±1.8°, in different directions and off the grid's
+    // lattice (a start on it puts the truth on a cell); headings cover the
+    // compass so lane lines and crosswalks cross the view at different angles.
+    let cases = [
+        (1u64, 20.0, [0.307, -0.251, 0.113, 1.517]),
+        (2, 115.0, [-0.396, 0.213, -0.187, -1.783]),
+        (3, 200.0, [0.149, 0.447, 0.051, 0.809]),
+        (5, 290.0, [-0.353, -0.296, 0.246, -1.191]),
+    ];
+    let (mut along_grid, mut along_polish) = (0.0, 0.0);
+    for (seed, heading, start) in cases {
+        let s = scene(seed, heading);
+        let (r, e) = run(&s, start, Some(&PolishedSearch::four_dof()));
+        assert!(
+            r.quality.accepted,
+            "seed {seed}: refused: {:?}",
+            r.quality.reason
+        );
+        assert!(
+            e[0].abs() <= 0.03 && e[1].abs() <= 0.02 && e[2].abs() <= 0.02 && e[3].abs() <= 0.08,
+            "seed {seed}: error along {:.3} m, across {:.3} m, height {:.3} m, yaw {:.3}°",
+            e[0],
+            e[1],
+            e[2],
+            e[3]
+        );
+        // Roll and pitch are held: the 4-DoF finish must not tilt.
+        let o = offsets_between(&s.truth, &r.pose);
+        assert!(o[4].abs() < 1e-9 && o[5].abs() < 1e-9, "tilted: {o:?}");
+        let (_, g) = run(&s, start, None);
+        println!("seed {seed}: polished {e:.4?}, grid {g:.4?}");
+        along_grid += g[0].abs();
+        along_polish += e[0].abs();
+    }
+    // The grid's cell sits on the point set the whole ±1 m / ±0.5 m box sees, which has lost the
+    // nearest ground rows; the polish's smaller box keeps them. Measured (examples/forward_pinhole,
+    // 30 seeds): median horizontal 5.8 cm on the grid, 1.1 cm polished.
+    assert!(
+        along_polish * 2.0 < along_grid,
+        "mean along-track error: polished {:.3} m vs grid {:.3} m",
+        along_polish / 4.0,
+        along_grid / 4.0
+    );
+}
