@@ -2,15 +2,17 @@
 //! real-data check (a vehicle camera and a spinning LiDAR's ground returns), on synthetic scenes.
 //!
 //! ```sh
-//! cargo run --release --example forward_pinhole -- --seeds 1..20 [--grid-only | --polish] [--budget N]
+//! cargo run --release --example forward_pinhole -- --seeds 1..20 [--grid-only | --polish] [--budget N] [--clutter F]
 //! ```
 //!
 //! A KITTI-like camera (1242×375, f = 721.5 px) 1.65 m above a procedural ground, looking
 //! horizontally along a random heading; LiDAR ground returns on the rings of a 64-beam scanner
 //! 1.73 m up (elevations −24.8° … −2°, 0.09° azimuth steps, ±50° around the heading). Starts
-//! perturbed uniformly by ±0.5 m in x/y, ±0.25 m in z and ±2° in yaw, true roll and pitch.
+//! perturbed uniformly by ±0.8 m in x/y, ±0.4 m in z and ±2.5° in yaw (issue 3's study), true
+//! roll and pitch.
 //! Refines as `infraloc refine` does (grid search + 4-DoF polish; `--grid-only`: the grid's cell;
-//! `--polish`: the 6-DoF polish and search rounds; `--budget`: the coarsest survey's pose budget).
+//! `--polish`: the 6-DoF polish and search rounds; `--budget`: the coarsest survey's pose budget;
+//! `--clutter F`: F × as many extra points on two facades, reflectivity unrelated to the image).
 //! Prints per seed the error along and across the view, height and yaw errors and the gate's
 //! verdict, then medians.
 
@@ -29,6 +31,7 @@ fn main() {
     // As `infraloc refine`: the 4-DoF polish after the search unless told otherwise.
     let mut finish = Some(PolishedSearch::four_dof());
     let mut cfg = SearchConfig::default();
+    let mut clutter = 0.0f64;
     let mut i = 1;
     while i < args.len() {
         match args[i].as_str() {
@@ -40,6 +43,10 @@ fn main() {
             }
             "--polish" => finish = Some(PolishedSearch::default()),
             "--grid-only" => finish = None,
+            "--clutter" => {
+                clutter = args[i + 1].parse().expect("--clutter FRACTION");
+                i += 1;
+            }
             "--budget" => {
                 cfg.coarse_budget = args[i + 1].parse().expect("--budget N");
                 i += 1;
@@ -61,12 +68,27 @@ fn main() {
         let c = (rng.random::<f64>() * 50.0, rng.random::<f64>() * 50.0);
         let truth = forward_view(c, 1.65, heading);
         let (gray, _) = render(&tex, &cam, &truth, 0.0, 4.0, seed + 100);
-        let points = lidar_rings(&tex, c, heading, 1.73, seed + 200);
+        let mut points = lidar_rings(&tex, c, heading, 1.73, seed + 200);
+        // Clutter: returns from two facades 8 m either side of the road (0.2–4 m up, 3–40 m
+        // ahead) with reflectivity unrelated to the image (the simulator renders only the
+        // ground, so these points land on road or sky pixels): a worst case for real scans.
+        let n_clutter = (points.len() as f64 * clutter) as usize;
+        let (sin, cos) = heading.sin_cos();
+        for k in 0..n_clutter {
+            let s: f64 = rng.random_range(3.0..40.0);
+            let side = if k % 2 == 0 { 8.0 } else { -8.0 };
+            points.push(infraloc::localize::points::GroundPoint {
+                x: c.0 + s * sin + side * cos,
+                y: c.1 + s * cos - side * sin,
+                z: rng.random_range(0.2..4.0),
+                reflectivity: rng.random_range(0..=255u8),
+            });
+        }
         let d = [
-            rng.random_range(-0.5..0.5),
-            rng.random_range(-0.5..0.5),
-            rng.random_range(-0.25..0.25),
-            rng.random_range(-2.0..2.0),
+            rng.random_range(-0.8..0.8),
+            rng.random_range(-0.8..0.8),
+            rng.random_range(-0.4..0.4),
+            rng.random_range(-2.5..2.5),
         ];
         let init = infraloc::localize::search::pose_at(&truth, &[d[0], d[1], d[2], d[3], 0.0, 0.0]);
         let pivot = |_: &CamFromMap| None;
