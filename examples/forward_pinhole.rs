@@ -2,7 +2,7 @@
 //! real-data check (a vehicle camera and a spinning LiDAR's ground returns), on synthetic scenes.
 //!
 //! ```sh
-//! cargo run --release --example forward_pinhole -- --seeds 1..20 [--grid-only | --polish] [--budget N] [--clutter F]
+//! cargo run --release --example forward_pinhole -- --seeds 1..50 [--grid-only | --polish] [--budget N] [--clutter F]
 //! ```
 //!
 //! A KITTI-like camera (1242×375, f = 721.5 px) 1.65 m above a procedural ground, looking
@@ -27,7 +27,7 @@ use rand_chacha::ChaCha8Rng;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let mut seeds = 1..=10u64;
+    let mut seeds = 1..=50u64;
     // As `infraloc refine`: the 4-DoF polish after the search unless told otherwise.
     let mut finish = Some(PolishedSearch::four_dof());
     let mut cfg = SearchConfig::default();

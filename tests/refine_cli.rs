@@ -99,7 +99,7 @@ fn refine_cli_end_to_end_and_bad_input() {
     assert_eq!(report["quality"]["accepted"], true);
     assert!(report["evaluation_ratio"].as_f64().unwrap() > 1.0);
     // By default a 4-DoF polish follows the search: one round, roll and pitch untouched.
-    assert_eq!(report["polish"], "4-dof");
+    assert_eq!(report["finish"], "4-dof");
     let rounds = report["rounds"].as_array().unwrap();
     assert_eq!(rounds.len(), 1, "{rounds:?}");
     let moved = &rounds[0]["polish"][0]["offsets"];
@@ -120,7 +120,7 @@ fn refine_cli_end_to_end_and_bad_input() {
     assert!(ok, "{err}");
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
-    assert_eq!(report["polish"], "none");
+    assert_eq!(report["finish"], "none");
     assert!(report.get("rounds").is_none());
     let (ok, err) = refine(dir, &["--grid-only", "--polish"]);
     assert!(!ok && err.contains("cannot be used with"), "{err}");

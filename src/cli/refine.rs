@@ -76,7 +76,8 @@ impl Args {
         }
     }
 
-    /// The finish's name in reports: `6-dof`, `4-dof` or `none`.
+    /// The finish's name in the report and the pose file's `mi` stage (`finish`): `6-dof`,
+    /// `4-dof` or `none`. (The stage's `polish` stays the `--polish` flag, a bool, as before.)
     fn finish_name(&self) -> &'static str {
         match (self.polish, self.grid_only) {
             (true, _) => "6-dof",
@@ -183,7 +184,7 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(path) = &a.report {
         let mut report = serde_json::to_value(r.report(mode))
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;
-        report["polish"] = a.finish_name().into();
+        report["finish"] = a.finish_name().into();
         if finish.is_some() {
             report["rounds"] = serde_json::to_value(&rounds).unwrap_or_default();
         }
@@ -226,7 +227,7 @@ pub fn run(a: Args) -> Result<()> {
         let mut pf = PoseFile::new(&r.pose, crs, &tile_id, format_utc(now, None));
         pf.quality = serde_json::to_value(&r.quality).unwrap_or_default();
         pf.stages = vec![
-            serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.finish_name() }),
+            serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.polish, "finish": a.finish_name() }),
         ];
         crate::persist::write_atomic(path, pf.to_json().as_bytes())?;
     }

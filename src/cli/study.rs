@@ -279,7 +279,7 @@ pub fn run(a: Args) -> Result<()> {
         "attitude": a.attitude,
         "perturbation": pert,
         "search": a.search,
-        "polish": if a.grid_only { "none" } else { "4-dof" },
+        "finish": if a.grid_only { "none" } else { "4-dof" },
         "success_bounds": {
             "horizontal_m": SUCCESS_HORIZONTAL_M,
             "height_m": SUCCESS_HEIGHT_M,

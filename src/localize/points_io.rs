@@ -2,7 +2,8 @@
 //!
 //! - **CSV**: header required, naming at least `x`, `y`, `z`, `reflectivity` (or `intensity`; any
 //!   order, extra columns ignored); reflectivity 0–255 (rounded to the nearest integer), or 0–1
-//!   when every value of the file lies in [0, 1] (e.g. KITTI's normalised reflectance), scaled ×255.
+//!   when every value of the file lies in [0, 1] and some are fractional (e.g. KITTI's
+//!   normalised reflectance), scaled ×255.
 //! - **PCD** (`.pcd`), `DATA ascii` or `DATA binary` (not `binary_compressed`): fields `x y z` and
 //!   `intensity` or `reflectivity` (SIZE/TYPE/COUNT honoured, other fields skipped).
 //! - **LAS** 1.0–1.4 (`.las`), point formats 0–10 (X, Y, Z and intensity have the same offsets in
@@ -65,7 +66,9 @@ pub fn parse_csv(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> 
         .collect();
     let find = |name: &str| {
         cols.iter().position(|c| c == name).ok_or_else(|| {
-            format!("header {header:?} has no column {name:?} (need x,y,z,reflectivity)")
+            format!(
+                "header {header:?} has no column {name:?} (need x,y,z,reflectivity or intensity)"
+            )
         })
     };
     let ir = find("reflectivity").or_else(|e| find("intensity").map_err(|_| e))?;
@@ -96,13 +99,12 @@ pub fn parse_csv(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> 
         out.push(p);
         raw.push(r);
     }
-    // 0–255 as given; a file whose every value lies in [0, 1] is normalised reflectance (×255):
-    // read as given it would round to two bins and leave MI nothing to measure.
-    for (p, r) in out
-        .iter_mut()
-        .zip(scale_intensity(RawIntensity::Float(raw))?)
-    {
-        p.reflectivity = r;
+    // 0–255 as given; a file whose every value lies in [0, 1], some of them fractional, is
+    // normalised reflectance (×255): read as given it would round to two bins and leave MI
+    // nothing to measure. (A file of 0s and 1s only stays as given.)
+    let normalised = raw.iter().all(|r| *r <= 1.0) && raw.iter().any(|r| r.fract() != 0.0);
+    for (p, r) in out.iter_mut().zip(&raw) {
+        p.reflectivity = if normalised { r * 255.0 } else { *r }.round() as u8;
     }
     Ok(out)
 }
@@ -484,9 +486,11 @@ mod tests {
             parse_csv(b"x,y,z,intensity\n0,0,0,0.0\n1,0,0,0.25\n2,0,0,0.5\n3,0,0,1.0\n").unwrap();
         let r: Vec<u8> = p.iter().map(|p| p.reflectivity).collect();
         assert_eq!(r, vec![0, 64, 128, 255]);
-        // One value above 1: the file is 0–255, taken as given.
+        // One value above 1: the file is 0–255, taken as given; so is a file of 0s and 1s.
         let p = parse_csv(b"x,y,z,reflectivity\n0,0,0,0.4\n1,0,0,2\n").unwrap();
         assert_eq!((p[0].reflectivity, p[1].reflectivity), (0, 2));
+        let p = parse_csv(b"x,y,z,reflectivity\n0,0,0,0\n1,0,0,1\n").unwrap();
+        assert_eq!((p[0].reflectivity, p[1].reflectivity), (0, 1));
     }
 
     /// A LAS 1.2 file written field by field from the ASPRS table (independent of the reader's

@@ -1,4 +1,5 @@
-//! Local continuous polish of a grid optimum over all six pose parameters (pure).
+//! Local continuous polish of a grid optimum over the six pose parameters, or over x, y, z and
+//! yaw with the tilt held ([`PolishParams::four_dof`]) (pure).
 //!
 //! The grid search runs over [x, y, z, yaw] with PnP's roll and pitch held. PnP's tilt is
 //! typically 0.3–1° off (satellite misregistration, intrinsics error), and from a wrong tilt the
@@ -51,6 +52,12 @@ impl Default for PolishParams {
 }
 
 impl PolishParams {
+    /// Whether parameter `i` moves: a positive initial step and bound. A held one stays at its
+    /// start, spans no simplex direction, widens no point-set box and is never "on the edge".
+    pub fn is_free(&self, i: usize) -> bool {
+        self.initial_step[i] > 0.0 && self.bound[i] > 0.0
+    }
+
     /// The default box and stopping rule over x, y, z and yaw only, roll and pitch held (no tilt
     /// starts): the continuous finish of a 4-DoF refinement ([`super::refine::PolishedSearch::four_dof`]).
     pub fn four_dof() -> Self {
@@ -78,8 +85,8 @@ pub struct Polished {
 }
 
 /// Maximise `f` from the origin with Nelder–Mead (standard coefficients: reflection 1,
-/// expansion 2, contraction ½, shrink ½), every vertex clamped to ±`bound`. A parameter whose
-/// initial step or bound is 0 stays at its start (the simplex spans the others).
+/// expansion 2, contraction ½, shrink ½), every vertex clamped to ±`bound`. A held parameter
+/// ([`PolishParams::is_free`] false) stays at its start; the simplex spans the others.
 pub fn nelder_mead(f: &mut dyn FnMut(&[f64; 6]) -> f64, p: &PolishParams) -> Polished {
     nelder_mead_from(f, p, [0.0; 6])
 }
@@ -111,9 +118,7 @@ pub fn nelder_mead_from(
     let start_value = eval(&x0, &mut evals);
     // The parameters that move: a zero initial step or bound holds one at x0 (e.g. pitch and roll
     // in a 4-DoF polish), and the simplex spans the others only (n + 1 vertices).
-    let free: Vec<usize> = (0..6)
-        .filter(|&i| p.initial_step[i] > 0.0 && p.bound[i] > 0.0)
-        .collect();
+    let free: Vec<usize> = (0..6).filter(|&i| p.is_free(i)).collect();
     let n = free.len();
     let mut simplex: Vec<([f64; 6], f64)> = vec![(x0, start_value)];
     for &i in &free {
@@ -205,7 +210,7 @@ where
     let a = p.tilt_starts_deg;
     if a > 0.0 {
         for (axis, sign) in [(4, 1.0), (4, -1.0), (5, 1.0), (5, -1.0)] {
-            if p.bound[axis] <= 0.0 || p.initial_step[axis] <= 0.0 {
+            if !p.is_free(axis) {
                 continue; // a held tilt has no start of its own
             }
             let mut x0 = [0.0; 6];
@@ -253,13 +258,13 @@ pub struct PolishRecord {
 impl PolishRecord {
     /// Whether the polish ended on (within 5 % of) its box's edge on some parameter: the optimum
     /// may lie outside, and a caller may polish again from there.
-    /// A held parameter (bound 0) is never on an edge.
+    /// A held parameter ([`PolishParams::is_free`] false) is never on an edge.
     pub fn on_edge(&self, p: &PolishParams) -> bool {
-        (0..6).any(|i| p.bound[i] > 0.0 && self.offsets[i].abs() >= 0.95 * p.bound[i])
+        (0..6).any(|i| p.is_free(i) && self.offsets[i].abs() >= 0.95 * p.bound[i])
     }
 }
 
-/// Polish `pose` over all six parameters on `gray` (camera size, `mask` non-zero = valid pixel):
+/// Polish `pose` over the free parameters of `p` (all six by default) on `gray` (camera size, `mask` non-zero = valid pixel):
 /// pitch and roll pivot `pivot` metres below the camera on its axis (see
 /// [`SearchSpec::tilt_pivot_m`]); the objective and estimator are `search`'s; the fixed point set
 /// is the one visible from every lattice pose of the ±`bound` box. Returns the polished pose and
@@ -287,8 +292,8 @@ pub fn polish_pose(
             z: r(2),
             yaw: r(3),
             // A tilt held fixed (bound 0, a 4-DoF polish) is not an axis of the box.
-            pitch: (p.bound[4] > 0.0).then(|| r(4)),
-            roll: (p.bound[5] > 0.0).then(|| r(5)),
+            pitch: p.is_free(4).then(|| r(4)),
+            roll: p.is_free(5).then(|| r(5)),
             tilt_pivot_m: pivot,
         },
         ..*search

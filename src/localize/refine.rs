@@ -36,9 +36,10 @@ pub struct Report {
     pub points_input: usize,
     /// Points in the fixed set.
     pub points_used: usize,
-    /// Search counters.
+    /// Search counters (after search rounds and polishes: `poses` and `point_evaluations` count
+    /// them all, see [`Refinement::stats`]).
     pub stats: SearchStats,
-    /// exhaustive / actual point-pose evaluations.
+    /// exhaustive (one search's grid) / actual point-pose evaluations (every search and polish).
     pub evaluation_ratio: f64,
     /// Quality.
     pub quality: Quality,
@@ -112,10 +113,10 @@ pub fn refine_masked(
 /// Settings of [`refine_polished`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PolishedSearch {
-    /// The 6-DoF polish after each search.
+    /// The polish after each search (6-DoF by default, 4-DoF in [`PolishedSearch::four_dof`]).
     pub polish: super::polish::PolishParams,
     /// Polishes per search at most (each from the previous one's result when it ended on its
-    /// box's edge).
+    /// box's edge, or moved, see `repolish_when_moved`).
     pub polish_rounds: usize,
     /// Searches at most, see [`refine_polished`].
     pub search_rounds: usize,
@@ -193,7 +194,8 @@ pub struct Round {
     pub polish: Vec<super::polish::PolishRecord>,
 }
 
-/// The 4-DoF search, then the 6-DoF polish, in rounds. The search holds its start's roll and
+/// The 4-DoF search, then the polish (6-DoF by default; 4-DoF with [`PolishedSearch::four_dof`]),
+/// in rounds. The search holds its start's roll and
 /// pitch, and an initial tilt can be 2–3° off: from there the search trades the tilt for
 /// position, height and yaw, and its quality (the gate's evidence) describes that compromise, not
 /// the peak. So the search runs again, centred on the polished pose, when the polish moved the
@@ -250,7 +252,7 @@ pub fn refine_polished(
             )?;
             r.pose = pose;
             poses += record.evaluations as u64;
-            point_evaluations += (record.evaluations * record.points) as u64;
+            point_evaluations += record.evaluations as u64 * record.points as u64;
             polish.push(record);
             let again = record.on_edge(&p.polish)
                 || (p.repolish_when_moved && polish_moved(std::slice::from_ref(&record)));
