@@ -113,3 +113,82 @@ fn four_dof_polish_pins_the_along_track_position_of_a_forward_camera() {
         along_grid / 4.0
     );
 }
+
+/// The real-data path end to end through the command line, as a KITTI user would drive it: a
+/// Kalibr camchain (pinhole, no distortion), a colour PNG, the LiDAR scan as CSV in the vehicle's
+/// frame with KITTI's normalised reflectance (0–1) under an `intensity` header, an initial pose
+/// with no CRS; default search and finish.
+#[test]
+fn refine_cli_forward_camera_from_kitti_style_files() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let s = scene(8, 60.0);
+    let rgb = image::RgbImage::from_fn(1242, 375, |u, v| {
+        let g = s.gray[(v * 1242 + u) as usize];
+        image::Rgb([g, g, g])
+    });
+    rgb.save(dir.join("frame.png")).unwrap();
+    std::fs::write(
+        dir.join("camchain.yaml"),
+        "cam0:\n  camera_model: pinhole\n  intrinsics: [721.5, 721.5, 609.6, 172.9]\n  \
+         distortion_model: radtan\n  distortion_coeffs: [0.0, 0.0, 0.0, 0.0]\n  \
+         resolution: [1242, 375]\n",
+    )
+    .unwrap();
+    let mut csv = String::from("x,y,z,intensity\n");
+    for p in &s.points {
+        csv += &format!(
+            "{},{},{},{}\n",
+            p.x,
+            p.y,
+            p.z,
+            p.reflectivity as f64 / 255.0
+        );
+    }
+    std::fs::write(dir.join("scan.csv"), csv).unwrap();
+    let init = pose_at(&s.truth, &[0.41, -0.37, 0.17, 1.63, 0.0, 0.0]);
+    let pf = infraloc::posefile::PoseFile::new(
+        &init,
+        infraloc::map::Crs::Local,
+        "",
+        "2026-11-23T04:00:00Z".into(),
+    );
+    std::fs::write(dir.join("init.json"), pf.to_json()).unwrap();
+    let arg = |f: &str| dir.join(f).display().to_string();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_infraloc"))
+        .args([
+            "refine",
+            "--camera",
+            &arg("camchain.yaml"),
+            "--image",
+            &arg("frame.png"),
+        ])
+        .args(["--points", &arg("scan.csv"), "--init", &arg("init.json")])
+        .args(["--out", &arg("out.json"), "--report", &arg("report.json")])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = infraloc::posefile::read_pose(&dir.join("out.json"))
+        .unwrap()
+        .pose;
+    let e = offsets_between(&s.truth, &out);
+    let (sin, cos) = s.heading.sin_cos();
+    let along = e[0] * sin + e[1] * cos;
+    let across = e[0] * cos - e[1] * sin;
+    println!(
+        "cli: along {along:.4} across {across:.4} z {:.4} yaw {:.4}",
+        e[2], e[3]
+    );
+    assert!(
+        along.abs() <= 0.03 && across.abs() <= 0.02 && e[2].abs() <= 0.02 && e[3].abs() <= 0.08,
+        "along {along:.3} m, across {across:.3} m, height {:.3} m, yaw {:.3}°",
+        e[2],
+        e[3]
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["finish"], "4-dof");
+    assert_eq!(report["quality"]["accepted"], true);
+    // Every point of the scan was read (none lost to the reflectance scaling).
+    assert_eq!(report["points_input"].as_u64(), Some(s.points.len() as u64));
+}
