@@ -3,6 +3,7 @@
 //!
 //! ```sh
 //! cargo run --release --example forward_pinhole -- --seeds 1..50 [--grid-only | --polish] [--budget N] [--clutter F]
+//!     [--height M] [--down DEG]
 //! ```
 //!
 //! A KITTI-like camera (1242×375, f = 721.5 px) 1.65 m above a procedural ground, looking
@@ -12,7 +13,9 @@
 //! roll and pitch.
 //! Refines as `infraloc refine` does (grid search + 4-DoF polish; `--grid-only`: the grid's cell;
 //! `--polish`: the 6-DoF polish and search rounds; `--budget`: the coarsest survey's pose budget;
-//! `--clutter F`: F × as many extra points on two facades, reflectivity unrelated to the image).
+//! `--clutter F`: F × as many extra points on two facades, reflectivity unrelated to the image;
+//! `--height M` (default 1.65, the LiDAR 8 cm above it) and `--down DEG` (below the horizon,
+//! default 0) for other mountings).
 //! Prints per seed the error along and across the view, height and yaw errors and the gate's
 //! verdict, then medians.
 
@@ -32,6 +35,7 @@ fn main() {
     let mut finish = Some(PolishedSearch::four_dof());
     let mut cfg = SearchConfig::default();
     let mut clutter = 0.0f64;
+    let (mut height, mut down) = (1.65f64, 0.0f64);
     let mut i = 1;
     while i < args.len() {
         match args[i].as_str() {
@@ -43,6 +47,14 @@ fn main() {
             }
             "--polish" => finish = Some(PolishedSearch::default()),
             "--grid-only" => finish = None,
+            "--height" => {
+                height = args[i + 1].parse().expect("--height M");
+                i += 1;
+            }
+            "--down" => {
+                down = args[i + 1].parse().expect("--down DEG");
+                i += 1;
+            }
             "--clutter" => {
                 clutter = args[i + 1].parse().expect("--clutter FRACTION");
                 i += 1;
@@ -66,9 +78,9 @@ fn main() {
         let tex = Texture::new(seed);
         let heading: f64 = rng.random::<f64>() * std::f64::consts::TAU;
         let c = (rng.random::<f64>() * 50.0, rng.random::<f64>() * 50.0);
-        let truth = forward_view(c, 1.65, heading);
+        let truth = forward_view(c, height, heading, down.to_radians());
         let (gray, _) = render(&tex, &cam, &truth, 0.0, 4.0, seed + 100);
-        let mut points = lidar_rings(&tex, c, heading, 1.73, seed + 200);
+        let mut points = lidar_rings(&tex, c, heading, height + 0.08, seed + 200);
         // Clutter: returns from two facades 8 m either side of the road (0.2–4 m up, 3–40 m
         // ahead) with reflectivity unrelated to the image (the simulator renders only the
         // ground, so these points land on road or sky pixels): a worst case for real scans.

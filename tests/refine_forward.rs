@@ -26,7 +26,7 @@ fn scene(seed: u64, heading_deg: f64) -> Scene {
     let tex = Texture::new(seed);
     let heading = heading_deg.to_radians();
     let c = (12.0, -7.0);
-    let truth = forward_view(c, 1.65, heading);
+    let truth = forward_view(c, 1.65, heading, 0.0);
     let (gray, _) = render(&tex, &cam, &truth, 0.0, 4.0, seed + 100);
     let mask = cam.valid_mask();
     let points = lidar_rings(&tex, c, heading, 1.73, seed + 200);

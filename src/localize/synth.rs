@@ -125,16 +125,17 @@ pub fn ground_points(
     out
 }
 
-/// The pose of a camera `height` metres above (x, y) = `center` looking horizontally along
-/// `heading` (radians from north, clockwise), image up = map up: a vehicle's forward camera.
-/// (Roll 90° turns the north-up nadir view of [`CamFromMap::from_center_ypr`] to look north; yaw
-/// is counter-clockwise, so the clockwise heading enters negated.)
-pub fn forward_view(center: (f64, f64), height: f64, heading: f64) -> CamFromMap {
+/// The pose of a camera `height` metres above (x, y) = `center` looking along `heading`
+/// (radians from north, clockwise), `down` radians below the horizon, image up = map up: a
+/// vehicle's forward camera (`down` = 0) or a mast camera. (Roll 90° turns the north-up nadir
+/// view of [`CamFromMap::from_center_ypr`] to look north; yaw is counter-clockwise, so the
+/// clockwise heading enters negated.)
+pub fn forward_view(center: (f64, f64), height: f64, heading: f64, down: f64) -> CamFromMap {
     CamFromMap::from_center_ypr(
         &Point3::new(center.0, center.1, height),
         -heading,
         0.0,
-        std::f64::consts::FRAC_PI_2,
+        std::f64::consts::FRAC_PI_2 - down,
     )
 }
 
