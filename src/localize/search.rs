@@ -937,6 +937,14 @@ fn tiled(ev: &Evaluator, cfg: &SearchConfig, stats: &mut SearchStats) -> (Scored
     let idxs: Vec<u64> = lattice.iter().map(|c| g.index(c)).collect();
     let survey = ev.score_many(top, &idxs, stats);
     let mut cands = top_local_maxima(&g, &survey, 1i64 << top, k);
+    // Level-0 scores already computed (by the last descent step, or the survey when the grid is
+    // small enough to survey at level 0): the climbs start inside those windows and would score
+    // most of them again. A score is a pure function of (level, cell), so reusing one changes
+    // only the count, never a result.
+    let mut cache: HashMap<u64, Scored> = HashMap::new();
+    if top == 0 {
+        cache.extend(survey.iter().map(|s| (s.idx, *s)));
+    }
 
     // Descend: each candidate is re-examined on a ±2-step window of the next finer lattice.
     for level in (0..top).rev() {
@@ -948,6 +956,9 @@ fn tiled(ev: &Evaluator, cfg: &SearchConfig, stats: &mut SearchStats) -> (Scored
         union.sort_unstable();
         union.dedup();
         let scored = ev.score_many(level, &union, stats);
+        if level == 0 {
+            cache.extend(scored.iter().map(|s| (s.idx, *s)));
+        }
         // The next candidates: the top-k local maxima of everything scored at this level. Taking
         // only each window's best would collapse overlapping windows onto one cell and drop the
         // runner-up hills that the finer levels sometimes prove better (a near-tie of two ripples
@@ -959,7 +970,6 @@ fn tiled(ev: &Evaluator, cfg: &SearchConfig, stats: &mut SearchStats) -> (Scored
     // the other (each step scores its cells in parallel) and share one cache: candidates are often
     // close, and their climbs meet. A cached score is the same number as a recomputed one, so the
     // sharing changes only the count, and the order is fixed, so the count is deterministic too.
-    let mut cache: HashMap<u64, Scored> = HashMap::new();
     let climbs: Vec<(Scored, u64)> = cands
         .iter()
         .map(|&c| climb(ev, c, cfg.max_climb, &mut cache))
