@@ -239,7 +239,19 @@ pub fn refine_polished(
         poses += r.stats.poses;
         point_evaluations += r.stats.point_evaluations;
         let mut polish = Vec::new();
-        for _ in 0..p.polish_rounds.max(1) {
+        for pi in 0..p.polish_rounds.max(1) {
+            // A re-polish (after one ended on its box's edge or moved) starts from that end only:
+            // the tilt starts already explored ±1.5° around this search's optimum, and five starts
+            // per re-polish were most of the slow seeds' time (`5mp` 7 and 14: three 5-start
+            // polishes in their first round). docs/accuracy.md "Re-polishes from one start".
+            let params = if pi > 0 {
+                super::polish::PolishParams {
+                    tilt_starts_deg: 0.0,
+                    ..p.polish
+                }
+            } else {
+                p.polish
+            };
             let (pose, record) = super::polish::polish_pose(
                 cam,
                 gray,
@@ -248,7 +260,7 @@ pub fn refine_polished(
                 &r.pose,
                 pivot(&r.pose),
                 cfg,
-                &p.polish,
+                &params,
             )?;
             r.pose = pose;
             poses += record.evaluations as u64;
