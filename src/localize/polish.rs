@@ -34,6 +34,7 @@ pub struct PolishParams {
     /// starts at pitch ±this and roll ±this (each within `bound`) and keeps the best end. 0: one
     /// start. A 4-DoF optimum found at a tilt 2–3° off is often a local maximum of the 6-DoF
     /// objective (the search traded the tilt for position), which a single local start cannot leave.
+    /// ([`super::refine::refine_polished`] uses them in the first polish after each search only.)
     pub tilt_starts_deg: f64,
 }
 

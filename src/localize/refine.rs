@@ -116,7 +116,9 @@ pub struct PolishedSearch {
     /// The polish after each search (6-DoF by default, 4-DoF in [`PolishedSearch::four_dof`]).
     pub polish: super::polish::PolishParams,
     /// Polishes per search at most (each from the previous one's result when it ended on its
-    /// box's edge, or moved, see `repolish_when_moved`).
+    /// box's edge, or moved, see `repolish_when_moved`). Only the first polish after a search
+    /// uses the tilt starts ([`super::polish::PolishParams::tilt_starts_deg`]); a re-polish
+    /// starts from the previous end alone.
     pub polish_rounds: usize,
     /// Searches at most, see [`refine_polished`].
     pub search_rounds: usize,
@@ -206,7 +208,9 @@ pub struct Round {
 /// `init` (a start metres off walks to the edge in every search and is still refused). The
 /// answer is the last polished pose with the last search's quality, its `offsets` taken from
 /// `init`. `pivot` gives the tilt pivot depth for a pose (see [`super::polish::polish_pose`]).
-/// With `p = None`: the one 4-DoF search, no polish, no rounds (PnP's tilt kept).
+/// With `p = None`: the one 4-DoF search, no polish, no rounds (PnP's tilt kept). After each
+/// search, a polish that ended on its box's edge (or, with `repolish_when_moved`, moved) polishes
+/// again from its end, without the tilt starts, at most `p.polish_rounds` polishes.
 ///
 /// "Moved" is measured on the polish's parameters: x, y, z offsets and the three angles, with
 /// pitch and roll about the pivot (a tilt of 0.4° about a 10 m pivot also moves the camera centre
@@ -241,7 +245,7 @@ pub fn refine_polished(
         let mut polish = Vec::new();
         for pi in 0..p.polish_rounds.max(1) {
             // A re-polish (after one ended on its box's edge or moved) starts from that end only:
-            // the tilt starts already explored ±1.5° around this search's optimum, and five starts
+            // the tilt starts already explored ±`tilt_starts_deg` around this search's optimum, and five starts
             // per re-polish were most of the slow seeds' time (`5mp` 7 and 14: three 5-start
             // polishes in their first round). docs/accuracy.md "Re-polishes from one start".
             let params = if pi > 0 {
@@ -266,7 +270,7 @@ pub fn refine_polished(
             poses += record.evaluations as u64;
             point_evaluations += record.evaluations as u64 * record.points as u64;
             polish.push(record);
-            let again = record.on_edge(&p.polish)
+            let again = record.on_edge(&params)
                 || (p.repolish_when_moved && polish_moved(std::slice::from_ref(&record)));
             if !again {
                 break;
