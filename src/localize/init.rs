@@ -2,8 +2,10 @@
 //!
 //! Coarse stage: the fisheye frame is resampled once into the nominal bird's-eye view (see
 //! [`super::matching`]), the satellite image around the prior into an orientation field, and a dense
-//! yaw × height × translation sweep ranks hypotheses. Roll and pitch are taken as zero here (the
-//! node is mounted nadir within a few degrees); PnP on the fine correspondences recovers them.
+//! yaw × height × translation sweep ranks hypotheses; a second sweep over the taller mounting
+//! heights, with the larger template they allow, adds its own few ([`CoarseParams::tall_from_m`]).
+//! Roll and pitch are taken as zero here (the node is mounted nadir within a few degrees); PnP on
+//! the fine correspondences recovers them.
 
 use super::matching::{
     orientation_field, Candidate, Field, GrayF32, NominalField, SearchField, SweepParams,
@@ -33,6 +35,17 @@ pub struct CoarseParams {
     pub nominal_dq: f64,
     /// Candidates kept for the fine stage.
     pub top_k: usize,
+    /// A second sweep over the heights from this one up (`None`: none), with the larger template
+    /// those heights allow ([`SweepParams::effective_template_radius_m`]); its best
+    /// [`CoarseParams::tall_top_k`] candidates join the list. The main sweep's template is what
+    /// the lowest height sees (8.2 m of ground at 3 m and 70°), so that no height is favoured by
+    /// a smaller, noisier correlation; on a tall pole that is only the ground within ≈ 40° of
+    /// nadir, and a road's edges and markings there can fit better at a wrong scale (`small`
+    /// seed 86: every top candidate at 6.55 m on a 9.96 m pole). The tall sweep's candidates
+    /// compete only in the LiDAR screening and the fine stage, not in the sweep's ranking.
+    pub tall_from_m: Option<f64>,
+    /// Candidates the tall sweep adds.
+    pub tall_top_k: usize,
 }
 
 impl Default for CoarseParams {
@@ -46,6 +59,8 @@ impl Default for CoarseParams {
             max_off_nadir_deg: 70.0,
             nominal_dq: 0.01,
             top_k: 10,
+            tall_from_m: Some(6.0),
+            tall_top_k: 10,
         }
     }
 }
@@ -263,20 +278,37 @@ pub fn coarse_candidates(
     p: &CoarseParams,
 ) -> Vec<Candidate> {
     let nominal = nominal_field(cam, image, p);
-    let params = SweepParams {
-        yaw_step_deg: p.yaw_step_deg,
-        heights: p.heights(),
-        template_radius_m: p.template_radius_m,
-        top_k: p.top_k,
-        max_offset_m: search_radius_m,
+    let heights = p.heights();
+    let sweep = |heights: Vec<f64>, top_k: usize, res: f64| {
+        let params = SweepParams {
+            yaw_step_deg: p.yaw_step_deg,
+            heights,
+            template_radius_m: p.template_radius_m,
+            top_k,
+            max_offset_m: search_radius_m,
+        };
+        // The field holds the search disk plus the template the sweep really uses (one pixel of
+        // slack for rounding): a larger one only costs FFT time.
+        let half = search_radius_m + params.effective_template_radius_m(nominal.q_max) + res;
+        let (gray, valid) = satellite_gray(sat, cx, cy, half, res);
+        let field: Field = orientation_field(&gray, Some(&valid));
+        let search = SearchField::new(&field, res);
+        super::matching::sweep(&search, &nominal, &params)
     };
-    // The field holds the search disk plus the template the sweep really uses (one pixel of slack
-    // for rounding): a larger one only costs FFT time.
-    let half = search_radius_m + params.effective_template_radius_m(nominal.q_max) + p.res_m;
-    let (gray, valid) = satellite_gray(sat, cx, cy, half, p.res_m);
-    let field: Field = orientation_field(&gray, Some(&valid));
-    let search = SearchField::new(&field, p.res_m);
-    super::matching::sweep(&search, &nominal, &params)
+    let tall: Vec<f64> = match p.tall_from_m {
+        Some(from) => heights.iter().copied().filter(|h| *h >= from).collect(),
+        None => Vec::new(),
+    };
+    let tall_sweep = !tall.is_empty() && tall.len() < heights.len() && p.tall_top_k > 0;
+    let mut cands = sweep(heights, p.top_k, p.res_m);
+    if tall_sweep {
+        for c in sweep(tall, p.tall_top_k, p.res_m) {
+            if !cands.contains(&c) {
+                cands.push(c);
+            }
+        }
+    }
+    cands
 }
 
 /// Pixel where a map point offset (east, north, up) from a nadir camera at unit height projects; a
@@ -397,6 +429,17 @@ mod tests {
         }
     }
 
+    /// A sweep hypothesis within a yaw step, 1 m and 6 % of height of the scene's camera.
+    fn assert_is_the_camera(best: &Candidate, yaw: f64, h: f64, centre: [f64; 2]) {
+        let dyaw = crate::pose::angle_difference(best.yaw, yaw).abs();
+        let dpos =
+            ((best.offset[0] - centre[0]).powi(2) + (best.offset[1] - centre[1]).powi(2)).sqrt();
+        assert!(
+            dyaw.to_degrees() <= 3.0 && dpos <= 1.0 && (best.height / h - 1.0).abs() <= 0.06,
+            "{best:?}"
+        );
+    }
+
     #[test]
     fn coarse_stage_finds_pose_without_heading() {
         let Scene {
@@ -413,13 +456,38 @@ mod tests {
             ..CoarseParams::default()
         };
         let best = coarse_candidates(&cam, &img, &sat, (0.0, 0.0), 12.0, &p)[0];
-        let dyaw = crate::pose::angle_difference(best.yaw, yaw).abs();
-        let dpos =
-            ((best.offset[0] - centre[0]).powi(2) + (best.offset[1] - centre[1]).powi(2)).sqrt();
-        assert!(
-            dyaw.to_degrees() <= 3.0 && dpos <= 1.0 && (best.height / h - 1.0).abs() <= 0.06,
-            "{best:?}"
-        );
+        assert_is_the_camera(&best, yaw, h, centre);
+    }
+
+    #[test]
+    fn tall_sweep_appends_its_own_candidates_after_the_main_list() {
+        let sc = scene();
+        let main_only = CoarseParams {
+            height_range_m: (3.0, 12.0),
+            tall_from_m: None,
+            ..CoarseParams::default()
+        };
+        let with_tall = CoarseParams {
+            tall_from_m: Some(6.0),
+            tall_top_k: 4,
+            ..main_only.clone()
+        };
+        let main = coarse_candidates(&sc.cam, &sc.img, &sc.sat, (0.0, 0.0), 12.0, &main_only);
+        let all = coarse_candidates(&sc.cam, &sc.img, &sc.sat, (0.0, 0.0), 12.0, &with_tall);
+        assert_eq!(main.len(), main_only.top_k);
+        // The main sweep's list is unchanged, first; the tall sweep's candidates follow, each a
+        // height of at least 6 m and none a copy of one already listed.
+        assert_eq!(&all[..main.len()], &main[..]);
+        let tall = &all[main.len()..];
+        assert!(!tall.is_empty() && tall.len() <= 4, "{tall:?}");
+        assert!(tall.iter().all(|c| c.height >= 6.0 && !main.contains(c)));
+        // The tall sweep's template sees 16.5 m of ground: its best hypothesis is the camera's.
+        let best = tall
+            .iter()
+            .copied()
+            .max_by(|a, b| a.score.total_cmp(&b.score))
+            .expect("a tall candidate");
+        assert_is_the_camera(&best, sc.yaw, sc.h, sc.centre);
     }
 
     #[test]
