@@ -6,7 +6,7 @@ use crate::error::{Error, Result};
 use crate::localize::points::GroundPoint;
 use crate::localize::points_io::read_points;
 use crate::localize::quality::QualityConfig;
-use crate::localize::refine::{refine_polished, summed_offsets, PolishedSearch};
+use crate::localize::refine::{finish_name, refine_polished, summed_offsets, PolishedSearch};
 use crate::localize::search::{Mode, SearchConfig, SearchSpec};
 use crate::map::{cache, Crs};
 use crate::posefile::{format_utc, read_pose, PoseFile};
@@ -73,16 +73,6 @@ impl Args {
             (true, _) => Some(PolishedSearch::default()),
             (false, true) => None,
             (false, false) => Some(PolishedSearch::four_dof()),
-        }
-    }
-
-    /// The finish's name in the report and the pose file's `mi` stage (`finish`): `6-dof`,
-    /// `4-dof` or `none`. (The stage's `polish` stays the `--polish` flag, a bool, as before.)
-    fn finish_name(&self) -> &'static str {
-        match (self.polish, self.grid_only) {
-            (true, _) => "6-dof",
-            (false, true) => "none",
-            (false, false) => "4-dof",
         }
     }
 }
@@ -184,7 +174,7 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(path) = &a.report {
         let mut report = serde_json::to_value(r.report(mode))
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;
-        report["finish"] = a.finish_name().into();
+        report["finish"] = finish_name(finish.as_ref()).into();
         if finish.is_some() {
             report["rounds"] = serde_json::to_value(&rounds).unwrap_or_default();
         }
@@ -227,7 +217,7 @@ pub fn run(a: Args) -> Result<()> {
         let mut pf = PoseFile::new(&r.pose, crs, &tile_id, format_utc(now, None));
         pf.quality = serde_json::to_value(&r.quality).unwrap_or_default();
         pf.stages = vec![
-            serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.polish, "finish": a.finish_name() }),
+            serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.polish, "finish": finish_name(finish.as_ref()) }),
         ];
         crate::persist::write_atomic(path, pf.to_json().as_bytes())?;
     }

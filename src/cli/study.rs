@@ -7,7 +7,7 @@ use crate::camera::import::load_camera;
 use crate::camera::{Camera, CameraModel};
 use crate::error::{Error, Result};
 use crate::localize::quality::QualityConfig;
-use crate::localize::refine::PolishedSearch;
+use crate::localize::refine::{finish_name, PolishedSearch};
 use crate::localize::search::{SearchConfig, SearchSpec};
 use crate::localize::study::{
     attitude_from_control_points, run_trial, Perturbation, PointSelection, Scene, Summary,
@@ -279,7 +279,7 @@ pub fn run(a: Args) -> Result<()> {
         "attitude": a.attitude,
         "perturbation": pert,
         "search": a.search,
-        "finish": if a.grid_only { "none" } else { "4-dof" },
+        "finish": finish_name(finish.as_ref()),
         "success_bounds": {
             "horizontal_m": SUCCESS_HORIZONTAL_M,
             "height_m": SUCCESS_HEIGHT_M,

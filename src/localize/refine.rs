@@ -173,6 +173,16 @@ impl PolishedSearch {
     }
 }
 
+/// The name of what follows the grid search, for reports and pose files: `6-dof` (a polish that
+/// moves the tilt), `4-dof` (one that holds it) or `none`.
+pub fn finish_name(finish: Option<&PolishedSearch>) -> &'static str {
+    match finish {
+        None => "none",
+        Some(p) if p.polish.is_free(4) || p.polish.is_free(5) => "6-dof",
+        Some(_) => "4-dof",
+    }
+}
+
 /// Polish rounds per search at most (default of [`PolishedSearch::polish_rounds`]).
 pub const POLISH_ROUNDS: usize = 3;
 /// Searches at most (default of [`PolishedSearch::search_rounds`]). A round only starts when the
@@ -337,6 +347,13 @@ mod tests {
             points: 40_000,
             pivot_m: Some(5.0),
         }
+    }
+
+    #[test]
+    fn finish_names_follow_the_polish_s_free_axes() {
+        assert_eq!(finish_name(None), "none");
+        assert_eq!(finish_name(Some(&PolishedSearch::default())), "6-dof");
+        assert_eq!(finish_name(Some(&PolishedSearch::four_dof())), "4-dof");
     }
 
     #[test]
