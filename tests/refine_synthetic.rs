@@ -264,6 +264,36 @@ fn fixed_point_set_removes_the_fewer_points_bias() {
     );
     // Fixed set: every pose sees the same points, and the truth wins.
     assert!(picks[1].stats.max_lost_fraction == 0.0);
+    // The loss the gate reads covers every level-0 pose the tiled search scored, the climbs'
+    // included: at least the loss at its answer (always a climb's end), at most the exhaustive's.
+    // A 1 cm z step makes the naive objective's slope towards the box's bottom a long climb
+    // past the descent's windows (before the climbs counted, this reported 0.796 < 0.800).
+    let fine_z = SearchSpec {
+        z: AxisRange {
+            half: 1.5,
+            step: 0.01,
+        },
+        ..spec
+    };
+    for budget in [2, 8] {
+        let cfg = SearchConfig {
+            spec: fine_z,
+            coarse_budget: budget,
+            coarse_min_points: 500,
+            fixed_point_set: false,
+            ..Default::default()
+        };
+        let ev = Evaluator::new(&cam, &gray, &mask, &points, &truth, &cfg, 6).unwrap();
+        let t = search(&ev, &cfg);
+        let at_best = 1.0 - t.best.value.n as f64 / ev.n_points as f64;
+        eprintln!(
+            "tiled naive, budget {budget}: dz = {:.2}, lost at the answer {at_best:.3}, reported {:.3}",
+            t.offsets[2], t.stats.max_lost_fraction
+        );
+        assert!(at_best > 0.0);
+        assert!(t.stats.max_lost_fraction >= at_best);
+        assert!(t.stats.max_lost_fraction <= picks[0].stats.max_lost_fraction);
+    }
     assert!(
         picks[1].offsets[2].abs() <= 0.1,
         "fixed dz {}",

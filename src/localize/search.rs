@@ -979,6 +979,13 @@ fn tiled(ev: &Evaluator, cfg: &SearchConfig, stats: &mut SearchStats) -> (Scored
         stats.poses += evals;
         stats.point_evaluations += evals * n0;
     }
+    // The cache holds every level-0 score, the climbs' own among them: score_many only saw the
+    // descent's, and a climb can walk to a pose the descent never scored.
+    let lost = cache
+        .values()
+        .map(|s| 1.0 - s.value.n as f64 / n0.max(1) as f64)
+        .fold(0.0, f64::max);
+    stats.max_lost_fraction = stats.max_lost_fraction.max(lost);
     let mut peaks: Vec<Scored> = climbs.into_iter().map(|(s, _)| s).collect();
     sort_best_first(&mut peaks);
     peaks.dedup_by_key(|s| s.idx);
