@@ -26,6 +26,32 @@ pub struct Config {
     /// The service (`infraloc daemon`): control socket, schedules, drift check.
     #[serde(default)]
     pub daemon: DaemonConfig,
+    /// Initialization: which matcher pairs the frame with the map.
+    #[serde(default)]
+    pub init: InitConfig,
+}
+
+/// Which matcher initialization uses (`[init] matcher`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MatcherKind {
+    /// The built-in, learning-free satellite matching (dense orientation sweep + patch stages).
+    #[default]
+    DenseSweep,
+    /// Correspondences from a CSV file `u,v,x,y[,z]` (`matcher-path`): made offline, e.g. by a
+    /// learned matcher on another machine, or surveyed marks picked in the image.
+    MatchFile,
+}
+
+/// `[init]`: the initialization's matcher. A learned matcher would be one more kind, loading its
+/// weights from `matcher-path` (docs/architecture.md, "Matchers").
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
+pub struct InitConfig {
+    /// The matcher.
+    pub matcher: MatcherKind,
+    /// The matcher's file: the correspondences of `match-file` (a learned matcher's weights).
+    pub matcher_path: Option<PathBuf>,
 }
 
 /// Where frames come from.
@@ -376,6 +402,7 @@ impl Config {
         self.output.report.as_mut().map(fix);
         self.output.overlay.as_mut().map(fix);
         fix(&mut self.daemon.socket);
+        self.init.matcher_path.as_mut().map(fix);
     }
 
     /// Hard errors a parsed config can still have (missing required combinations). Exit 78.
@@ -495,6 +522,12 @@ impl Config {
         if d.history_len == 0 {
             return Err(Error::config(origin, "[daemon] history-len must be >= 1"));
         }
+        if self.init.matcher == MatcherKind::MatchFile && self.init.matcher_path.is_none() {
+            return Err(Error::config(
+                origin,
+                "[init] matcher = \"match-file\" needs matcher-path",
+            ));
+        }
         Ok(())
     }
 
@@ -515,6 +548,14 @@ impl Config {
         }
         if self.gps.source != GpsSourceKind::Fixed && self.gps.fallback_wgs84.is_none() {
             w.push("[gps] no fallback-wgs84: without a fix the node cannot localize".into());
+        }
+        if self.init.matcher == MatcherKind::DenseSweep {
+            if let Some(p) = &self.init.matcher_path {
+                w.push(format!(
+                    "[init] matcher-path {} is unused: matcher = \"dense-sweep\" reads no file",
+                    p.display()
+                ));
+            }
         }
         if self.map.search_margin_m > 500.0 {
             w.push(format!(

@@ -228,7 +228,10 @@ pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result
         }
     };
     progress("localize");
-    let params = Params::default();
+    let params = Params {
+        matcher: matcher_from_config(cfg)?,
+        ..Params::default()
+    };
     let clock = |t: Instant| move || t.elapsed().as_secs_f64();
     let outcome = localize(
         &camera,
@@ -279,6 +282,27 @@ pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result
         pose_file: pf,
         report,
     })
+}
+
+/// The initialization matcher `[init]` names, its file read: `None` for the built-in one.
+fn matcher_from_config(
+    cfg: &Config,
+) -> Result<Option<std::sync::Arc<dyn crate::localize::matcher::Matcher>>> {
+    use crate::config::MatcherKind;
+    match (cfg.init.matcher, &cfg.init.matcher_path) {
+        (MatcherKind::DenseSweep, _) => Ok(None),
+        (MatcherKind::MatchFile, None) => Err(Error::stage(
+            "init",
+            "matcher = \"match-file\" needs matcher-path",
+        )),
+        (MatcherKind::MatchFile, Some(path)) => {
+            let text =
+                std::fs::read_to_string(path).map_err(|e| Error::input(path, e.to_string()))?;
+            let m = crate::localize::matcher::MatchFile::parse(&text)
+                .map_err(|e| Error::input(path, e))?;
+            Ok(Some(std::sync::Arc::new(m)))
+        }
+    }
 }
 
 impl Args {

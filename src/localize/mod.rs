@@ -6,11 +6,13 @@
 //! [`points`] (the point type and its f32 hot-loop form), [`mi`] (the pure estimator), [`kernel`]
 //! (project + sample + joint histogram, the hot loop), [`search`] (exhaustive and tiled
 //! coarse-to-fine grid search), [`polish`] (a local 6-DoF Nelder–Mead after it), [`quality`] (peak statistics and the gate), [`refine`] (one call).
-//! [`points_io`] is the I/O shell that reads CSV / PCD / LAS point files. Design and measurements:
+//! [`matcher`] is the seam where another matcher (a learned one, or correspondences from a file)
+//! replaces the built-in satellite matching. [`points_io`] is the I/O shell that reads CSV / PCD / LAS point files. Design and measurements:
 //! `docs/refine.md`.
 
 pub mod init;
 pub mod kernel;
+pub mod matcher;
 pub mod matching;
 pub mod mi;
 pub mod pipeline;

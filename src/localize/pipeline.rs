@@ -3,6 +3,7 @@
 //! the outputs; the clock for stage timings is injected.
 
 use super::init::{initialize, CoarseParams, FineParams, InitResult};
+use super::matcher::{initialize_with, MatchQuery, Matcher};
 use super::quality::QualityConfig;
 use super::refine::{refine_polished, PolishedSearch, Refinement};
 use super::search::SearchConfig;
@@ -39,6 +40,10 @@ pub struct Params {
     /// ground under the camera, see [`super::polish`] and [`refine_polished`]); `None` keeps
     /// PnP's roll and pitch and searches once.
     pub polish: Option<PolishedSearch>,
+    /// Initialization's matcher: `None` = the built-in satellite matching (dense orientation
+    /// sweep + patch stages, [`initialize`]); `Some` = PnP on that matcher's correspondences
+    /// ([`super::matcher::initialize_with`]).
+    pub matcher: Option<std::sync::Arc<dyn Matcher>>,
 }
 
 /// Default of [`Params::mi_max_off_nadir_deg`]. The far ground is what pins down tilt and yaw
@@ -65,6 +70,7 @@ impl Default for Params {
             mi_radius_m: 30.0,
             mi_max_off_nadir_deg: MI_MAX_OFF_NADIR_DEG,
             polish: Some(PolishedSearch::default()),
+            matcher: None,
         }
     }
 }
@@ -204,18 +210,31 @@ pub fn localize_ungated(
         .verify
         .enabled
         .then(|| MiVerifier::new(camera, image, tile, p.fine.verify.mi.clone()));
-    let init = initialize(
-        camera,
-        image,
-        &tile.satellite,
-        &tile.height,
-        prior_xy,
-        radius,
-        &p.coarse,
-        &p.fine,
-        verifier.as_ref(),
-        &mut rng,
-    )?;
+    let init = match &p.matcher {
+        None => initialize(
+            camera,
+            image,
+            &tile.satellite,
+            &tile.height,
+            prior_xy,
+            radius,
+            &p.coarse,
+            &p.fine,
+            verifier.as_ref(),
+            &mut rng,
+        )?,
+        Some(m) => {
+            let q = MatchQuery {
+                camera,
+                image,
+                satellite: &tile.satellite,
+                heights: &tile.height,
+                prior_xy,
+                search_radius_m: radius,
+            };
+            initialize_with(m.as_ref(), &q, &p.fine, verifier.as_ref(), &mut rng)?
+        }
+    };
     let t1 = now();
     stages.push(Stage {
         name: "pnp",
@@ -224,6 +243,7 @@ pub fn localize_ungated(
         detail: json!({
             "matches": init.matches, "inliers": init.inliers, "rms_px": init.rms_px,
             "candidates": init.candidates_tried, "candidate_rank": init.candidate_rank,
+            "matcher": p.matcher.as_ref().map_or("dense-sweep", |m| m.name()),
             "mi": init.mi.map(|m| m.0), "mi_runner_up": init.mi.and_then(|m| m.1),
             "coarse": { "yaw_deg": init.candidate.yaw.to_degrees(), "height_m": init.candidate.height,
                         "offset_m": init.candidate.offset, "score": init.candidate.score },

@@ -1,4 +1,5 @@
-//! Shared helpers of the GNSS integration tests: where the real logs are, and gpsd's `.chk`.
+//! Shared helpers of the integration tests: where the real GNSS logs are, gpsd's `.chk`, and a
+//! simulated scene.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
@@ -79,4 +80,21 @@ pub fn iso_to_unix_ms(s: &str) -> i64 {
         .unwrap()
         .days_since_epoch();
     days * 86_400_000 + (t[0] * 3600 + t[1] * 60 + t[2]) * 1000 + ms
+}
+
+/// Run `BIN simulate ARGS --out DIR` (the scene the localize tests start from); a failed
+/// simulation fails the test with its stderr.
+pub fn simulate(bin: &str, dir: &Path, args: &[&str]) {
+    let out = std::process::Command::new(bin)
+        .arg("simulate")
+        .args(args)
+        .arg("--out")
+        .arg(dir)
+        .output()
+        .expect("run infraloc simulate");
+    assert!(
+        out.status.success(),
+        "simulate {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
