@@ -40,6 +40,7 @@ fn shipped_config_documents_every_key() {
     cfg.gps.fallback_wgs84 = Some([0.0, 0.0]);
     cfg.output.report = Some("x".into());
     cfg.output.overlay = Some("x".into());
+    cfg.init.matcher_path = Some("x".into());
     let table: toml::Table = toml::from_str(&toml::to_string(&cfg).unwrap()).unwrap();
     fn walk(prefix: &str, t: &toml::Table, text: &str, missing: &mut Vec<String>) {
         for (k, v) in t {
@@ -80,6 +81,21 @@ fn bad_config_exits_78_with_one_line_naming_the_key() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(err.contains("bad.toml") && err.contains("line 2"), "{err}");
+    // A semantic gap, not a syntax error: the match-file matcher without its file.
+    let shipped =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/infraloc.toml"))
+            .unwrap();
+    let no_path = shipped.replace("matcher = \"dense-sweep\"", "matcher = \"match-file\"");
+    assert_ne!(no_path, shipped);
+    std::fs::write(&p, no_path).unwrap();
+    let out = infraloc(&["validate", "--config", p.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(78), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("[init]") && err.contains("matcher-path"),
+        "{err}"
+    );
     let missing = infraloc(&["validate", "--config", "/nonexistent/infraloc.toml"]);
     assert_eq!(missing.status.code(), Some(78));
     assert!(String::from_utf8_lossy(&missing.stderr).contains("/nonexistent/infraloc.toml"));
