@@ -3,6 +3,7 @@
 
 use super::simulate::{DifficultyArg, LensArg, PresetArg};
 use crate::error::{Error, Result};
+use std::io::IsTerminal;
 use std::path::PathBuf;
 
 /// Horizontal error the demo accepts, metres (the refinement's 99th-percentile goal).
@@ -52,8 +53,14 @@ pub fn run(a: Args) -> Result<()> {
         frames: 5,
         montage: None,
     };
-    let scene = crate::sim::generate(&sim_args.settings())?;
-    super::simulate::write_scene(&scene, &dir)?;
+    // Simulating takes as long as localizing: the terminal shows it as a stage too.
+    let stderr = std::io::stderr();
+    let tty = stderr.is_terminal();
+    super::progress::with_progress(stderr, tty, |progress| {
+        progress("simulate");
+        let scene = crate::sim::generate(&sim_args.settings())?;
+        super::simulate::write_scene(&scene, &dir)
+    })?;
     let t_sim = t0.elapsed().as_secs_f64();
     println!(
         "scene: {} (seed {}, {:?}, {:?}) in {:.1} s",

@@ -5,6 +5,7 @@ mod demo;
 mod gps;
 pub(crate) mod localize;
 mod plot;
+mod progress;
 mod project;
 mod rectify;
 mod refine;
