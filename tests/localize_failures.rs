@@ -116,5 +116,6 @@ fn localize_failures_are_one_line_non_zero_and_keep_the_pose() {
     let empty = dir.join("no-tiles");
     std::fs::create_dir(&empty).unwrap();
     let e = fails(dir, &["--tiles", empty.to_str().unwrap()]);
-    assert!(e.contains("no tiles in the cache"), "{e}");
+    let want = format!("infraloc: tile: {}: no tiles in the cache", empty.display());
+    assert!(e.starts_with(&want), "{e}");
 }
