@@ -1,7 +1,8 @@
 //! `infraloc localize` through the binary on a simulated `hard` scene, made to fail the ways a
-//! node fails in the field (issue 4, "failure is explicit"): a featureless view, a GPS prior
-//! farther off than the search radius, wrong intrinsics, no tile. Each must exit non-zero with
-//! one line naming the stage and its numbers, and leave the existing pose file byte-identical.
+//! node fails in the field (issue 4, "failure is explicit"): a featureless view, an occluded
+//! view, a GPS prior farther off than the search radius, wrong intrinsics, no tile. Each must
+//! exit non-zero with one line naming the stage and its numbers, and leave the existing pose
+//! file byte-identical.
 
 use infraloc::camera::import::{load_camera, to_opencv_yaml};
 use infraloc::camera::Camera;
@@ -88,6 +89,24 @@ fn localize_failures_are_one_line_non_zero_and_keep_the_pose() {
     let e = fails(dir, &["--image", gray.to_str().unwrap()]);
     assert!(e.contains("match: no hypothesis scored"), "{e}");
 
+    // Occluded view: the scene's own frame with a uniform block over the middle 80 % of each
+    // side (a tarpaulin, snow on the dome), leaving only the rim of the fisheye circle: the
+    // initialization finds no ground patches to match, and says so as the PnP stage.
+    let mut frame = image::open(dir.join("frames/000.png")).unwrap().to_luma8();
+    let (w, h) = frame.dimensions();
+    for y in h / 10..h - h / 10 {
+        for x in w / 10..w - w / 10 {
+            frame.put_pixel(x, y, image::Luma([90]));
+        }
+    }
+    let occluded = dir.join("occluded.png");
+    frame.save(&occluded).unwrap();
+    let e = fails(dir, &["--image", occluded.to_str().unwrap()]);
+    assert!(
+        e.starts_with("infraloc: pnp: ") && e.contains(" < 12 required"),
+        "stage and numbers: {e}"
+    );
+
     // GPS 20 m north of the first fix; `--prior-wgs84` has the configured fallback σ (5 m), so the
     // search radius is 15 m and the camera lies outside it.
     let (lat, lon) = first_fix(dir);
@@ -116,5 +135,6 @@ fn localize_failures_are_one_line_non_zero_and_keep_the_pose() {
     let empty = dir.join("no-tiles");
     std::fs::create_dir(&empty).unwrap();
     let e = fails(dir, &["--tiles", empty.to_str().unwrap()]);
-    assert!(e.contains("no tiles in the cache"), "{e}");
+    let want = format!("infraloc: tile: {}: no tiles in the cache", empty.display());
+    assert!(e.starts_with(&want), "{e}");
 }

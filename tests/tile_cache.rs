@@ -266,7 +266,7 @@ fn find_tile_picks_the_covering_tile_or_names_the_nearest() {
     let (lat, lon) = wgs(400_050.0, 4_999_990.0);
     let e = err_of(find_tile(dir.path(), lat, lon, 1.0));
     assert!(
-        e.starts_with(&format!("{}: no tile covers", dir.path().display())),
+        e.starts_with(&format!("tile: {}: no tile covers", dir.path().display())),
         "{e}"
     );
     assert!(e.contains("nearest tile \"a\" is 34.0 m away"), "{e}");
@@ -298,7 +298,12 @@ fn find_tile_picks_the_covering_tile_or_names_the_nearest() {
     // An empty cache says so.
     let empty = tempfile::tempdir().unwrap();
     let e = err_of(find_tile(empty.path(), 45.0, 15.5, 1.0));
-    assert!(e.contains("no tiles in the cache"), "{e}");
+    let want = format!("tile: {}: no tiles in the cache", empty.path().display());
+    assert!(e.starts_with(&want), "{e}");
+    // So does a cache directory that is not there, naming the stage like the others.
+    let gone = empty.path().join("gone");
+    let e = err_of(find_tile(&gone, 45.0, 15.5, 1.0));
+    assert!(e.starts_with(&format!("tile: {}: ", gone.display())), "{e}");
 }
 
 #[test]

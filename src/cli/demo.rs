@@ -3,6 +3,8 @@
 
 use super::simulate::{DifficultyArg, LensArg, PresetArg};
 use crate::error::{Error, Result};
+use serde_json::Value;
+use std::io::IsTerminal;
 use std::path::PathBuf;
 
 /// Horizontal error the demo accepts, metres (the refinement's 99th-percentile goal).
@@ -11,6 +13,31 @@ pub const MAX_HORIZONTAL_M: f64 = 0.10;
 pub const MAX_HEIGHT_M: f64 = 0.10;
 /// Yaw error the demo accepts, degrees.
 pub const MAX_YAW_DEG: f64 = 0.2;
+
+/// The thresholds as `infraloc demo --help` states them (README "Start here" repeats them).
+pub(crate) fn thresholds_help() -> String {
+    format!(
+        "Passes when the final (MI) pose is within {MAX_HORIZONTAL_M} m horizontally, \
+         {MAX_HEIGHT_M} m in height and {MAX_YAW_DEG}° in yaw of the simulated truth; \
+         exits 1 otherwise."
+    )
+}
+
+/// The demo's judgement of the MI stage's errors against truth (`report["truth"]["mi"]`): an
+/// error naming the errors and the thresholds when one exceeds its threshold or is missing (a
+/// report without the number cannot show the pose is good).
+fn verdict(mi: &Value) -> Result<()> {
+    let err = |key: &str| mi[key].as_f64().unwrap_or(f64::INFINITY);
+    let (h, z, y) = (err("horizontal_m"), err("height_m"), err("yaw_deg"));
+    // `!(e <= max)` also fails a NaN error.
+    if !(h <= MAX_HORIZONTAL_M && z <= MAX_HEIGHT_M && y <= MAX_YAW_DEG) {
+        return Err(Error::stage(
+            "demo",
+            format!("errors {h:.3} m / {z:.3} m / {y:.3}° exceed {MAX_HORIZONTAL_M} m / {MAX_HEIGHT_M} m / {MAX_YAW_DEG}°"),
+        ));
+    }
+    Ok(())
+}
 
 /// Arguments of `demo`.
 #[derive(Debug, clap::Args)]
@@ -52,16 +79,22 @@ pub fn run(a: Args) -> Result<()> {
         frames: 5,
         montage: None,
     };
-    let scene = crate::sim::generate(&sim_args.settings())?;
-    super::simulate::write_scene(&scene, &dir)?;
+    // Simulating takes as long as localizing: the terminal shows it as a stage too.
+    let stderr = std::io::stderr();
+    let tty = stderr.is_terminal();
+    super::progress::with_progress(stderr, tty, |progress| {
+        progress("simulate");
+        let scene = crate::sim::generate(&sim_args.settings())?;
+        super::simulate::write_scene(&scene, &dir)
+    })?;
     let t_sim = t0.elapsed().as_secs_f64();
+    let place = match &a.keep {
+        Some(d) => d.display().to_string(),
+        None => "temporary directory".to_string(),
+    };
     println!(
         "scene: {} (seed {}, {:?}, {:?}) in {:.1} s",
-        dir.display(),
-        a.seed,
-        a.preset,
-        a.difficulty,
-        t_sim
+        place, a.seed, a.preset, a.difficulty, t_sim
     );
     let la = super::localize::Args {
         config: dir.join("infraloc.toml"),
@@ -97,19 +130,48 @@ pub fn run(a: Args) -> Result<()> {
             secs
         );
     }
-    println!("overlay: {}", dir.join("overlay.png").display());
-    let mi = &t["mi"];
-    let (h, z, y) = (
-        mi["horizontal_m"].as_f64().unwrap_or(f64::INFINITY),
-        mi["height_m"].as_f64().unwrap_or(f64::INFINITY),
-        mi["yaw_deg"].as_f64().unwrap_or(f64::INFINITY),
-    );
-    if h > MAX_HORIZONTAL_M || z > MAX_HEIGHT_M || y > MAX_YAW_DEG {
-        return Err(Error::stage(
-            "demo",
-            format!("errors {h:.3} m / {z:.3} m / {y:.3}° exceed {MAX_HORIZONTAL_M} m / {MAX_HEIGHT_M} m / {MAX_YAW_DEG}°"),
-        ));
+    match &a.keep {
+        Some(d) => println!("overlay: {}", d.join("overlay.png").display()),
+        // The temporary directory is removed when the demo returns: its path would mislead.
+        None => {
+            println!("overlay: not kept (--keep DIR keeps the scene, pose, report and overlay)")
+        }
     }
+    verdict(&t["mi"])?;
     println!("demo OK: within {MAX_HORIZONTAL_M} m horizontal, {MAX_HEIGHT_M} m height, {MAX_YAW_DEG}° yaw");
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn verdict_passes_within_the_thresholds_and_fails_past_any_of_them() {
+        let within = json!({"horizontal_m": 0.05, "height_m": 0.02, "yaw_deg": 0.1});
+        assert!(verdict(&within).is_ok());
+        for (key, value) in [
+            ("horizontal_m", MAX_HORIZONTAL_M + 0.01),
+            ("height_m", MAX_HEIGHT_M + 0.01),
+            ("yaw_deg", MAX_YAW_DEG + 0.01),
+        ] {
+            let mut over = within.clone();
+            over[key] = json!(value);
+            let e = verdict(&over).expect_err(key);
+            assert_ne!(e.exit_code(), 0, "{key}");
+            assert!(e.to_string().starts_with("demo: errors "), "{key}: {e}");
+        }
+        // A report without an error (truth unreadable, stage missing) is no proof of accuracy.
+        let e = verdict(&json!({"horizontal_m": 0.05, "height_m": 0.02})).expect_err("no yaw");
+        assert!(e.to_string().contains("inf°"), "{e}");
+    }
+
+    #[test]
+    fn help_states_the_thresholds() {
+        let h = thresholds_help();
+        for v in [MAX_HORIZONTAL_M, MAX_HEIGHT_M, MAX_YAW_DEG] {
+            assert!(h.contains(&format!("{v}")), "{v} not in {h:?}");
+        }
+    }
 }

@@ -10,6 +10,7 @@ use crate::persist::write_atomic;
 use crate::posefile::{format_utc, PoseFile};
 use image::GrayImage;
 use serde_json::{json, Value};
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -142,7 +143,8 @@ fn prior(a: &Args, cfg: &Config, cfg_path: &Path) -> Result<((f64, f64, f64), Va
     Ok((pos, desc))
 }
 
-/// Run the whole pipeline for `a`, writing pose/report/overlay as configured.
+/// Run the whole pipeline for `a`, writing pose/report/overlay as configured, with the stages
+/// shown on stderr while they run when stderr is a terminal.
 pub(crate) fn run_pipeline(a: &Args) -> Result<Run> {
     if let Some(n) = a.threads {
         // Only the first call in a process can size the global pool; later calls keep it.
@@ -152,7 +154,9 @@ pub(crate) fn run_pipeline(a: &Args) -> Result<Run> {
     }
     let cfg = Config::load(&a.config)?;
     cfg.validate(&a.config)?;
-    let run = compute(a, &cfg, &|_| {})?;
+    let stderr = std::io::stderr();
+    let tty = stderr.is_terminal();
+    let run = super::progress::with_progress(stderr, tty, |progress| compute(a, &cfg, progress))?;
     let out = a.out.clone().unwrap_or_else(|| cfg.output.pose.clone());
     write_atomic(&out, run.pose_file.to_json().as_bytes())?;
     run.write_side_outputs(

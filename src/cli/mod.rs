@@ -5,6 +5,7 @@ mod demo;
 mod gps;
 pub(crate) mod localize;
 mod plot;
+mod progress;
 mod project;
 mod rectify;
 mod refine;
@@ -32,6 +33,7 @@ pub struct Cli {
 pub enum Command {
     /// Simulate a scene, localize it, print the errors against truth (non-zero exit past the
     /// documented thresholds).
+    #[command(after_help = demo::thresholds_help())]
     Demo(demo::Args),
     /// Localize the camera: GPS prior → satellite matching + PnP → MI refinement → pose file.
     Localize(localize::Args),

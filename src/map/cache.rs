@@ -582,9 +582,12 @@ fn rect_distance(x: f64, y: f64, e: (f64, f64, f64, f64)) -> (f64, f64) {
 /// directory must be a tile. If several tiles cover the position the one where it lies deepest
 /// inside wins (ties: smallest id). If none does, the error names the nearest tile and its
 /// distance in metres: planar in the tile's CRS, or, for positions more than 9° of longitude from
-/// the tile's zone, the great-circle distance to the tile centre.
+/// the tile's zone, the great-circle distance to the tile centre. A missing or empty cache and a
+/// position no tile covers are errors of the `tile` stage (`tile: CACHE_DIR: …`), as the other
+/// stages of a localization name themselves; an unreadable manifest names its file.
 pub fn find_tile(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<TileRef> {
-    let entries = fs::read_dir(cache_dir).map_err(|e| Error::io(cache_dir, e))?;
+    let tile_err = |msg: String| Error::stage("tile", format!("{}: {msg}", cache_dir.display()));
+    let entries = fs::read_dir(cache_dir).map_err(|e| tile_err(e.to_string()))?;
     let mut dirs: Vec<PathBuf> = Vec::new();
     for e in entries {
         let e = e.map_err(|e| Error::io(cache_dir, e))?;
@@ -639,19 +642,13 @@ pub fn find_tile(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<
         return Ok(r);
     }
     let where_ = format!("lat {lat:.7}, lon {lon:.7}");
-    Err(match nearest {
-        None => Error::input(cache_dir, format!("no tiles in the cache (looking for {where_})")),
-        Some((0.0, id, inside)) => Error::input(
-            cache_dir,
-            format!(
-                "no tile covers {where_} with a {margin_m} m margin; nearest tile {id:?} has it only {inside:.1} m inside its edge"
-            ),
+    Err(tile_err(match nearest {
+        None => format!("no tiles in the cache (looking for {where_})"),
+        Some((0.0, id, inside)) => format!(
+            "no tile covers {where_} with a {margin_m} m margin; nearest tile {id:?} has it only {inside:.1} m inside its edge"
         ),
-        Some((dist, id, _)) => Error::input(
-            cache_dir,
-            format!(
-                "no tile covers {where_}; nearest tile {id:?} is {dist:.1} m away (margin {margin_m} m)"
-            ),
+        Some((dist, id, _)) => format!(
+            "no tile covers {where_}; nearest tile {id:?} is {dist:.1} m away (margin {margin_m} m)"
         ),
-    })
+    }))
 }
