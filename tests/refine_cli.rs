@@ -203,8 +203,28 @@ fn refine_cli_end_to_end_and_bad_input() {
     assert!((p0 - p1).abs() < 1e-12 && (r0 - r1).abs() < 1e-12);
 
     // --grid-only answers the search's cell (no rounds); --polish and --grid-only conflict.
-    let (ok, err) = refine(dir, &["--grid-only"]);
+    // --overlay: the before (init) and after panels side by side.
+    let overlay = dir.join("overlay.png");
+    let (ok, err) = refine(
+        dir,
+        &["--grid-only", "--overlay", overlay.to_str().unwrap()],
+    );
     assert!(ok, "{err}");
+    let png = image::open(&overlay).unwrap().to_rgb8();
+    assert_eq!((png.width(), png.height()), (640, 320));
+    let cyan = |x0: u32| {
+        (x0..x0 + 320)
+            .flat_map(|x| (0..320).map(move |y| (x, y)))
+            .filter(|&(x, y)| png.get_pixel(x, y).0 == [0, 255, 255])
+            .count()
+    };
+    // Both panels carry points (the brightest 4 % of ≈ 14 k).
+    assert!(
+        cyan(0) > 100 && cyan(320) > 100,
+        "{} {}",
+        cyan(0),
+        cyan(320)
+    );
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["finish"], "none");

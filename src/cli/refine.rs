@@ -52,6 +52,10 @@ pub struct Args {
     /// Write a JSON report (search counters, quality) here, accepted or not.
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Write a PNG here, accepted or not: the points (cyan) over the image at the --init pose
+    /// (left, "before") and at the refined pose (right, "after"), twice the image's width.
+    #[arg(long)]
+    pub overlay: Option<PathBuf>,
     /// After the grid search, polish all six pose parameters (roll and pitch too) with the
     /// pipeline's local Nelder–Mead and search again while the polish moves the pose, as
     /// `localize` does (docs/refine.md "6-DoF polish"): for an initial pose whose roll/pitch are
@@ -194,6 +198,14 @@ pub fn run(a: Args) -> Result<()> {
         let text = serde_json::to_string_pretty(&report)
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;
         crate::persist::write_atomic(path, (text + "\n").as_bytes())?;
+    }
+    if let Some(path) = &a.overlay {
+        // `gray` is the camera's size (checked above), so this cannot fail; the error is kept
+        // one line all the same.
+        let frame = image::GrayImage::from_raw(w, h, gray)
+            .ok_or_else(|| Error::input(&a.image, "overlay: image buffer size"))?;
+        let png = crate::viz::before_after_png(&frame, &cam, &init.pose, &r.pose, &points)?;
+        crate::persist::write_atomic(path, &png)?;
     }
     if !r.quality.accepted {
         return Err(Error::stage(
