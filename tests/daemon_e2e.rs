@@ -421,7 +421,8 @@ fn boot_serve_relocalize_status_reload_stop() {
     let img = image::open(&png).unwrap();
     let cam = infraloc::camera::import::load_camera(&scene().join("camera.yaml")).unwrap();
     use infraloc::camera::CameraModel;
-    assert_eq!((img.width(), img.height()), (cam.width(), cam.height()));
+    // Two panels side by side: before (PnP pose) | after (final pose).
+    assert_eq!((img.width(), img.height()), (2 * cam.width(), cam.height()));
     assert!(w.path().join("overlay.png").exists() && w.path().join("report.json").exists());
 
     // SIGHUP with a broken file: refused, running config kept, status says why.

@@ -48,7 +48,9 @@ fn write_scene(dir: &Path) -> CamFromMap {
     truth
 }
 
-fn refine(dir: &Path, extra: &[&str]) -> (bool, String) {
+/// Run `infraloc refine` on the scene in `dir` (pose to out.json, report to report.json) with the
+/// default test box unless `extra` has `--search`.
+fn refine_output(dir: &Path, extra: &[&str]) -> std::process::Output {
     let mut args = vec![
         "refine".to_string(),
         "--camera".into(),
@@ -71,14 +73,99 @@ fn refine(dir: &Path, extra: &[&str]) -> (bool, String) {
     for e in extra {
         args.push(e.to_string());
     }
-    let o = Command::new(env!("CARGO_BIN_EXE_infraloc"))
+    Command::new(env!("CARGO_BIN_EXE_infraloc"))
         .args(&args)
         .output()
-        .unwrap();
+        .unwrap()
+}
+
+fn refine(dir: &Path, extra: &[&str]) -> (bool, String) {
+    let o = refine_output(dir, extra);
     (
         o.status.success(),
         String::from_utf8_lossy(&o.stderr).into_owned(),
     )
+}
+
+fn read_report(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn refine_cli_estimator_flags() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    write_scene(dir);
+    // Grid only: the two runs differ in the objective alone, not in a polish's path.
+    let (ok, err) = refine(dir, &["--grid-only"]);
+    assert!(ok, "{err}");
+    let mi = read_report(dir);
+    assert_eq!(
+        mi["estimator"],
+        serde_json::json!({"bins-reflectivity": 32, "bins-gray": 32, "binning": "equalized",
+            "objective": "mi", "parzen": true}),
+        "{mi}"
+    );
+    assert_eq!(mi["score"]["objective"], "mi");
+    assert_eq!(mi["score"]["value"], mi["quality"]["mi"]);
+
+    let (ok, err) = refine(
+        dir,
+        &[
+            "--grid-only",
+            "--objective",
+            "nmi",
+            "--bins",
+            "16",
+            "--no-parzen",
+        ],
+    );
+    assert!(ok, "{err}");
+    let nmi = read_report(dir);
+    assert_eq!(nmi["estimator"]["objective"], "nmi", "{nmi}");
+    assert_eq!(nmi["estimator"]["bins-gray"], 16);
+    assert_eq!(nmi["estimator"]["bins-reflectivity"], 16);
+    assert_eq!(nmi["estimator"]["parzen"], false);
+    assert_eq!(nmi["score"]["objective"], "nmi");
+    assert_eq!(nmi["score"]["value"], nmi["quality"]["nmi"]);
+    // NMI lies in [1, 2] and the profile's background is in the objective's unit: both show
+    // that NMI, not MI (well below 1 nat here), is what was maximised.
+    let v = nmi["score"]["value"].as_f64().unwrap();
+    assert!(v > 1.0 && v <= 2.0, "{v}");
+    assert!(mi["score"]["value"].as_f64().unwrap() < 1.0, "{mi}");
+    assert!(
+        nmi["quality"]["background"].as_f64().unwrap() >= 1.0,
+        "{nmi}"
+    );
+    assert!(mi["quality"]["background"].as_f64().unwrap() < 1.0, "{mi}");
+
+    // Bad values: one line naming the flag, the refine CLI's exit code 1, no pose written.
+    for (extra, flag) in [
+        (&["--objective", "entropy"][..], "--objective"),
+        (&["--objective", "NMI"], "--objective"),
+        (&["--bins", "1"], "--bins"),
+        (&["--bins", "300"], "--bins"),
+        (&["--bins", "many"], "--bins"),
+        (&["--binning", "log"], "--binning"),
+    ] {
+        std::fs::remove_file(dir.join("out.json")).ok();
+        let o = refine_output(dir, extra);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{extra:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{extra:?}: {err}");
+        assert!(err.contains(flag), "{extra:?}: {err}");
+        assert!(!dir.join("out.json").exists(), "{extra:?}: pose written");
+    }
+
+    // The flags are in --help.
+    let o = Command::new(env!("CARGO_BIN_EXE_infraloc"))
+        .args(["refine", "--help"])
+        .output()
+        .unwrap();
+    let help = String::from_utf8_lossy(&o.stdout);
+    for flag in ["--bins", "--objective", "--binning", "--no-parzen"] {
+        assert!(help.contains(flag), "{flag} missing from refine --help");
+    }
 }
 
 #[test]
@@ -116,8 +203,28 @@ fn refine_cli_end_to_end_and_bad_input() {
     assert!((p0 - p1).abs() < 1e-12 && (r0 - r1).abs() < 1e-12);
 
     // --grid-only answers the search's cell (no rounds); --polish and --grid-only conflict.
-    let (ok, err) = refine(dir, &["--grid-only"]);
+    // --overlay: the before (init) and after panels side by side.
+    let overlay = dir.join("overlay.png");
+    let (ok, err) = refine(
+        dir,
+        &["--grid-only", "--overlay", overlay.to_str().unwrap()],
+    );
     assert!(ok, "{err}");
+    let png = image::open(&overlay).unwrap().to_rgb8();
+    assert_eq!((png.width(), png.height()), (640, 320));
+    let cyan = |x0: u32| {
+        (x0..x0 + 320)
+            .flat_map(|x| (0..320).map(move |y| (x, y)))
+            .filter(|&(x, y)| png.get_pixel(x, y).0 == [0, 255, 255])
+            .count()
+    };
+    // Both panels carry points (the brightest 4 % of ≈ 14 k).
+    assert!(
+        cyan(0) > 100 && cyan(320) > 100,
+        "{} {}",
+        cyan(0),
+        cyan(320)
+    );
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["finish"], "none");

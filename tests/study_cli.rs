@@ -42,6 +42,15 @@ fn run(args: &[&str], extra: &[&Path]) -> Output {
     c.output().unwrap()
 }
 
+/// Assert that `out` is a successful run, showing its stderr otherwise.
+fn succeeded(out: &Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 fn one_line_error(out: &Output) -> String {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr).trim().to_string();
@@ -72,11 +81,7 @@ fn study_writes_every_trial_with_finite_errors() {
         .arg(&png)
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    succeeded(&out);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("median"), "{stdout}");
     let doc: serde_json::Value =
@@ -95,8 +100,47 @@ fn study_writes_every_trial_with_finite_errors() {
         );
     }
     assert_eq!(doc["summary"]["trials"].as_u64(), Some(3));
+    // The estimator is echoed: the default one, as no estimator flag was given.
+    assert_eq!(doc["estimator"]["objective"], "mi", "{}", doc["estimator"]);
+    assert_eq!(doc["estimator"]["bins-gray"], 32);
     let img = image::open(&png).unwrap();
     assert_eq!((img.width(), img.height()), (700, 600));
+}
+
+#[test]
+fn study_takes_refine_s_estimator_flags() {
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("s.json");
+    let png = tmp.path().join("s.png");
+    succeeded(&run(
+        &[
+            "study",
+            "--trials",
+            "1",
+            "--search",
+            SEARCH,
+            "--objective",
+            "nmi",
+        ],
+        &[
+            Path::new("--bins"),
+            Path::new("16"),
+            Path::new("--scene"),
+            scene(),
+            Path::new("--json"),
+            &json,
+            Path::new("--out"),
+            &png,
+        ],
+    ));
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(doc["estimator"]["objective"], "nmi", "{}", doc["estimator"]);
+    assert_eq!(doc["estimator"]["bins-reflectivity"], 16);
+    for (flag, value) in [("--objective", "entropy"), ("--bins", "0")] {
+        let err = one_line_error(&run(&["study", flag, value, "--scene"], &[scene()]));
+        assert!(err.contains(flag), "{err}");
+    }
 }
 
 #[test]
@@ -121,11 +165,7 @@ fn plot_mi_surface_writes_a_png_of_the_requested_size() {
         .arg(&json)
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    succeeded(&out);
     let img = image::open(&png).unwrap();
     assert_eq!((img.width(), img.height()), (900, 500));
     let doc: serde_json::Value =

@@ -38,7 +38,8 @@ pub struct Args {
     /// Pose file to write (overrides `[output] pose`).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Overlay PNG: LiDAR points (cyan) over the frame at the final pose.
+    /// Overlay PNG: LiDAR points (cyan) over the frame at the PnP pose (left) and at the final
+    /// pose (right).
     #[arg(long)]
     pub overlay: Option<PathBuf>,
     /// Report JSON: per-stage poses, timings, evaluation counts, errors vs truth.
@@ -329,18 +330,17 @@ impl Args {
 }
 
 impl Run {
-    /// The technician's picture: the tile's LiDAR points projected at the PnP pose (red) and at
-    /// the final pose (cyan) over the median frame, as PNG bytes.
+    /// The technician's picture: the tile's LiDAR points over the median frame, projected at the
+    /// PnP pose (left panel, "before") and at the final pose (right panel, "after"), as PNG
+    /// bytes ([`crate::viz::before_after`]).
     pub(crate) fn overlay_png(&self) -> Result<Vec<u8>> {
         let c = self.outcome.pose.center();
         let pts = crate::map::ground_points(&self.tile, (c.x, c.y), self.mi_radius_m);
-        crate::viz::overlay_png(
+        crate::viz::before_after_png(
             &self.image,
             &self.camera,
-            &[
-                (&self.outcome.init.pose, crate::viz::RED),
-                (&self.outcome.pose, crate::viz::CYAN),
-            ],
+            &self.outcome.init.pose,
+            &self.outcome.pose,
             &pts,
         )
     }

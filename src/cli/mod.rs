@@ -2,6 +2,7 @@
 //! parses arguments, dispatches, and turns errors into one stderr line and an exit code.
 
 mod demo;
+mod estimator;
 mod gps;
 pub(crate) mod localize;
 mod plot;

@@ -19,10 +19,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
 
-/// The embedded font (DejaVu Sans 2.37, Bitstream Vera licence).
-static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
-/// Font family name every chart uses.
-const FAMILY: &str = "sans-serif";
+use crate::viz::FAMILY;
 
 /// `plot` subcommands.
 #[derive(Debug, clap::Subcommand)]
@@ -133,24 +130,12 @@ fn pe<E: std::fmt::Display>(e: E) -> Error {
     Error::Invalid(format!("plot: {e}"))
 }
 
-/// Register the embedded font once per process.
-fn font() -> Result<()> {
-    static ONCE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    let ok = *ONCE
-        .get_or_init(|| plotters::style::register_font(FAMILY, FontStyle::Normal, FONT).is_ok());
-    if ok {
-        Ok(())
-    } else {
-        Err(Error::Invalid("plot: embedded font is unreadable".into()))
-    }
-}
-
 /// Draw into a white W×H RGB image.
 fn draw(
     (w, h): (u32, u32),
     f: impl FnOnce(&DrawingArea<BitMapBackend, Shift>) -> Result<()>,
 ) -> Result<RgbImage> {
-    font()?;
+    crate::viz::register_font().map_err(|e| Error::Invalid(format!("plot: {e}")))?;
     let mut buf = vec![255u8; w as usize * h as usize * 3];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();

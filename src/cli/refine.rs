@@ -3,6 +3,7 @@
 use crate::camera::import::load_camera;
 use crate::camera::CameraModel;
 use crate::error::{Error, Result};
+use crate::localize::mi::MiValue;
 use crate::localize::points::GroundPoint;
 use crate::localize::points_io::read_points;
 use crate::localize::quality::QualityConfig;
@@ -51,6 +52,10 @@ pub struct Args {
     /// Write a JSON report (search counters, quality) here, accepted or not.
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Write a PNG here, accepted or not: the points (cyan) over the image at the --init pose
+    /// (left, "before") and at the refined pose (right, "after"), twice the image's width.
+    #[arg(long)]
+    pub overlay: Option<PathBuf>,
     /// After the grid search, polish all six pose parameters (roll and pitch too) with the
     /// pipeline's local Nelder–Mead and search again while the polish moves the pose, as
     /// `localize` does (docs/refine.md "6-DoF polish"): for an initial pose whose roll/pitch are
@@ -63,6 +68,9 @@ pub struct Args {
     /// the exhaustive argmax at the grid's step, on the point set the whole search box sees).
     #[arg(long)]
     pub grid_only: bool,
+    /// The MI estimator (bins, objective, binning, Parzen smoothing).
+    #[command(flatten)]
+    pub estimator: super::estimator::EstimatorArgs,
 }
 
 impl Args {
@@ -88,6 +96,7 @@ fn load_gray(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
 pub fn run(a: Args) -> Result<()> {
     let spec: SearchSpec = a.search.parse()?;
     let mode: Mode = a.mode.parse()?;
+    let mi = a.estimator.config()?;
     let cam = load_camera(&a.camera)?;
     let (w, h, gray) = load_gray(&a.image)?;
     if (w, h) != (cam.width(), cam.height()) {
@@ -145,6 +154,7 @@ pub fn run(a: Args) -> Result<()> {
     let cfg = SearchConfig {
         spec,
         mode,
+        mi,
         ..Default::default()
     };
     // Computed once for the search and the polish (the image size was checked above).
@@ -175,12 +185,27 @@ pub fn run(a: Args) -> Result<()> {
         let mut report = serde_json::to_value(r.report(mode))
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;
         report["finish"] = finish_name(finish.as_ref()).into();
+        report["estimator"] = serde_json::to_value(mi).unwrap_or_default();
+        // The value the search maximised, named: quality.mi and quality.nmi are both reported
+        // whatever the objective, so a reader cannot tell from them which one was optimised.
+        report["score"] = serde_json::json!({
+            "objective": mi.objective,
+            "value": MiValue { mi: r.quality.mi, nmi: r.quality.nmi, n: r.quality.points }.get(mi.objective),
+        });
         if finish.is_some() {
             report["rounds"] = serde_json::to_value(&rounds).unwrap_or_default();
         }
         let text = serde_json::to_string_pretty(&report)
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;
         crate::persist::write_atomic(path, (text + "\n").as_bytes())?;
+    }
+    if let Some(path) = &a.overlay {
+        // `gray` is the camera's size (checked above), so this cannot fail; the error is kept
+        // one line all the same.
+        let frame = image::GrayImage::from_raw(w, h, gray)
+            .ok_or_else(|| Error::input(&a.image, "overlay: image buffer size"))?;
+        let png = crate::viz::before_after_png(&frame, &cam, &init.pose, &r.pose, &points)?;
+        crate::persist::write_atomic(path, &png)?;
     }
     if !r.quality.accepted {
         return Err(Error::stage(

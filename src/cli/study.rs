@@ -64,6 +64,9 @@ pub struct Args {
     /// `refine --grid-only`).
     #[arg(long)]
     pub grid_only: bool,
+    /// The MI estimator, as `refine`'s flags.
+    #[command(flatten)]
+    pub estimator: super::estimator::EstimatorArgs,
 }
 
 /// Where the starts' roll and pitch come from.
@@ -190,10 +193,12 @@ pub fn run(a: Args) -> Result<()> {
     };
     pert.validate()?;
     let spec: SearchSpec = a.search.parse()?;
+    let mi = a.estimator.config()?;
     let size = super::study::parse_size(&a.size)?;
     let scene = load_scene(&a.scene)?;
     let cfg = SearchConfig {
         spec,
+        mi,
         ..Default::default()
     };
     let qcfg = QualityConfig::default();
@@ -280,6 +285,7 @@ pub fn run(a: Args) -> Result<()> {
         "perturbation": pert,
         "search": a.search,
         "finish": finish_name(finish.as_ref()),
+        "estimator": mi,
         "success_bounds": {
             "horizontal_m": SUCCESS_HORIZONTAL_M,
             "height_m": SUCCESS_HEIGHT_M,

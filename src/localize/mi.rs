@@ -27,6 +27,36 @@ pub enum Objective {
     Nmi,
 }
 
+impl Objective {
+    /// The name used on the command line and in reports (`mi`, `nmi`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Objective::Mi => "mi",
+            Objective::Nmi => "nmi",
+        }
+    }
+}
+
+impl std::fmt::Display for Objective {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Objective {
+    type Err = Error;
+    /// `mi` or `nmi`; anything else is a one-line error naming `--objective` (the CLI's flag).
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "mi" => Ok(Objective::Mi),
+            "nmi" => Ok(Objective::Nmi),
+            _ => Err(Error::Invalid(format!(
+                "--objective {s:?}: expected mi or nmi"
+            ))),
+        }
+    }
+}
+
 /// How 0–255 values map to bins.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
@@ -37,6 +67,36 @@ pub enum Binning {
     /// equally, whatever the exposure or the LiDAR's reflectivity calibration.
     #[default]
     Equalized,
+}
+
+impl Binning {
+    /// The name used on the command line and in reports (`uniform`, `equalized`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Binning::Uniform => "uniform",
+            Binning::Equalized => "equalized",
+        }
+    }
+}
+
+impl std::fmt::Display for Binning {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Binning {
+    type Err = Error;
+    /// `uniform` or `equalized`; anything else is a one-line error naming `--binning`.
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "uniform" => Ok(Binning::Uniform),
+            "equalized" => Ok(Binning::Equalized),
+            _ => Err(Error::Invalid(format!(
+                "--binning {s:?}: expected equalized or uniform"
+            ))),
+        }
+    }
 }
 
 /// Estimator settings.
@@ -368,5 +428,28 @@ mod tests {
         assert!(cfg.validate().is_ok());
         cfg.bins_gray = 256;
         assert!(cfg.validate().is_err());
+    }
+
+    #[test]
+    fn names_round_trip_and_unknown_names_the_flag() {
+        for o in [Objective::Mi, Objective::Nmi] {
+            assert_eq!(o.to_string().parse::<Objective>().unwrap(), o);
+        }
+        for b in [Binning::Uniform, Binning::Equalized] {
+            assert_eq!(b.to_string().parse::<Binning>().unwrap(), b);
+        }
+        // The serde names are the CLI names, so a report's echo can be passed back as a flag.
+        assert_eq!(serde_json::to_value(Objective::Nmi).unwrap(), "nmi");
+        assert_eq!(
+            serde_json::to_value(Binning::Equalized).unwrap(),
+            "equalized"
+        );
+        let e = "MI".parse::<Objective>().unwrap_err().to_string();
+        assert!(
+            e.starts_with("--objective \"MI\"") && !e.contains('\n'),
+            "{e}"
+        );
+        let e = "quantile".parse::<Binning>().unwrap_err().to_string();
+        assert!(e.starts_with("--binning"), "{e}");
     }
 }

@@ -21,6 +21,8 @@ const LATTICE: usize = 256;
 pub struct Texture {
     table: Vec<f32>,
     angle: f64,
+    /// Period (m) along map x and the y from which it applies, see [`Texture::repeating_x`].
+    period_x: Option<(f64, f64)>,
 }
 
 impl Texture {
@@ -33,7 +35,19 @@ impl Texture {
         Texture {
             table,
             angle: rng.random::<f64>() * std::f64::consts::PI,
+            period_x: None,
         }
+    }
+
+    /// The same texture made to repeat every `period_m` metres along map x where y ≥ `from_y`:
+    /// t(x, y) = t(x mod period, y) there, unchanged below. With `from_y` = −∞ a camera shifted
+    /// by a whole period along x sees the same ground, so MI has equal peaks one period apart;
+    /// with `from_y` through the camera's nadir only about half the ground repeats and the copies
+    /// are lower peaks (tests of the quality gate's ambiguity rule). A non-finite or
+    /// non-positive period leaves the texture as it is.
+    pub fn repeating_x(mut self, period_m: f64, from_y: f64) -> Self {
+        self.period_x = (period_m.is_finite() && period_m > 0.0).then_some((period_m, from_y));
+        self
     }
 
     fn lattice(&self, i: i64, j: i64, octave: usize) -> f64 {
@@ -61,6 +75,10 @@ impl Texture {
 
     /// Texture value at map (x, y).
     pub fn value(&self, x: f64, y: f64) -> f64 {
+        let x = match self.period_x {
+            Some((p, from_y)) if y >= from_y => x.rem_euclid(p),
+            _ => x,
+        };
         let n = 0.45 * self.noise(x, y, 2.5, 0)
             + 0.35 * self.noise(x, y, 0.9, 1)
             + 0.20 * self.noise(x, y, 0.35, 2);
