@@ -339,3 +339,49 @@ fn refine_cli_polish_recovers_a_wrong_tilt() {
     assert!(plain > 1.0, "the 4-DoF search cannot tilt: {plain}°");
     assert!(polished < 0.3, "polished rotation error {polished}°");
 }
+
+/// `pitch=`/`roll=` in `--search` make the grid 6-DoF (off by default): from a start whose tilt
+/// is 1° / 0.8° off, the grid's own cell has the tilt right, and the summary line says so.
+#[test]
+fn refine_cli_grid_searches_pitch_and_roll_when_asked() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let truth = write_scene(dir);
+    let (y, p, r) = truth.yaw_pitch_roll();
+    let init = CamFromMap::from_center_ypr(
+        &(truth.center() + Vector3::new(0.04, -0.04, 0.02)),
+        y + 0.1f64.to_radians(),
+        p + 1.0f64.to_radians(),
+        r - 0.75f64.to_radians(),
+    );
+    let pf = PoseFile::new(&init, Crs::Epsg(32617), "t", "2026-11-21T12:00:00Z".into());
+    std::fs::write(dir.join("init.json"), pf.to_json()).unwrap();
+    let out = refine_output(
+        dir,
+        &[
+            "--grid-only",
+            "--search",
+            "x=0.1:0.02,y=0.1:0.02,z=0.06:0.02,yaw=0.3:0.05,pitch=1.5:0.25,roll=1.5:0.25",
+        ],
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let pose = read_pose(&dir.join("out.json")).unwrap().pose;
+    let rot = rotation_angle_between(&pose.rotation, &truth.rotation).to_degrees();
+    eprintln!("{stdout}rotation error {rot:.3}° (start 1.26°)");
+    assert!(rot < 0.3, "rotation error {rot}°");
+    assert!(
+        stdout.contains("pitch -1.") && stdout.contains("roll +0.7"),
+        "{stdout}"
+    );
+    let report = read_report(dir);
+    assert_eq!(
+        report["offsets"].as_array().map(|a| a.len()),
+        Some(6),
+        "{report}"
+    );
+}

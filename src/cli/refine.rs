@@ -37,7 +37,9 @@ pub struct Args {
     /// Initial pose (pose-like JSON: rotation_cam_from_map + translation_cam_from_map).
     #[arg(long)]
     pub init: PathBuf,
-    /// Search box: x=HALF:STEP,y=HALF:STEP,z=HALF:STEP,yaw=HALF:STEP (m, deg; STEP = finest).
+    /// Search box: x=HALF:STEP,y=HALF:STEP,z=HALF:STEP,yaw=HALF:STEP (m, deg; STEP = finest);
+    /// adding pitch=HALF:STEP and/or roll=HALF:STEP grid-searches those axes too (6-DoF grid,
+    /// tilts about the ground under the camera), off by default.
     #[arg(long, default_value = "x=1:0.02,y=1:0.02,z=0.5:0.02,yaw=3:0.05")]
     pub search: String,
     /// tiled (coarse-to-fine, default) or exhaustive (every cell).
@@ -217,8 +219,14 @@ pub fn run(a: Args) -> Result<()> {
         ));
     }
     let o = r.offsets;
+    // Pitch and roll only move when the grid searches them or a 6-DoF polish ran.
+    let tilt = if o[4] != 0.0 || o[5] != 0.0 {
+        format!(", pitch {:+.3}°, roll {:+.3}°", o[4], o[5])
+    } else {
+        String::new()
+    };
     println!(
-        "mi: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°; MI {:.4} nats on {} points; {:.0}× fewer point-pose evaluations than exhaustive",
+        "mi: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°{tilt}; MI {:.4} nats on {} points; {:.0}× fewer point-pose evaluations than exhaustive",
         o[0],
         o[1],
         o[2],
