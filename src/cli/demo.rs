@@ -104,7 +104,9 @@ pub fn run(a: Args) -> Result<()> {
         prior_wgs84: None,
         tiles: None,
         out: Some(dir.join("pose.json")),
-        overlay: Some(dir.join("overlay.png")),
+        // Drawn only when it is kept: encoding a two-panel PNG into a directory about to be
+        // deleted is wasted time.
+        overlay: a.keep.as_ref().map(|_| dir.join("overlay.png")),
         report: Some(dir.join("report.json")),
         truth: Some(dir.join("truth.json")),
         threads: None,

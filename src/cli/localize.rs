@@ -215,6 +215,8 @@ pub(crate) fn camera_and_frame(
 /// `progress` is told each stage as it starts: `capture`, `prior`, `tile`, `localize`.
 pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result<Run> {
     let t_start = Instant::now();
+    // The matcher's file first: a missing or malformed one fails before the frames are captured.
+    let matcher = matcher_from_config(cfg)?;
     let (camera, image) = camera_and_frame(a, cfg, progress)?;
     progress("prior");
     let ((lat, lon, sigma), prior_desc) = prior(a, cfg, &a.config)?;
@@ -234,7 +236,7 @@ pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result
     };
     progress("localize");
     let params = Params {
-        matcher: matcher_from_config(cfg)?,
+        matcher,
         ..Params::default()
     };
     let clock = |t: Instant| move || t.elapsed().as_secs_f64();
@@ -303,7 +305,7 @@ fn matcher_from_config(
         (MatcherKind::MatchFile, Some(path)) => {
             let text =
                 std::fs::read_to_string(path).map_err(|e| Error::input(path, e.to_string()))?;
-            let m = crate::localize::matcher::MatchFile::parse(&text)
+            let m = crate::localize::matcher::MatchFile::parse(&text, path)
                 .map_err(|e| Error::input(path, e))?;
             Ok(Some(std::sync::Arc::new(m)))
         }

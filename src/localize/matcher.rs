@@ -43,6 +43,10 @@ pub trait Matcher: Send + Sync + std::fmt::Debug {
     fn name(&self) -> &str;
     /// The correspondences for this query; an error names what is missing.
     fn correspondences(&self, q: &MatchQuery<'_>) -> Result<Vec<Correspondence>>;
+    /// The file the matcher was built from (its correspondences or weights), named in errors.
+    fn origin(&self) -> Option<&std::path::Path> {
+        None
+    }
 }
 
 /// One row of a [`MatchFile`]: a fisheye pixel and the map point it shows; without `z` the
@@ -60,14 +64,22 @@ pub struct MatchRow {
 /// Correspondences made elsewhere and handed over in a file: a learned matcher run offline on
 /// the node's frame, or surveyed marks picked in the image. CSV with a header naming the columns
 /// `u`, `v` (fisheye pixel), `x`, `y` (map CRS) and optionally `z`, in any order.
+///
+/// PnP needs at least [`super::pnp::PnpParams::min_inliers`] (12) rows that agree: a handful of
+/// surveyed marks is too few on its own. The file is fixed: after the camera is knocked, its
+/// pixels no longer match and the drift check's re-localization fails until it is remade.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MatchFile {
     rows: Vec<MatchRow>,
+    /// Where the rows came from, for error messages.
+    origin: std::path::PathBuf,
 }
 
 impl MatchFile {
-    /// Parse the CSV text; errors name the line and the column.
-    pub fn parse(text: &str) -> std::result::Result<MatchFile, String> {
+    /// Parse the CSV text read from `origin` (named in later errors); errors name the line and
+    /// the column. A leading byte-order mark (spreadsheet exports) is skipped.
+    pub fn parse(text: &str, origin: &std::path::Path) -> std::result::Result<MatchFile, String> {
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         let mut lines = text
             .lines()
             .enumerate()
@@ -114,7 +126,10 @@ impl MatchFile {
         if rows.is_empty() {
             return Err("no correspondences after the header".into());
         }
-        Ok(MatchFile { rows })
+        Ok(MatchFile {
+            rows,
+            origin: origin.to_path_buf(),
+        })
     }
 
     /// The rows as read.
@@ -128,10 +143,13 @@ impl Matcher for MatchFile {
         "match-file"
     }
 
+    fn origin(&self) -> Option<&std::path::Path> {
+        Some(&self.origin)
+    }
+
     /// The rows whose pixel lies on the image and whose map point lies within the search radius
-    /// of the prior plus the widest ground a 185° lens can see from there (rows far outside
-    /// belong to another site); a row without `z` takes the height layer's ground, and is
-    /// dropped where the layer has no data.
+    /// + [`MAX_GROUND_REACH_M`] of the prior (rows far outside belong to another site); a row
+    /// without `z` takes the height layer's ground, and is dropped where the layer has no data.
     fn correspondences(&self, q: &MatchQuery<'_>) -> Result<Vec<Correspondence>> {
         let (w, h) = (q.camera.width() as f64, q.camera.height() as f64);
         let reach = q.search_radius_m + MAX_GROUND_REACH_M;
@@ -154,9 +172,10 @@ impl Matcher for MatchFile {
             .collect();
         if out.is_empty() {
             return Err(Error::stage(
-                "match",
+                "pnp",
                 format!(
-                    "match-file: none of its {} rows lies on the image and within {reach:.0} m of the prior with a height",
+                    "match-file {}: none of its {} rows lies on the image and within {reach:.0} m of the prior with a height",
+                    self.origin.display(),
                     self.rows.len()
                 ),
             ));
@@ -165,8 +184,9 @@ impl Matcher for MatchFile {
     }
 }
 
-/// Ground farther than this from the camera is not matched (the fine stages' anchors stop at
-/// 25 m; a matcher's far matches are oblique and smeared), metres.
+/// A row's map point may lie this far beyond the search radius around the prior, metres: ground
+/// the camera can usefully see (the fine stages' anchors stop at 25 m from the nadir point), with
+/// room to spare; rows farther out belong to another site.
 pub const MAX_GROUND_REACH_M: f64 = 60.0;
 
 /// Initialization with a [`Matcher`]: its correspondences, then PnP + RANSAC on bearings (the
@@ -189,10 +209,16 @@ pub fn initialize_with<R: rand::Rng>(
         ..fine.pnp
     };
     let r = solve_pnp_ransac(q.camera, &corr, &params, rng).map_err(|e| {
-        Error::stage(
-            "pnp",
-            format!("{}: {e} ({} correspondences)", matcher.name(), corr.len()),
-        )
+        // The solver's own error already says `pnp: …`; one stage prefix is enough.
+        let why = match e {
+            Error::Stage { msg, .. } => msg,
+            other => other.to_string(),
+        };
+        let from = matcher
+            .origin()
+            .map(|p| format!(" {}", p.display()))
+            .unwrap_or_default();
+        Error::stage("pnp", format!("{}{from}: {why}", matcher.name()))
     })?;
     let pose = r.pose;
     let c = pose.center();
@@ -223,10 +249,17 @@ pub const MATCHER_THRESHOLD_PX: f64 = 4.0;
 mod tests {
     use super::*;
 
+    fn o() -> &'static std::path::Path {
+        std::path::Path::new("m.csv")
+    }
+
     #[test]
     fn match_file_columns_in_any_order_with_optional_z() {
-        let m = MatchFile::parse("# made offline\nx, Y ,u,v,z\n10,20,1.5,2.5,3\n\n11,21,4,5,\n")
-            .unwrap();
+        let m = MatchFile::parse(
+            "\u{feff}# made offline\nx, Y ,u,v,z\n10,20,1.5,2.5,3\n\n11,21,4,5,\n",
+            o(),
+        )
+        .unwrap();
         assert_eq!(
             m.rows(),
             &[
@@ -242,13 +275,13 @@ mod tests {
                 },
             ]
         );
-        let no_z = MatchFile::parse("u,v,x,y\n1,2,3,4\n").unwrap();
+        let no_z = MatchFile::parse("\u{feff}u,v,x,y\n1,2,3,4\n", o()).unwrap();
         assert_eq!(no_z.rows()[0].z, None);
     }
 
     #[test]
     fn match_file_errors_name_the_line_and_column() {
-        let e = |t: &str| MatchFile::parse(t).unwrap_err();
+        let e = |t: &str| MatchFile::parse(t, o()).unwrap_err();
         assert!(e("").contains("no header"), "{}", e(""));
         assert!(e("u,v,x\n1,2,3\n").contains("no column \"y\""));
         assert!(e("u,v,x,y\n").contains("no correspondences"));
