@@ -148,7 +148,7 @@ impl Matcher for MatchFile {
     }
 
     /// The rows whose pixel lies on the image and whose map point lies within the search radius
-    /// + [`MAX_GROUND_REACH_M`] of the prior (rows far outside belong to another site); a row
+    /// plus [`MAX_GROUND_REACH_M`] of the prior (rows far outside belong to another site); a row
     /// without `z` takes the height layer's ground, and is dropped where the layer has no data.
     fn correspondences(&self, q: &MatchQuery<'_>) -> Result<Vec<Correspondence>> {
         let (w, h) = (q.camera.width() as f64, q.camera.height() as f64);
