@@ -24,7 +24,14 @@ fn row_errors(stdout: &str, stage: &str) -> [f64; 3] {
 
 #[test]
 fn demo_passes_under_the_documented_thresholds() {
-    let out = Command::new(BIN).arg("demo").output().unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let overlay = tmp.path().join("ov.png");
+    let out = Command::new(BIN)
+        .arg("demo")
+        .arg("--overlay")
+        .arg(&overlay)
+        .output()
+        .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stdout}\n{stderr}");
@@ -50,7 +57,14 @@ fn demo_passes_under_the_documented_thresholds() {
             "printed {word}, which does not exist after the demo:\n{stdout}"
         );
     }
-    assert!(stdout.contains("overlay: not kept (--keep DIR"), "{stdout}");
+    // The picture outlives the scene: both panels (before | after) of the 1024² frame.
+    assert!(
+        stdout.contains(&format!("overlay: {}", overlay.display())),
+        "{stdout}"
+    );
+    let png = image::open(&overlay).unwrap();
+    assert_eq!((png.width(), png.height()), (2 * 1024, 1024));
+    assert!(stdout.contains("not kept (--keep DIR"), "{stdout}");
 }
 
 #[test]

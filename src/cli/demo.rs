@@ -54,6 +54,11 @@ pub struct Args {
     /// Keep the scene and outputs in this directory instead of a temporary one.
     #[arg(long)]
     pub keep: Option<PathBuf>,
+    /// Write the overlay PNG (LiDAR points over the frame, before | after) here. Default:
+    /// overlay.png in the --keep directory, else infraloc-demo-overlay.png in the system's
+    /// temporary directory, which outlives the demo's scene.
+    #[arg(long)]
+    pub overlay: Option<PathBuf>,
 }
 
 /// Run the demo.
@@ -96,6 +101,12 @@ pub fn run(a: Args) -> Result<()> {
         "scene: {} (seed {}, {:?}, {:?}) in {:.1} s",
         place, a.seed, a.preset, a.difficulty, t_sim
     );
+    // The picture is the demo's point (contracts §6): it goes where it survives the scene.
+    let overlay = match (&a.overlay, &a.keep) {
+        (Some(p), _) => p.clone(),
+        (None, Some(d)) => d.join("overlay.png"),
+        (None, None) => std::env::temp_dir().join("infraloc-demo-overlay.png"),
+    };
     let la = super::localize::Args {
         config: dir.join("infraloc.toml"),
         camera: None,
@@ -104,9 +115,7 @@ pub fn run(a: Args) -> Result<()> {
         prior_wgs84: None,
         tiles: None,
         out: Some(dir.join("pose.json")),
-        // Drawn only when it is kept: encoding a two-panel PNG into a directory about to be
-        // deleted is wasted time.
-        overlay: a.keep.as_ref().map(|_| dir.join("overlay.png")),
+        overlay: Some(overlay.clone()),
         report: Some(dir.join("report.json")),
         truth: Some(dir.join("truth.json")),
         threads: None,
@@ -132,12 +141,10 @@ pub fn run(a: Args) -> Result<()> {
             secs
         );
     }
-    match &a.keep {
-        Some(d) => println!("overlay: {}", d.join("overlay.png").display()),
-        // The temporary directory is removed when the demo returns: its path would mislead.
-        None => {
-            println!("overlay: not kept (--keep DIR keeps the scene, pose, report and overlay)")
-        }
+    println!("overlay: {}", overlay.display());
+    if a.keep.is_none() {
+        // The temporary scene directory is removed when the demo returns.
+        println!("scene, pose and report: not kept (--keep DIR keeps them)");
     }
     verdict(&t["mi"])?;
     println!("demo OK: within {MAX_HORIZONTAL_M} m horizontal, {MAX_HEIGHT_M} m height, {MAX_YAW_DEG}° yaw");
