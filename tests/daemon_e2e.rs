@@ -391,8 +391,15 @@ fn boot_serve_relocalize_status_reload_stop() {
     assert!(out.status.success(), "{}", text(&out.stderr));
     let o = text(&out.stdout);
     assert!(o.starts_with("localized in") && o.contains("served"), "{o}");
-    assert!(
-        text(&out.stderr).contains("capture"),
+    // Each stage as it starts, the pipeline's own two included ("4.2 s: pnp"), then the
+    // service's cross-check against the served pose.
+    let stages: Vec<String> = text(&out.stderr)
+        .lines()
+        .filter_map(|l| l.split_once(": ").map(|(_, st)| st.to_string()))
+        .collect();
+    assert_eq!(
+        stages,
+        ["capture", "prior", "tile", "pnp", "mi", "cross-check"],
         "{}",
         text(&out.stderr)
     );

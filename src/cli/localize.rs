@@ -3,7 +3,7 @@
 use crate::camera::{import::load_camera, Camera, CameraModel};
 use crate::config::{Config, FrameSourceKind, GpsSourceKind};
 use crate::error::{Error, Result};
-use crate::localize::pipeline::{localize, Outcome, Params};
+use crate::localize::pipeline::{localize_reporting, Outcome, Params};
 use crate::map::cache::{find_tile, load_tile};
 use crate::map::{Crs, Tile};
 use crate::persist::write_atomic;
@@ -212,7 +212,7 @@ pub(crate) fn camera_and_frame(
 
 /// The pipeline for `a` under `cfg` (already loaded and validated), writing nothing: the caller
 /// decides where the pose goes (`localize` writes it, the daemon offers it to its pose store).
-/// `progress` is told each stage as it starts: `capture`, `prior`, `tile`, `localize`.
+/// `progress` is told each stage as it starts: `capture`, `prior`, `tile`, `pnp`, `mi`.
 pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result<Run> {
     let t_start = Instant::now();
     // The matcher's file first: a missing or malformed one fails before the frames are captured.
@@ -234,13 +234,12 @@ pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result
             ))
         }
     };
-    progress("localize");
     let params = Params {
         matcher,
         ..Params::default()
     };
     let clock = |t: Instant| move || t.elapsed().as_secs_f64();
-    let outcome = localize(
+    let outcome = localize_reporting(
         &camera,
         image.as_raw(),
         &tile,
@@ -248,6 +247,7 @@ pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result
         sigma,
         &params,
         &clock(Instant::now()),
+        progress,
     )?;
 
     let now = std::time::SystemTime::now()

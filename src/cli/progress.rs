@@ -6,7 +6,7 @@ use std::io::Write;
 use std::sync::mpsc::{channel, Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
-/// How often the line is redrawn between events: the `localize` stage reports nothing while it
+/// How often the line is redrawn between events: the `mi` stage reports nothing while it
 /// runs (it is most of the time), and a frozen clock would look like a hang.
 const REDRAW: Duration = Duration::from_millis(250);
 

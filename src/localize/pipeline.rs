@@ -143,7 +143,41 @@ pub fn localize(
     p: &Params,
     now: &dyn Fn() -> f64,
 ) -> Result<Outcome> {
-    let outcome = localize_ungated(camera, image, tile, prior_xy, prior_sigma_m, p, now)?;
+    localize_reporting(
+        camera,
+        image,
+        tile,
+        prior_xy,
+        prior_sigma_m,
+        p,
+        now,
+        &|_| {},
+    )
+}
+
+/// [`localize`], telling `progress` each stage as it starts: `pnp` (initialization) and `mi`
+/// (refinement and gate), for a terminal's status line or the service's status.
+#[allow(clippy::too_many_arguments)]
+pub fn localize_reporting(
+    camera: &Camera,
+    image: &[u8],
+    tile: &Tile,
+    prior_xy: (f64, f64),
+    prior_sigma_m: f64,
+    p: &Params,
+    now: &dyn Fn() -> f64,
+    progress: &dyn Fn(&str),
+) -> Result<Outcome> {
+    let outcome = run(
+        camera,
+        image,
+        tile,
+        prior_xy,
+        prior_sigma_m,
+        p,
+        now,
+        progress,
+    )?;
     quality_gate(&outcome)?;
     Ok(outcome)
 }
@@ -172,6 +206,30 @@ pub fn localize_ungated(
     prior_sigma_m: f64,
     p: &Params,
     now: &dyn Fn() -> f64,
+) -> Result<Outcome> {
+    run(
+        camera,
+        image,
+        tile,
+        prior_xy,
+        prior_sigma_m,
+        p,
+        now,
+        &|_| {},
+    )
+}
+
+/// The stages, ungated, with progress events.
+#[allow(clippy::too_many_arguments)]
+fn run(
+    camera: &Camera,
+    image: &[u8],
+    tile: &Tile,
+    prior_xy: (f64, f64),
+    prior_sigma_m: f64,
+    p: &Params,
+    now: &dyn Fn() -> f64,
+    progress: &dyn Fn(&str),
 ) -> Result<Outcome> {
     let (w, h) = (camera.width() as usize, camera.height() as usize);
     if image.len() != w * h {
@@ -202,6 +260,7 @@ pub fn localize_ungated(
             ),
         ));
     }
+    progress("pnp");
     let t0 = now();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(p.seed);
     // The LiDAR map judges the satellite matching's hypotheses (independent evidence).
@@ -249,6 +308,7 @@ pub fn localize_ungated(
                         "offset_m": init.candidate.offset, "score": init.candidate.score },
         }),
     });
+    progress("mi");
     let points = mi_points(tile, &init.pose, p);
     let mask = camera.valid_mask();
     // Pitch and roll pivot about the ground under the camera (the tile's height layer).
