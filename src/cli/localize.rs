@@ -3,7 +3,7 @@
 use crate::camera::{import::load_camera, Camera, CameraModel};
 use crate::config::{Config, FrameSourceKind, GpsSourceKind};
 use crate::error::{Error, Result};
-use crate::localize::pipeline::{localize_reporting, Outcome, Params};
+use crate::localize::pipeline::{localize, Outcome, Params};
 use crate::map::cache::{find_tile, load_tile};
 use crate::map::{Crs, Tile};
 use crate::persist::write_atomic;
@@ -239,7 +239,7 @@ pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result
         ..Params::default()
     };
     let clock = |t: Instant| move || t.elapsed().as_secs_f64();
-    let outcome = localize_reporting(
+    let outcome = localize(
         &camera,
         image.as_raw(),
         &tile,

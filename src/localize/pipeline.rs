@@ -132,33 +132,12 @@ pub fn mi_points(tile: &Tile, pose: &CamFromMap, p: &Params) -> Vec<crate::map::
 }
 
 /// Run the pipeline on a (temporally median-filtered) gray frame. `now` returns seconds from any
-/// fixed origin. Errors name the stage and the numbers; a refinement the quality gate rejects is
-/// an error (see [`quality_gate`]).
-pub fn localize(
-    camera: &Camera,
-    image: &[u8],
-    tile: &Tile,
-    prior_xy: (f64, f64),
-    prior_sigma_m: f64,
-    p: &Params,
-    now: &dyn Fn() -> f64,
-) -> Result<Outcome> {
-    localize_reporting(
-        camera,
-        image,
-        tile,
-        prior_xy,
-        prior_sigma_m,
-        p,
-        now,
-        &|_| {},
-    )
-}
-
-/// [`localize`], telling `progress` each stage as it starts: `pnp` (initialization) and `mi`
-/// (refinement and gate), for a terminal's status line or the service's status.
+/// fixed origin; `progress` is told each stage as it starts, `pnp` (initialization) and `mi`
+/// (refinement and gate), for a terminal's status line or the service's status. Errors name the
+/// stage and the numbers; a refinement the quality gate rejects is an error (see
+/// [`quality_gate`]).
 #[allow(clippy::too_many_arguments)]
-pub fn localize_reporting(
+pub fn localize(
     camera: &Camera,
     image: &[u8],
     tile: &Tile,
