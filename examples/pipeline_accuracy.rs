@@ -192,10 +192,17 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
             sim_s,
         );
     }
-    let outcome =
-        pipeline::localize_ungated(&camera, image.as_raw(), &tile, xy, sigma, params, &|| {
-            clock.elapsed().as_secs_f64()
-        });
+    let now = || clock.elapsed().as_secs_f64();
+    let outcome = pipeline::localize_ungated(
+        &camera,
+        image.as_raw(),
+        &tile,
+        xy,
+        sigma,
+        params,
+        &now,
+        &|_| {},
+    );
     let acq = &scene.acquisition;
     let mut rec = json!({
         "seed": seed,

@@ -147,7 +147,7 @@ pub fn localize(
     now: &dyn Fn() -> f64,
     progress: &dyn Fn(&str),
 ) -> Result<Outcome> {
-    let outcome = run(
+    let outcome = localize_ungated(
         camera,
         image,
         tile,
@@ -176,31 +176,10 @@ pub fn quality_gate(o: &Outcome) -> Result<()> {
 }
 
 /// [`localize`] without the quality gate: the outcome whatever the gate would say, so that an
-/// evaluation can still see the stages of a rejected run (`examples/pipeline_accuracy.rs`).
-pub fn localize_ungated(
-    camera: &Camera,
-    image: &[u8],
-    tile: &Tile,
-    prior_xy: (f64, f64),
-    prior_sigma_m: f64,
-    p: &Params,
-    now: &dyn Fn() -> f64,
-) -> Result<Outcome> {
-    run(
-        camera,
-        image,
-        tile,
-        prior_xy,
-        prior_sigma_m,
-        p,
-        now,
-        &|_| {},
-    )
-}
-
-/// The stages, ungated, with progress events.
+/// evaluation can still see the stages of a rejected run (`examples/pipeline_accuracy.rs`);
+/// `progress` as there.
 #[allow(clippy::too_many_arguments)]
-fn run(
+pub fn localize_ungated(
     camera: &Camera,
     image: &[u8],
     tile: &Tile,
