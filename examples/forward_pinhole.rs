@@ -22,7 +22,7 @@
 use infraloc::camera::{Camera, CameraModel, Mei};
 use infraloc::localize::quality::QualityConfig;
 use infraloc::localize::refine::{refine_polished, PolishedSearch};
-use infraloc::localize::search::SearchConfig;
+use infraloc::localize::search::{SearchConfig, View};
 use infraloc::localize::synth::{forward_view, lidar_rings, render, Texture};
 use infraloc::pose::{offsets_between, CamFromMap};
 use rand::{Rng, SeedableRng};
@@ -106,9 +106,11 @@ fn main() {
         let pivot = |_: &CamFromMap| None;
         let r = refine_polished(
             &cam,
-            &gray,
-            &mask,
-            &points,
+            &[View {
+                gray: &gray,
+                mask: &mask,
+                points: &points,
+            }],
             &init,
             &cfg,
             &QualityConfig::default(),

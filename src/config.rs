@@ -26,6 +26,9 @@ pub struct Config {
     /// The service (`infraloc daemon`): control socket, schedules, drift check.
     #[serde(default)]
     pub daemon: DaemonConfig,
+    /// The MI result's gate: σ limits and how the uncertainty is estimated.
+    #[serde(default)]
+    pub quality: crate::localize::quality::QualityConfig,
     /// Initialization: which matcher pairs the frame with the map.
     #[serde(default)]
     pub init: InitConfig,
@@ -407,6 +410,9 @@ impl Config {
 
     /// Hard errors a parsed config can still have (missing required combinations). Exit 78.
     pub fn validate(&self, origin: &Path) -> Result<()> {
+        self.quality
+            .validate()
+            .map_err(|m| Error::config(origin, format!("[quality] {m}")))?;
         let c = &self.camera;
         if c.intrinsics_file.is_none() && c.intrinsics.is_none() {
             return Err(Error::config(

@@ -5,7 +5,7 @@
 
 use infraloc::camera::{Camera, Mei};
 use infraloc::localize::polish::{polish_pose, PolishParams};
-use infraloc::localize::search::{search, Evaluator, SearchConfig};
+use infraloc::localize::search::{search, Evaluator, SearchConfig, View};
 use infraloc::localize::synth::{ground_points, render, Texture};
 use infraloc::pose::{rotation_angle_between, CamFromMap};
 use nalgebra::Point3;
@@ -52,9 +52,11 @@ fn polish_recovers_a_wrong_tilt_that_the_4dof_search_cannot() {
     let polish = || {
         polish_pose(
             &cam,
-            &gray,
-            &mask,
-            &points,
+            &[View {
+                gray: &gray,
+                mask: &mask,
+                points: &points,
+            }],
             &four,
             Some(h),
             &cfg,

@@ -110,8 +110,9 @@ fn ambiguity_rule_refuses_a_texture_repeating_inside_the_box() {
     // Only the ambiguity rule refuses: every earlier check passes on this scene, so the test
     // fails if the rule is removed (the result would be accepted).
     assert!(!q.accepted, "accepted: {q:?}");
+    // The reason names both peaks: the optimum and the second one, one period apart.
     assert!(
-        reason.starts_with("ambiguous: a second peak at offset ("),
+        reason.starts_with("ambiguous: two separate peaks, the optimum at ("),
         "{reason}"
     );
     // The second peak is a copy one period away along x (± a cell), the other axes unmoved.
@@ -124,8 +125,8 @@ fn ambiguity_rule_refuses_a_texture_repeating_inside_the_box() {
     let contrast = q.second_peak_contrast.expect("second peak contrast");
     assert!(contrast > limit, "{contrast}");
     assert!(
-        reason.contains(&format!("({:.2} m,", off[0]))
-            && reason.contains(&format!("reaches {:.0}%", 100.0 * contrast)),
+        reason.contains(&format!("offset ({:.2} m,", off[0]))
+            && reason.contains(&format!("reaching {:.0}%", 100.0 * contrast)),
         "{reason}"
     );
     let ratio = q.second_peak_ratio.expect("second peak ratio reported");

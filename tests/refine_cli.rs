@@ -314,8 +314,14 @@ fn refine_cli_polish_recovers_a_wrong_tilt() {
         let out = read_pose(&dir.join("out.json")).unwrap().pose;
         rotation_angle_between(&out.rotation, &truth.rotation).to_degrees()
     };
-    // A box wide enough for the 4-DoF search's tilt-for-position trade (≈ h·tilt ≈ 10 cm).
-    let search = ["--search", "x=0.4:0.02,y=0.4:0.02,z=0.2:0.02,yaw=1.5:0.05"];
+    // A box wide enough for the 4-DoF search's tilt-for-position trade (≈ h·tilt ≈ 10 cm). A
+    // 320-px frame pins yaw to about 0.2° (1σ), above the node's 0.15° limit.
+    let search = [
+        "--search",
+        "x=0.4:0.02,y=0.4:0.02,z=0.2:0.02,yaw=1.5:0.05",
+        "--max-sigma",
+        "yaw=0.4",
+    ];
     let (ok, err) = refine(dir, &search);
     assert!(ok, "{err}");
     let plain = rot_err(dir);
@@ -384,4 +390,151 @@ fn refine_cli_grid_searches_pitch_and_roll_when_asked() {
         Some(6),
         "{report}"
     );
+}
+
+/// A refine run with arbitrary arguments after `refine`.
+fn refine_args(args: &[String]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_infraloc"))
+        .arg("refine")
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+/// One line on stderr, non-zero exit, no pose: what every bad pooled input must give.
+fn assert_one_line_failure(out: &std::process::Output, pose: &Path, needle: &str) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "succeeded: {err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains(needle), "{err}");
+    assert!(!pose.exists(), "a pose was written");
+}
+
+#[test]
+fn refine_cli_pools_pairs_and_refuses_bad_pools() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let truth = write_scene(d);
+    let s = |p: &str| d.join(p).display().to_string();
+    let out_pose = d.join("pooled.json");
+    let base = |extra: &[&str]| -> Vec<String> {
+        let mut v: Vec<String> = vec![
+            "--camera".into(),
+            s("camera.yaml"),
+            "--init".into(),
+            s("init.json"),
+            "--out".into(),
+            out_pose.display().to_string(),
+            "--report".into(),
+            s("pooled-report.json"),
+            "--search".into(),
+            "x=0.16:0.02,y=0.16:0.02,z=0.1:0.02,yaw=0.6:0.05".into(),
+        ];
+        v.extend(extra.iter().map(|e| e.to_string()));
+        v
+    };
+    // Two pairs: the same frame, and a second exposure of it (darker, lower contrast) with its
+    // own copy of the points. They pool into one histogram per pose.
+    let img = image::open(d.join("frame.png")).unwrap().to_luma8();
+    let dark = image::GrayImage::from_fn(img.width(), img.height(), |u, v| {
+        image::Luma([(img.get_pixel(u, v)[0] as f64 * 0.55 + 20.0) as u8])
+    });
+    dark.save(d.join("dark.png")).unwrap();
+    std::fs::copy(d.join("points.csv"), d.join("points2.csv")).unwrap();
+    let ok = refine_args(&base(&[
+        "--image",
+        &s("frame.png"),
+        "--points",
+        &s("points.csv"),
+        "--image",
+        &s("dark.png"),
+        "--points",
+        &s("points2.csv"),
+    ]));
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&ok.stdout);
+    assert!(stdout.contains("(2 pairs pooled)"), "{stdout}");
+    assert!(stdout.contains("uncertainty: σ x"), "{stdout}");
+    let rep: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("pooled-report.json")).unwrap())
+            .unwrap();
+    assert_eq!(rep["pairs"], 2);
+    let pair_points = rep["pair_points"].as_array().unwrap();
+    assert_eq!(pair_points.len(), 2);
+    assert_eq!(
+        rep["points_used"].as_u64().unwrap(),
+        pair_points
+            .iter()
+            .map(|p| p[1].as_u64().unwrap())
+            .sum::<u64>()
+    );
+    // The pose file carries σ and the covariance; the truth lies within 3σ on each axis.
+    let pose: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out_pose).unwrap()).unwrap();
+    let q = &pose["quality"];
+    let cov = q["covariance"]["matrix"].as_array().unwrap();
+    assert_eq!(cov.len(), 4);
+    let got = read_pose(&out_pose).unwrap().pose;
+    let d_c = got.center() - truth.center();
+    for (axis, err) in [("x", d_c.x), ("y", d_c.y), ("z", d_c.z)] {
+        let sigma = q["sigma"][axis].as_f64().unwrap();
+        assert!(
+            sigma > 0.0 && err.abs() <= 3.0 * sigma + 0.01,
+            "{axis}: {err} vs σ {sigma}"
+        );
+    }
+    std::fs::remove_file(&out_pose).unwrap();
+
+    // Unequal counts of --image and --points: refused before anything is read.
+    let bad = refine_args(&base(&[
+        "--image",
+        &s("frame.png"),
+        "--image",
+        &s("dark.png"),
+        "--points",
+        &s("points.csv"),
+    ]));
+    assert_one_line_failure(
+        &bad,
+        &out_pose,
+        "--image given 2 times but --points 1 times",
+    );
+
+    // Images of different sizes for one camera.
+    image::GrayImage::new(160, 160)
+        .save(d.join("small.png"))
+        .unwrap();
+    let bad = refine_args(&base(&[
+        "--image",
+        &s("frame.png"),
+        "--points",
+        &s("points.csv"),
+        "--image",
+        &s("small.png"),
+        "--points",
+        &s("points2.csv"),
+    ]));
+    assert_one_line_failure(&bad, &out_pose, "small.png");
+
+    // A pair whose points all fall outside its image (200 m above the downward camera).
+    std::fs::write(
+        d.join("far.csv"),
+        "x,y,z,reflectivity\n500010,4400020,406,10\n500011,4400020,406,200\n",
+    )
+    .unwrap();
+    let bad = refine_args(&base(&[
+        "--image",
+        &s("frame.png"),
+        "--points",
+        &s("points.csv"),
+        "--image",
+        &s("dark.png"),
+        "--points",
+        &s("far.csv"),
+    ]));
+    assert_one_line_failure(&bad, &out_pose, "pair 2 of 2: points: none is visible");
 }

@@ -6,7 +6,7 @@
 use infraloc::camera::{Camera, CameraModel, Mei};
 use infraloc::localize::quality::QualityConfig;
 use infraloc::localize::refine::{refine_polished, PolishedSearch, Refinement};
-use infraloc::localize::search::{pose_at, SearchConfig};
+use infraloc::localize::search::{pose_at, SearchConfig, View};
 use infraloc::localize::synth::{forward_view, lidar_rings, render, Texture};
 use infraloc::pose::{offsets_between, CamFromMap};
 
@@ -49,9 +49,11 @@ fn run(s: &Scene, start: [f64; 4], finish: Option<&PolishedSearch>) -> (Refineme
     );
     let (r, _) = refine_polished(
         &s.cam,
-        &s.gray,
-        &s.mask,
-        &s.points,
+        &[View {
+            gray: &s.gray,
+            mask: &s.mask,
+            points: &s.points,
+        }],
         &init,
         &SearchConfig::default(),
         &QualityConfig::default(),

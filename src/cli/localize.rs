@@ -236,6 +236,7 @@ pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result
     };
     let params = Params {
         matcher,
+        quality: cfg.quality,
         ..Params::default()
     };
     let clock = |t: Instant| move || t.elapsed().as_secs_f64();

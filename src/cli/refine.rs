@@ -8,7 +8,7 @@ use crate::localize::points::GroundPoint;
 use crate::localize::points_io::read_points;
 use crate::localize::quality::QualityConfig;
 use crate::localize::refine::{finish_name, refine_polished, summed_offsets, PolishedSearch};
-use crate::localize::search::{Mode, SearchConfig, SearchSpec};
+use crate::localize::search::{Mode, SearchConfig, SearchSpec, View};
 use crate::map::{cache, Crs};
 use crate::posefile::{format_utc, read_pose, PoseFile};
 use std::path::{Path, PathBuf};
@@ -19,21 +19,24 @@ pub const DEFAULT_RADIUS_M: f64 = 25.0;
 
 /// Arguments of `refine`.
 #[derive(Debug, clap::Args)]
-#[command(group(clap::ArgGroup::new("source").required(true).args(["tiles", "points"])))]
+#[command(group(clap::ArgGroup::new("source").required(true).multiple(false).args(["tiles", "points"])))]
 pub struct Args {
     /// Camera intrinsics (OpenCV/Kalibr/KITTI-360 YAML or TOML).
     #[arg(long)]
     pub camera: PathBuf,
-    /// The fisheye image (any format `image` reads; converted to gray).
-    #[arg(long)]
-    pub image: PathBuf,
+    /// The image (any format `image` reads; converted to gray). Repeat it to pool several frames
+    /// that share the pose: with --points, each --image pairs with the --points at the same
+    /// position; with --tiles, every image sees the one tile.
+    #[arg(long, required = true)]
+    pub image: Vec<PathBuf>,
     /// Tile cache: ground points within --radius of the camera come from the tile covering it.
     #[arg(long)]
     pub tiles: Option<PathBuf>,
-    /// Point file: CSV (x,y,z,reflectivity header; reflectivity 0–255, or 0–1 normalised), PCD or
-    /// LAS; all points used as given.
+    /// Point file: CSV (x,y,z,reflectivity header; reflectivity 0–255, or 0–1 normalised), PCD,
+    /// LAS or a Velodyne .bin sweep; all points used as given. Repeat it, once per --image, to pool
+    /// image/point-set pairs.
     #[arg(long)]
-    pub points: Option<PathBuf>,
+    pub points: Vec<PathBuf>,
     /// Initial pose (pose-like JSON: rotation_cam_from_map + translation_cam_from_map).
     #[arg(long)]
     pub init: PathBuf,
@@ -70,6 +73,11 @@ pub struct Args {
     /// the exhaustive argmax at the grid's step, on the point set the whole search box sees).
     #[arg(long)]
     pub grid_only: bool,
+    /// Largest accepted σ per axis group: xy=M,z=M,yaw=DEG,tilt=DEG (any subset; the rest keep
+    /// the node's defaults, 0.05 m, 0.05 m, 0.15°, 0.5°). The result is refused, and no pose
+    /// written, when its marginal σ exceeds one of them.
+    #[arg(long)]
+    pub max_sigma: Option<String>,
     /// The MI estimator (bins, objective, binning, Parzen smoothing).
     #[command(flatten)]
     pub estimator: super::estimator::EstimatorArgs,
@@ -94,28 +102,72 @@ fn load_gray(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
     Ok((g.width(), g.height(), g.into_raw()))
 }
 
+/// The quality gate with `--max-sigma`'s limits.
+fn quality_config(spec: Option<&str>) -> Result<QualityConfig> {
+    let mut q = QualityConfig::default();
+    for item in spec
+        .unwrap_or("")
+        .split(',')
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+    {
+        let bad = || {
+            Error::Invalid(format!(
+                "--max-sigma {item:?}: expected KEY=VALUE with KEY one of xy, z, yaw, tilt and a positive number"
+            ))
+        };
+        let (k, v) = item.split_once('=').ok_or_else(bad)?;
+        let v: f64 = v.trim().parse().map_err(|_| bad())?;
+        if !(v.is_finite() && v > 0.0) {
+            return Err(bad());
+        }
+        match k.trim() {
+            "xy" => q.max_sigma_xy_m = v,
+            "z" => q.max_sigma_z_m = v,
+            "yaw" => q.max_sigma_yaw_deg = v,
+            "tilt" => q.max_sigma_tilt_deg = v,
+            _ => return Err(bad()),
+        }
+    }
+    Ok(q)
+}
+
 /// Run `refine`.
 pub fn run(a: Args) -> Result<()> {
     let spec: SearchSpec = a.search.parse()?;
+    let qcfg = quality_config(a.max_sigma.as_deref())?;
     let mode: Mode = a.mode.parse()?;
     let mi = a.estimator.config()?;
-    let cam = load_camera(&a.camera)?;
-    let (w, h, gray) = load_gray(&a.image)?;
-    if (w, h) != (cam.width(), cam.height()) {
-        return Err(Error::input(
-            &a.image,
-            format!(
-                "image is {w}×{h} but the camera {} is {}×{}",
-                a.camera.display(),
-                cam.width(),
-                cam.height()
-            ),
-        ));
+    if !a.points.is_empty() && a.points.len() != a.image.len() {
+        return Err(Error::Invalid(format!(
+            "--image given {} times but --points {} times: pooled pairs need one point file per image, paired in order",
+            a.image.len(),
+            a.points.len()
+        )));
     }
+    let cam = load_camera(&a.camera)?;
+    let mut grays = Vec::with_capacity(a.image.len());
+    for path in &a.image {
+        let (w, h, gray) = load_gray(path)?;
+        if (w, h) != (cam.width(), cam.height()) {
+            return Err(Error::input(
+                path,
+                format!(
+                    "image is {w}×{h} but the camera {} is {}×{} (every pooled image must be the camera's size)",
+                    a.camera.display(),
+                    cam.width(),
+                    cam.height()
+                ),
+            ));
+        }
+        grays.push(gray);
+    }
+    let (w, h) = (cam.width(), cam.height());
     let init = read_pose(&a.init)?;
     let c = init.pose.center();
-    let (points, crs, tile_id): (Vec<GroundPoint>, Crs, String) = match (&a.tiles, &a.points) {
-        (Some(dir), _) => {
+    // One point set per image (--points), or the tile's one set shared by every image.
+    let (point_sets, crs, tile_id): (Vec<Vec<GroundPoint>>, Crs, String) = match &a.tiles {
+        Some(dir) => {
             if !(a.radius > 0.0 && a.radius.is_finite()) {
                 return Err(Error::Invalid(format!(
                     "--radius {}: must be positive",
@@ -144,14 +196,15 @@ pub fn run(a: Args) -> Result<()> {
                     format!("no valid ground point within {} m of the camera", a.radius),
                 ));
             }
-            (pts, crs, tref.id)
+            (vec![pts], crs, tref.id)
         }
-        (None, Some(p)) => (
-            read_points(p)?,
-            init.crs.unwrap_or(Crs::Local),
-            String::new(),
-        ),
-        (None, None) => return Err(Error::Invalid("give --tiles or --points".into())),
+        None => {
+            let mut sets = Vec::with_capacity(a.points.len());
+            for p in &a.points {
+                sets.push(read_points(p)?);
+            }
+            (sets, init.crs.unwrap_or(Crs::Local), String::new())
+        }
     };
     let cfg = SearchConfig {
         spec,
@@ -164,7 +217,7 @@ pub fn run(a: Args) -> Result<()> {
     // Tilts pivot about the ground under the camera: the points' median height stands for it
     // (only the 6-DoF polish tilts).
     let ground = a.polish.then(|| {
-        let mut zs: Vec<f64> = points.iter().map(|p| p.z).collect();
+        let mut zs: Vec<f64> = point_sets.iter().flatten().map(|p| p.z).collect();
         zs.sort_by(f64::total_cmp);
         zs.get(zs.len() / 2).copied()
     });
@@ -172,14 +225,21 @@ pub fn run(a: Args) -> Result<()> {
     let pivot =
         |pose: &crate::pose::CamFromMap| ground.map(|g| pose.center().z - g).filter(|d| *d > 0.5);
     let finish = a.finish();
+    let views: Vec<View<'_>> = grays
+        .iter()
+        .enumerate()
+        .map(|(i, gray)| View {
+            gray,
+            mask: &mask,
+            points: &point_sets[i.min(point_sets.len() - 1)],
+        })
+        .collect();
     let (r, rounds) = refine_polished(
         &cam,
-        &gray,
-        &mask,
-        &points,
+        &views,
         &init.pose,
         &cfg,
-        &QualityConfig::default(),
+        &qcfg,
         finish.as_ref(),
         &pivot,
     )?;
@@ -204,9 +264,10 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(path) = &a.overlay {
         // `gray` is the camera's size (checked above), so this cannot fail; the error is kept
         // one line all the same.
-        let frame = image::GrayImage::from_raw(w, h, gray)
-            .ok_or_else(|| Error::input(&a.image, "overlay: image buffer size"))?;
-        let png = crate::viz::before_after_png(&frame, &cam, &init.pose, &r.pose, &points)?;
+        // The first pair: one picture, the frame a technician names first.
+        let frame = image::GrayImage::from_raw(w, h, grays[0].clone())
+            .ok_or_else(|| Error::input(&a.image[0], "overlay: image buffer size"))?;
+        let png = crate::viz::before_after_png(&frame, &cam, &init.pose, &r.pose, &point_sets[0])?;
         crate::persist::write_atomic(path, &png)?;
     }
     if !r.quality.accepted {
@@ -225,8 +286,13 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         String::new()
     };
+    let pairs = if r.views.len() > 1 {
+        format!(" ({} pairs pooled)", r.views.len())
+    } else {
+        String::new()
+    };
     println!(
-        "mi: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°{tilt}; MI {:.4} nats on {} points; {:.0}× fewer point-pose evaluations than exhaustive",
+        "mi: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°{tilt}; MI {:.4} nats on {} points{pairs}; {:.0}× fewer point-pose evaluations than exhaustive",
         o[0],
         o[1],
         o[2],
@@ -235,6 +301,9 @@ pub fn run(a: Args) -> Result<()> {
         r.points.1,
         r.stats.exhaustive_point_evaluations as f64 / r.stats.point_evaluations.max(1) as f64
     );
+    if let Some(sig) = &r.quality.sigma {
+        println!("uncertainty: {}", sig.describe());
+    }
     for round in &rounds {
         let o = summed_offsets(&round.polish);
         println!(

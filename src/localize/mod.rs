@@ -26,4 +26,5 @@ pub mod refine;
 pub mod search;
 pub mod study;
 pub mod synth;
+pub mod uncertainty;
 pub mod verify;

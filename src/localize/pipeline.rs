@@ -7,6 +7,7 @@ use super::matcher::{initialize_with, MatchQuery, Matcher};
 use super::quality::QualityConfig;
 use super::refine::{refine_polished, PolishedSearch, Refinement};
 use super::search::SearchConfig;
+use super::search::View;
 use super::verify::MiVerifier;
 use crate::camera::{Camera, CameraModel};
 use crate::error::{Error, Result};
@@ -276,9 +277,11 @@ pub fn localize_ungated(
     };
     let (refinement, rounds) = refine_polished(
         camera,
-        image,
-        &mask,
-        &points,
+        &[View {
+            gray: image,
+            mask: &mask,
+            points: &points,
+        }],
         &init.pose,
         &p.search,
         &p.quality,

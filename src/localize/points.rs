@@ -101,6 +101,17 @@ impl PreparedPoints {
         }
     }
 
+    /// The points `a..b` (along the Morton order: a compact patch of ground).
+    pub fn range(&self, a: usize, b: usize) -> Self {
+        let (a, b) = (a.min(self.len()), b.min(self.len()));
+        PreparedPoints {
+            x: self.x[a..b.max(a)].to_vec(),
+            y: self.y[a..b.max(a)].to_vec(),
+            z: self.z[a..b.max(a)].to_vec(),
+            bin: self.bin[a..b.max(a)].to_vec(),
+        }
+    }
+
     /// The points whose flag is set.
     pub fn select(&self, keep: &[bool]) -> Self {
         let mut out = PreparedPoints::default();

@@ -11,8 +11,7 @@
 //! Deterministic: no randomness, ties broken by order.
 
 use super::kernel::Scratch;
-use super::points::GroundPoint;
-use super::search::{pose_at_pivot, AxisRange, Evaluator, SearchConfig, SearchSpec};
+use super::search::{pose_at_pivot, AxisRange, Evaluator, SearchConfig, SearchSpec, View};
 use crate::camera::Camera;
 use crate::error::Result;
 use crate::pose::CamFromMap;
@@ -265,7 +264,8 @@ impl PolishRecord {
     }
 }
 
-/// Polish `pose` over the free parameters of `p` (all six by default) on `gray` (camera size, `mask` non-zero = valid pixel):
+/// Polish `pose` over the free parameters of `p` (all six by default) on `views` (one or more
+/// image/point-set pairs sharing the pose, pooled into one histogram per pose):
 /// pitch and roll pivot `pivot` metres below the camera on its axis (see
 /// [`SearchSpec::tilt_pivot_m`]); the objective and estimator are `search`'s; the fixed point set
 /// is the one visible from every lattice pose of the ±`bound` box. Returns the polished pose and
@@ -273,9 +273,7 @@ impl PolishRecord {
 #[allow(clippy::too_many_arguments)]
 pub fn polish_pose(
     camera: &Camera,
-    gray: &[u8],
-    mask: &[u8],
-    points: &[GroundPoint],
+    views: &[View<'_>],
     pose: &CamFromMap,
     pivot: Option<f64>,
     search: &SearchConfig,
@@ -299,7 +297,7 @@ pub fn polish_pose(
         },
         ..*search
     };
-    let ev = Evaluator::new(camera, gray, mask, points, pose, &cfg, 0)?;
+    let ev = Evaluator::pooled(camera, views, pose, &cfg, 0)?;
     let objective = ev.objective();
     let ev = &ev;
     let res = nelder_mead_multi(

@@ -3,11 +3,11 @@
 //!
 //! Per enabled axis, the objective is profiled through the optimum at the finest step
 //! (±`profile-half-steps` cells, level 0: full image, all points):
-//! - **curvature / σ**: a least-squares parabola over ±`fit-half-steps` cells gives the MI
-//!   curvature κ = −d²MI/dθ² (nats per unit²). σ = 1/√(N·κ) treats N·MI as a log-likelihood ratio
-//!   of N independent points (Fisher information N·κ); neighbouring pixels are correlated, so read σ
-//!   as a lower bound on the real uncertainty and compare it across runs, not as a calibrated
-//!   standard deviation.
+//! - **curvature**: a least-squares parabola over ±`fit-half-steps` cells gives the MI
+//!   curvature κ = −d²MI/dθ² (nats per unit²). `fisher_sigma` = 1/√(N·κ) treats N·MI as a
+//!   log-likelihood ratio of N independent points; neighbouring pixels are correlated and the
+//!   axes couple, so it is a lower bound, often 10–100× too small. The uncertainty the gate and
+//!   the pose file use is [`super::uncertainty`]'s (`sigma`, `covariance`).
 //! - **basin width**: the profile is followed outwards from the optimum while it keeps falling; the
 //!   width is the distance between the first rises on both sides (`basin_open` when it reaches the
 //!   profile's end on a side).
@@ -22,6 +22,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::search::{Evaluator, SearchResult, AXES};
+use super::uncertainty::Uncertainty;
 use serde::{Deserialize, Serialize};
 
 /// Gate and profile settings.
@@ -42,6 +43,21 @@ pub struct QualityConfig {
     /// alignment peak falls off over the scale of the image's texture and blur; a peak only one
     /// or two cells wide is a spike of the estimator's noise on a wrong pose.
     pub min_basin_steps: i64,
+    /// Two peaks are one hill when the objective along the straight path between them never
+    /// falls further below the lower one than this fraction of the optimum's height above
+    /// background: a valley floor (axes trading against each other) is one answer with a large
+    /// σ, not two answers.
+    pub max_saddle_dip: f64,
+    /// Largest accepted σ of x and y (m).
+    pub max_sigma_xy_m: f64,
+    /// Largest accepted σ of z (m).
+    pub max_sigma_z_m: f64,
+    /// Largest accepted σ of yaw (deg).
+    pub max_sigma_yaw_deg: f64,
+    /// Largest accepted σ of pitch and roll when they are estimated (deg).
+    pub max_sigma_tilt_deg: f64,
+    /// Jackknife groups of the uncertainty estimate ([`super::uncertainty`]).
+    pub jackknife_folds: usize,
 }
 
 impl Default for QualityConfig {
@@ -53,7 +69,61 @@ impl Default for QualityConfig {
             max_second_peak_contrast: 0.8,
             max_lost_fraction: 0.02,
             min_basin_steps: MIN_BASIN_STEPS,
+            max_saddle_dip: 0.2,
+            max_sigma_xy_m: 0.05,
+            max_sigma_z_m: 0.05,
+            max_sigma_yaw_deg: 0.15,
+            max_sigma_tilt_deg: 0.5,
+            jackknife_folds: 8,
         }
+    }
+}
+
+impl QualityConfig {
+    /// Check the values a config file may set; the message names the key.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        let positive = [
+            ("max-sigma-xy-m", self.max_sigma_xy_m),
+            ("max-sigma-z-m", self.max_sigma_z_m),
+            ("max-sigma-yaw-deg", self.max_sigma_yaw_deg),
+            ("max-sigma-tilt-deg", self.max_sigma_tilt_deg),
+        ];
+        for (key, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{key} = {v}: must be a positive finite number"));
+            }
+        }
+        let fractions = [
+            ("max-second-peak-contrast", self.max_second_peak_contrast),
+            ("max-lost-fraction", self.max_lost_fraction),
+            ("max-saddle-dip", self.max_saddle_dip),
+        ];
+        for (key, v) in fractions {
+            if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
+                return Err(format!("{key} = {v}: must lie in 0..1"));
+            }
+        }
+        if !(2..=64).contains(&self.jackknife_folds) {
+            return Err(format!(
+                "jackknife-folds = {}: must lie in 2..64",
+                self.jackknife_folds
+            ));
+        }
+        if !(1..=1000).contains(&self.profile_half_steps)
+            || !(1..=self.profile_half_steps).contains(&self.fit_half_steps)
+        {
+            return Err(format!(
+                "profile-half-steps = {} / fit-half-steps = {}: need 1 <= fit <= profile <= 1000",
+                self.profile_half_steps, self.fit_half_steps
+            ));
+        }
+        if !(0..=1000).contains(&self.min_basin_steps) {
+            return Err(format!(
+                "min-basin-steps = {}: must lie in 0..1000",
+                self.min_basin_steps
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -76,8 +146,9 @@ pub struct AxisQuality {
     pub unit: String,
     /// MI curvature κ at the peak, nats per unit².
     pub curvature: f64,
-    /// σ = 1/√(N·κ) (∞ when κ ≤ 0).
-    pub sigma: f64,
+    /// 1/√(N·κ) (∞ when κ ≤ 0): the σ N independent points would give along this axis alone.
+    /// A lower bound, not the uncertainty: see [`Quality::sigma`].
+    pub fisher_sigma: f64,
     /// Vertex offset of the fitted parabola from the optimum (sub-step peak estimate).
     pub vertex_offset: f64,
     /// Basin width along the axis.
@@ -109,10 +180,153 @@ pub struct Quality {
     pub axes: Vec<AxisQuality>,
     /// Poses scored for these statistics.
     pub poses: u64,
+    /// Marginal σ per axis (m, deg) from [`super::uncertainty`]; `None` until estimated.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma: Option<Sigma>,
+    /// The marginal covariance and how it was estimated; `None` until estimated.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub covariance: Option<Uncertainty>,
     /// Gate verdict.
     pub accepted: bool,
     /// Why the gate rejected (None when accepted).
     pub reason: Option<String>,
+}
+
+/// Marginal σ per axis: metres for x, y, z; degrees for the angles (∞ where there is no peak).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Sigma {
+    /// Map x (m).
+    pub x: f64,
+    /// Map y (m).
+    pub y: f64,
+    /// Height (m).
+    pub z: f64,
+    /// Yaw (deg).
+    pub yaw: f64,
+    /// Pitch (deg), when estimated.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pitch: Option<f64>,
+    /// Roll (deg), when estimated.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub roll: Option<f64>,
+}
+
+impl Sigma {
+    /// From an estimate (axes it did not estimate are 0 for x..yaw, absent for the tilts).
+    pub fn of(u: &Uncertainty) -> Self {
+        let g = |a: &str| u.sigma_of(a);
+        Sigma {
+            x: g("x").unwrap_or(0.0),
+            y: g("y").unwrap_or(0.0),
+            z: g("z").unwrap_or(0.0),
+            yaw: g("yaw").unwrap_or(0.0),
+            pitch: g("pitch"),
+            roll: g("roll"),
+        }
+    }
+
+    /// One line for people: centimetres and degrees.
+    pub fn describe(&self) -> String {
+        let mut s = format!(
+            "σ x {:.1} cm, y {:.1} cm, z {:.1} cm, yaw {:.3}°",
+            100.0 * self.x,
+            100.0 * self.y,
+            100.0 * self.z,
+            self.yaw
+        );
+        if let Some(p) = self.pitch {
+            s += &format!(", pitch {p:.3}°");
+        }
+        if let Some(r) = self.roll {
+            s += &format!(", roll {r:.3}°");
+        }
+        s
+    }
+}
+
+/// Attach the uncertainty estimate to `q` and apply the σ part of the gate: a result the other
+/// checks accepted is refused when the objective has no peak over all free axes together, when
+/// the covariance is not finite, or when an axis's σ exceeds its limit. The reason names the axis,
+/// its σ and the limit's key.
+pub fn apply_uncertainty(q: &mut Quality, u: Uncertainty, cfg: &QualityConfig) {
+    let sigma = Sigma::of(&u);
+    if q.accepted {
+        let limits = [
+            ("x", sigma.x, cfg.max_sigma_xy_m, "max-sigma-xy-m"),
+            ("y", sigma.y, cfg.max_sigma_xy_m, "max-sigma-xy-m"),
+            ("z", sigma.z, cfg.max_sigma_z_m, "max-sigma-z-m"),
+            ("yaw", sigma.yaw, cfg.max_sigma_yaw_deg, "max-sigma-yaw-deg"),
+            (
+                "pitch",
+                sigma.pitch.unwrap_or(0.0),
+                cfg.max_sigma_tilt_deg,
+                "max-sigma-tilt-deg",
+            ),
+            (
+                "roll",
+                sigma.roll.unwrap_or(0.0),
+                cfg.max_sigma_tilt_deg,
+                "max-sigma-tilt-deg",
+            ),
+        ];
+        let reason = if !u.peak {
+            Some(
+                "no peak: without one patch of the points the MI optimum walks to the edge of its ±15 cm / ±0.5° box (a flat valley); σ is unbounded"
+                    .to_string(),
+            )
+        } else if !u.is_finite() {
+            Some("uncertainty: the covariance is not finite".to_string())
+        } else {
+            limits
+                .iter()
+                .find(|(_, s, lim, _)| *s > *lim)
+                .map(|(axis, s, lim, key)| {
+                    let (v, l, unit) = if *axis == "yaw" || *axis == "pitch" || *axis == "roll" {
+                        (*s, *lim, "°")
+                    } else {
+                        (100.0 * s, 100.0 * lim, " cm")
+                    };
+                    format!(
+                        "uncertain: σ {axis} {v:.2}{unit} exceeds the limit {l:.2}{unit} ([quality] {key}); {}",
+                        sigma.describe()
+                    )
+                })
+        };
+        if let Some(r) = reason {
+            q.accepted = false;
+            q.reason = Some(r);
+        }
+    }
+    q.sigma = Some(sigma);
+    q.covariance = Some(u);
+}
+
+/// The lowest objective on the straight path between two cells (level 0, continuous offsets),
+/// sampled at about one finest step (at most 32 samples, ends excluded), and the poses scored.
+fn path_minimum(
+    ev: &Evaluator,
+    a: &[f64; 6],
+    b: &[f64; 6],
+    ca: &[i64; 6],
+    cb: &[i64; 6],
+) -> (f64, u64) {
+    let cells = (0..6)
+        .map(|i| (cb[i] - ca[i]).abs())
+        .max()
+        .unwrap_or(0)
+        .clamp(1, 32);
+    let objective = ev.objective();
+    let mut scratch = super::kernel::Scratch::default();
+    let mut low = f64::INFINITY;
+    for j in 1..cells {
+        let t = j as f64 / cells as f64;
+        let mut o = [0.0; 6];
+        for i in 0..6 {
+            o[i] = a[i] + t * (b[i] - a[i]);
+        }
+        low = low.min(ev.value_at(0, &o, &mut scratch).get(objective));
+    }
+    (low, cells.saturating_sub(1) as u64)
 }
 
 /// Least-squares parabola y = a x² + b x + c; returns (a, b).
@@ -215,22 +429,33 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
             axis: AXES[i].into(),
             unit: if i < 3 { "m" } else { "deg" }.into(),
             curvature,
-            sigma,
+            fisher_sigma: sigma,
             vertex_offset,
             basin_width: (lo + hi) as f64 * step,
             basin_open: open,
             on_edge: best_cell[i].abs() == g.m[i],
         });
     }
-    // Second peak: best other local maximum outside the basin on some axis.
+    // Second peak: the best other local maximum outside the basin on some axis that is a hill
+    // of its own: the objective dips between it and the optimum. One on the same valley floor
+    // (axes trading against each other) is the same answer, whose spread the σ reports.
+    let s1 = res.best.score;
+    let height = s1 - background;
+    let mut path_poses = 0u64;
     let second = res.other_peaks.iter().find(|p| {
         let c = g.cell(p.idx);
-        (0..6).any(|i| {
+        let outside = (0..6).any(|i| {
             let d = c[i] - best_cell[i];
             (d < 0 && -d > basin_cells[i][0].max(1)) || (d > 0 && d > basin_cells[i][1].max(1))
-        })
+        });
+        if !outside {
+            return false;
+        }
+        let (saddle, n) = path_minimum(ev, &g.offsets(&best_cell), &g.offsets(&c), &best_cell, &c);
+        path_poses += n;
+        height <= 0.0 || p.score.min(s1) - saddle > cfg.max_saddle_dip * height
     });
-    let s1 = res.best.score;
+    poses += path_poses;
     let (ratio, contrast, offset) = match second {
         Some(p) => {
             let c = g.cell(p.idx);
@@ -286,8 +511,11 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
         ));
     } else if let (Some(c), Some(o)) = (contrast, offset) {
         if c > cfg.max_second_peak_contrast {
+            let a = res.offsets;
             reason = Some(format!(
-                "ambiguous: a second peak at offset ({:.2} m, {:.2} m, {:.2} m, {:.2}°) reaches {:.0}% of the optimum's height above background (> {:.0}%)",
+                "ambiguous: two separate peaks, the optimum at ({:+.2} m, {:+.2} m, {:+.2} m, {:+.2}°) from the start and a second at ({:+.2} m, {:+.2} m, {:+.2} m, {:+.2}°), offset ({:.2} m, {:.2} m, {:.2} m, {:.2}°) from it, reaching {:.0}% of the optimum's height above background (> {:.0}%)",
+                a[0], a[1], a[2], a[3],
+                a[0] + o[0], a[1] + o[1], a[2] + o[2], a[3] + o[3],
                 o[0], o[1], o[2], o[3], 100.0 * c, 100.0 * cfg.max_second_peak_contrast
             ));
         }
@@ -302,6 +530,8 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
         second_peak_offset: offset,
         axes,
         poses,
+        sigma: None,
+        covariance: None,
         accepted: reason.is_none(),
         reason,
     }

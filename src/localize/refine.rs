@@ -2,8 +2,9 @@
 //! pipeline call this; they only do the file I/O around it.
 
 use super::points::GroundPoint;
-use super::quality::{assess, Quality, QualityConfig};
-use super::search::{search, Evaluator, Mode, SearchConfig, SearchStats, MAX_LEVEL};
+use super::quality::{apply_uncertainty, assess, Quality, QualityConfig};
+use super::search::{search, Evaluator, Mode, SearchConfig, SearchStats, View, MAX_LEVEL};
+use super::uncertainty::{estimate, UncertaintyConfig};
 use crate::camera::{Camera, CameraModel};
 use crate::error::{Error, Result};
 use crate::pose::CamFromMap;
@@ -21,8 +22,10 @@ pub struct Refinement {
     pub stats: SearchStats,
     /// Quality statistics and the gate's verdict.
     pub quality: Quality,
-    /// Points given, and points in the fixed set.
+    /// Points given, and points in the fixed set (all views).
     pub points: (usize, usize),
+    /// Per view (image/point-set pair): points given and points in its fixed set.
+    pub views: Vec<(usize, usize)>,
 }
 
 /// Machine-readable summary (`--report`).
@@ -36,6 +39,10 @@ pub struct Report {
     pub points_input: usize,
     /// Points in the fixed set.
     pub points_used: usize,
+    /// Image/point-set pairs pooled into one joint histogram per pose.
+    pub pairs: usize,
+    /// Per pair: points given and points in its fixed set.
+    pub pair_points: Vec<(usize, usize)>,
     /// Search counters (after search rounds and polishes: `poses` and `point_evaluations` count
     /// them all, see [`Refinement::stats`]).
     pub stats: SearchStats,
@@ -53,6 +60,8 @@ impl Refinement {
             offsets: self.offsets,
             points_input: self.points.0,
             points_used: self.points.1,
+            pairs: self.views.len(),
+            pair_points: self.views.clone(),
             stats: self.stats,
             evaluation_ratio: self.stats.exhaustive_point_evaluations as f64
                 / self.stats.point_evaluations.max(1) as f64,
@@ -89,13 +98,25 @@ pub fn refine_masked(
     cfg: &SearchConfig,
     qcfg: &QualityConfig,
 ) -> Result<Refinement> {
-    // `Evaluator::new` checks the image and mask sizes.
+    let r = search_views(cam, &[View { gray, mask, points }], init, cfg, qcfg)?;
+    with_uncertainty(cam, &[View { gray, mask, points }], r, cfg, qcfg)
+}
+
+/// The grid search and its quality on pooled views, without the uncertainty estimate.
+fn search_views(
+    cam: &Camera,
+    views: &[View<'_>],
+    init: &CamFromMap,
+    cfg: &SearchConfig,
+    qcfg: &QualityConfig,
+) -> Result<Refinement> {
+    // `Evaluator::pooled` checks the images' and masks' sizes.
     let levels = if cfg.mode == Mode::Exhaustive {
         0
     } else {
         MAX_LEVEL
     };
-    let ev = Evaluator::new(cam, gray, mask, points, init, cfg, levels)?;
+    let ev = Evaluator::pooled(cam, views, init, cfg, levels)?;
     let res = search(&ev, cfg);
     let quality = assess(&ev, &res, qcfg);
     if !res.pose.translation.iter().all(|v| v.is_finite()) {
@@ -107,7 +128,48 @@ pub fn refine_masked(
         stats: res.stats,
         quality,
         points: (ev.n_input, ev.n_points),
+        views: ev.view_points.clone(),
     })
+}
+
+/// Estimate the answer's uncertainty ([`super::uncertainty`]) on the same views and estimator,
+/// over x, y, z and yaw at the answer's tilt, and apply the σ gate. The tilt is held: the
+/// pipeline's 6-DoF polish settles it with its multi-start, and the detection pipeline's ground
+/// error is governed by the position and yaw (docs/refine.md "Uncertainty").
+fn with_uncertainty(
+    cam: &Camera,
+    views: &[View<'_>],
+    mut r: Refinement,
+    cfg: &SearchConfig,
+    qcfg: &QualityConfig,
+) -> Result<Refinement> {
+    let u = estimate(
+        cam,
+        views,
+        &r.pose,
+        cfg,
+        &super::polish::PolishParams::four_dof(),
+        &UncertaintyConfig {
+            folds: qcfg.jackknife_folds,
+        },
+    )?;
+    // The objective is rugged at the pixel scale (nearest-pixel sampling), and every group's
+    // re-optimisation starts at the answer, so they can share one local bump and spread less than
+    // the search resolves: the variance is floored at (half the finest step)² per axis.
+    let mut u = u;
+    let axes = cfg.spec.axes();
+    for i in 0..u.sigma.len().min(4) {
+        let floor = 0.5 * axes[i].step;
+        if u.matrix[i][i] < floor * floor {
+            u.matrix[i][i] = floor * floor;
+            u.sigma[i] = floor;
+        }
+    }
+    r.stats.poses += u.poses as u64;
+    r.stats.point_evaluations +=
+        (u.poses as u64) * (u.points as u64) * (u.folds as u64 - 1) / u.folds as u64;
+    apply_uncertainty(&mut r.quality, u, qcfg);
+    Ok(r)
 }
 
 /// Settings of [`refine_polished`].
@@ -228,9 +290,7 @@ pub struct Round {
 #[allow(clippy::too_many_arguments)]
 pub fn refine_polished(
     cam: &Camera,
-    gray: &[u8],
-    mask: &[u8],
-    points: &[GroundPoint],
+    views: &[View<'_>],
     init: &CamFromMap,
     cfg: &SearchConfig,
     qcfg: &QualityConfig,
@@ -238,10 +298,8 @@ pub fn refine_polished(
     pivot: &dyn Fn(&CamFromMap) -> Option<f64>,
 ) -> Result<(Refinement, Vec<Round>)> {
     let Some(p) = p else {
-        return Ok((
-            refine_masked(cam, gray, mask, points, init, cfg, qcfg)?,
-            Vec::new(),
-        ));
+        let r = search_views(cam, views, init, cfg, qcfg)?;
+        return Ok((with_uncertainty(cam, views, r, cfg, qcfg)?, Vec::new()));
     };
     let mut rounds = Vec::new();
     let mut start = *init;
@@ -249,7 +307,7 @@ pub fn refine_polished(
     // Work done by all the searches and polishes: the reported evaluation ratio counts it all.
     let (mut poses, mut point_evaluations) = (0u64, 0u64);
     loop {
-        let mut r = refine_masked(cam, gray, mask, points, &start, cfg, qcfg)?;
+        let mut r = search_views(cam, views, &start, cfg, qcfg)?;
         poses += r.stats.poses;
         point_evaluations += r.stats.point_evaluations;
         let mut polish = Vec::new();
@@ -266,16 +324,8 @@ pub fn refine_polished(
             } else {
                 p.polish
             };
-            let (pose, record) = super::polish::polish_pose(
-                cam,
-                gray,
-                mask,
-                points,
-                &r.pose,
-                pivot(&r.pose),
-                cfg,
-                &params,
-            )?;
+            let (pose, record) =
+                super::polish::polish_pose(cam, views, &r.pose, pivot(&r.pose), cfg, &params)?;
             r.pose = pose;
             poses += record.evaluations as u64;
             point_evaluations += record.evaluations as u64 * record.points as u64;
@@ -306,7 +356,7 @@ pub fn refine_polished(
                 r.offsets = crate::pose::offsets_between(init, &r.pose);
                 r.stats.poses = poses;
                 r.stats.point_evaluations = point_evaluations;
-                return Ok((r, rounds));
+                return Ok((with_uncertainty(cam, views, r, cfg, qcfg)?, rounds));
             }
         }
     }

@@ -425,12 +425,38 @@ impl Default for SearchConfig {
     }
 }
 
-/// One level of the evaluator: image, camera and points at that resolution.
+/// One image and the points it sees, for a search whose pose all the views share: one frame and
+/// its LiDAR sweep, or one of several frames of a static camera over one tile. Several views
+/// feed one joint histogram per candidate pose (pooled refinement).
+#[derive(Debug, Clone, Copy)]
+pub struct View<'a> {
+    /// Gray image, row-major at the camera's size.
+    pub gray: &'a [u8],
+    /// Validity mask at the camera's size (non-zero = valid pixel).
+    pub mask: &'a [u8],
+    /// The points.
+    pub points: &'a [GroundPoint],
+}
+
+/// Jackknife groups of an evaluator's level-0 points ([`Evaluator::folds`]).
+#[derive(Debug, Clone)]
+pub struct Folds {
+    parts: Vec<Vec<PreparedPoints>>,
+    k: usize,
+}
+
+/// One view at one level of the evaluator: its image and its points at that resolution.
+#[derive(Debug, Clone)]
+struct Part {
+    img: BinnedImage,
+    pts: PreparedPoints,
+}
+
+/// One level of the evaluator: the camera and every view at that resolution.
 #[derive(Debug, Clone)]
 struct Level {
     cam: FastCamera,
-    img: BinnedImage,
-    pts: PreparedPoints,
+    parts: Vec<Part>,
 }
 
 /// Everything needed to score a grid cell: the problem prepared at every pyramid level.
@@ -441,10 +467,12 @@ pub struct Evaluator {
     grid: Grid,
     mi: MiConfig,
     levels: Vec<Level>,
-    /// Points in the (fixed) set at level 0.
+    /// Points in the (fixed) set at level 0, all views together.
     pub n_points: usize,
-    /// Points given.
+    /// Points given, all views together.
     pub n_input: usize,
+    /// Per view: points given and points in its fixed set.
+    pub view_points: Vec<(usize, usize)>,
 }
 
 /// A scored cell.
@@ -471,6 +499,14 @@ fn best_of<'a>(it: impl IntoIterator<Item = &'a Scored>) -> Option<Scored> {
         })
 }
 
+/// A view prepared at level 0: its image, the pyramid's base, and its fixed point set.
+struct Prepared {
+    level0: GrayLevel,
+    lut_gray: [u8; 256],
+    img0: BinnedImage,
+    pts0: PreparedPoints,
+}
+
 impl Evaluator {
     /// Prepare the problem: validate inputs, bin, build the pyramid (levels 0..=`max_level`) and the
     /// fixed point set. `gray`/`mask` are row-major at the camera's size (mask non-zero = valid
@@ -484,124 +520,85 @@ impl Evaluator {
         cfg: &SearchConfig,
         max_level: u32,
     ) -> Result<Self> {
-        validate(points, "points")?;
+        Self::pooled(cam, &[View { gray, mask, points }], init, cfg, max_level)
+    }
+
+    /// [`Evaluator::new`] over several views that share the pose: each view is binned on its own
+    /// (its gray and reflectivity bin edges come from its own data, so frames under different
+    /// light are labelled alike) and keeps its own fixed point set; a candidate pose's joint
+    /// histogram is the sum over the views. With one view this is exactly [`Evaluator::new`].
+    pub fn pooled(
+        cam: &Camera,
+        views: &[View<'_>],
+        init: &CamFromMap,
+        cfg: &SearchConfig,
+        max_level: u32,
+    ) -> Result<Self> {
+        if views.is_empty() {
+            return Err(Error::Invalid(
+                "no image/point-set pair to refine on".into(),
+            ));
+        }
         cfg.mi.validate()?;
         cfg.spec.validate()?;
-        let (w, h) = (cam.width() as usize, cam.height() as usize);
-        if gray.len() != w * h || mask.len() != w * h {
-            return Err(Error::Invalid(format!(
-                "image has {} pixels but the camera is {w}×{h}",
-                gray.len()
-            )));
-        }
         let grid = cfg.spec.grid();
         let c = init.center();
         let origin = [c.x, c.y, c.z];
+        let pooled = views.len() > 1;
+        // One error line per view: with several, it names the pair (1-based, as given).
+        let name = |i: usize, msg: String| -> Error {
+            if pooled {
+                Error::Invalid(format!("pair {} of {}: {msg}", i + 1, views.len()))
+            } else {
+                Error::Invalid(msg)
+            }
+        };
+        let mut prepared = Vec::with_capacity(views.len());
+        for (i, v) in views.iter().enumerate() {
+            validate(v.points, "points").map_err(|e| match e {
+                Error::Invalid(m) => name(i, m),
+                other => other,
+            })?;
+            prepared.push(prepare_view(cam, v, init, origin, &grid, cfg).map_err(|m| name(i, m))?);
+        }
+        let n_points = prepared.iter().map(|p| p.pts0.len()).sum::<usize>();
+        let view_points = views
+            .iter()
+            .zip(&prepared)
+            .map(|(v, p)| (v.points.len(), p.pts0.len()))
+            .collect();
         let invalid = cfg.mi.bins_gray as u8;
-
-        // Gray LUT from the valid pixels.
-        let mut gcounts = [0u64; 256];
-        for (&g, &m) in gray.iter().zip(mask) {
-            if m != 0 {
-                gcounts[g as usize] += 1;
-            }
-        }
-        if gcounts.iter().sum::<u64>() == 0 {
-            return Err(Error::Invalid(
-                "image: no valid pixel in the camera's image circle".into(),
-            ));
-        }
-        let lut_gray = bin_lut(cfg.mi.binning, cfg.mi.bins_gray, &gcounts);
-
-        // Level 0 image (anti-aliased, see `blur3`), and the eroded one used to pick the fixed set.
-        let smooth = blur3(gray, mask, w, h);
-        let gray = &smooth[..];
-        let level0 = GrayLevel {
-            width: w,
-            height: h,
-            gray: gray.to_vec(),
-            mask: mask.to_vec(),
-        };
-        let cam0 = FastCamera::new(cam, 0);
-        let img0 = BinnedImage::new(w, h, gray, mask, &lut_gray, invalid);
-
-        // Points with raw reflectivity as "bin" first, to select the fixed set.
-        let mut identity = [0u8; 256];
-        for (i, v) in identity.iter_mut().enumerate() {
-            *v = i as u8;
-        }
-        let raw = PreparedPoints::new(points, origin, &identity);
-        let keep = if cfg.fixed_point_set {
-            let eroded = erode(mask, w, h, cfg.visibility_margin_px);
-            let img_e = BinnedImage::new(w, h, gray, &eroded, &lut_gray, invalid);
-            // The 3^d lattice poses in parallel, each thread AND-ing into its own flags, then
-            // the threads' flags AND-ed: AND is associative and commutative, so the set does not
-            // depend on how rayon splits the work.
-            let n = raw.len();
-            box_lattice(&grid)
-                .par_iter()
-                .fold(
-                    || (vec![true; n], vec![false; n]),
-                    |(mut keep, mut vis), cell| {
-                        let p = PoseF32::new(
-                            &pose_at_pivot(init, &grid.offsets(cell), grid.pivot),
-                            origin,
-                        );
-                        visible(&raw, &p, &cam0, &img_e, invalid, &mut vis);
-                        keep.iter_mut().zip(&vis).for_each(|(k, &v)| *k &= v);
-                        (keep, vis)
-                    },
-                )
-                .map(|(keep, _)| keep)
-                .reduce(
-                    || vec![true; n],
-                    |mut a, b| {
-                        a.iter_mut().zip(&b).for_each(|(x, &y)| *x &= y);
-                        a
-                    },
-                )
-        } else {
-            let mut vis = vec![false; raw.len()];
-            let p = PoseF32::new(init, origin);
-            visible(&raw, &p, &cam0, &img0, invalid, &mut vis);
-            // The naive estimator uses every point; it only needs one visible to be meaningful.
-            if !vis.iter().any(|&v| v) {
-                vis.iter_mut().for_each(|v| *v = false);
-            } else {
-                vis.iter_mut().for_each(|v| *v = true);
-            }
-            vis
-        };
-        let mut pts0 = raw.select(&keep);
-        if pts0.is_empty() {
-            return Err(Error::Invalid(if cfg.fixed_point_set {
-                "points: none is visible from every pose of the search box (wrong pose, tile or camera?)"
-                    .into()
-            } else {
-                "points: none is visible from the initial pose".into()
-            }));
-        }
-        let mut rcounts = [0u64; 256];
-        for &b in &pts0.bin {
-            rcounts[b as usize] += 1;
-        }
-        let lut_refl = bin_lut(cfg.mi.binning, cfg.mi.bins_reflectivity, &rcounts);
-        pts0.bin.iter_mut().for_each(|b| *b = lut_refl[*b as usize]);
-
-        let n_points = pts0.len();
         let mut levels = vec![Level {
-            cam: cam0,
-            img: img0,
-            pts: pts0.clone(),
+            cam: FastCamera::new(cam, 0),
+            parts: prepared
+                .iter()
+                .map(|p| Part {
+                    img: p.img0.clone(),
+                    pts: p.pts0.clone(),
+                })
+                .collect(),
         }];
-        let mut g = level0;
+        let mut pyramids: Vec<GrayLevel> = prepared.iter().map(|p| p.level0.clone()).collect();
         for l in 1..=max_level {
-            g = g.downsample();
             let stride = (1usize << (2 * l)).min((n_points / cfg.coarse_min_points.max(1)).max(1));
+            let mut parts = Vec::with_capacity(prepared.len());
+            for (g, p) in pyramids.iter_mut().zip(&prepared) {
+                *g = g.downsample();
+                parts.push(Part {
+                    img: BinnedImage::new(
+                        g.width,
+                        g.height,
+                        &g.gray,
+                        &g.mask,
+                        &p.lut_gray,
+                        invalid,
+                    ),
+                    pts: p.pts0.subsample(stride),
+                });
+            }
             levels.push(Level {
                 cam: FastCamera::new(cam, l),
-                img: BinnedImage::new(g.width, g.height, &g.gray, &g.mask, &lut_gray, invalid),
-                pts: pts0.subsample(stride),
+                parts,
             });
         }
         Ok(Evaluator {
@@ -611,7 +608,8 @@ impl Evaluator {
             mi: cfg.mi,
             levels,
             n_points,
-            n_input: points.len(),
+            n_input: views.iter().map(|v| v.points.len()).sum(),
+            view_points,
         })
     }
 
@@ -622,7 +620,16 @@ impl Evaluator {
 
     /// Points used at a level.
     pub fn points_at(&self, level: u32) -> usize {
-        self.levels[level as usize].pts.len()
+        self.levels[level as usize]
+            .parts
+            .iter()
+            .map(|p| p.pts.len())
+            .sum()
+    }
+
+    /// Number of views (image/point-set pairs).
+    pub fn views(&self) -> usize {
+        self.view_points.len()
     }
 
     /// The pose of a cell.
@@ -632,10 +639,17 @@ impl Evaluator {
 
     /// Joint histogram of a cell at a level.
     pub fn histogram(&self, level: u32, cell: &Cell, scratch: &mut Scratch) -> JointHist {
+        self.histogram_at(level, &self.pose(cell), scratch)
+    }
+
+    /// Joint histogram of any pose at a level: the sum over the views.
+    fn histogram_at(&self, level: u32, pose: &CamFromMap, scratch: &mut Scratch) -> JointHist {
         let lv = &self.levels[level as usize];
         let mut h = JointHist::new(self.mi.bins_reflectivity, self.mi.bins_gray);
-        let p = PoseF32::new(&self.pose(cell), self.origin);
-        accumulate(&lv.pts, &p, &lv.cam, &lv.img, &mut h, scratch);
+        let p = PoseF32::new(pose, self.origin);
+        for part in &lv.parts {
+            accumulate(&part.pts, &p, &lv.cam, &part.img, &mut h, scratch);
+        }
         h
     }
 
@@ -643,18 +657,50 @@ impl Evaluator {
     /// cells), on the fixed point set at `level`; for local continuous polishing after the grid
     /// search ([`super::polish`]).
     pub fn value_at(&self, level: u32, offsets: &[f64; 6], scratch: &mut Scratch) -> MiValue {
-        let lv = &self.levels[level as usize];
-        let mut h = JointHist::new(self.mi.bins_reflectivity, self.mi.bins_gray);
         let pose = pose_at_pivot(&self.init, offsets, self.grid.pivot);
-        accumulate(
-            &lv.pts,
-            &PoseF32::new(&pose, self.origin),
-            &lv.cam,
-            &lv.img,
-            &mut h,
-            scratch,
+        mutual_information(&self.histogram_at(level, &pose, scratch), self.mi.parzen)
+    }
+
+    /// The level-0 point sets cut into `k` jackknife groups: each view's fixed set, in Morton
+    /// order, in `k` contiguous runs (compact patches of ground); group j is run j of every view.
+    /// Indexed `[view][group]`.
+    pub fn folds(&self, k: usize) -> Folds {
+        let k = k.max(1);
+        Folds {
+            parts: self.levels[0]
+                .parts
+                .iter()
+                .map(|p| {
+                    let n = p.pts.len();
+                    (0..k)
+                        .map(|j| p.pts.range(j * n / k, (j + 1) * n / k))
+                        .collect()
+                })
+                .collect(),
+            k,
+        }
+    }
+
+    /// Level-0 joint histograms of the pose at `offsets`, one per group of `folds`; their sum is
+    /// the histogram [`Evaluator::value_at`] scores.
+    pub fn fold_histograms(
+        &self,
+        folds: &Folds,
+        offsets: &[f64; 6],
+        scratch: &mut Scratch,
+    ) -> Vec<JointHist> {
+        let lv = &self.levels[0];
+        let pose = PoseF32::new(
+            &pose_at_pivot(&self.init, offsets, self.grid.pivot),
+            self.origin,
         );
-        mutual_information(&h, self.mi.parzen)
+        let mut out = vec![JointHist::new(self.mi.bins_reflectivity, self.mi.bins_gray); folds.k];
+        for (part, groups) in lv.parts.iter().zip(&folds.parts) {
+            for (h, pts) in out.iter_mut().zip(groups) {
+                accumulate(pts, &pose, &lv.cam, &part.img, h, scratch);
+            }
+        }
+        out
     }
 
     /// The objective the search maximises (MI or NMI, per the configuration).
@@ -705,6 +751,120 @@ impl Evaluator {
         }
         out
     }
+}
+
+/// Bin one view's image, blur it, and pick its fixed point set (see [`Evaluator::pooled`]).
+/// Errors are the message alone; the caller names the view.
+fn prepare_view(
+    cam: &Camera,
+    v: &View<'_>,
+    init: &CamFromMap,
+    origin: [f64; 3],
+    grid: &Grid,
+    cfg: &SearchConfig,
+) -> std::result::Result<Prepared, String> {
+    let (gray, mask, points) = (v.gray, v.mask, v.points);
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
+    if gray.len() != w * h || mask.len() != w * h {
+        return Err(format!(
+            "image has {} pixels but the camera is {w}×{h}",
+            gray.len()
+        ));
+    }
+    let invalid = cfg.mi.bins_gray as u8;
+
+    // Gray LUT from the valid pixels.
+    let mut gcounts = [0u64; 256];
+    for (&g, &m) in gray.iter().zip(mask) {
+        if m != 0 {
+            gcounts[g as usize] += 1;
+        }
+    }
+    if gcounts.iter().sum::<u64>() == 0 {
+        return Err("image: no valid pixel in the camera's image circle".into());
+    }
+    let lut_gray = bin_lut(cfg.mi.binning, cfg.mi.bins_gray, &gcounts);
+
+    // Level 0 image (anti-aliased, see `blur3`), and the eroded one used to pick the fixed set.
+    let smooth = blur3(gray, mask, w, h);
+    let gray = &smooth[..];
+    let level0 = GrayLevel {
+        width: w,
+        height: h,
+        gray: gray.to_vec(),
+        mask: mask.to_vec(),
+    };
+    let cam0 = FastCamera::new(cam, 0);
+    let img0 = BinnedImage::new(w, h, gray, mask, &lut_gray, invalid);
+
+    // Points with raw reflectivity as "bin" first, to select the fixed set.
+    let mut identity = [0u8; 256];
+    for (i, v) in identity.iter_mut().enumerate() {
+        *v = i as u8;
+    }
+    let raw = PreparedPoints::new(points, origin, &identity);
+    let keep = if cfg.fixed_point_set {
+        let eroded = erode(mask, w, h, cfg.visibility_margin_px);
+        let img_e = BinnedImage::new(w, h, gray, &eroded, &lut_gray, invalid);
+        // The 3^d lattice poses in parallel, each thread AND-ing into its own flags, then
+        // the threads' flags AND-ed: AND is associative and commutative, so the set does not
+        // depend on how rayon splits the work.
+        let n = raw.len();
+        box_lattice(grid)
+            .par_iter()
+            .fold(
+                || (vec![true; n], vec![false; n]),
+                |(mut keep, mut vis), cell| {
+                    let p = PoseF32::new(
+                        &pose_at_pivot(init, &grid.offsets(cell), grid.pivot),
+                        origin,
+                    );
+                    visible(&raw, &p, &cam0, &img_e, invalid, &mut vis);
+                    keep.iter_mut().zip(&vis).for_each(|(k, &v)| *k &= v);
+                    (keep, vis)
+                },
+            )
+            .map(|(keep, _)| keep)
+            .reduce(
+                || vec![true; n],
+                |mut a, b| {
+                    a.iter_mut().zip(&b).for_each(|(x, &y)| *x &= y);
+                    a
+                },
+            )
+    } else {
+        let mut vis = vec![false; raw.len()];
+        let p = PoseF32::new(init, origin);
+        visible(&raw, &p, &cam0, &img0, invalid, &mut vis);
+        // The naive estimator uses every point; it only needs one visible to be meaningful.
+        if !vis.iter().any(|&v| v) {
+            vis.iter_mut().for_each(|v| *v = false);
+        } else {
+            vis.iter_mut().for_each(|v| *v = true);
+        }
+        vis
+    };
+    let mut pts0 = raw.select(&keep);
+    if pts0.is_empty() {
+        return Err(if cfg.fixed_point_set {
+            "points: none is visible from every pose of the search box (wrong pose, tile or camera?)"
+                .into()
+        } else {
+            "points: none is visible from the initial pose".into()
+        });
+    }
+    let mut rcounts = [0u64; 256];
+    for &b in &pts0.bin {
+        rcounts[b as usize] += 1;
+    }
+    let lut_refl = bin_lut(cfg.mi.binning, cfg.mi.bins_reflectivity, &rcounts);
+    pts0.bin.iter_mut().for_each(|b| *b = lut_refl[*b as usize]);
+    Ok(Prepared {
+        level0,
+        lut_gray,
+        img0,
+        pts0,
+    })
 }
 
 /// 3×3 binomial blur ([1 2 1]⊗[1 2 1]/16) over valid pixels only (weights renormalised at the

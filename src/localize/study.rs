@@ -9,6 +9,7 @@
 
 use super::quality::QualityConfig;
 use super::refine::{refine_polished, PolishedSearch};
+use super::search::View;
 use super::search::{pose_at, Evaluator, SearchConfig, AXES};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -306,9 +307,11 @@ pub fn run_trial(
     let points = sel.points(scene.tile, &init);
     let (r, _) = refine_polished(
         scene.camera,
-        scene.gray,
-        scene.mask,
-        &points,
+        &[View {
+            gray: scene.gray,
+            mask: scene.mask,
+            points: &points,
+        }],
         &init,
         cfg,
         qcfg,
