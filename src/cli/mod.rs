@@ -141,6 +141,18 @@ pub(crate) fn parse_list<const N: usize>(flag: &str, s: &str) -> Result<[f64; N]
     })
 }
 
+/// Parse `W,H` (pixels, each 200..=8000 so that every chart fits its labels).
+pub(crate) fn parse_size(s: &str) -> Result<(u32, u32), Error> {
+    let [w, h] = parse_list::<2>("--size", s)?;
+    let ok = |v: f64| v.fract() == 0.0 && (200.0..=8000.0).contains(&v);
+    if !(ok(w) && ok(h)) {
+        return Err(Error::Invalid(format!(
+            "--size {s}: expected W,H in pixels, each 200..8000"
+        )));
+    }
+    Ok((w as u32, h as u32))
+}
+
 /// Default config path of the installed service.
 pub const DEFAULT_CONFIG: &str = "/etc/infraloc/infraloc.toml";
 
