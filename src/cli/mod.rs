@@ -4,7 +4,7 @@
 mod demo;
 mod estimator;
 mod gps;
-pub(crate) mod localize;
+mod localize;
 mod plot;
 mod progress;
 mod project;
