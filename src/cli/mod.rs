@@ -4,6 +4,7 @@
 mod demo;
 mod estimator;
 mod gps;
+mod kitti;
 mod localize;
 mod plot;
 mod progress;
@@ -57,6 +58,10 @@ pub enum Command {
     /// GPS tools.
     #[command(subcommand)]
     Gps(gps::Command),
+    /// KITTI data: `kitti import` turns a frame's calibration into a camera file and a
+    /// Velodyne-frame pose (real LiDAR + camera inputs for `refine` and `plot mi-surface`).
+    #[command(subcommand)]
+    Kitti(kitti::Command),
     /// Check a configuration file: prints "config OK" or the problem (exit 78).
     Validate(validate::Args),
     /// The node service: serve the stored pose, localize at boot and on request, control socket,
@@ -107,6 +112,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Plot(c) => plot::run(c),
         Command::Tile(c) => tile::run(c),
         Command::Gps(c) => gps::run(c),
+        Command::Kitti(c) => kitti::run(c),
         Command::Validate(a) => validate::run(a),
         Command::Daemon(a) => tech::daemon(a),
         Command::Status(t) => tech::status(t).map(|_| ()),
