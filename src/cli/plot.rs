@@ -157,9 +157,7 @@ pub(crate) fn pose_covariance(
 /// The gray image at the camera's size.
 fn load_gray(path: &Path, cam: &crate::camera::Camera) -> Result<Vec<u8>> {
     use crate::camera::CameraModel;
-    let img = image::open(path)
-        .map_err(|e| Error::input(path, format!("cannot read image: {e}")))?
-        .to_luma8();
+    let img = crate::capture::load_gray(path)?;
     if (img.width(), img.height()) != (cam.width(), cam.height()) {
         return Err(Error::input(
             path,
