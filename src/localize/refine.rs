@@ -158,8 +158,8 @@ fn with_uncertainty(
     // the search resolves: the variance is floored at (half the finest step)² per axis.
     let mut u = u;
     let axes = cfg.spec.axes();
-    for i in 0..u.sigma.len().min(4) {
-        let floor = 0.5 * axes[i].step;
+    for (i, ax) in axes.iter().enumerate().take(u.sigma.len().min(4)) {
+        let floor = 0.5 * ax.step;
         if u.matrix[i][i] < floor * floor {
             u.matrix[i][i] = floor * floor;
             u.sigma[i] = floor;
