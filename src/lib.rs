@@ -25,6 +25,7 @@ pub mod map;
 pub mod persist;
 pub mod pose;
 pub mod posefile;
+pub mod preflight;
 pub mod sim;
 pub mod store;
 pub mod viz;

@@ -56,10 +56,16 @@ fn decode(path: &std::path::Path) -> Result<()> {
         d.push(&buf[..n], &mut emit);
     }
     d.finish(&mut emit);
-    if let Some(e) = write_err {
-        return Err(Error::io("<stdout>", e));
+    let flushed = match write_err {
+        Some(e) => Err(e),
+        None => out.flush(),
+    };
+    match flushed {
+        // The reader has all it wanted (`gps decode log | head`): stop quietly, as Unix tools do.
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(()),
+        Err(e) => return Err(Error::io("<stdout>", e)),
+        Ok(()) => {}
     }
-    out.flush().map_err(|e| Error::io("<stdout>", e))?;
     let s = d.stats();
     let fr = d.framing_stats();
     eprintln!(

@@ -4,7 +4,7 @@ use crate::camera::{import::load_camera, Camera, CameraModel};
 use crate::config::{Config, FrameSourceKind, GpsSourceKind};
 use crate::error::{Error, Result};
 use crate::localize::pipeline::{localize, Outcome, Params};
-use crate::map::cache::{find_tile, load_tile};
+use crate::map::cache::{load_covering, SkippedTile};
 use crate::map::{Crs, Tile};
 use crate::persist::write_atomic;
 use crate::posefile::{format_utc, PoseFile};
@@ -69,6 +69,8 @@ pub(crate) struct Run {
     pub pose_file: PoseFile,
     /// The report.
     pub report: Value,
+    /// Tiles of the cache skipped as unreadable (the run went on without them).
+    pub skipped_tiles: Vec<SkippedTile>,
 }
 
 fn load_gray(path: &Path) -> Result<GrayImage> {
@@ -138,9 +140,16 @@ fn prior(a: &Args, cfg: &Config, cfg_path: &Path) -> Result<((f64, f64, f64), Va
     let _ = cfg_path;
     let outcome = crate::gps_serial::acquire_prior(&g)?;
     let desc = serde_json::to_value(&outcome).unwrap_or(Value::Null);
-    let pos = outcome
-        .position()
-        .ok_or_else(|| Error::stage("prior", format!("no position: {desc}")))?;
+    let pos = outcome.position().ok_or_else(|| {
+        let why = match &outcome {
+            crate::gnss::prior::PriorOutcome::None { reason } => reason.as_str(),
+            _ => "no position",
+        };
+        Error::stage(
+            "prior",
+            format!("no position: {why}; and no [gps] fallback-wgs84 is set"),
+        )
+    })?;
     Ok((pos, desc))
 }
 
@@ -222,8 +231,19 @@ pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result
     let ((lat, lon, sigma), prior_desc) = prior(a, cfg, &a.config)?;
     progress("tile");
     let tiles = a.tiles.clone().unwrap_or_else(|| cfg.map.tiles.clone());
-    let tref = find_tile(&tiles, lat, lon, cfg.map.search_margin_m)?;
-    let tile = load_tile(&tref.dir)?;
+    let params = Params {
+        matcher,
+        ..Params::default()
+    };
+    // The covering tile's LiDAR layers must hold data around the prior: a damaged layer is a
+    // map fault, not a PnP or MI failure. Unreadable tiles elsewhere are skipped and reported.
+    let (tile, tref) = load_covering(
+        &tiles,
+        lat,
+        lon,
+        cfg.map.search_margin_m,
+        params.mi_radius_m,
+    )?;
     let crs = tile.reflectivity.grid.crs;
     let (px, py) = match crs {
         Crs::Epsg(_) => crate::geo::wgs84_to_map(crs, lat, lon)?,
@@ -233,10 +253,6 @@ pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result
                 "tile CRS is LOCAL: a WGS84 prior cannot be placed in it",
             ))
         }
-    };
-    let params = Params {
-        matcher,
-        ..Params::default()
     };
     let clock = |t: Instant| move || t.elapsed().as_secs_f64();
     let outcome = localize(
@@ -277,6 +293,9 @@ pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result
         "stages": pf.stages,
         "seconds_total": t_start.elapsed().as_secs_f64(),
     });
+    if !tref.skipped.is_empty() {
+        report["skipped_tiles"] = json!(tref.skipped);
+    }
     if let Some(t) = &a.truth {
         report["truth"] = truth_errors(t, &camera, &outcome)?;
     }
@@ -288,6 +307,7 @@ pub(crate) fn compute(a: &Args, cfg: &Config, progress: &dyn Fn(&str)) -> Result
         mi_radius_m: params.mi_radius_m,
         pose_file: pf,
         report,
+        skipped_tiles: tref.skipped,
     })
 }
 

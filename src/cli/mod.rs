@@ -79,19 +79,21 @@ pub fn main() -> i32 {
     if let Command::Status(t) = cli.command {
         return match tech::status(t) {
             Ok(code) => code,
-            Err(e) => {
-                eprintln!("infraloc: {e}");
-                e.exit_code()
-            }
+            Err(e) => report(&e),
         };
     }
     match run(cli) {
         Ok(()) => 0,
-        Err(e) => {
-            eprintln!("infraloc: {e}");
-            e.exit_code()
-        }
+        Err(e) => report(&e),
     }
+}
+
+/// Print `e` on stderr (one line per problem, each prefixed `infraloc: `); its exit code.
+fn report(e: &Error) -> i32 {
+    for l in e.lines() {
+        eprintln!("infraloc: {l}");
+    }
+    e.exit_code()
 }
 
 /// Dispatch a parsed command.

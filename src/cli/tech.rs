@@ -217,6 +217,14 @@ pub fn human_status(v: &Value) -> String {
             "last run",
             format!("{} {what}", r["finished_utc"].as_str().unwrap_or("?")),
         );
+        // A damaged tile elsewhere in the cache does not stop the node, but must be seen.
+        for t in r["skipped_tiles"].as_array().into_iter().flatten() {
+            line(
+                &mut o,
+                "tile skipped",
+                t.as_str().unwrap_or("?").to_string(),
+            );
+        }
     }
     if let Some(d) = v["last_drift_check"].as_object() {
         let what = match d["moved"].as_bool() {

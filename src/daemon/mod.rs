@@ -171,10 +171,26 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 /// Run the service with the config at `config_path` until SIGTERM. Errors: a bad config
 /// ([`Error::Config`], exit 78) or a control socket that cannot be bound.
 pub fn run(config_path: &Path) -> Result<()> {
-    let cfg = load_config(config_path)?;
+    // The same validation as `infraloc validate`: every problem, exit 78, before anything runs.
+    let (cfg, warnings) = crate::preflight::load_for_service(config_path)?;
     let log = Arc::new(Logger::new());
-    for w in cfg.check() {
+    for w in warnings {
         log.log(Level::Warning, &format!("config: {w}"));
+    }
+    // The state directory is ours to create (systemd's StateDirectory= does it for the unit; a
+    // hand-started service must not lose its first run to a missing directory).
+    match crate::preflight::create_state_dir(&cfg) {
+        Ok(Some(d)) => log.log(
+            Level::Info,
+            &format!("created the state directory {} (0750)", d.display()),
+        ),
+        Ok(None) => {}
+        Err(e) => {
+            return Err(Error::config(
+                config_path,
+                format!("[output] pose: cannot create its directory: {e}"),
+            ))
+        }
     }
     let store = PoseStore::at(&cfg.output.pose, cfg.daemon.history_len);
     let started = Instant::now();
@@ -223,7 +239,11 @@ pub fn run(config_path: &Path) -> Result<()> {
         last_run: Mutex::new(None),
     });
     let (tx, rx) = channel::<Event>();
-    let listener = control::bind(&cfg.daemon.socket)?;
+    let (listener, note) = control::bind(&cfg.daemon.socket)
+        .map_err(|e| Error::config(config_path, format!("[daemon] socket: {e}")))?;
+    if let Some(n) = note {
+        log.log(Level::Warning, &n);
+    }
     start_signals(tx.clone())?;
     let handler = make_handler(shared.clone(), store.clone(), tx.clone(), config_path);
     let l2 = log.clone();
@@ -270,10 +290,9 @@ pub fn run(config_path: &Path) -> Result<()> {
     result
 }
 
-fn load_config(path: &Path) -> Result<Config> {
-    let cfg = Config::load(path)?;
-    cfg.validate(path)?;
-    Ok(cfg)
+/// The config as the service reads it at start and on reload, with its warnings.
+fn load_config(path: &Path) -> Result<(Config, Vec<String>)> {
+    crate::preflight::load_for_service(path)
 }
 
 fn start_signals(tx: Sender<Event>) -> Result<()> {
@@ -319,8 +338,8 @@ fn make_handler(
             Err(e) => (json!({"ok": false, "error": e.to_string()}), None),
         },
         Request::Validate {} => match load_config(&config_path) {
-            Ok(c) => (
-                json!({"ok": true, "config": config_path, "warnings": c.check()}),
+            Ok((_, warnings)) => (
+                json!({"ok": true, "config": config_path, "warnings": warnings}),
                 None,
             ),
             Err(e) => (
@@ -617,7 +636,11 @@ impl Daemon {
                     "camera_center": c, "yaw_pitch_roll_deg": run.pose_file.yaw_pitch_roll_deg,
                     "score": run.pose_file.quality.get("score"),
                     "stages": run.pose_file.stages.iter().map(|s| json!({"name": s["name"], "seconds": s["seconds"]})).collect::<Vec<_>>(),
+                    "skipped_tiles": run.skipped_tiles.iter().map(|t| t.reason.clone()).collect::<Vec<_>>(),
                 });
+                for t in &run.skipped_tiles {
+                    self.log.log(Level::Warning, &format!("tile cache: skipped {}", t.reason));
+                }
                 *lock(&self.shared.last_run) = Some(Arc::new(run));
                 {
                     let mut s = self.lock_status();
@@ -745,7 +768,10 @@ impl Daemon {
 
     fn reload(&mut self) {
         match load_config(&self.config_path) {
-            Ok(c) => {
+            Ok((c, warnings)) => {
+                for w in warnings {
+                    self.log.log(Level::Warning, &format!("reload: config: {w}"));
+                }
                 if c.daemon.socket != self.cfg.daemon.socket {
                     self.log.log(
                         Level::Warning,
