@@ -41,9 +41,13 @@ fn decode(path: &std::path::Path) -> Result<()> {
         if write_err.is_some() {
             return;
         }
-        let r = serde_json::to_writer(&mut out, &f.record())
+        // Serialise first, so a closed stdout is the write's own BrokenPipe, not a serde error.
+        let r = serde_json::to_string(&f.record())
             .map_err(std::io::Error::other)
-            .and_then(|_| out.write_all(b"\n"));
+            .and_then(|line| {
+                out.write_all(line.as_bytes())?;
+                out.write_all(b"\n")
+            });
         if let Err(e) = r {
             write_err = Some(e);
         }
