@@ -489,9 +489,9 @@ impl Config {
             (None, None) => {
                 p.push("[camera]: set intrinsics-file or an inline [camera.intrinsics] table")
             }
-            (Some(_), Some(_)) => p.push(
-                "[camera]: intrinsics-file and [camera.intrinsics] are both set; keep one",
-            ),
+            (Some(_), Some(_)) => {
+                p.push("[camera]: intrinsics-file and [camera.intrinsics] are both set; keep one")
+            }
             (_, Some(cam)) => {
                 if let Err(m) = cam.validate() {
                     p.push(format!("[camera.intrinsics] {m}"));
@@ -507,12 +507,37 @@ impl Config {
         if c.source == FrameSourceKind::V4l2 && c.device.as_deref().is_none_or(str::is_empty) {
             p.push("[camera] source = \"v4l2\" needs device");
         }
-        p.int("[camera] frame-count", c.frame_count.into(), 1, limits::FRAME_COUNT);
-        p.int("[camera] frame-interval-ms", c.frame_interval_ms, 0, limits::FRAME_INTERVAL_MS);
-        p.int("[camera] settle-frames", c.settle_frames.into(), 0, limits::SETTLE_FRAMES);
+        p.int(
+            "[camera] frame-count",
+            c.frame_count.into(),
+            1,
+            limits::FRAME_COUNT,
+        );
+        p.int(
+            "[camera] frame-interval-ms",
+            c.frame_interval_ms,
+            0,
+            limits::FRAME_INTERVAL_MS,
+        );
+        p.int(
+            "[camera] settle-frames",
+            c.settle_frames.into(),
+            0,
+            limits::SETTLE_FRAMES,
+        );
         p.int("[camera] timeout-ms", c.timeout_ms, 1, limits::TIMEOUT_MS);
-        p.int("[camera] retry-attempts", c.retry_attempts.into(), 1, limits::RETRY_ATTEMPTS);
-        p.int("[camera] retry-backoff-ms", c.retry_backoff_ms, 0, limits::RETRY_BACKOFF_MS);
+        p.int(
+            "[camera] retry-attempts",
+            c.retry_attempts.into(),
+            1,
+            limits::RETRY_ATTEMPTS,
+        );
+        p.int(
+            "[camera] retry-backoff-ms",
+            c.retry_backoff_ms,
+            0,
+            limits::RETRY_BACKOFF_MS,
+        );
         let kind = c.source.name();
         if let Some(f) = &c.pixel_format {
             let known = c.source.pixel_formats();
@@ -587,12 +612,32 @@ impl Config {
                 ));
             }
         }
-        p.float("[gps] window-s", g.window_s, Above(0.0), limits::GPS_WINDOW_S);
-        p.float("[gps] timeout-s", g.timeout_s, AtLeast(0.0), limits::GPS_TIMEOUT_S);
-        p.float("[gps] fallback-sigma-m", g.fallback_sigma_m, Above(0.0), limits::SIGMA_M);
+        p.float(
+            "[gps] window-s",
+            g.window_s,
+            Above(0.0),
+            limits::GPS_WINDOW_S,
+        );
+        p.float(
+            "[gps] timeout-s",
+            g.timeout_s,
+            AtLeast(0.0),
+            limits::GPS_TIMEOUT_S,
+        );
+        p.float(
+            "[gps] fallback-sigma-m",
+            g.fallback_sigma_m,
+            Above(0.0),
+            limits::SIGMA_M,
+        );
         p.float("[gps] max-hdop", g.max_hdop, Above(0.0), limits::HDOP);
         p.int("[gps] min-fixes", g.min_fixes as u64, 0, limits::MIN_FIXES);
-        p.float("[gps] reconnect-max-s", g.reconnect_max_s, Above(0.0), limits::RECONNECT_S);
+        p.float(
+            "[gps] reconnect-max-s",
+            g.reconnect_max_s,
+            Above(0.0),
+            limits::RECONNECT_S,
+        );
         if g.source == GpsSourceKind::Serial {
             p.int("[gps] baud", g.baud.into(), 1, limits::BAUD);
         }
@@ -600,7 +645,12 @@ impl Config {
 
     fn map_output_problems(&self, p: &mut Problems) {
         p.path("[map] tiles", Some(&self.map.tiles));
-        p.float("[map] search-margin-m", self.map.search_margin_m, AtLeast(0.0), limits::MARGIN_M);
+        p.float(
+            "[map] search-margin-m",
+            self.map.search_margin_m,
+            AtLeast(0.0),
+            limits::MARGIN_M,
+        );
         let o = &self.output;
         p.path("[output] pose", Some(&o.pose));
         p.path("[output] report", o.report.as_deref());
@@ -611,7 +661,12 @@ impl Config {
     fn daemon_problems(&self, p: &mut Problems) {
         let d = &self.daemon;
         p.path("[daemon] socket", Some(&d.socket));
-        p.int("[daemon] history-len", d.history_len as u64, 1, limits::HISTORY_LEN);
+        p.int(
+            "[daemon] history-len",
+            d.history_len as u64,
+            1,
+            limits::HISTORY_LEN,
+        );
         p.float(
             "[daemon] relocalize-interval-h",
             d.relocalize_interval_h,
@@ -624,10 +679,30 @@ impl Config {
             AtLeast(0.0),
             limits::DRIFT_INTERVAL_MIN,
         );
-        p.float("[daemon] retry-initial-s", d.retry_initial_s, Above(0.0), limits::RETRY_INITIAL_S);
-        p.float("[daemon] retry-max-s", d.retry_max_s, Above(0.0), limits::RETRY_MAX_S);
-        p.float("[daemon] drift-threshold-m", d.drift_threshold_m, Above(0.0), limits::DRIFT_M);
-        p.float("[daemon] drift-threshold-deg", d.drift_threshold_deg, Above(0.0), limits::DRIFT_DEG);
+        p.float(
+            "[daemon] retry-initial-s",
+            d.retry_initial_s,
+            Above(0.0),
+            limits::RETRY_INITIAL_S,
+        );
+        p.float(
+            "[daemon] retry-max-s",
+            d.retry_max_s,
+            Above(0.0),
+            limits::RETRY_MAX_S,
+        );
+        p.float(
+            "[daemon] drift-threshold-m",
+            d.drift_threshold_m,
+            Above(0.0),
+            limits::DRIFT_M,
+        );
+        p.float(
+            "[daemon] drift-threshold-deg",
+            d.drift_threshold_deg,
+            Above(0.0),
+            limits::DRIFT_DEG,
+        );
     }
 
     /// Semantic warnings: legal but probably not what was meant.

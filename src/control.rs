@@ -201,7 +201,10 @@ fn secure_dir(dir: &Path, socket: &Path) -> Result<Option<String>> {
     use std::os::unix::fs::MetadataExt;
     let m = std::fs::metadata(dir).map_err(|e| Error::io(dir, e))?;
     if !m.is_dir() {
-        return Err(Error::input(dir, "the socket's directory is not a directory"));
+        return Err(Error::input(
+            dir,
+            "the socket's directory is not a directory",
+        ));
     }
     let mode = m.mode() & 0o7777;
     if mode & !DIR_MODE == 0 {
@@ -214,7 +217,10 @@ fn secure_dir(dir: &Path, socket: &Path) -> Result<Option<String>> {
         .filter_map(|e| e.ok())
         .any(|e| Some(e.file_name().as_os_str()) != socket.file_name());
     let why_not = if m.uid() != me {
-        Some(format!("it belongs to uid {}, not this service's uid {me}", m.uid()))
+        Some(format!(
+            "it belongs to uid {}, not this service's uid {me}",
+            m.uid()
+        ))
     } else if mode & 0o1000 != 0 {
         Some("it is a shared (sticky) directory".to_string())
     } else if others {
@@ -783,7 +789,10 @@ mod tests {
         std::fs::write(run.join("other"), "").unwrap();
         std::fs::set_permissions(&run, std::fs::Permissions::from_mode(0o775)).unwrap();
         let e = bind(&run.join("c.sock")).unwrap_err().to_string();
-        assert!(e.contains("mode 0775") && e.contains("holds other files"), "{e}");
+        assert!(
+            e.contains("mode 0775") && e.contains("holds other files"),
+            "{e}"
+        );
         let mode = std::fs::metadata(&run).unwrap().permissions().mode() & 0o7777;
         assert_eq!(mode, 0o775);
     }

@@ -128,13 +128,16 @@ pub fn check(cfg: &Config, scope: Scope) -> Findings {
     let state = state_dir(cfg).map(Path::to_path_buf);
     let o = &cfg.output;
     for (key, path) in [
-        ("[output] pose", Some(&o.pose).filter(|p| !p.as_os_str().is_empty())),
+        (
+            "[output] pose",
+            Some(&o.pose).filter(|p| !p.as_os_str().is_empty()),
+        ),
         ("[output] report", o.report.as_ref()),
         ("[output] overlay", o.overlay.as_ref()),
     ] {
         if let Some(p) = path {
-            let may_be_created = scope == Scope::Service
-                && p.parent().is_some_and(|d| Some(d) == state.as_deref());
+            let may_be_created =
+                scope == Scope::Service && p.parent().is_some_and(|d| Some(d) == state.as_deref());
             output_path(key, p, may_be_created, &mut f);
         }
     }
@@ -184,8 +187,7 @@ pub fn output_path(key: &str, p: &Path, may_be_created: bool, f: &mut Findings) 
                 // Another user's directory (the service's, 0750) cannot be judged from a
                 // technician's account: say so instead of failing.
                 if is_ours(&m) {
-                    f.problems
-                        .push(format!("{key} {}: {w}", p.display()));
+                    f.problems.push(format!("{key} {}: {w}", p.display()));
                 } else {
                     f.warnings.push(format!(
                         "{key} {}: {w} by you (uid {}); the directory belongs to uid {}, which must be able to write it (`validate --running` asks the service itself)",
@@ -229,10 +231,9 @@ fn camera(cfg: &Config, f: &mut Findings) {
     if let Some(p) = &c.intrinsics_file {
         let file = strip_selector(p);
         match std::fs::metadata(&file) {
-            Err(e) => f.problems.push(format!(
-                "[camera] intrinsics-file {}: {e}",
-                file.display()
-            )),
+            Err(e) => f
+                .problems
+                .push(format!("[camera] intrinsics-file {}: {e}", file.display())),
             Ok(m) if m.is_dir() => f.problems.push(format!(
                 "[camera] intrinsics-file {} is a directory, not an intrinsics file",
                 file.display()
@@ -309,9 +310,7 @@ fn gps(cfg: &Config, f: &mut Findings) {
         GpsSourceKind::NmeaFile => {
             if let Some(p) = &g.path {
                 match std::fs::File::open(p).and_then(|h| h.metadata()) {
-                    Err(e) => f
-                        .problems
-                        .push(format!("[gps] path {}: {e}", p.display())),
+                    Err(e) => f.problems.push(format!("[gps] path {}: {e}", p.display())),
                     Ok(m) if !m.is_file() => f.problems.push(format!(
                         "[gps] path {} is not a file (an NMEA log)",
                         p.display()
@@ -397,8 +396,7 @@ fn tiles(cfg: &Config, f: &mut Findings) {
     // A known position the cache should cover: the surveyed fallback.
     if let Some([lat, lon]) = cfg.gps.fallback_wgs84 {
         if let Err(e) = crate::map::cache::find_tile(dir, lat, lon, cfg.map.search_margin_m) {
-            f.warnings
-                .push(format!("{key}: for fallback-wgs84: {e}"));
+            f.warnings.push(format!("{key}: for fallback-wgs84: {e}"));
         }
     }
 }
@@ -455,13 +453,20 @@ mod tests {
             .problems
             .iter()
             .map(|p| p.split(' ').take(2).collect::<Vec<_>>())
-            .map(|v| if v[1].starts_with("intr") { "intrinsics" } else { v[1] })
+            .map(|v| {
+                if v[1].starts_with("intr") {
+                    "intrinsics"
+                } else {
+                    v[1]
+                }
+            })
             .collect();
         assert_eq!(keys, ["intrinsics", "frames", "tiles"], "{f:?}");
         // The state and runtime directories are the service's to create: warnings.
         assert!(
-            f.warnings.iter().any(|w| w.contains("[output] pose")
-                && w.contains("the service creates it")),
+            f.warnings
+                .iter()
+                .any(|w| w.contains("[output] pose") && w.contains("the service creates it")),
             "{f:?}"
         );
         assert!(

@@ -76,7 +76,10 @@ fn fill_slots(s: &Server) -> Vec<std::thread::JoinHandle<Value>> {
         .collect();
     let start = Instant::now();
     while s.held.load(Ordering::SeqCst) < MAX_CONNECTIONS {
-        assert!(start.elapsed() < Duration::from_secs(30), "slots never filled");
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "slots never filled"
+        );
         std::thread::sleep(Duration::from_millis(5));
     }
     holders
@@ -167,7 +170,10 @@ fn the_request_timeout_is_a_deadline_for_the_whole_request() {
     let took = start.elapsed();
     let v: Value = serde_json::from_slice(&answer).unwrap();
     assert!(
-        v["error"].as_str().unwrap().contains("not complete in time"),
+        v["error"]
+            .as_str()
+            .unwrap()
+            .contains("not complete in time"),
         "{v}"
     );
     assert!(
@@ -218,7 +224,9 @@ fn busy_load(limits: Limits) {
                         )
                     });
                     match r {
-                        Ok((v, _)) if v["error"].as_str().is_some_and(|e| e.starts_with("busy")) => {
+                        Ok((v, _))
+                            if v["error"].as_str().is_some_and(|e| e.starts_with("busy")) =>
+                        {
                             busy += 1
                         }
                         Err(e) if e.to_string().contains("Broken pipe") => broken += 1,
@@ -267,7 +275,10 @@ fn panicking_handlers_answer_and_leak_no_slot() {
             .unwrap();
         assert_eq!(v["ok"], false);
         assert!(
-            v["error"].as_str().unwrap().contains("internal error: handler bug"),
+            v["error"]
+                .as_str()
+                .unwrap()
+                .contains("internal error: handler bug"),
             "{v}"
         );
     }

@@ -88,7 +88,11 @@ fn a_corrupt_tile_elsewhere_is_skipped_and_reported() {
     copy_dir(&tile_dir(), &cache.join(tile_dir().file_name().unwrap()));
     // A second tile directory with a truncated manifest, sorted before the good one.
     std::fs::create_dir_all(cache.join("aaa-broken")).unwrap();
-    std::fs::write(cache.join("aaa-broken/tile.toml"), "format = \"infraloc.tile.v1\"\nid = ").unwrap();
+    std::fs::write(
+        cache.join("aaa-broken/tile.toml"),
+        "format = \"infraloc.tile.v1\"\nid = ",
+    )
+    .unwrap();
     let (out, pose) = localize(w.path(), &cache);
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert!(pose.contains("\"camera_center\""), "{pose}");
@@ -98,7 +102,10 @@ fn a_corrupt_tile_elsewhere_is_skipped_and_reported() {
     let skipped = report["skipped_tiles"].as_array().expect("skipped_tiles");
     assert_eq!(skipped.len(), 1, "{report}");
     assert!(
-        skipped[0]["reason"].as_str().unwrap().contains("aaa-broken/tile.toml"),
+        skipped[0]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("aaa-broken/tile.toml"),
         "{report}"
     );
 }

@@ -168,6 +168,9 @@ fn bad_arguments_are_one_line_errors() {
         "-1,0,0,0,1,0,0,0,1",
     ] {
         let e = run(&["--size", "10,10", "--k", "1,1,1,1", "--rotation", r]);
-        assert!(e.contains("--rotation is not a rotation matrix"), "{r}: {e}");
+        assert!(
+            e.contains("--rotation is not a rotation matrix"),
+            "{r}: {e}"
+        );
     }
 }

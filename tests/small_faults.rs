@@ -57,7 +57,10 @@ fn prior_failure_counts_the_sentences_in_words() {
         err.contains(&format!("{n} lines with checksum errors")),
         "{err} (want {n} checksum errors)"
     );
-    assert!(err.contains("0 fixes") && err.contains("fallback-wgs84"), "{err}");
+    assert!(
+        err.contains("0 fixes") && err.contains("fallback-wgs84"),
+        "{err}"
+    );
     assert!(!err.contains('{') && !err.contains('"'), "raw JSON: {err}");
     assert_eq!(
         std::fs::read_to_string(w.path().join("pose.json")).unwrap(),
@@ -87,6 +90,9 @@ fn gps_decode_into_a_closed_pipe_exits_quietly() {
     assert!(first.starts_with("{\"time\""), "{first}");
     let out = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!err.contains("Broken pipe") && !err.contains("os error 32"), "{err}");
+    assert!(
+        !err.contains("Broken pipe") && !err.contains("os error 32"),
+        "{err}"
+    );
     assert_eq!(out.status.code(), Some(0), "{err}");
 }

@@ -84,7 +84,12 @@ fn bad_inputs() -> Vec<(&'static str, Edit, Vec<&'static str>)> {
             "intrinsics file is a directory",
             Box::new(|t, w| {
                 std::fs::create_dir_all(w.join("cam.d")).unwrap();
-                set(t, "camera", "intrinsics-file", w.join("cam.d").display().to_string());
+                set(
+                    t,
+                    "camera",
+                    "intrinsics-file",
+                    w.join("cam.d").display().to_string(),
+                );
             }),
             vec!["[camera] intrinsics-file", "is a directory"],
         ),
@@ -92,7 +97,12 @@ fn bad_inputs() -> Vec<(&'static str, Edit, Vec<&'static str>)> {
             "intrinsics file does not parse",
             Box::new(|t, w| {
                 std::fs::write(w.join("cam.yaml"), "%YAML:1.0\nfoo: [1, 2\n").unwrap();
-                set(t, "camera", "intrinsics-file", w.join("cam.yaml").display().to_string());
+                set(
+                    t,
+                    "camera",
+                    "intrinsics-file",
+                    w.join("cam.yaml").display().to_string(),
+                );
             }),
             vec!["[camera] intrinsics-file", "cam.yaml"],
         ),
@@ -173,7 +183,12 @@ fn bad_inputs() -> Vec<(&'static str, Edit, Vec<&'static str>)> {
             Box::new(|t, w| {
                 std::fs::write(w.join("m.csv"), "a,b\n1,2\n").unwrap();
                 set(t, "init", "matcher", "match-file");
-                set(t, "init", "matcher-path", w.join("m.csv").display().to_string());
+                set(
+                    t,
+                    "init",
+                    "matcher-path",
+                    w.join("m.csv").display().to_string(),
+                );
             }),
             vec!["[init] matcher-path", "m.csv"],
         ),
@@ -213,7 +228,13 @@ fn every_problem_is_reported_at_once_in_text_and_json() {
     let picked: Vec<_> = cases
         .iter()
         .filter(|(_, _, want)| {
-            let key = want[0].split(" =").next().unwrap().split(" is").next().unwrap();
+            let key = want[0]
+                .split(" =")
+                .next()
+                .unwrap()
+                .split(" is")
+                .next()
+                .unwrap();
             let new = !seen.contains(&key.to_string());
             seen.push(key.to_string());
             new
@@ -249,7 +270,12 @@ fn what_may_appear_later_is_a_warning() {
         set(t, "camera", "source", "v4l2");
         set(t, "camera", "device", "/dev/video-not-plugged-in");
         t["camera"].as_table_mut().unwrap().remove("frames");
-        set(t, "output", "pose", w.join("state/pose.json").display().to_string());
+        set(
+            t,
+            "output",
+            "pose",
+            w.join("state/pose.json").display().to_string(),
+        );
     });
     let out = validate(&cfg, &[]);
     let err = text(&out.stderr);
@@ -267,7 +293,10 @@ fn what_may_appear_later_is_a_warning() {
         err.contains("[output] pose: directory") && err.contains("the service creates it"),
         "{err}"
     );
-    assert!(!w.path().join("state").exists(), "validate must not create it");
+    assert!(
+        !w.path().join("state").exists(),
+        "validate must not create it"
+    );
 }
 
 #[test]
@@ -289,13 +318,21 @@ fn read_only_output_directory_is_a_problem() {
     let (w, cfg) = config(|t, w| {
         let ro = w.join("ro");
         std::fs::create_dir(&ro).unwrap();
-        set(t, "output", "report", ro.join("r.json").display().to_string());
+        set(
+            t,
+            "output",
+            "report",
+            ro.join("r.json").display().to_string(),
+        );
     });
     std::fs::set_permissions(w.path().join("ro"), std::fs::Permissions::from_mode(0o555)).unwrap();
     let out = validate(&cfg, &[]);
     let err = text(&out.stderr);
     assert_eq!(out.status.code(), Some(78), "{err}");
-    assert!(err.contains("[output] report") && err.contains("not writable"), "{err}");
+    assert!(
+        err.contains("[output] report") && err.contains("not writable"),
+        "{err}"
+    );
 }
 
 fn unsafe_euid_is_root() -> bool {
@@ -313,7 +350,12 @@ fn unsafe_euid_is_root() -> bool {
 #[test]
 fn the_service_refuses_the_same_problems_at_start() {
     let (w, cfg) = config(|t, w| {
-        set(t, "camera", "frames", w.join("no-frames").display().to_string());
+        set(
+            t,
+            "camera",
+            "frames",
+            w.join("no-frames").display().to_string(),
+        );
         set(t, "daemon", "retry-max-s", f64::INFINITY);
     });
     let out = Command::new(BIN)
@@ -324,14 +366,22 @@ fn the_service_refuses_the_same_problems_at_start() {
         .unwrap();
     let err = text(&out.stderr);
     assert_eq!(out.status.code(), Some(78), "{err}");
-    assert!(err.contains("[camera] frames") && err.contains("[daemon] retry-max-s"), "{err}");
+    assert!(
+        err.contains("[camera] frames") && err.contains("[daemon] retry-max-s"),
+        "{err}"
+    );
     assert!(!w.path().join("run/control.sock").exists());
 }
 
 #[test]
 fn the_service_creates_its_state_directory() {
     let (w, cfg) = config(|t, w| {
-        set(t, "output", "pose", w.join("state/sub/pose.json").display().to_string());
+        set(
+            t,
+            "output",
+            "pose",
+            w.join("state/sub/pose.json").display().to_string(),
+        );
         set(t, "daemon", "retry-initial-s", 600.0);
     });
     let mut child = Command::new(BIN)
@@ -348,7 +398,10 @@ fn the_service_creates_its_state_directory() {
         if let Ok(Some(st)) = child.try_wait() {
             panic!("daemon exited ({st}) before creating {}", state.display());
         }
-        assert!(start.elapsed() < Duration::from_secs(30), "no state directory");
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "no state directory"
+        );
         std::thread::sleep(Duration::from_millis(50));
     }
     use std::os::unix::fs::PermissionsExt;

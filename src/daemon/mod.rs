@@ -639,7 +639,8 @@ impl Daemon {
                     "skipped_tiles": run.skipped_tiles.iter().map(|t| t.reason.clone()).collect::<Vec<_>>(),
                 });
                 for t in &run.skipped_tiles {
-                    self.log.log(Level::Warning, &format!("tile cache: skipped {}", t.reason));
+                    self.log
+                        .log(Level::Warning, &format!("tile cache: skipped {}", t.reason));
                 }
                 *lock(&self.shared.last_run) = Some(Arc::new(run));
                 {
@@ -770,7 +771,8 @@ impl Daemon {
         match load_config(&self.config_path) {
             Ok((c, warnings)) => {
                 for w in warnings {
-                    self.log.log(Level::Warning, &format!("reload: config: {w}"));
+                    self.log
+                        .log(Level::Warning, &format!("reload: config: {w}"));
                 }
                 if c.daemon.socket != self.cfg.daemon.socket {
                     self.log.log(

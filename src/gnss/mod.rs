@@ -34,9 +34,8 @@ impl DecodeStats {
     /// The counts in words, for a technician: `120 lines: 80 sentences (37 lines with checksum
     /// errors, 3 unparsable, 20 sentences without a fix), 60 fixes`.
     pub fn describe(&self) -> String {
-        let plural = |n: u64, one: &str, many: &str| {
-            format!("{n} {}", if n == 1 { one } else { many })
-        };
+        let plural =
+            |n: u64, one: &str, many: &str| format!("{n} {}", if n == 1 { one } else { many });
         let mut notes = Vec::new();
         if self.checksum_errors > 0 {
             notes.push(format!(

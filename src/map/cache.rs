@@ -619,8 +619,8 @@ fn scan(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<Scan> {
         dirs.push(e.path());
     }
     dirs.sort();
-    let prior_crs = (lat.abs() <= 90.0 && lon.is_finite())
-        .then(|| Crs::Epsg(geo::utm_epsg_for(lat, lon)));
+    let prior_crs =
+        (lat.abs() <= 90.0 && lon.is_finite()).then(|| Crs::Epsg(geo::utm_epsg_for(lat, lon)));
     let mut found = Scan {
         covering: Vec::new(),
         skipped: Vec::new(),
