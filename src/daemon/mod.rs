@@ -11,7 +11,7 @@
 
 pub mod notify;
 
-use crate::cli::localize::{camera_and_frame, compute, Args, Run};
+use crate::app::{camera_and_frame, Overrides, Run};
 use crate::config::Config;
 use crate::control::{self, Reply, Request};
 use crate::error::{Error, Result};
@@ -190,6 +190,22 @@ pub fn run(config_path: &Path) -> Result<()> {
                 config_path,
                 format!("[output] pose: cannot create its directory: {e}"),
             ))
+        }
+    }
+    // Temp files of writes a kill -9 interrupted are removed before anything is written.
+    let history = cfg
+        .output
+        .pose
+        .with_file_name(crate::store::HISTORY_FILE);
+    for target in [Some(&cfg.output.pose), Some(&history), cfg.output.report.as_ref(), cfg.output.overlay.as_ref()]
+        .into_iter()
+        .flatten()
+    {
+        for f in crate::persist::remove_stale_temps(target) {
+            log.log(
+                Level::Info,
+                &format!("removed {} (left by an interrupted write)", f.display()),
+            );
         }
     }
     let store = PoseStore::at(&cfg.output.pose, cfg.daemon.history_len);
@@ -544,12 +560,11 @@ impl Daemon {
         let spawned = std::thread::Builder::new()
             .name("localize".into())
             .spawn(move || {
-                let args = Args::from_config(&path);
                 let progress = |s: &str| {
                     let _ = tx.send(Event::Progress(s.to_string()));
                 };
                 let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    let run = compute(&args, &cfg, &progress)?;
+                    let run = crate::app::run(&cfg, &path, &Overrides::default(), &progress)?;
                     let cc = served.as_ref().and_then(|p| {
                         progress("cross-check");
                         cross_check(&run, p, &cfg)
@@ -870,8 +885,7 @@ fn internal_error(stage: &'static str, p: Box<dyn std::any::Any + Send>) -> Erro
 
 /// The drift check: fresh frames, then [`drift_search`] around the served pose.
 pub fn drift_check(cfg: &Config, config_path: &Path, served: &PoseFile) -> Result<Value> {
-    let args = Args::from_config(config_path);
-    let (camera, image) = camera_and_frame(&args, cfg, &|_| {})?;
+    let (camera, image) = camera_and_frame(cfg, config_path, &Overrides::default(), &|_| {})?;
     let tile = load_tile(&cfg.map.tiles.join(&served.tile_id))?;
     drift_search(&camera, &image, &tile, &served.pose(), cfg)
 }
