@@ -56,7 +56,10 @@ impl Outputs {
     /// The files this run writes, each with what named it (the flag when given, else the
     /// config key): pose, then report and overlay when set.
     pub fn resolve(&self, cfg: &Config) -> Vec<(&'static str, PathBuf)> {
-        let pick = |flag: &'static str, key: &'static str, o: &Option<PathBuf>, c: Option<&PathBuf>| {
+        let pick = |flag: &'static str,
+                    key: &'static str,
+                    o: &Option<PathBuf>,
+                    c: Option<&PathBuf>| {
             match (o, c) {
                 (Some(p), _) => Some((flag, p.clone())),
                 (None, Some(p)) => Some((key, p.clone())),
@@ -65,8 +68,18 @@ impl Outputs {
         };
         [
             pick("--out", "[output] pose", &self.pose, Some(&cfg.output.pose)),
-            pick("--report", "[output] report", &self.report, cfg.output.report.as_ref()),
-            pick("--overlay", "[output] overlay", &self.overlay, cfg.output.overlay.as_ref()),
+            pick(
+                "--report",
+                "[output] report",
+                &self.report,
+                cfg.output.report.as_ref(),
+            ),
+            pick(
+                "--overlay",
+                "[output] overlay",
+                &self.overlay,
+                cfg.output.overlay.as_ref(),
+            ),
         ]
         .into_iter()
         .flatten()

@@ -107,7 +107,10 @@ mod tests {
     #[test]
     fn missing_directory_names_the_path() {
         let e = write_atomic(Path::new("/nonexistent-dir-xyz/pose.json"), b"x").unwrap_err();
-        assert!(e.to_string().contains("/nonexistent-dir-xyz/pose.json"), "{e}");
+        assert!(
+            e.to_string().contains("/nonexistent-dir-xyz/pose.json"),
+            "{e}"
+        );
         assert!(!e.to_string().contains(".tmp."), "names the temp file: {e}");
     }
 
@@ -118,7 +121,9 @@ mod tests {
         // A dead writer's (pid far above any pid_max in use here), a live one's (ours: an
         // unfinished write in this process), another file's, and the target itself.
         let dead = d.path().join(".pose.json.tmp.2147483646.0");
-        let ours = d.path().join(format!(".pose.json.tmp.{}.7", std::process::id()));
+        let ours = d
+            .path()
+            .join(format!(".pose.json.tmp.{}.7", std::process::id()));
         let other = d.path().join(".report.json.tmp.2147483646.0");
         for f in [&dead, &ours, &other, &p] {
             fs::write(f, "x").unwrap();

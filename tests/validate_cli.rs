@@ -415,3 +415,65 @@ fn the_service_creates_its_state_directory() {
     assert!(out.status.success(), "{log}");
     assert!(log.contains("created the state directory"), "{log}");
 }
+
+/// `localize`'s outputs are checked before any work and written all-or-nothing (deliverable 2):
+/// a report or overlay that cannot be written fails at once naming the user's path (never a
+/// temp file), the pose file untouched; temp files a killed run left are removed.
+#[test]
+fn localize_checks_its_outputs_before_the_work() {
+    let (w, cfg) = config(|_, _| {});
+    let pose = w.path().join("pose.json");
+    std::fs::write(&pose, "OLD").unwrap();
+    let stale = w.path().join(".pose.json.tmp.2147483646.3");
+    std::fs::write(&stale, "half a pose").unwrap();
+    std::fs::create_dir(w.path().join("ov.png")).unwrap();
+    let run = |extra: &[&str]| {
+        Command::new(BIN)
+            .args(["localize", "--config"])
+            .arg(&cfg)
+            .arg("--out")
+            .arg(&pose)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let missing = w.path().join("missing/dir/r.json");
+    let overlay = w.path().join("ov.png");
+    let out = run(&[
+        "--report",
+        missing.to_str().unwrap(),
+        "--overlay",
+        overlay.to_str().unwrap(),
+    ]);
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains(&format!("--report {}", missing.display())) && err.contains("No such file"),
+        "{err}"
+    );
+    assert!(
+        err.contains(&format!("--overlay {} is a directory", overlay.display())),
+        "{err}"
+    );
+    assert!(!err.contains(".tmp."), "names a temp file: {err}");
+    assert_eq!(std::fs::read_to_string(&pose).unwrap(), "OLD");
+    assert!(!stale.exists(), "the killed run's temp file is still there");
+    // The same report path from the config is a config problem: exit 78, naming the key.
+    let (_w2, cfg2) = config(|t, w| {
+        set(
+            t,
+            "output",
+            "report",
+            w.join("missing/r.json").display().to_string(),
+        )
+    });
+    let out = Command::new(BIN)
+        .args(["localize", "--config"])
+        .arg(&cfg2)
+        .output()
+        .unwrap();
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(78), "{err}");
+    assert!(err.contains("[output] report"), "{err}");
+}

@@ -193,13 +193,15 @@ pub fn run(config_path: &Path) -> Result<()> {
         }
     }
     // Temp files of writes a kill -9 interrupted are removed before anything is written.
-    let history = cfg
-        .output
-        .pose
-        .with_file_name(crate::store::HISTORY_FILE);
-    for target in [Some(&cfg.output.pose), Some(&history), cfg.output.report.as_ref(), cfg.output.overlay.as_ref()]
-        .into_iter()
-        .flatten()
+    let history = cfg.output.pose.with_file_name(crate::store::HISTORY_FILE);
+    for target in [
+        Some(&cfg.output.pose),
+        Some(&history),
+        cfg.output.report.as_ref(),
+        cfg.output.overlay.as_ref(),
+    ]
+    .into_iter()
+    .flatten()
     {
         for f in crate::persist::remove_stale_temps(target) {
             log.log(
