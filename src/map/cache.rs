@@ -746,6 +746,11 @@ fn no_cover(
         ),
     };
     let msg = match (mismatch, nearest) {
+        // A tile holds the position in its own CRS, only too near its edge: that is the story,
+        // whatever another tile's numbers would mean in another zone.
+        (_, Some((0.0, id, inside))) => format!(
+            "no tile covers {where_} with a {margin_m} m margin; nearest tile {id:?} has it only {inside:.1} m inside its edge"
+        ),
         (Some((id, crs, pc)), _) => format!(
             "CRS mismatch: tile {id:?}'s manifest says {crs}, but its extent holds {where_} only in {pc}, the prior's UTM zone; the manifest's crs is wrong (re-import the tile with the right --crs)"
         ),
@@ -753,9 +758,6 @@ fn no_cover(
             format!("no tiles in the cache (looking for {where_})")
         }
         (None, None) => format!("no usable tile in the cache (looking for {where_})"),
-        (None, Some((0.0, id, inside))) => format!(
-            "no tile covers {where_} with a {margin_m} m margin; nearest tile {id:?} has it only {inside:.1} m inside its edge"
-        ),
         (None, Some((dist, id, _))) => format!(
             "no tile covers {where_}; nearest tile {id:?} is {dist:.1} m away (margin {margin_m} m)"
         ),
