@@ -29,6 +29,7 @@ pub mod posefile;
 pub mod preflight;
 pub mod scene;
 pub mod sim;
+pub mod stage;
 pub mod store;
 pub mod viz;
 
