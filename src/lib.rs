@@ -26,6 +26,7 @@ pub mod map;
 pub mod persist;
 pub mod pose;
 pub mod posefile;
+pub mod scene;
 pub mod sim;
 pub mod store;
 pub mod viz;

@@ -1,5 +1,8 @@
 //! Intrinsics files (contracts §2): OpenCV FileStorage (YAML or XML), Kalibr camchain YAML,
-//! KITTI-360 MEI YAML and the native TOML table, detected from content.
+//! KITTI-360 MEI YAML and the native TOML table, detected from content; and the KITTI object
+//! benchmark's calibration file ([`parse_kitti_calib`]: rectified pinholes plus the Velodyne →
+//! camera extrinsic), which holds no image size and so becomes a camera only with one given
+//! (`infraloc kitti import`).
 //!
 //! [`parse_camera`] is pure (text in, model out); [`load_camera`] is the one-line file-reading
 //! wrapper the shell uses. Every failure is an [`Error::Input`] naming the file and the key.
@@ -34,6 +37,13 @@ pub fn parse_camera(text: &str, origin: &Path) -> Result<Camera> {
 /// in a single-camera format is an error.
 pub fn parse_camera_named(text: &str, origin: &Path, camera: Option<&str>) -> Result<Camera> {
     let ctx = Ctx { origin };
+    if is_kitti_calib(text) {
+        return Err(ctx.err(
+            "a KITTI calibration file (P0..P3, R0_rect, Tr_velo_to_cam) holds no image size: \
+             write a camera file from it with `infraloc kitti import --calib FILE --image PNG \
+             --camera-out CAM.yaml --pose-out POSE.json`",
+        ));
+    }
     let cam = match detect(text) {
         Syntax::Xml => {
             let root = xml_tree(text, &ctx)?;
@@ -772,6 +782,189 @@ fn toml_camera(text: &str, ctx: &Ctx) -> Result<Camera> {
 }
 
 // ---------------------------------------------------------------------------------------------
+// KITTI object-benchmark calibration
+// ---------------------------------------------------------------------------------------------
+
+/// The keys of a KITTI object-benchmark calibration file that name its extrinsic (with a `Pn:`
+/// line they identify the format).
+const KITTI_EXTRINSIC_KEYS: [&str; 2] = ["R0_rect", "Tr_velo_to_cam"];
+
+/// Whether `text` is a KITTI object-benchmark calibration (`calib/NNNNNN.txt`): `key: numbers`
+/// lines with a projection `P0:`..`P3:` and `R0_rect:` or `Tr_velo_to_cam:`.
+pub fn is_kitti_calib(text: &str) -> bool {
+    let keys: Vec<&str> = text
+        .lines()
+        .filter_map(|l| l.trim_start_matches('\u{feff}').split_once(':'))
+        .map(|(k, _)| k.trim())
+        .collect();
+    keys.iter().any(|k| matches!(*k, "P0" | "P1" | "P2" | "P3"))
+        && keys.iter().any(|k| KITTI_EXTRINSIC_KEYS.contains(k))
+}
+
+/// A KITTI object-benchmark calibration file (Geiger et al., IJRR 2013; the devkit's
+/// `readme.txt`): a Velodyne point `X` projects into rectified camera `i` as
+/// `Pi · [R0_rect · (R · X + T); 1]` with `[R | T] = Tr_velo_to_cam`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct KittiCalib {
+    /// The rectified projections present (`P0`..`P3`), 3×4 row-major, in file order.
+    pub projections: Vec<(String, [f64; 12])>,
+    /// Rectifying rotation of the reference camera, 3×3 row-major.
+    pub r0_rect: [f64; 9],
+    /// Velodyne → reference camera, 3×4 row-major `[R | T]`.
+    pub tr_velo_to_cam: [f64; 12],
+}
+
+/// Parse a KITTI object-benchmark calibration. `P0`..`P3`, `R0_rect` and `Tr_velo_to_cam` are read
+/// (at least one projection and both of the others are required); other keys (`Tr_imu_to_velo`)
+/// are ignored. Errors name the file and the key.
+pub fn parse_kitti_calib(text: &str, origin: &Path) -> Result<KittiCalib> {
+    let ctx = Ctx { origin };
+    let mut projections = Vec::new();
+    let (mut r0, mut tr) = (None, None);
+    for (ln, line) in text.lines().enumerate() {
+        let line = line.trim_start_matches('\u{feff}').trim();
+        if line.is_empty() {
+            continue;
+        }
+        let Some((key, rest)) = line.split_once(':') else {
+            return Err(ctx.err(format!("line {}: expected KEY: numbers", ln + 1)));
+        };
+        let key = key.trim();
+        let want = match key {
+            "P0" | "P1" | "P2" | "P3" | "Tr_velo_to_cam" => 12,
+            "R0_rect" => 9,
+            _ => continue,
+        };
+        let values = rest
+            .split_whitespace()
+            .map(|v| parse_f64(v, key, &ctx))
+            .collect::<Result<Vec<f64>>>()?;
+        if values.len() != want {
+            return Err(ctx.err(format!(
+                "{key}: expected {want} numbers, found {}",
+                values.len()
+            )));
+        }
+        match key {
+            "R0_rect" => r0 = values.try_into().ok(),
+            "Tr_velo_to_cam" => tr = values.try_into().ok(),
+            _ => {
+                if projections.iter().any(|(k, _)| k == key) {
+                    return Err(ctx.err(format!("{key}: given twice")));
+                }
+                if let Ok(p) = values.try_into() {
+                    projections.push((key.to_string(), p));
+                }
+            }
+        }
+    }
+    if projections.is_empty() {
+        return Err(ctx.err("missing key P2 (no projection P0..P3)"));
+    }
+    Ok(KittiCalib {
+        projections,
+        r0_rect: r0.ok_or_else(|| ctx.err("missing key R0_rect"))?,
+        tr_velo_to_cam: tr.ok_or_else(|| ctx.err("missing key Tr_velo_to_cam"))?,
+    })
+}
+
+impl KittiCalib {
+    /// The projection named `name` (`P2` = the left colour camera).
+    pub fn projection(&self, name: &str) -> std::result::Result<&[f64; 12], String> {
+        self.projections
+            .iter()
+            .find(|(k, _)| k == name)
+            .map(|(_, p)| p)
+            .ok_or_else(|| {
+                let have: Vec<&str> = self.projections.iter().map(|(k, _)| k.as_str()).collect();
+                format!("missing key {name} (has {})", have.join(", "))
+            })
+    }
+
+    /// `K` of projection `name` = its left 3×3, which must be upper-triangular with K₂₂ = 1 (a
+    /// rectified projection `K · [I | b]`), as rows.
+    fn k(&self, name: &str) -> std::result::Result<[[f64; 3]; 3], String> {
+        let p = self.projection(name)?;
+        let k = [[p[0], p[1], p[2]], [p[4], p[5], p[6]], [p[8], p[9], p[10]]];
+        if k[1][0] != 0.0 || k[2][0] != 0.0 || k[2][1] != 0.0 || k[2][2] != 1.0 {
+            return Err(format!(
+                "{name}: left 3×3 is not upper-triangular with K[2][2] = 1 (rows 2–3: {:?}, {:?})",
+                k[1], k[2]
+            ));
+        }
+        if !(k[0][0] > 0.0 && k[1][1] > 0.0) {
+            return Err(format!(
+                "{name}: focal lengths {} and {} must be positive",
+                k[0][0], k[1][1]
+            ));
+        }
+        Ok(k)
+    }
+
+    /// Rectified camera `name` as a pinhole: Mei with ξ = 0 and no distortion reproduces
+    /// `K · x / x_z` exactly. KITTI's file has no image size: the caller gives it (from the image).
+    pub fn camera(
+        &self,
+        name: &str,
+        width: u32,
+        height: u32,
+    ) -> std::result::Result<Camera, String> {
+        let k = self.k(name)?;
+        let cam = Camera::Mei(Mei {
+            skew: k[0][1],
+            ..Mei::pinhole(width, height, k[0][0], k[1][1], k[0][2], k[1][2])
+        });
+        cam.validate()?;
+        Ok(cam)
+    }
+
+    /// Velodyne → rectified camera `name` as `(R, t)` with `X_cam = R · X_velo + t`, row-major:
+    /// `R = R0_rect · R_velo_to_cam`, `t = R0_rect · T_velo_to_cam + K⁻¹ · Pi[:, 3]` (the fourth
+    /// column of a rectified projection is `K · b`, `b` the camera's offset from the reference
+    /// camera, so `Pi · [x; 1] = K · (x + b)`). `R` is the product as the file gives it, orthonormal
+    /// only to KITTI's printed precision (~1e-7); [`crate::pose::CamFromMap::from_rows`] projects it
+    /// onto a rotation.
+    pub fn cam_from_velo(
+        &self,
+        name: &str,
+    ) -> std::result::Result<([[f64; 3]; 3], [f64; 3]), String> {
+        use nalgebra::{Matrix3, Vector3};
+        let k = self.k(name)?;
+        let p = self.projection(name)?;
+        let r0 = Matrix3::from_row_slice(&self.r0_rect);
+        let tv = &self.tr_velo_to_cam;
+        let rv = Matrix3::new(
+            tv[0], tv[1], tv[2], tv[4], tv[5], tv[6], tv[8], tv[9], tv[10],
+        );
+        let t_velo = Vector3::new(tv[3], tv[7], tv[11]);
+        let km = Matrix3::from_row_slice(&k.concat());
+        let b = km
+            .try_inverse()
+            .ok_or_else(|| format!("{name}: K is singular"))?
+            * Vector3::new(p[3], p[7], p[11]);
+        let r = r0 * rv;
+        let t = r0 * t_velo + b;
+        // KITTI prints 7 significant digits: a rotation to ~1e-7. Anything far from one is not a
+        // calibration (a transposed or mistyped matrix), whatever from_rows would make of it.
+        let off = (r.transpose() * r - Matrix3::identity()).norm();
+        if !(off < 1e-4 && r.determinant() > 0.0) {
+            return Err(format!(
+                "R0_rect · Tr_velo_to_cam: not a rotation (|RᵀR−I| = {off:.2e}, det = {:.4})",
+                r.determinant()
+            ));
+        }
+        Ok((
+            [
+                [r[(0, 0)], r[(0, 1)], r[(0, 2)]],
+                [r[(1, 0)], r[(1, 1)], r[(1, 2)]],
+                [r[(2, 0)], r[(2, 1)], r[(2, 2)]],
+            ],
+            [t.x, t.y, t.z],
+        ))
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
 // Writing
 // ---------------------------------------------------------------------------------------------
 
@@ -1072,6 +1265,108 @@ projection_parameters:
         assert!(e.contains("fx"), "{e}");
         let e = parse_camera_named(KITTI, Path::new(P), Some("cam1")).unwrap_err();
         assert!(e.to_string().contains("one camera"));
+    }
+
+    /// A KITTI-style calibration with every term non-trivial: a skewed K, a baseline with a
+    /// z component in P2's fourth column, a rectifying rotation and a Velodyne extrinsic.
+    const KITTI_CALIB: &str = "P0: 700 0 600 0 0 710 180 0 0 0 1 0
+P2: 7.0e2 0.5 6.0e2 45.0 0 7.1e2 1.8e2 -0.35 0 0 1 0.005
+R0_rect: 0.9999128 0.01009263 -0.008511932 -0.01012729 0.9999406 -0.004037671 0.008470675 0.004123522 0.9999556
+Tr_velo_to_cam: 0 -1 0 -0.02 0 0 -1 -0.06 1 0 0 -0.33
+Tr_imu_to_velo: 1 0 0 0 0 1 0 0 0 0 1 0
+";
+
+    #[test]
+    fn kitti_calib_pinhole_and_extrinsic_reproduce_the_kitti_projection() {
+        use crate::camera::CameraModel;
+        assert!(is_kitti_calib(KITTI_CALIB));
+        let c = parse_kitti_calib(KITTI_CALIB, Path::new("calib.txt")).unwrap();
+        let cam = c.camera("P2", 1242, 375).unwrap();
+        let (r, t) = c.cam_from_velo("P2").unwrap();
+        let p2 = c.projection("P2").unwrap();
+        let (r0, tr) = (&c.r0_rect, &c.tr_velo_to_cam);
+        // KITTI's formula written out element by element: P2 · [R0 · (R·X + T); 1].
+        let kitti = |x: [f64; 3]| {
+            let v: Vec<f64> = (0..3)
+                .map(|i| {
+                    tr[4 * i] * x[0] + tr[4 * i + 1] * x[1] + tr[4 * i + 2] * x[2] + tr[4 * i + 3]
+                })
+                .collect();
+            let w: Vec<f64> = (0..3)
+                .map(|i| r0[3 * i] * v[0] + r0[3 * i + 1] * v[1] + r0[3 * i + 2] * v[2])
+                .collect();
+            let h: Vec<f64> = (0..3)
+                .map(|i| {
+                    p2[4 * i] * w[0] + p2[4 * i + 1] * w[1] + p2[4 * i + 2] * w[2] + p2[4 * i + 3]
+                })
+                .collect();
+            (h[0] / h[2], h[1] / h[2])
+        };
+        for x in [
+            [10.0, 2.0, -1.5],
+            [25.0, -6.0, 0.5],
+            [5.5, 0.3, -1.7],
+            [60.0, 12.0, 3.0],
+        ] {
+            let xc = nalgebra::Vector3::from_fn(|i, _| {
+                r[i][0] * x[0] + r[i][1] * x[1] + r[i][2] * x[2] + t[i]
+            });
+            let px = cam.project(&xc).unwrap();
+            let (u, v) = kitti(x);
+            assert!(
+                (px.x - u).abs() < 1e-9 && (px.y - v).abs() < 1e-9,
+                "{px:?} vs ({u}, {v})"
+            );
+        }
+        // The Mei table: ξ = 0, no distortion, K's skew kept.
+        let Camera::Mei(m) = &cam else {
+            panic!("{cam:?}")
+        };
+        assert_eq!(
+            (m.xi, m.k1, m.k2, m.p1, m.p2, m.skew),
+            (0.0, 0.0, 0.0, 0.0, 0.0, 0.5)
+        );
+        assert_eq!((m.width, m.height, m.fx, m.cy), (1242, 375, 700.0, 180.0));
+    }
+
+    #[test]
+    fn kitti_calib_errors_name_the_file_and_key() {
+        let o = Path::new("calib.txt");
+        let e = |t: &str| parse_kitti_calib(t, o).unwrap_err().to_string();
+        assert!(e(&KITTI_CALIB.replace("R0_rect", "R9_rect")).contains("missing key R0_rect"));
+        assert!(
+            e(&KITTI_CALIB.replace("Tr_velo_to_cam: 0 -1", "Tr_velo_to_cam: -1"))
+                .contains("Tr_velo_to_cam: expected 12 numbers, found 11")
+        );
+        let nan = e(&KITTI_CALIB.replace("7.1e2", "nan"));
+        assert!(
+            nan.starts_with("calib.txt: P2:") && nan.contains("not a finite number"),
+            "{nan}"
+        );
+        let c = parse_kitti_calib(KITTI_CALIB, o).unwrap();
+        assert!(c
+            .camera("P3", 10, 10)
+            .unwrap_err()
+            .contains("missing key P3 (has P0, P2)"));
+        // A transposed extrinsic with a scale error is not a rotation.
+        let bad = parse_kitti_calib(
+            &KITTI_CALIB.replace("Tr_velo_to_cam: 0 -1 0", "Tr_velo_to_cam: 0 -2 0"),
+            o,
+        )
+        .unwrap();
+        assert!(bad
+            .cam_from_velo("P2")
+            .unwrap_err()
+            .contains("not a rotation"));
+        // The camera loader recognises the format and says how to make a camera file of it.
+        let l = parse_camera(KITTI_CALIB, o).unwrap_err().to_string();
+        assert!(
+            l.starts_with("calib.txt: a KITTI calibration") && l.contains("kitti import"),
+            "{l}"
+        );
+        assert!(!is_kitti_calib(
+            "%YAML:1.0\ncamera_matrix: !!opencv-matrix\n"
+        ));
     }
 
     #[test]

@@ -5,6 +5,7 @@ mod calibrate;
 mod demo;
 mod estimator;
 mod gps;
+mod kitti;
 pub(crate) mod localize;
 mod plot;
 mod progress;
@@ -60,6 +61,10 @@ pub enum Command {
     /// GPS tools.
     #[command(subcommand)]
     Gps(gps::Command),
+    /// KITTI data: `kitti import` turns a frame's calibration into a camera file and a
+    /// Velodyne-frame pose (real LiDAR + camera inputs for `refine` and `plot mi-surface`).
+    #[command(subcommand)]
+    Kitti(kitti::Command),
     /// Check a configuration file: prints "config OK" or the problem (exit 78).
     Validate(validate::Args),
     /// The node service: serve the stored pose, localize at boot and on request, control socket,
@@ -111,6 +116,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Plot(c) => plot::run(c),
         Command::Tile(c) => tile::run(c),
         Command::Gps(c) => gps::run(c),
+        Command::Kitti(c) => kitti::run(c),
         Command::Validate(a) => validate::run(a),
         Command::Daemon(a) => tech::daemon(a),
         Command::Status(t) => tech::status(t).map(|_| ()),
@@ -137,6 +143,18 @@ pub(crate) fn parse_list<const N: usize>(flag: &str, s: &str) -> Result<[f64; N]
             "{flag} {s:?}: expected {N} comma-separated numbers"
         ))
     })
+}
+
+/// Parse `W,H` (pixels, each 200..=8000 so that every chart fits its labels).
+pub(crate) fn parse_size(s: &str) -> Result<(u32, u32), Error> {
+    let [w, h] = parse_list::<2>("--size", s)?;
+    let ok = |v: f64| v.fract() == 0.0 && (200.0..=8000.0).contains(&v);
+    if !(ok(w) && ok(h)) {
+        return Err(Error::Invalid(format!(
+            "--size {s}: expected W,H in pixels, each 200..8000"
+        )));
+    }
+    Ok((w as u32, h as u32))
 }
 
 /// Default config path of the installed service.

@@ -5,7 +5,7 @@
 //! DejaVu Sans embedded from `assets/` (Bitstream Vera licence, `assets/DejaVuSans-LICENSE.txt`)
 //! so no system font is needed on the node.
 
-use super::study::{load_scene, parse_size, SceneFiles};
+use super::parse_size;
 use crate::error::{Error, Result};
 use crate::localize::search::{SearchConfig, SearchSpec};
 use crate::localize::study::{
@@ -13,6 +13,7 @@ use crate::localize::study::{
     SUCCESS_HEIGHT_M, SUCCESS_HORIZONTAL_M, SUCCESS_YAW_DEG,
 };
 use crate::posefile::read_pose;
+use crate::scene::{load_scene, SceneFiles};
 use image::RgbImage;
 use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;

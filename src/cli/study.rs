@@ -3,8 +3,7 @@
 //! plot PNG and a JSON file with every trial. The computation is [`crate::localize::study`]; this
 //! file reads the scene and writes the outputs.
 
-use crate::camera::import::load_camera;
-use crate::camera::{Camera, CameraModel};
+use crate::camera::CameraModel;
 use crate::error::{Error, Result};
 use crate::localize::quality::QualityConfig;
 use crate::localize::refine::{finish_name, PolishedSearch};
@@ -13,13 +12,9 @@ use crate::localize::study::{
     attitude_from_control_points, run_trial, Perturbation, PointSelection, Scene, Summary,
     SUCCESS_HEIGHT_M, SUCCESS_HORIZONTAL_M, SUCCESS_YAW_DEG,
 };
-use crate::map::cache::{find_tile, load_tile};
-use crate::map::{Crs, Tile};
-use crate::pose::CamFromMap;
-use crate::posefile::read_pose;
-use image::GrayImage;
+use crate::scene::load_scene;
 use serde_json::json;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// Arguments of `study`.
@@ -79,108 +74,6 @@ pub enum Attitude {
     ControlPoints,
 }
 
-/// A scene directory read into memory.
-#[derive(Debug, Clone)]
-pub(crate) struct SceneFiles {
-    /// Intrinsics given to the localizer (camera.yaml).
-    pub camera: Camera,
-    /// Temporal median of frames/*.png (what the pipeline refines on).
-    pub gray: GrayImage,
-    /// The tile covering the true camera position.
-    pub tile: Tile,
-    /// True pose (truth.json).
-    pub truth: CamFromMap,
-    /// Control points of truth.json: map point and true pixel.
-    pub control: Vec<([f64; 3], [f64; 2])>,
-}
-
-/// Read a scene directory; each missing or bad part is a one-line error naming it.
-pub(crate) fn load_scene(dir: &Path) -> Result<SceneFiles> {
-    if !dir.is_dir() {
-        return Err(Error::input(dir, "scene directory not found"));
-    }
-    let tp = dir.join("truth.json");
-    let truth = read_pose(&tp)?;
-    let text = std::fs::read_to_string(&tp).map_err(|e| Error::io(&tp, e))?;
-    let doc: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| Error::input(&tp, e.to_string()))?;
-    let control = match doc.get("control_points") {
-        None => Vec::new(),
-        Some(v) => serde_json::from_value::<Vec<ControlPoint>>(v.clone())
-            .map_err(|e| Error::input(&tp, format!("control_points: {e}")))?
-            .into_iter()
-            .map(|c| (c.map, c.pixel))
-            .collect(),
-    };
-    let crs = match truth.crs {
-        Some(c @ Crs::Epsg(_)) => c,
-        _ => return Err(Error::input(&tp, "\"crs\" must be an EPSG code")),
-    };
-    let camera = load_camera(&dir.join("camera.yaml"))?;
-    let fdir = dir.join("frames");
-    let mut files: Vec<PathBuf> = std::fs::read_dir(&fdir)
-        .map_err(|e| Error::io(&fdir, e))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png")))
-        .collect();
-    files.sort();
-    if files.is_empty() {
-        return Err(Error::input(&fdir, "no PNG frames"));
-    }
-    let frames = files
-        .iter()
-        .map(|p| {
-            image::open(p)
-                .map(|i| i.to_luma8())
-                .map_err(|e| Error::input(p, format!("cannot read image: {e}")))
-        })
-        .collect::<Result<Vec<_>>>()?;
-    let gray =
-        crate::capture::temporal_median(&frames).map_err(|e| Error::input(&fdir, e.to_string()))?;
-    if (gray.width(), gray.height()) != (camera.width(), camera.height()) {
-        return Err(Error::input(
-            &fdir,
-            format!(
-                "frames are {}×{} but camera.yaml is {}×{}",
-                gray.width(),
-                gray.height(),
-                camera.width(),
-                camera.height()
-            ),
-        ));
-    }
-    let c = truth.pose.center();
-    let (lat, lon) = crate::geo::map_to_wgs84(crs, c.x, c.y)?;
-    let tref = find_tile(&dir.join("tiles"), lat, lon, 0.0)?;
-    let tile = load_tile(&tref.dir)?;
-    Ok(SceneFiles {
-        camera,
-        gray,
-        tile,
-        truth: truth.pose,
-        control,
-    })
-}
-
-/// A control point of truth.json (the fields the study reads).
-#[derive(serde::Deserialize)]
-struct ControlPoint {
-    map: [f64; 3],
-    pixel: [f64; 2],
-}
-
-/// Parse `W,H` (pixels, each 200..=8000 so that every chart fits its labels).
-pub(crate) fn parse_size(s: &str) -> Result<(u32, u32)> {
-    let [w, h] = super::parse_list::<2>("--size", s)?;
-    let ok = |v: f64| v.fract() == 0.0 && (200.0..=8000.0).contains(&v);
-    if !(ok(w) && ok(h)) {
-        return Err(Error::Invalid(format!(
-            "--size {s}: expected W,H in pixels, each 200..8000"
-        )));
-    }
-    Ok((w as u32, h as u32))
-}
-
 /// Run `study`.
 pub fn run(a: Args) -> Result<()> {
     if a.trials == 0 {
@@ -194,7 +87,7 @@ pub fn run(a: Args) -> Result<()> {
     pert.validate()?;
     let spec: SearchSpec = a.search.parse()?;
     let mi = a.estimator.config()?;
-    let size = super::study::parse_size(&a.size)?;
+    let size = super::parse_size(&a.size)?;
     let scene = load_scene(&a.scene)?;
     let cfg = SearchConfig {
         spec,

@@ -8,8 +8,11 @@
 //!   `intensity` or `reflectivity` (SIZE/TYPE/COUNT honoured, other fields skipped).
 //! - **LAS** 1.0–1.4 (`.las`), point formats 0–10 (X, Y, Z and intensity have the same offsets in
 //!   all of them); coordinates = integer · scale + offset; LAZ (compressed) is rejected.
+//! - **Velodyne `.bin`** (KITTI's raw sweeps): records of four float32 little-endian values x, y, z,
+//!   reflectance, no header; the file's length must be a multiple of 16 bytes. Reflectance is
+//!   scaled as the PCD/LAS floats below (KITTI's 0–1 → ×255, as CSV values in [0, 1]).
 //!
-//! Intensity scaling to 0–255 (PCD and LAS; CSV only the [0, 1] case), from the file's own
+//! Intensity scaling to 0–255 (PCD, LAS and `.bin`; CSV only the [0, 1] case), from the file's own
 //! range so that one file is scaled uniformly:
 //! - integers: taken as they are if the largest ≤ 255; otherwise divided by the smallest full-scale
 //!   2^b − 1 (b = 12 or 16 in practice) that holds the largest value, times 255 — so a 16-bit LAS
@@ -25,7 +28,7 @@ use super::points::{validate, GroundPoint};
 use crate::error::{Error, Result};
 use std::path::Path;
 
-/// Read a point file, format by extension (`.csv`, `.pcd`, `.las`; `.txt` as CSV).
+/// Read a point file, format by extension (`.csv`, `.pcd`, `.las`, `.bin`; `.txt` as CSV).
 pub fn read_points(path: &Path) -> Result<Vec<GroundPoint>> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let ext = path
@@ -37,6 +40,7 @@ pub fn read_points(path: &Path) -> Result<Vec<GroundPoint>> {
         "csv" | "txt" => parse_csv(&bytes).map_err(|m| Error::input(path, m))?,
         "pcd" => parse_pcd(&bytes).map_err(|m| Error::input(path, m))?,
         "las" => parse_las(&bytes).map_err(|m| Error::input(path, m))?,
+        "bin" => parse_velodyne_bin(&bytes).map_err(|m| Error::input(path, m))?,
         "laz" => return Err(Error::input(
             path,
             "LAZ (compressed LAS) is not supported; decompress with `laszip` or `pdal translate`",
@@ -44,7 +48,7 @@ pub fn read_points(path: &Path) -> Result<Vec<GroundPoint>> {
         _ => {
             return Err(Error::input(
                 path,
-                "unknown point file type (expected .csv, .pcd or .las)",
+                "unknown point file type (expected .csv, .pcd, .las or a Velodyne .bin)",
             ))
         }
     };
@@ -107,6 +111,35 @@ pub fn parse_csv(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> 
         p.reflectivity = if normalised { r * 255.0 } else { *r }.round() as u8;
     }
     Ok(out)
+}
+
+/// Bytes of one Velodyne `.bin` record: x, y, z, reflectance as float32.
+const VELODYNE_RECORD: usize = 16;
+
+/// Parse a Velodyne `.bin` sweep (KITTI's `velodyne/NNNNNN.bin`): float32 LE x, y, z, reflectance.
+pub fn parse_velodyne_bin(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> {
+    if bytes.len() % VELODYNE_RECORD != 0 {
+        return Err(format!(
+            "{} bytes is not a whole number of Velodyne records (x, y, z, reflectance as float32: \
+             {VELODYNE_RECORD} bytes each)",
+            bytes.len()
+        ));
+    }
+    let n = bytes.len() / VELODYNE_RECORD;
+    let mut xyz = Vec::with_capacity(n);
+    let mut refl = Vec::with_capacity(n);
+    for (k, r) in bytes.chunks_exact(VELODYNE_RECORD).enumerate() {
+        let f = |i: usize| f32::from_le_bytes([r[4 * i], r[4 * i + 1], r[4 * i + 2], r[4 * i + 3]]);
+        let v = f(3);
+        if !v.is_finite() || v < 0.0 {
+            return Err(format!(
+                "point {k}: reflectance {v} is negative or non-finite"
+            ));
+        }
+        xyz.push([f(0) as f64, f(1) as f64, f(2) as f64]);
+        refl.push(v as f64);
+    }
+    finish(xyz, scale_intensity(RawIntensity::Float(refl))?)
 }
 
 /// Raw intensity values before scaling.
@@ -554,6 +587,76 @@ mod tests {
         assert!(parse_las(&short[..short.len() - 5])
             .unwrap_err()
             .contains("need"));
+    }
+
+    /// Velodyne records written value by value (independent of the reader's constants).
+    fn velodyne_bytes(points: &[[f32; 4]]) -> Vec<u8> {
+        points
+            .iter()
+            .flat_map(|p| p.iter().flat_map(|v| v.to_le_bytes()))
+            .collect()
+    }
+
+    #[test]
+    fn velodyne_bin_records_and_reflectance_scaling() {
+        let b = velodyne_bytes(&[
+            [12.5, -3.25, -1.75, 0.0],
+            [5.0, 0.5, -1.5, 0.5],
+            [-20.0, 7.0, 0.25, 1.0],
+        ]);
+        let p = parse_velodyne_bin(&b).unwrap();
+        assert_eq!(p.len(), 3);
+        assert_eq!((p[0].x, p[0].y, p[0].z), (12.5, -3.25, -1.75));
+        assert_eq!((p[2].x, p[2].y, p[2].z), (-20.0, 7.0, 0.25));
+        // KITTI reflectance 0–1 scaled ×255 as CSV values in [0, 1]: 0.5 → 127.5 → 128.
+        let r: Vec<u8> = p.iter().map(|q| q.reflectivity).collect();
+        assert_eq!(r, vec![0, 128, 255]);
+        // The CSV reader scales the same values the same way.
+        let csv = parse_csv(b"x,y,z,intensity\n0,0,0,0.0\n0,0,0,0.5\n0,0,0,1.0\n").unwrap();
+        assert_eq!(csv.iter().map(|q| q.reflectivity).collect::<Vec<_>>(), r);
+        // A torn file: one-line error naming the byte count.
+        let e = parse_velodyne_bin(&b[..b.len() - 3]).unwrap_err();
+        assert!(e.contains("45 bytes") && e.contains("16 bytes"), "{e}");
+        assert!(!e.contains('\n'));
+        // Non-finite coordinates and reflectance are refused, naming the point.
+        let e = parse_velodyne_bin(&velodyne_bytes(&[
+            [1.0, 2.0, 3.0, 0.1],
+            [f32::NAN, 0.0, 0.0, 0.2],
+        ]))
+        .unwrap_err();
+        assert!(e.starts_with("point 1: non-finite"), "{e}");
+        let e = parse_velodyne_bin(&velodyne_bytes(&[[1.0, 2.0, 3.0, f32::INFINITY]])).unwrap_err();
+        assert!(e.starts_with("point 0: reflectance"), "{e}");
+    }
+
+    #[test]
+    fn velodyne_bin_through_read_points_names_the_file() {
+        let dir = std::env::temp_dir().join(format!("infraloc-velo-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let good = dir.join("000042.bin");
+        std::fs::write(
+            &good,
+            velodyne_bytes(&[[1.0, 2.0, 3.0, 0.25], [4.0, 5.0, 6.0, 0.75]]),
+        )
+        .unwrap();
+        let p = read_points(&good).unwrap();
+        assert_eq!(p.len(), 2);
+        assert_eq!((p[1].x, p[1].reflectivity), (4.0, 191));
+        let torn = dir.join("torn.BIN");
+        std::fs::write(&torn, [0u8; 17]).unwrap();
+        let e = read_points(&torn).unwrap_err().to_string();
+        assert!(
+            e.starts_with(&torn.display().to_string()) && e.contains("17 bytes"),
+            "{e}"
+        );
+        let empty = dir.join("empty.bin");
+        std::fs::write(&empty, []).unwrap();
+        let e = read_points(&empty).unwrap_err().to_string();
+        assert!(
+            e.contains("empty.bin") && e.contains("no ground points"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -1,0 +1,103 @@
+//! A simulated scene directory read back into memory (contracts §5: truth.json, camera.yaml,
+//! frames/, tiles/), for the commands that study a scene (`study`, `plot mi-surface`). The
+//! directory is written by `infraloc simulate`.
+
+use crate::camera::import::load_camera;
+use crate::camera::{Camera, CameraModel};
+use crate::error::{Error, Result};
+use crate::map::cache::{find_tile, load_tile};
+use crate::map::{Crs, Tile};
+use crate::pose::CamFromMap;
+use crate::posefile::read_pose;
+use image::GrayImage;
+use std::path::{Path, PathBuf};
+
+/// A scene directory read into memory.
+#[derive(Debug, Clone)]
+pub(crate) struct SceneFiles {
+    /// Intrinsics given to the localizer (camera.yaml).
+    pub camera: Camera,
+    /// Temporal median of frames/*.png (what the pipeline refines on).
+    pub gray: GrayImage,
+    /// The tile covering the true camera position.
+    pub tile: Tile,
+    /// True pose (truth.json).
+    pub truth: CamFromMap,
+    /// Control points of truth.json: map point and true pixel.
+    pub control: Vec<([f64; 3], [f64; 2])>,
+}
+
+/// Read a scene directory; each missing or bad part is a one-line error naming it.
+pub(crate) fn load_scene(dir: &Path) -> Result<SceneFiles> {
+    if !dir.is_dir() {
+        return Err(Error::input(dir, "scene directory not found"));
+    }
+    let tp = dir.join("truth.json");
+    let truth = read_pose(&tp)?;
+    let text = std::fs::read_to_string(&tp).map_err(|e| Error::io(&tp, e))?;
+    let doc: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| Error::input(&tp, e.to_string()))?;
+    let control = match doc.get("control_points") {
+        None => Vec::new(),
+        Some(v) => serde_json::from_value::<Vec<ControlPoint>>(v.clone())
+            .map_err(|e| Error::input(&tp, format!("control_points: {e}")))?
+            .into_iter()
+            .map(|c| (c.map, c.pixel))
+            .collect(),
+    };
+    let crs = match truth.crs {
+        Some(c @ Crs::Epsg(_)) => c,
+        _ => return Err(Error::input(&tp, "\"crs\" must be an EPSG code")),
+    };
+    let camera = load_camera(&dir.join("camera.yaml"))?;
+    let fdir = dir.join("frames");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&fdir)
+        .map_err(|e| Error::io(&fdir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png")))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(Error::input(&fdir, "no PNG frames"));
+    }
+    let frames = files
+        .iter()
+        .map(|p| {
+            image::open(p)
+                .map(|i| i.to_luma8())
+                .map_err(|e| Error::input(p, format!("cannot read image: {e}")))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let gray =
+        crate::capture::temporal_median(&frames).map_err(|e| Error::input(&fdir, e.to_string()))?;
+    if (gray.width(), gray.height()) != (camera.width(), camera.height()) {
+        return Err(Error::input(
+            &fdir,
+            format!(
+                "frames are {}×{} but camera.yaml is {}×{}",
+                gray.width(),
+                gray.height(),
+                camera.width(),
+                camera.height()
+            ),
+        ));
+    }
+    let c = truth.pose.center();
+    let (lat, lon) = crate::geo::map_to_wgs84(crs, c.x, c.y)?;
+    let tref = find_tile(&dir.join("tiles"), lat, lon, 0.0)?;
+    let tile = load_tile(&tref.dir)?;
+    Ok(SceneFiles {
+        camera,
+        gray,
+        tile,
+        truth: truth.pose,
+        control,
+    })
+}
+
+/// A control point of truth.json (the fields the study reads).
+#[derive(serde::Deserialize)]
+struct ControlPoint {
+    map: [f64; 3],
+    pixel: [f64; 2],
+}
