@@ -62,11 +62,7 @@ pub(crate) fn load_scene(dir: &Path) -> Result<SceneFiles> {
     }
     let frames = files
         .iter()
-        .map(|p| {
-            image::open(p)
-                .map(|i| i.to_luma8())
-                .map_err(|e| Error::input(p, format!("cannot read image: {e}")))
-        })
+        .map(|p| crate::capture::load_gray(p))
         .collect::<Result<Vec<_>>>()?;
     let gray =
         crate::capture::temporal_median(&frames).map_err(|e| Error::input(&fdir, e.to_string()))?;

@@ -156,16 +156,7 @@ pub fn mjpeg(buf: &[u8], expect: Option<(u32, u32)>) -> Result<GrayImage, Conver
     // A colour JPEG's own Y is BT.601 luma; the decoder hands back RGB, so recompute it with
     // the BT.601 weights (image's `into_luma8` uses Rec.709 weights and would disagree with the
     // YUYV and Bayer paths by several grey levels on saturated colours).
-    let img = match decoded {
-        image::DynamicImage::ImageLuma8(g) => g,
-        other => {
-            let rgb = other.into_rgb8();
-            GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
-                let [r, g, b] = rgb.get_pixel(x, y).0;
-                image::Luma([luma601(r, g, b)])
-            })
-        }
-    };
+    let img = to_gray(decoded);
     if let Some((w, h)) = expect {
         if img.dimensions() != (w, h) {
             return Err(ConvertError::Corrupt(format!(
@@ -176,6 +167,23 @@ pub fn mjpeg(buf: &[u8], expect: Option<(u32, u32)>) -> Result<GrayImage, Conver
         }
     }
     Ok(img)
+}
+
+/// Any decoded image → 8-bit gray, the way every path into the pipeline converts: 8-bit gray
+/// as it is, colour as BT.601 luma in OpenCV's fixed point (`cv::cvtColor(…, COLOR_RGB2GRAY)`,
+/// what the camera's YUYV, Bayer and MJPEG paths give), other gray formats scaled to 8 bits.
+pub fn to_gray(img: image::DynamicImage) -> GrayImage {
+    match img {
+        image::DynamicImage::ImageLuma8(g) => g,
+        other if other.color().has_color() => {
+            let rgb = other.into_rgb8();
+            GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
+                let [r, g, b] = rgb.get_pixel(x, y).0;
+                image::Luma([luma601(r, g, b)])
+            })
+        }
+        other => other.into_luma8(),
+    }
 }
 
 /// Colour filter layout of a Bayer sensor, named by its top-left 2×2 cell read row by row.
@@ -289,6 +297,15 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn gray_weights_are_opencvs() {
+        assert_eq!(LUMA_R + LUMA_G + LUMA_B, 1 << LUMA_SHIFT);
+        assert_eq!(luma601(255, 255, 255), 255);
+        assert_eq!(luma601(255, 0, 0), 76); // 0.299·255 = 76.2
+        assert_eq!(luma601(0, 255, 0), 150); // 0.587·255 = 149.7
+        assert_eq!(luma601(0, 0, 255), 29); // 0.114·255 = 29.1
+    }
 
     /// A gray test image with structure in both axes (and not symmetric), so a transposed,
     /// shifted or byte-swapped conversion cannot pass.

@@ -40,6 +40,14 @@ impl FileSource {
     }
 }
 
+/// Read an image file as 8-bit gray ([`super::convert::to_gray`]): the one way a frame, a
+/// scene's frame or a command's `--image` is read from disk. Errors name the file.
+pub fn load_gray(path: &Path) -> crate::Result<image::GrayImage> {
+    let img = image::open(path)
+        .map_err(|e| crate::Error::input(path, format!("cannot read image: {e}")))?;
+    Ok(super::convert::to_gray(img))
+}
+
 fn is_image(p: &Path) -> bool {
     p.extension()
         .and_then(|e| e.to_str())
@@ -85,8 +93,8 @@ impl FrameSource for FileSource {
         };
         let bytes = std::fs::read(path).map_err(|e| with_name(GrabError::from_io(&e)))?;
         let image = image::load_from_memory(&bytes)
-            .map_err(|e| with_name(GrabError::new(Fault::Corrupt, e.to_string())))?
-            .into_luma8();
+            .map(super::convert::to_gray)
+            .map_err(|e| with_name(GrabError::new(Fault::Corrupt, e.to_string())))?;
         self.next = (self.next + 1) % self.files.len();
         self.sequence += 1;
         Ok(Frame {

@@ -17,7 +17,7 @@ mod v4l2;
 
 #[cfg(feature = "aravis")]
 pub use aravis::{AravisSettings, AravisSource};
-pub use file::FileSource;
+pub use file::{load_gray, FileSource};
 pub use median::temporal_median;
 #[cfg(feature = "v4l")]
 pub use v4l2::{V4l2Format, V4l2Source};

@@ -2,6 +2,8 @@
 //! (through the scene's config), print the errors against truth, exit non-zero past the thresholds.
 
 use super::simulate::{DifficultyArg, LensArg, PresetArg};
+use crate::app::{Outputs, Overrides};
+use crate::config::Config;
 use crate::error::{Error, Result};
 use serde_json::Value;
 use std::io::IsTerminal;
@@ -107,20 +109,19 @@ pub fn run(a: Args) -> Result<()> {
         (None, Some(d)) => d.join("overlay.png"),
         (None, None) => std::env::temp_dir().join("infraloc-demo-overlay.png"),
     };
-    let la = super::localize::Args {
-        config: dir.join("infraloc.toml"),
-        camera: None,
-        images: Vec::new(),
-        gps_nmea: None,
-        prior_wgs84: None,
-        tiles: None,
-        out: Some(dir.join("pose.json")),
-        overlay: Some(overlay.clone()),
-        report: Some(dir.join("report.json")),
+    let cfg_path = dir.join("infraloc.toml");
+    let cfg = Config::load(&cfg_path)?;
+    cfg.validate(&cfg_path)?;
+    let ov = Overrides {
         truth: Some(dir.join("truth.json")),
-        threads: None,
+        ..Overrides::default()
     };
-    let run = super::localize::run_pipeline(&la)?;
+    let out = Outputs {
+        pose: Some(dir.join("pose.json")),
+        report: Some(dir.join("report.json")),
+        overlay: Some(overlay.clone()),
+    };
+    let run = super::localize::run_and_write(&cfg, &cfg_path, &ov, &out)?;
     let t = &run.report["truth"];
     println!(
         "{:<6} {:>12} {:>10} {:>9} {:>16} {:>9}",

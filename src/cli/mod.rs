@@ -6,7 +6,7 @@ mod demo;
 mod estimator;
 mod gps;
 mod kitti;
-pub(crate) mod localize;
+mod localize;
 mod plot;
 mod progress;
 mod project;

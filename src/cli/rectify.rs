@@ -63,7 +63,9 @@ pub fn run(a: Args) -> Result<()> {
     }
 
     let cam = load_camera(&a.camera)?;
-    let (gray, iw, ih) = load_gray(&a.image)?;
+    let gray = crate::capture::load_gray(&a.image)?;
+    let (iw, ih) = (gray.width() as usize, gray.height() as usize);
+    let gray = gray.into_raw();
     if iw != cam.width() as usize || ih != cam.height() as usize {
         return Err(Error::input(
             &a.image,
@@ -89,33 +91,6 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// Read an image as gray u8. Colour is converted like `cv::cvtColor(…, COLOR_RGB2GRAY)`:
-/// Y = 0.299 R + 0.587 G + 0.114 B in OpenCV's 14-bit fixed point.
-fn load_gray(path: &Path) -> Result<(Vec<u8>, usize, usize)> {
-    let img =
-        image::open(path).map_err(|e| Error::input(path, format!("cannot read image: {e}")))?;
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    let gray = match img {
-        image::DynamicImage::ImageLuma8(g) => g.into_raw(),
-        other if other.color().has_color() => {
-            other.to_rgb8().pixels().map(|p| bt601_gray(p.0)).collect()
-        }
-        other => other.to_luma8().into_raw(),
-    };
-    Ok((gray, w, h))
-}
-
-/// OpenCV's RGB→gray coefficients scaled by 2^14 (they sum to exactly 16384).
-const GRAY_R: u32 = 4899;
-const GRAY_G: u32 = 9617;
-const GRAY_B: u32 = 1868;
-const GRAY_SHIFT: u32 = 14;
-
-fn bt601_gray([r, g, b]: [u8; 3]) -> u8 {
-    ((r as u32 * GRAY_R + g as u32 * GRAY_G + b as u32 * GRAY_B + (1 << (GRAY_SHIFT - 1)))
-        >> GRAY_SHIFT) as u8
-}
-
 /// Write map_x then map_y as f32 little-endian planes.
 fn write_maps(path: &Path, map: &RectifyMap) -> Result<()> {
     let f = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
@@ -125,18 +100,4 @@ fn write_maps(path: &Path, map: &RectifyMap) -> Result<()> {
             .map_err(|e| Error::io(path, e))?;
     }
     w.flush().map_err(|e| Error::io(path, e))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn gray_weights_are_opencvs() {
-        assert_eq!(GRAY_R + GRAY_G + GRAY_B, 1 << GRAY_SHIFT);
-        assert_eq!(bt601_gray([255, 255, 255]), 255);
-        assert_eq!(bt601_gray([255, 0, 0]), 76); // 0.299·255 = 76.2
-        assert_eq!(bt601_gray([0, 255, 0]), 150); // 0.587·255 = 149.7
-        assert_eq!(bt601_gray([0, 0, 255]), 29); // 0.114·255 = 29.1
-    }
 }

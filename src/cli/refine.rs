@@ -88,9 +88,7 @@ impl Args {
 }
 
 fn load_gray(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
-    let img =
-        image::open(path).map_err(|e| Error::input(path, format!("cannot read image: {e}")))?;
-    let g = img.to_luma8();
+    let g = crate::capture::load_gray(path)?;
     Ok((g.width(), g.height(), g.into_raw()))
 }
 

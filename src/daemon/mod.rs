@@ -11,7 +11,7 @@
 
 pub mod notify;
 
-use crate::cli::localize::{camera_and_frame, compute, Args, Run};
+use crate::app::{camera_and_frame, Overrides, Run};
 use crate::config::Config;
 use crate::control::{self, Reply, Request};
 use crate::error::{Error, Result};
@@ -525,12 +525,11 @@ impl Daemon {
         let spawned = std::thread::Builder::new()
             .name("localize".into())
             .spawn(move || {
-                let args = Args::from_config(&path);
                 let progress = |s: &str| {
                     let _ = tx.send(Event::Progress(s.to_string()));
                 };
                 let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    let run = compute(&args, &cfg, &progress)?;
+                    let run = crate::app::run(&cfg, &path, &Overrides::default(), &progress)?;
                     let cc = served.as_ref().and_then(|p| {
                         progress("cross-check");
                         cross_check(&run, p, &cfg)
@@ -842,8 +841,7 @@ fn internal_error(stage: &'static str, p: Box<dyn std::any::Any + Send>) -> Erro
 
 /// The drift check: fresh frames, then [`drift_search`] around the served pose.
 pub fn drift_check(cfg: &Config, config_path: &Path, served: &PoseFile) -> Result<Value> {
-    let args = Args::from_config(config_path);
-    let (camera, image) = camera_and_frame(&args, cfg, &|_| {})?;
+    let (camera, image) = camera_and_frame(cfg, config_path, &Overrides::default(), &|_| {})?;
     let tile = load_tile(&cfg.map.tiles.join(&served.tile_id))?;
     drift_search(&camera, &image, &tile, &served.pose(), cfg)
 }

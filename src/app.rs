@@ -1,0 +1,322 @@
+//! The node's application layer: one localization run, from a validated [`Config`] and typed
+//! [`Overrides`] to a pose document, with no argument parsing and no printing.
+//!
+//! capture (frames + intrinsics) → GPS prior → tile → [`crate::localize::pipeline`] → [`Run`]
+//! (pose file, report, overlay). `infraloc localize` and `infraloc demo` call it and write the
+//! outputs ([`Run::write_outputs`]); the service calls it and offers the pose to its store. The
+//! CLI only turns flags into [`Overrides`] and prints; the service never imports the CLI.
+
+use crate::camera::{import::load_camera, Camera, CameraModel};
+use crate::capture::load_gray;
+use crate::config::{Config, FrameSourceKind, GpsSourceKind, MatcherKind};
+use crate::error::{Error, Result};
+use crate::localize::matcher::{MatchFile, Matcher};
+use crate::localize::pipeline::{localize, Outcome, Params};
+use crate::map::cache::{find_tile, load_tile};
+use crate::map::{Crs, Tile};
+use crate::persist::write_atomic;
+use crate::posefile::{format_utc, PoseFile};
+use image::GrayImage;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// What a caller replaces in the config for one run (`infraloc localize`'s flags). The default
+/// replaces nothing: the run is the config's, as the service runs it.
+#[derive(Debug, Clone, Default)]
+pub struct Overrides {
+    /// Intrinsics file instead of the config's camera.
+    pub camera: Option<PathBuf>,
+    /// Frames to use instead of capturing; several are median-filtered.
+    pub images: Vec<PathBuf>,
+    /// NMEA log for the prior instead of the config's GPS source.
+    pub gps_nmea: Option<PathBuf>,
+    /// Prior position (lat, lon), WGS84 degrees, already range-checked by the caller; its σ is
+    /// `[gps] fallback-sigma-m`.
+    pub prior_wgs84: Option<(f64, f64)>,
+    /// Tile cache instead of `[map] tiles`.
+    pub tiles: Option<PathBuf>,
+    /// Simulator `truth.json` to report each stage's errors against.
+    pub truth: Option<PathBuf>,
+}
+
+/// Where [`Run::write_outputs`] writes; each `None` falls back to the config's `[output]`.
+#[derive(Debug, Clone, Default)]
+pub struct Outputs {
+    /// Pose file instead of `[output] pose`.
+    pub pose: Option<PathBuf>,
+    /// Report JSON instead of `[output] report`.
+    pub report: Option<PathBuf>,
+    /// Overlay PNG instead of `[output] overlay`.
+    pub overlay: Option<PathBuf>,
+}
+
+/// Everything a localization run produced (used by `localize`, `demo` and the service).
+pub struct Run {
+    /// Pipeline outcome.
+    pub outcome: Outcome,
+    /// Tile used.
+    pub tile: Tile,
+    /// Median frame.
+    pub image: GrayImage,
+    /// Camera intrinsics used.
+    pub camera: Camera,
+    /// Radius of the LiDAR points drawn in the overlay, metres.
+    pub mi_radius_m: f64,
+    /// The pose document.
+    pub pose_file: PoseFile,
+    /// The report.
+    pub report: Value,
+}
+
+fn frames(ov: &Overrides, cfg: &Config, cfg_path: &Path) -> Result<Vec<GrayImage>> {
+    if !ov.images.is_empty() {
+        return ov.images.iter().map(|p| load_gray(p)).collect();
+    }
+    let c = &cfg.camera;
+    match c.source {
+        // Recorded frames are read as they are: no exposure settling, no pacing.
+        FrameSourceKind::File => {
+            let path = c.frames.as_ref().ok_or_else(|| {
+                Error::config(cfg_path, "[camera] source = \"file\" needs frames")
+            })?;
+            let mut src = crate::capture::FileSource::new(path);
+            crate::capture::FrameSource::open(&mut src)
+                .map_err(|e| Error::input(path, e.detail))?;
+            let files: Vec<PathBuf> = src
+                .files()
+                .iter()
+                .take(c.frame_count.max(1) as usize)
+                .cloned()
+                .collect();
+            if files.is_empty() {
+                return Err(Error::input(path, "no image files"));
+            }
+            files.iter().map(|p| load_gray(p)).collect()
+        }
+        _ => {
+            let mut src = crate::capture::source_from_config(c)?;
+            let settings = crate::capture::CaptureSettings::from_config(c);
+            let cap = crate::capture::capture(
+                src.as_mut(),
+                &settings,
+                &crate::capture::SystemClock::default(),
+            )?;
+            Ok(cap.frames.into_iter().map(|f| f.image).collect())
+        }
+    }
+}
+
+/// The prior as (lat, lon, σ m) and a JSON description of where it came from.
+fn prior(ov: &Overrides, cfg: &Config) -> Result<((f64, f64, f64), Value)> {
+    if let Some((lat, lon)) = ov.prior_wgs84 {
+        let sigma = cfg.gps.fallback_sigma_m;
+        return Ok((
+            (lat, lon, sigma),
+            json!({"source": "command-line", "lat": lat, "lon": lon, "sigma_m": sigma}),
+        ));
+    }
+    let mut g = cfg.gps.clone();
+    if let Some(path) = &ov.gps_nmea {
+        g.source = GpsSourceKind::NmeaFile;
+        g.path = Some(path.clone());
+    }
+    let outcome = crate::gps_serial::acquire_prior(&g)?;
+    let desc = serde_json::to_value(&outcome).unwrap_or(Value::Null);
+    let pos = outcome
+        .position()
+        .ok_or_else(|| Error::stage("prior", format!("no position: {desc}")))?;
+    Ok((pos, desc))
+}
+
+/// The camera intrinsics and the (temporally median-filtered) frame under `cfg` (read from
+/// `cfg_path`, which errors name) and `ov`, checked to agree in size. `progress("capture")` is
+/// called before frames are taken.
+pub fn camera_and_frame(
+    cfg: &Config,
+    cfg_path: &Path,
+    ov: &Overrides,
+    progress: &dyn Fn(&str),
+) -> Result<(Camera, GrayImage)> {
+    let camera = match (
+        &ov.camera,
+        &cfg.camera.intrinsics_file,
+        &cfg.camera.intrinsics,
+    ) {
+        (Some(p), _, _) | (None, Some(p), _) => load_camera(p)?,
+        (None, None, Some(c)) => c.clone(),
+        (None, None, None) => {
+            return Err(Error::config(
+                cfg_path,
+                "[camera]: no intrinsics-file or [camera.intrinsics]",
+            ))
+        }
+    };
+    progress("capture");
+    let frames = frames(ov, cfg, cfg_path)?;
+    let image = if frames.len() == 1 {
+        frames.into_iter().next().unwrap_or_default()
+    } else {
+        crate::capture::temporal_median(&frames)?
+    };
+    if (image.width(), image.height()) != (camera.width(), camera.height()) {
+        return Err(Error::stage(
+            "capture",
+            format!(
+                "frame is {}×{}, camera intrinsics are {}×{}",
+                image.width(),
+                image.height(),
+                camera.width(),
+                camera.height()
+            ),
+        ));
+    }
+    Ok((camera, image))
+}
+
+/// One localization under `cfg` (already loaded and validated from `cfg_path`) with `ov`
+/// applied, writing nothing: the caller decides where the pose goes (`localize` writes it, the
+/// service offers it to its pose store). `progress` is told each stage as it starts: `capture`,
+/// `prior`, `tile`, `pnp`, `mi`.
+pub fn run(cfg: &Config, cfg_path: &Path, ov: &Overrides, progress: &dyn Fn(&str)) -> Result<Run> {
+    let t_start = Instant::now();
+    // The matcher's file first: a missing or malformed one fails before the frames are captured.
+    let matcher = matcher_from_config(cfg)?;
+    let (camera, image) = camera_and_frame(cfg, cfg_path, ov, progress)?;
+    progress("prior");
+    let ((lat, lon, sigma), prior_desc) = prior(ov, cfg)?;
+    progress("tile");
+    let tiles = ov.tiles.clone().unwrap_or_else(|| cfg.map.tiles.clone());
+    let tref = find_tile(&tiles, lat, lon, cfg.map.search_margin_m)?;
+    let tile = load_tile(&tref.dir)?;
+    let crs = tile.reflectivity.grid.crs;
+    let (px, py) = match crs {
+        Crs::Epsg(_) => crate::geo::wgs84_to_map(crs, lat, lon)?,
+        Crs::Local => {
+            return Err(Error::input(
+                &tref.dir,
+                "tile CRS is LOCAL: a WGS84 prior cannot be placed in it",
+            ))
+        }
+    };
+    let params = Params {
+        matcher,
+        ..Params::default()
+    };
+    let clock = |t: Instant| move || t.elapsed().as_secs_f64();
+    let outcome = localize(
+        &camera,
+        image.as_raw(),
+        &tile,
+        (px, py),
+        sigma,
+        &params,
+        &clock(Instant::now()),
+        progress,
+    )?;
+
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    let mut pf = PoseFile::new(
+        &outcome.pose,
+        crs,
+        &tile.id,
+        format_utc(now.as_secs() as i64, None),
+    );
+    pf.intrinsics = serde_json::to_value(&camera).unwrap_or(Value::Null);
+    let q = &outcome.refinement.quality;
+    let mut quality = serde_json::to_value(q).unwrap_or(json!({}));
+    // The pose store compares results by `score`: the MI optimum's NMI.
+    quality["score"] = json!(q.nmi);
+    quality["pnp_inliers"] = json!(outcome.init.inliers);
+    quality["pnp_rms_px"] = json!(outcome.init.rms_px);
+    pf.quality = quality;
+    pf.stages = outcome.stages.iter().map(|s| s.to_json()).collect();
+    pf.stages[0]["source"] = prior_desc.clone();
+
+    let mut report = json!({
+        "config": cfg_path,
+        "tile_id": tile.id,
+        "prior": prior_desc,
+        "stages": pf.stages,
+        "seconds_total": t_start.elapsed().as_secs_f64(),
+    });
+    if let Some(t) = &ov.truth {
+        let text = std::fs::read_to_string(t).map_err(|e| Error::io(t, e))?;
+        report["truth"] =
+            crate::localize::pipeline::truth_errors(&text, t, &camera, &outcome.stages)?;
+    }
+    Ok(Run {
+        outcome,
+        tile,
+        image,
+        camera,
+        mi_radius_m: params.mi_radius_m,
+        pose_file: pf,
+        report,
+    })
+}
+
+/// The initialization matcher `[init]` names, its file read: `None` for the built-in one.
+fn matcher_from_config(cfg: &Config) -> Result<Option<Arc<dyn Matcher>>> {
+    match (cfg.init.matcher, &cfg.init.matcher_path) {
+        (MatcherKind::DenseSweep, _) => Ok(None),
+        (MatcherKind::MatchFile, None) => Err(Error::stage(
+            "init",
+            "matcher = \"match-file\" needs matcher-path",
+        )),
+        (MatcherKind::MatchFile, Some(path)) => {
+            let text =
+                std::fs::read_to_string(path).map_err(|e| Error::input(path, e.to_string()))?;
+            let m = MatchFile::parse(&text, path).map_err(|e| Error::input(path, e))?;
+            Ok(Some(Arc::new(m)))
+        }
+    }
+}
+
+impl Run {
+    /// The technician's picture: the tile's LiDAR points over the median frame, projected at the
+    /// PnP pose (left panel, "before") and at the final pose (right panel, "after"), as PNG
+    /// bytes ([`crate::viz::before_after`]).
+    pub fn overlay_png(&self) -> Result<Vec<u8>> {
+        let c = self.outcome.pose.center();
+        let pts = crate::map::ground_points(&self.tile, (c.x, c.y), self.mi_radius_m);
+        crate::viz::before_after_png(
+            &self.image,
+            &self.camera,
+            &self.outcome.init.pose,
+            &self.outcome.pose,
+            &pts,
+        )
+    }
+
+    /// Write the pose file, then the report and overlay (each atomically), where `out` says or
+    /// else where `cfg`'s `[output]` says (the report and overlay only when one of them names a
+    /// path).
+    pub fn write_outputs(&self, cfg: &Config, out: &Outputs) -> Result<()> {
+        let pose = out.pose.as_ref().unwrap_or(&cfg.output.pose);
+        write_atomic(pose, self.pose_file.to_json().as_bytes())?;
+        self.write_side_outputs(
+            out.report.as_ref().or(cfg.output.report.as_ref()),
+            out.overlay.as_ref().or(cfg.output.overlay.as_ref()),
+        )
+    }
+
+    /// Write the report JSON and the overlay PNG where asked (each atomically).
+    pub fn write_side_outputs(
+        &self,
+        report: Option<&PathBuf>,
+        overlay: Option<&PathBuf>,
+    ) -> Result<()> {
+        if let Some(p) = report {
+            let text = serde_json::to_string_pretty(&self.report).unwrap_or_default();
+            write_atomic(p, text.as_bytes())?;
+        }
+        if let Some(p) = overlay {
+            write_atomic(p, &self.overlay_png()?)?;
+        }
+        Ok(())
+    }
+}
