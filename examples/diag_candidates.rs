@@ -3,6 +3,8 @@
 //! `cargo run --release --example diag_candidates -- SEED [small|5mp]`
 use infraloc::camera::CameraModel;
 use infraloc::config::{Config, GpsSourceKind};
+use infraloc::localize::coarse::*;
+use infraloc::localize::ground::*;
 use infraloc::localize::init::*;
 use infraloc::localize::pipeline::Params;
 use infraloc::sim::{self, Difficulty, Lens, Preset, Settings};
@@ -118,11 +120,11 @@ fn main() {
     // DIAG_ORDER=mi: candidates in decreasing screening MI, as the verified initializer tries them.
     let mut cands = cands;
     if std::env::var("DIAG_ORDER").is_ok_and(|s| s == "mi") {
-        let key = |k: &infraloc::localize::matching::Candidate| {
+        let key = |k: &infraloc::localize::sweep::Candidate| {
             ver.screen(&candidate_pose(&tile.height, prior, k))
                 .map_or(f64::NEG_INFINITY, |v| v.mi)
         };
-        let mut keyed: Vec<(f64, infraloc::localize::matching::Candidate)> =
+        let mut keyed: Vec<(f64, infraloc::localize::sweep::Candidate)> =
             cands.iter().map(|k| (key(k), *k)).collect();
         keyed.sort_by(|a, b| b.0.total_cmp(&a.0));
         cands = keyed.into_iter().map(|(_, k)| k).collect();

@@ -25,6 +25,7 @@ use infraloc::localize::pipeline::{self, Params};
 use infraloc::localize::pnp::{refine_lm, Correspondence};
 use infraloc::pose::CamFromMap;
 use infraloc::sim::{self, Difficulty, Lens, Preset, Settings};
+use infraloc::stage::StageName;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -224,7 +225,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
             rec["failure"] = json!(e.to_string());
             // The prior alone can still be scored.
             let prior_stage = pipeline::Stage {
-                name: "prior",
+                name: StageName::Prior,
                 pose: None,
                 seconds: 0.0,
                 detail: json!({ "x": xy.0, "y": xy.1 }),
@@ -238,23 +239,25 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
             }
             // The floor: the 6-DoF least-squares fit of the truth's control points under the
             // given (in `hard`, wrong) intrinsics — the best pose these intrinsics allow.
-            let mut stages = out.stages.clone();
-            if let Some(floor) = control_point_fit(&camera, &scene.truth_json()) {
-                stages.push(pipeline::Stage {
-                    name: "floor",
-                    pose: Some(floor),
-                    seconds: 0.0,
-                    detail: Value::Null,
-                });
-            }
+            let stages = out.stages.clone();
+            let truth = infraloc::sim::truth::parse_truth(&truth_text, &truth_path)?;
+            let floor = control_point_fit(&camera, &truth);
             rec["errors"] = pipeline::truth_errors(&truth_text, &truth_path, &camera, &stages)?;
+            if let Some(f) = &floor {
+                rec["errors"]["floor"] = pipeline::pose_errors(&truth, &camera, f);
+            }
             // The MI objective at each stage's pose and at the floor, on one point set: whether
             // a miss is the search's (the floor scores higher) or the objective's (it doesn't).
             let pts = pipeline::mi_points(&tile, &out.pose, params);
             let mask = infraloc::camera::CameraModel::valid_mask(&camera);
-            for st in &stages {
-                if let Some(pose) = &st.pose {
-                    rec["objective"][st.name] = json!(objective_at(
+            let named = stages
+                .iter()
+                .filter_map(|st| Some((st.name.name(), st.pose?)))
+                .chain(floor.map(|f| ("floor", f)));
+            for (name, pose) in named {
+                {
+                    let pose = &pose;
+                    rec["objective"][name] = json!(objective_at(
                         &camera,
                         image.as_raw(),
                         &mask,
@@ -263,7 +266,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
                         params
                     ));
                     let (y, p, r) = pose.yaw_pitch_roll();
-                    rec["poses"][st.name] = json!([
+                    rec["poses"][name] = json!([
                         pose.center().x,
                         pose.center().y,
                         pose.center().z,
@@ -322,7 +325,7 @@ fn init_only(
     let truth_text = serde_json::to_string(&scene.truth_json())
         .map_err(|e| infraloc::Error::Invalid(format!("truth: {e}")))?;
     let prior = pipeline::Stage {
-        name: "prior",
+        name: StageName::Prior,
         pose: None,
         seconds: 0.0,
         detail: json!({ "x": xy.0, "y": xy.1 }),
@@ -337,7 +340,7 @@ fn init_only(
             vec![
                 prior,
                 pipeline::Stage {
-                    name: "pnp",
+                    name: StageName::Pnp,
                     pose: Some(r.pose),
                     seconds: secs,
                     detail: Value::Null,
@@ -520,23 +523,19 @@ fn objective_at(
 }
 
 /// LM fit of truth.json's control points (map point ↔ true pixel) from the true pose.
-fn control_point_fit(camera: &infraloc::camera::Camera, truth: &Value) -> Option<CamFromMap> {
-    let pose = infraloc::posefile::parse_pose(&truth.to_string(), Path::new("truth.json"))
-        .ok()?
-        .pose;
-    let corr: Vec<Correspondence> = truth["control_points"]
-        .as_array()?
+fn control_point_fit(
+    camera: &infraloc::camera::Camera,
+    truth: &infraloc::sim::truth::Truth,
+) -> Option<CamFromMap> {
+    let corr: Vec<Correspondence> = truth
+        .control_points
         .iter()
-        .filter_map(|c| {
-            let m: [f64; 3] = serde_json::from_value(c["map"].clone()).ok()?;
-            let p: [f64; 2] = serde_json::from_value(c["pixel"].clone()).ok()?;
-            Some(Correspondence {
-                pixel: nalgebra::Point2::new(p[0], p[1]),
-                world: nalgebra::Point3::new(m[0], m[1], m[2]),
-            })
+        .map(|c| Correspondence {
+            pixel: nalgebra::Point2::new(c.pixel[0], c.pixel[1]),
+            world: nalgebra::Point3::new(c.map[0], c.map[1], c.map[2]),
         })
         .collect();
-    (corr.len() >= 6).then(|| refine_lm(camera, &pose, &corr, 50))
+    (corr.len() >= 6).then(|| refine_lm(camera, &truth.pose, &corr, 50))
 }
 
 fn main() {

@@ -16,6 +16,7 @@ use crate::map::cache::{find_tile, load_tile};
 use crate::map::{Crs, Tile};
 use crate::persist::write_atomic;
 use crate::posefile::{format_utc, PoseFile};
+use crate::stage::StageName;
 use image::GrayImage;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
@@ -131,13 +132,13 @@ fn prior(ov: &Overrides, cfg: &Config) -> Result<((f64, f64, f64), Value)> {
 }
 
 /// The camera intrinsics and the (temporally median-filtered) frame under `cfg` (read from
-/// `cfg_path`, which errors name) and `ov`, checked to agree in size. `progress("capture")` is
+/// `cfg_path`, which errors name) and `ov`, checked to agree in size. `progress(Capture)` is
 /// called before frames are taken.
 pub fn camera_and_frame(
     cfg: &Config,
     cfg_path: &Path,
     ov: &Overrides,
-    progress: &dyn Fn(&str),
+    progress: &dyn Fn(StageName),
 ) -> Result<(Camera, GrayImage)> {
     let camera = match (
         &ov.camera,
@@ -153,7 +154,7 @@ pub fn camera_and_frame(
             ))
         }
     };
-    progress("capture");
+    progress(StageName::Capture);
     let frames = frames(ov, cfg, cfg_path)?;
     let image = if frames.len() == 1 {
         frames.into_iter().next().unwrap_or_default()
@@ -162,7 +163,7 @@ pub fn camera_and_frame(
     };
     if (image.width(), image.height()) != (camera.width(), camera.height()) {
         return Err(Error::stage(
-            "capture",
+            StageName::Capture.name(),
             format!(
                 "frame is {}×{}, camera intrinsics are {}×{}",
                 image.width(),
@@ -179,14 +180,19 @@ pub fn camera_and_frame(
 /// applied, writing nothing: the caller decides where the pose goes (`localize` writes it, the
 /// service offers it to its pose store). `progress` is told each stage as it starts: `capture`,
 /// `prior`, `tile`, `pnp`, `mi`.
-pub fn run(cfg: &Config, cfg_path: &Path, ov: &Overrides, progress: &dyn Fn(&str)) -> Result<Run> {
+pub fn run(
+    cfg: &Config,
+    cfg_path: &Path,
+    ov: &Overrides,
+    progress: &dyn Fn(StageName),
+) -> Result<Run> {
     let t_start = Instant::now();
     // The matcher's file first: a missing or malformed one fails before the frames are captured.
     let matcher = matcher_from_config(cfg)?;
     let (camera, image) = camera_and_frame(cfg, cfg_path, ov, progress)?;
-    progress("prior");
+    progress(StageName::Prior);
     let ((lat, lon, sigma), prior_desc) = prior(ov, cfg)?;
-    progress("tile");
+    progress(StageName::Tile);
     let tiles = ov.tiles.clone().unwrap_or_else(|| cfg.map.tiles.clone());
     let tref = find_tile(&tiles, lat, lon, cfg.map.search_margin_m)?;
     let tile = load_tile(&tref.dir)?;
@@ -264,7 +270,7 @@ fn matcher_from_config(cfg: &Config) -> Result<Option<Arc<dyn Matcher>>> {
     match (cfg.init.matcher, &cfg.init.matcher_path) {
         (MatcherKind::DenseSweep, _) => Ok(None),
         (MatcherKind::MatchFile, None) => Err(Error::stage(
-            "init",
+            StageName::Pnp.name(),
             "matcher = \"match-file\" needs matcher-path",
         )),
         (MatcherKind::MatchFile, Some(path)) => {

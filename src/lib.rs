@@ -29,6 +29,7 @@ pub mod pose;
 pub mod posefile;
 pub mod scene;
 pub mod sim;
+pub mod stage;
 pub mod store;
 pub mod viz;
 

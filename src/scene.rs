@@ -8,7 +8,6 @@ use crate::error::{Error, Result};
 use crate::map::cache::{find_tile, load_tile};
 use crate::map::{Crs, Tile};
 use crate::pose::CamFromMap;
-use crate::posefile::read_pose;
 use image::GrayImage;
 use std::path::{Path, PathBuf};
 
@@ -33,18 +32,12 @@ pub(crate) fn load_scene(dir: &Path) -> Result<SceneFiles> {
         return Err(Error::input(dir, "scene directory not found"));
     }
     let tp = dir.join("truth.json");
-    let truth = read_pose(&tp)?;
-    let text = std::fs::read_to_string(&tp).map_err(|e| Error::io(&tp, e))?;
-    let doc: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| Error::input(&tp, e.to_string()))?;
-    let control = match doc.get("control_points") {
-        None => Vec::new(),
-        Some(v) => serde_json::from_value::<Vec<ControlPoint>>(v.clone())
-            .map_err(|e| Error::input(&tp, format!("control_points: {e}")))?
-            .into_iter()
-            .map(|c| (c.map, c.pixel))
-            .collect(),
-    };
+    let truth = crate::sim::truth::read_truth(&tp)?;
+    let control = truth
+        .control_points
+        .iter()
+        .map(|c| (c.map, c.pixel))
+        .collect();
     let crs = match truth.crs {
         Some(c @ Crs::Epsg(_)) => c,
         _ => return Err(Error::input(&tp, "\"crs\" must be an EPSG code")),
@@ -89,11 +82,4 @@ pub(crate) fn load_scene(dir: &Path) -> Result<SceneFiles> {
         truth: truth.pose,
         control,
     })
-}
-
-/// A control point of truth.json (the fields the study reads).
-#[derive(serde::Deserialize)]
-struct ControlPoint {
-    map: [f64; 3],
-    pixel: [f64; 2],
 }

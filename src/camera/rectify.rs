@@ -370,7 +370,9 @@ impl RemapTable {
             .zip(self.fracs.par_chunks(w))
             .enumerate()
             .for_each(|(row, ((d, offs), frs))| {
-                remap_row(src.data, self.src_width, d, offs, frs);
+                // SAFETY: the table's offsets satisfy `o + stride + 1 < src.len()` for a source of
+                // the size it was built for (`RemapTable::new`), and the size was checked above.
+                unsafe { remap_row(src.data, self.src_width, d, offs, frs) };
                 let edges =
                     &self.edges[self.row_edges[row] as usize..self.row_edges[row + 1] as usize];
                 for e in edges {
@@ -386,22 +388,31 @@ const BLOCK: usize = 16;
 
 /// Interpolate one output row (all pixels; edge pixels are overwritten afterwards). Uses AVX2 for
 /// the arithmetic when the CPU has it (runtime detection; the same code compiled twice).
+///
+/// # Safety
+/// As [`remap_row_kernel`]: every offset `o` in `offs` satisfies `o + stride + 1 < src.len()`.
 #[inline]
-fn remap_row(src: &[u8], stride: usize, dst: &mut [u8], offs: &[u32], fracs: &[u16]) {
+unsafe fn remap_row(src: &[u8], stride: usize, dst: &mut [u8], offs: &[u32], fracs: &[u16]) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 (checked just above); the offsets contract is the caller's.
+        // SAFETY: the CPU supports AVX2 (checked just above); the offsets contract is this
+        // function's own, passed on.
         unsafe { remap_row_avx2(src, stride, dst, offs, fracs) };
         return;
     }
-    remap_row_kernel(src, stride, dst, offs, fracs);
+    // SAFETY: the offsets contract is this function's own, passed on.
+    unsafe { remap_row_kernel(src, stride, dst, offs, fracs) };
 }
 
 /// [`remap_row_kernel`] compiled with AVX2 enabled.
+///
+/// # Safety
+/// The CPU supports AVX2, and the offsets satisfy [`remap_row_kernel`]'s contract.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn remap_row_avx2(src: &[u8], stride: usize, dst: &mut [u8], offs: &[u32], fracs: &[u16]) {
-    remap_row_kernel(src, stride, dst, offs, fracs)
+    // SAFETY: the offsets contract is this function's own, passed on.
+    unsafe { remap_row_kernel(src, stride, dst, offs, fracs) }
 }
 
 /// The branch-free inner loop. Per block: gather the two 2-byte pairs of each pixel (unaligned,
@@ -409,16 +420,17 @@ unsafe fn remap_row_avx2(src: &[u8], stride: usize, dst: &mut [u8], offs: &[u32]
 /// `r = (32·t + (b − t)·fy + 512) >> 10`, which equals OpenCV's weighted sum exactly with three
 /// multiplies instead of eight.
 ///
-/// Contract: every offset `o` satisfies `o + stride + 1 < src.len()` ([`RemapTable::new`] only
+/// # Safety
+/// Every offset `o` in `offs` satisfies `o + stride + 1 < src.len()` ([`RemapTable::new`] only
 /// stores offsets of pixels whose 2×2 neighbourhood is inside the source, and
-/// [`RemapTable::remap_into`] checks the source size). Checked loads would cost a compare and a
-/// branch per tap in the hottest loop of the frame pipeline.
+/// [`RemapTable::remap_into`] checks the source size); the reads are unchecked because checked
+/// loads would cost a compare and a branch per tap in the hottest loop of the frame pipeline.
 #[inline(always)]
-fn remap_row_kernel(src: &[u8], stride: usize, dst: &mut [u8], offs: &[u32], fracs: &[u16]) {
+unsafe fn remap_row_kernel(src: &[u8], stride: usize, dst: &mut [u8], offs: &[u32], fracs: &[u16]) {
     let base = src.as_ptr();
     let gather = |o: u32| -> ([u8; 2], [u8; 2]) {
         debug_assert!(o as usize + stride + 1 < src.len());
-        // SAFETY: by the contract above both 2-byte reads at o and o + stride lie inside `src`;
+        // SAFETY: by the function's contract both 2-byte reads at o and o + stride lie inside `src`;
         // read_unaligned has no alignment requirement.
         unsafe {
             let p = base.add(o as usize);
@@ -689,13 +701,16 @@ mod tests {
         let mut portable = vec![0u8; w * h];
         for r in 0..h {
             let row = r * w..(r + 1) * w;
-            remap_row_kernel(
-                &img,
-                sw,
-                &mut portable[row.clone()],
-                &table.offsets[row.clone()],
-                &table.fracs[row],
-            );
+            // SAFETY: the table was built for an `sw`×`sh` source, which `img` is.
+            unsafe {
+                remap_row_kernel(
+                    &img,
+                    sw,
+                    &mut portable[row.clone()],
+                    &table.offsets[row.clone()],
+                    &table.fracs[row],
+                )
+            };
         }
         assert_eq!(fast, portable);
     }

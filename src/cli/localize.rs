@@ -106,7 +106,7 @@ pub(crate) fn run_and_write(
     let stderr = std::io::stderr();
     let tty = stderr.is_terminal();
     let run = super::progress::with_progress(stderr, tty, |progress| {
-        crate::app::run(cfg, cfg_path, ov, progress)
+        crate::app::run(cfg, cfg_path, ov, &|s| progress(s.name()))
     })?;
     run.write_outputs(cfg, out)?;
     Ok(run)

@@ -20,7 +20,6 @@ mod validate;
 
 use crate::error::Error;
 use clap::{Parser, Subcommand};
-use std::path::PathBuf;
 
 /// infraloc: localize a smart-infrastructure fisheye camera in an AV prior map.
 #[derive(Debug, Parser)]
@@ -127,7 +126,6 @@ pub fn run(cli: Cli) -> Result<(), Error> {
 }
 
 /// Parse `A,B,C` into numbers, naming the flag on error.
-#[allow(dead_code)] // used by rectify, landing with the foundation work
 pub(crate) fn parse_list<const N: usize>(flag: &str, s: &str) -> Result<[f64; N], Error> {
     let v: Vec<f64> = s
         .split(',')
@@ -159,8 +157,3 @@ pub(crate) fn parse_size(s: &str) -> Result<(u32, u32), Error> {
 
 /// Default config path of the installed service.
 pub const DEFAULT_CONFIG: &str = "/etc/infraloc/infraloc.toml";
-
-#[allow(dead_code)]
-fn default_config() -> PathBuf {
-    PathBuf::from(DEFAULT_CONFIG)
-}

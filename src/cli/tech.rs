@@ -3,6 +3,7 @@
 
 use crate::config::{Config, DEFAULT_SOCKET};
 use crate::control::{Client, Request};
+use crate::daemon::status::{DriftOutcome, Progress, RunOutcome, RunResult, State, Status};
 use crate::error::{Error, Result};
 use serde_json::Value;
 use std::io::IsTerminal;
@@ -117,160 +118,125 @@ pub fn status(t: Target) -> Result<i32> {
     if v["ok"] != true {
         return Err(failed(&v));
     }
+    let s: Status = serde_json::from_value(v.clone()).map_err(|e| {
+        Error::input(
+            t.socket(),
+            format!("the daemon's status does not parse: {e}"),
+        )
+    })?;
     if t.json {
         println!("{v}");
     } else {
-        print!("{}", human_status(&v));
+        print!("{}", human_status(&s));
     }
-    Ok(match v["state"].as_str() {
-        Some("degraded") => EXIT_DEGRADED,
-        Some("failed") => EXIT_FAILED,
-        _ => 0,
+    Ok(match s.state {
+        State::Degraded => EXIT_DEGRADED,
+        State::Failed => EXIT_FAILED,
+        State::Starting | State::Ok => 0,
     })
 }
 
-fn fmt_secs(v: &Value) -> String {
-    v.as_f64()
-        .map(|s| {
-            if s >= 3600.0 {
-                format!("{:.1} h", s / 3600.0)
-            } else if s >= 60.0 {
-                format!("{:.0} min", s / 60.0)
-            } else {
-                format!("{s:.0} s")
-            }
-        })
-        .unwrap_or_else(|| "—".into())
+fn fmt_secs(s: f64) -> String {
+    if s >= 3600.0 {
+        format!("{:.1} h", s / 3600.0)
+    } else if s >= 60.0 {
+        format!("{:.0} min", s / 60.0)
+    } else {
+        format!("{s:.0} s")
+    }
 }
 
 /// The status as a technician reads it: the summary line first, then the details.
-pub fn human_status(v: &Value) -> String {
+pub fn human_status(v: &Status) -> String {
     let mut o = String::new();
     let line = |o: &mut String, k: &str, val: String| o.push_str(&format!("  {k:<14} {val}\n"));
-    o.push_str(&format!("{}\n", v["summary"].as_str().unwrap_or("?")));
-    if let Some(p) = v["served"].as_object() {
-        let c = &p["camera_center"];
+    o.push_str(&format!("{}\n", v.summary));
+    if let Some(p) = &v.served {
+        let c = p.camera_center;
         line(
             &mut o,
             "pose",
-            format!(
-                "{} ({}, tile {})",
-                p["file"].as_str().unwrap_or("?"),
-                p["crs"].as_str().unwrap_or("?"),
-                p["tile_id"].as_str().unwrap_or("?")
-            ),
+            format!("{} ({}, tile {})", p.file.display(), p.crs, p.tile_id),
         );
         line(
             &mut o,
             "centre",
-            format!(
-                "{:.3} {:.3} {:.3} m",
-                c[0].as_f64().unwrap_or(f64::NAN),
-                c[1].as_f64().unwrap_or(f64::NAN),
-                c[2].as_f64().unwrap_or(f64::NAN)
-            ),
+            format!("{:.3} {:.3} {:.3} m", c[0], c[1], c[2]),
         );
-        line(
-            &mut o,
-            "yaw",
-            format!(
-                "{:.3}°",
-                p["yaw_pitch_roll_deg"][0].as_f64().unwrap_or(f64::NAN)
-            ),
-        );
-        line(
-            &mut o,
-            "computed",
-            p["timestamp_utc"].as_str().unwrap_or("?").to_string(),
-        );
+        line(&mut o, "yaw", format!("{:.3}°", p.yaw_pitch_roll_deg[0]));
+        line(&mut o, "computed", p.timestamp_utc.clone());
     } else {
         line(&mut o, "pose", "none served".into());
     }
-    if let Some(r) = v["running"].as_object() {
+    if let Some(r) = &v.running {
         line(
             &mut o,
             "running",
             format!(
                 "{} ({}), {}",
-                r["job"].as_str().unwrap_or("?"),
-                r["stage"].as_str().unwrap_or("?"),
-                fmt_secs(&r["seconds"])
+                r.job.name(),
+                r.stage.name(),
+                fmt_secs(r.seconds)
             ),
         );
     }
-    if let Some(r) = v["last_result"].as_object() {
-        let what = if r["ok"] == true {
-            format!(
+    if let Some(r) = &v.last_result {
+        let what = match &r.outcome {
+            RunOutcome::Localized {
+                served, decision, ..
+            } => format!(
                 "ok in {}, {}",
-                fmt_secs(&r["seconds"]),
-                if r["served"] == true {
+                fmt_secs(r.seconds),
+                if *served {
                     "served".to_string()
                 } else {
-                    format!("not served: {}", r["decision"].as_str().unwrap_or("?"))
+                    format!("not served: {decision}")
                 }
-            )
-        } else {
-            format!("FAILED: {}", r["error"].as_str().unwrap_or("?"))
+            ),
+            RunOutcome::Failed { error, .. } => format!("FAILED: {error}"),
         };
-        line(
-            &mut o,
-            "last run",
-            format!("{} {what}", r["finished_utc"].as_str().unwrap_or("?")),
-        );
+        line(&mut o, "last run", format!("{} {what}", r.finished_utc));
     }
-    if let Some(d) = v["last_drift_check"].as_object() {
-        let what = match d["moved"].as_bool() {
-            Some(true) => format!(
+    if let Some(d) = &v.last_drift_check {
+        let what = match &d.outcome {
+            DriftOutcome::Ran(s) if s.verdict.moved => format!(
                 "MOVED: {}{}",
-                d["reason"].as_str().unwrap_or("?"),
-                d["resolved"]
-                    .as_str()
+                s.verdict.reason.as_deref().unwrap_or_default(),
+                d.resolved
+                    .as_deref()
                     .map(|r| format!(" ({r})"))
                     .unwrap_or_default()
             ),
-            Some(false) => format!(
+            DriftOutcome::Ran(s) => format!(
                 "steady (shift {:.3} m, yaw {:.3}°)",
-                d["shift_m"].as_f64().unwrap_or(f64::NAN),
-                d["yaw_deg"].as_f64().unwrap_or(f64::NAN)
+                s.verdict.shift_m, s.verdict.yaw_deg
             ),
-            None => format!("not run: {}", d["error"].as_str().unwrap_or("?")),
+            DriftOutcome::NotRun { error, .. } => format!("not run: {error}"),
         };
-        line(
-            &mut o,
-            "drift check",
-            format!("{} {what}", d["checked_utc"].as_str().unwrap_or("?")),
-        );
+        line(&mut o, "drift check", format!("{} {what}", d.checked_utc));
     }
-    if v["failures_in_a_row"].as_u64().unwrap_or(0) > 0 {
+    if v.failures_in_a_row > 0 {
         line(
             &mut o,
             "failures",
-            format!("{} in a row", v["failures_in_a_row"]),
+            format!("{} in a row", v.failures_in_a_row),
         );
     }
-    if !v["next_localize_in_s"].is_null() {
-        line(
-            &mut o,
-            "next run",
-            format!("in {}", fmt_secs(&v["next_localize_in_s"])),
-        );
+    if let Some(s) = v.next_localize_in_s {
+        line(&mut o, "next run", format!("in {}", fmt_secs(s)));
     }
-    if !v["next_drift_check_in_s"].is_null() {
-        line(
-            &mut o,
-            "next check",
-            format!("in {}", fmt_secs(&v["next_drift_check_in_s"])),
-        );
+    if let Some(s) = v.next_drift_check_in_s {
+        line(&mut o, "next check", format!("in {}", fmt_secs(s)));
     }
     line(
         &mut o,
         "daemon",
         format!(
             "pid {}, up {}, v{}, {}",
-            v["pid"],
-            fmt_secs(&v["uptime_s"]),
-            v["version"].as_str().unwrap_or("?"),
-            v["config"].as_str().unwrap_or("?")
+            v.pid,
+            fmt_secs(v.uptime_s),
+            v.version,
+            v.config.display()
         ),
     );
     o
@@ -291,7 +257,11 @@ pub fn relocalize(a: RelocalizeArgs) -> Result<()> {
     let start = std::time::Instant::now();
     let (v, _) = a.target.connect()?.call(&req, timeout, |p| {
         if !a.target.json {
-            let stage = p["progress"].as_str().unwrap_or("?");
+            let stage = match serde_json::from_value::<Progress>(p.clone()) {
+                Ok(p) => p.progress.name().to_string(),
+                // A newer daemon's stage: shown as it came.
+                Err(_) => p.to_string(),
+            };
             if tty {
                 eprint!(
                     "\r\x1b[K{:>5.1} s  {stage} …",
@@ -316,22 +286,39 @@ pub fn relocalize(a: RelocalizeArgs) -> Result<()> {
     }
     if !a.target.json {
         if a.wait {
-            let c = &v["camera_center"];
+            let r: RunResult = serde_json::from_value(v).map_err(|e| {
+                Error::input(
+                    a.target.socket(),
+                    format!("the daemon's result does not parse: {e}"),
+                )
+            })?;
+            let RunOutcome::Localized {
+                served,
+                decision,
+                camera_center: c,
+                yaw_pitch_roll_deg,
+                score,
+                ..
+            } = &r.outcome
+            else {
+                // `ok: true` parses only as a localized result.
+                return Err(Error::stage(
+                    "relocalize",
+                    r.error().unwrap_or("failed").to_string(),
+                ));
+            };
             println!(
                 "localized in {:.1} s: centre ({:.3}, {:.3}, {:.3}), yaw {:.3}°, score {:.4}; {}",
-                v["seconds"].as_f64().unwrap_or(f64::NAN),
-                c[0].as_f64().unwrap_or(f64::NAN),
-                c[1].as_f64().unwrap_or(f64::NAN),
-                c[2].as_f64().unwrap_or(f64::NAN),
-                v["yaw_pitch_roll_deg"][0].as_f64().unwrap_or(f64::NAN),
-                v["score"].as_f64().unwrap_or(f64::NAN),
-                if v["served"] == true {
-                    format!("served ({})", v["decision"].as_str().unwrap_or(""))
+                r.seconds,
+                c[0],
+                c[1],
+                c[2],
+                yaw_pitch_roll_deg[0],
+                score.unwrap_or(f64::NAN),
+                if *served {
+                    format!("served ({decision})")
                 } else {
-                    format!(
-                        "NOT served: {} (use --force to serve it)",
-                        v["decision"].as_str().unwrap_or("")
-                    )
+                    format!("NOT served: {decision} (use --force to serve it)")
                 }
             );
         } else {

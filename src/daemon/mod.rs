@@ -10,6 +10,8 @@
 //! SIGTERM. Every decision is one log line and is visible in `infraloc status`.
 
 pub mod notify;
+mod policy;
+pub mod status;
 
 use crate::app::{camera_and_frame, Overrides, Run};
 use crate::config::Config;
@@ -21,10 +23,17 @@ use crate::localize::refine::refine;
 use crate::localize::search::{AxisRange, SearchConfig, SearchSpec};
 use crate::map::cache::load_tile;
 use crate::posefile::{format_utc, PoseFile};
+use crate::stage::StageName;
 use crate::store::{Decision, PoseStore};
 use notify::{Level, Logger};
-use serde::Serialize;
+pub use policy::CROSS_CHECK_NMI_SLACK;
+use policy::{Action, CrossCheck, Policy, Requested, Timing};
 use serde_json::{json, Value};
+use status::{
+    DriftCheck, DriftOutcome, DriftSearch, DriftVerdict, JobKind, Optimum, Progress, RunOutcome,
+    RunResult, Running, Served, StageTime,
+};
+pub use status::{State, Status};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{channel, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -59,78 +68,6 @@ pub const DRIFT_SPEC: SearchSpec = SearchSpec {
     tilt_pivot_m: None,
 };
 
-/// What the service is doing, as `infraloc status` shows it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum State {
-    /// Booting: no pose served yet and the first localization not finished.
-    Starting,
-    /// A pose is served and the latest localization (or drift check) agreed with it.
-    Ok,
-    /// A pose is served but the latest attempt failed or the camera looks moved.
-    Degraded,
-    /// No pose is served and the latest attempt failed.
-    Failed,
-}
-
-impl State {
-    /// Name as printed.
-    pub fn name(self) -> &'static str {
-        match self {
-            State::Starting => "starting",
-            State::Ok => "ok",
-            State::Degraded => "degraded",
-            State::Failed => "failed",
-        }
-    }
-}
-
-/// The service's status (answer to the `status` request).
-#[derive(Debug, Clone, Serialize)]
-pub struct Status {
-    /// Overall state.
-    pub state: State,
-    /// One line a technician reads first.
-    pub summary: String,
-    /// Daemon process id.
-    pub pid: u32,
-    /// Software version.
-    pub version: &'static str,
-    /// Config file in use.
-    pub config: PathBuf,
-    /// Seconds since start.
-    pub uptime_s: f64,
-    /// The served pose: file, time, tile, centre, yaw/pitch/roll, quality score.
-    pub served: Option<Value>,
-    /// The job running now (`localize` or `drift-check`) and its stage.
-    pub running: Option<Value>,
-    /// The latest localization's result.
-    pub last_result: Option<Value>,
-    /// The latest drift check's result.
-    pub last_drift_check: Option<Value>,
-    /// Failed localizations since the last good one.
-    pub failures_in_a_row: u32,
-    /// Seconds until the next scheduled localization (retry or periodic), if one is scheduled.
-    pub next_localize_in_s: Option<f64>,
-    /// Seconds until the next drift check, if one is scheduled.
-    pub next_drift_check_in_s: Option<f64>,
-    /// Why the last SIGHUP reload was refused (the running config stays in force).
-    pub reload_error: Option<String>,
-}
-
-/// Summary of a pose file for the status.
-fn served_summary(path: &Path, p: &PoseFile) -> Value {
-    json!({
-        "file": path,
-        "timestamp_utc": p.timestamp_utc,
-        "tile_id": p.tile_id,
-        "crs": p.crs,
-        "camera_center": p.camera_center,
-        "yaw_pitch_roll_deg": p.yaw_pitch_roll_deg,
-        "score": p.quality.get("score"),
-    })
-}
-
 fn now_utc() -> String {
     let d = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -138,9 +75,14 @@ fn now_utc() -> String {
     format_utc(d.as_secs() as i64, Some(d.subsec_millis()))
 }
 
-enum Job {
-    Localize,
-    Drift,
+/// What a technician waiting on a localization hears.
+enum Answer {
+    /// A stage started.
+    Progress(StageName),
+    /// The run's result.
+    Done(RunResult),
+    /// No result will come (the daemon is stopping).
+    Refused(String),
 }
 
 enum Event {
@@ -149,11 +91,11 @@ enum Event {
     Relocalize {
         force: bool,
         why: String,
-        waiter: Option<Sender<Value>>,
+        waiter: Option<Sender<Answer>>,
     },
-    Progress(String),
-    LocalizeDone(Box<Result<(Run, Option<Value>)>>),
-    DriftDone(Result<Value>),
+    Progress(StageName),
+    LocalizeDone(Box<Result<(Run, Option<CrossCheck>)>>),
+    DriftDone(Result<DriftSearch>),
 }
 
 /// State shared with the control socket's threads.
@@ -182,7 +124,7 @@ pub fn run(config_path: &Path) -> Result<()> {
         state: State::Starting,
         summary: "starting: first localization pending".into(),
         pid: std::process::id(),
-        version: env!("CARGO_PKG_VERSION"),
+        version: env!("CARGO_PKG_VERSION").to_string(),
         config: config_path.to_path_buf(),
         uptime_s: 0.0,
         served: None,
@@ -204,7 +146,7 @@ pub fn run(config_path: &Path) -> Result<()> {
                     p.timestamp_utc, p.tile_id
                 ),
             );
-            status.served = Some(served_summary(&store.pose_path(), &p));
+            status.served = Some(Served::of(&store.pose_path(), &p));
             status.state = State::Ok;
             status.summary = format!(
                 "ok: serving stored pose from {}; re-localizing",
@@ -248,15 +190,11 @@ pub fn run(config_path: &Path) -> Result<()> {
         shared,
         log,
         tx,
+        policy: Policy::new(Instant::now(), served.is_some()),
         served,
         ready_sent: false,
-        job: None,
         job_started: Instant::now(),
         waiters: Vec::new(),
-        running_force: false,
-        pending: None,
-        next_localize: Some(Instant::now()),
-        next_drift: None,
         started,
     };
     if d.served.is_some() {
@@ -363,13 +301,18 @@ fn make_handler(
             }
             loop {
                 match wrx.recv_timeout(WAIT_TIMEOUT) {
-                    Ok(v) if v.get("progress").is_some() => {
+                    Ok(Answer::Progress(stage)) => {
+                        let v = serde_json::to_value(Progress { progress: stage })
+                            .unwrap_or(Value::Null);
                         if reply.progress(&v).is_err() {
                             // The technician went away; the run goes on.
                             return (json!({"ok": false, "error": "client gone"}), None);
                         }
                     }
-                    Ok(v) => return (v, None),
+                    Ok(Answer::Done(r)) => {
+                        return (serde_json::to_value(r).unwrap_or(Value::Null), None)
+                    }
+                    Ok(Answer::Refused(e)) => return (json!({"ok": false, "error": e}), None),
                     Err(_) => {
                         return (
                             json!({"ok": false, "error": "no answer from the localization within 30 min"}),
@@ -391,16 +334,11 @@ struct Daemon {
     tx: Sender<Event>,
     served: Option<PoseFile>,
     ready_sent: bool,
-    job: Option<Job>,
+    /// The decisions: what runs, what is queued, when the next runs are due.
+    policy: Policy,
     job_started: Instant,
     /// Technicians waiting for the running (or next) localization.
-    waiters: Vec<Sender<Value>>,
-    /// Whether the running localization was forced.
-    running_force: bool,
-    /// A localization asked for while another job ran: (force, why).
-    pending: Option<(bool, String)>,
-    next_localize: Option<Instant>,
-    next_drift: Option<Instant>,
+    waiters: Vec<Sender<Answer>>,
     started: Instant,
 }
 
@@ -425,7 +363,7 @@ impl Daemon {
                 Ok(Event::Terminate) => {
                     self.log.log(Level::Info, "SIGTERM: stopping");
                     for w in self.waiters.drain(..) {
-                        let _ = w.send(json!({"ok": false, "error": "the daemon is stopping"}));
+                        let _ = w.send(Answer::Refused("the daemon is stopping".into()));
                     }
                     return Ok(());
                 }
@@ -433,34 +371,23 @@ impl Daemon {
                 Ok(Event::Relocalize { force, why, waiter }) => {
                     if let Some(w) = waiter {
                         // A technician joining a run in progress hears where it is at once.
-                        let stage = self
-                            .lock_status()
-                            .running
-                            .as_ref()
-                            .map(|r| r["stage"].clone());
-                        if let (Some(Job::Localize), Some(st)) = (&self.job, stage) {
-                            let _ = w.send(json!({ "progress": st }));
+                        let stage = self.lock_status().running.as_ref().map(|r| r.stage);
+                        if let (Some(JobKind::Localize), Some(st)) = (&self.policy.job, stage) {
+                            let _ = w.send(Answer::Progress(st));
                         }
                         self.waiters.push(w);
                     }
-                    match self.job {
-                        Some(Job::Localize) => {
-                            // Joins the run in progress: its result answers this request too.
-                            self.running_force |= force;
-                        }
-                        Some(Job::Drift) => {
-                            let f = self.pending.as_ref().is_some_and(|p| p.0) || force;
-                            self.pending = Some((f, why));
-                        }
-                        None => self.start_localize(force, &why),
+                    // Joined or queued requests are answered by the run's result.
+                    if let Requested::Start(a) = self.policy.request(force, why) {
+                        self.start(a);
                     }
                 }
                 Ok(Event::Progress(stage)) => {
-                    let msg = json!({"progress": stage});
-                    self.waiters.retain(|w| w.send(msg.clone()).is_ok());
+                    self.waiters
+                        .retain(|w| w.send(Answer::Progress(stage)).is_ok());
                     let mut s = lock(&self.shared.status);
                     if let Some(r) = s.running.as_mut() {
-                        r["stage"] = json!(stage);
+                        r.stage = stage;
                     }
                 }
                 Ok(Event::LocalizeDone(r)) => self.localize_done(*r),
@@ -472,23 +399,16 @@ impl Daemon {
     }
 
     fn run_timers(&mut self) {
-        if self.job.is_some() {
-            return;
+        if let Some(a) = self.policy.due(Instant::now()) {
+            self.start(a);
         }
-        let now = Instant::now();
-        if let Some((force, why)) = self.pending.take() {
-            self.start_localize(force, &why);
-        } else if self.next_localize.is_some_and(|t| t <= now) {
-            let why = if self.lock_status().failures_in_a_row > 0 {
-                "retry after failure"
-            } else if self.lock_status().last_result.is_some() {
-                "scheduled"
-            } else {
-                "boot"
-            };
-            self.start_localize(false, why);
-        } else if self.next_drift.is_some_and(|t| t <= now) {
-            self.start_drift();
+    }
+
+    /// Carry out a started job.
+    fn start(&mut self, a: Action) {
+        match a {
+            Action::Localize { force, why } => self.start_localize(force, &why),
+            Action::DriftCheck => self.start_drift(),
         }
     }
 
@@ -501,10 +421,10 @@ impl Daemon {
         let left = |t: Option<Instant>| t.map(|t| t.saturating_duration_since(now).as_secs_f64());
         let mut s = self.lock_status();
         s.uptime_s = self.started.elapsed().as_secs_f64();
-        s.next_localize_in_s = left(self.next_localize);
-        s.next_drift_check_in_s = left(self.next_drift);
+        s.next_localize_in_s = left(self.policy.next_localize);
+        s.next_drift_check_in_s = left(self.policy.next_drift);
         if let Some(r) = s.running.as_mut() {
-            r["seconds"] = json!(self.job_started.elapsed().as_secs_f64());
+            r.seconds = self.job_started.elapsed().as_secs_f64();
         }
     }
 
@@ -513,25 +433,26 @@ impl Daemon {
             Level::Info,
             &format!("localizing ({why}{})", if force { ", forced" } else { "" }),
         );
-        self.job = Some(Job::Localize);
         self.job_started = Instant::now();
-        self.running_force = force;
-        self.next_localize = None;
-        self.lock_status().running =
-            Some(json!({"job": "localize", "why": why, "stage": "starting", "seconds": 0.0}));
+        self.lock_status().running = Some(Running {
+            job: JobKind::Localize,
+            why: Some(why.to_string()),
+            stage: StageName::Starting,
+            seconds: 0.0,
+        });
         let (cfg, path, tx) = (self.cfg.clone(), self.config_path.clone(), self.tx.clone());
         // A forced run is served whatever the served pose says, so it needs no cross-check.
         let served = self.served.clone().filter(|_| !force);
         let spawned = std::thread::Builder::new()
             .name("localize".into())
             .spawn(move || {
-                let progress = |s: &str| {
-                    let _ = tx.send(Event::Progress(s.to_string()));
+                let progress = |s: StageName| {
+                    let _ = tx.send(Event::Progress(s));
                 };
                 let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                     let run = crate::app::run(&cfg, &path, &Overrides::default(), &progress)?;
                     let cc = served.as_ref().and_then(|p| {
-                        progress("cross-check");
+                        progress(StageName::CrossCheck);
                         cross_check(&run, p, &cfg)
                     });
                     Ok((run, cc))
@@ -548,22 +469,13 @@ impl Daemon {
         }
     }
 
-    fn localize_done(&mut self, r: Result<(Run, Option<Value>)>) {
+    fn localize_done(&mut self, r: Result<(Run, Option<CrossCheck>)>) {
         let seconds = self.job_started.elapsed().as_secs_f64();
-        self.job = None;
-        let force = std::mem::take(&mut self.running_force);
+        let force = self.policy.forced();
         let finished = now_utc();
         let outcome = r.and_then(|(run, cc)| {
-            let keep = cc.as_ref().filter(|v| v["served_still_best"] == json!(true) && !force);
-            let decision = match keep {
-                Some(v) => {
-                    let why = format!(
-                        "new result is {:.2} m / {:.2}° from the served pose, which is still the better MI peak on the same frames (NMI {:.4} vs {:.4}): served pose kept",
-                        v["distance_m"].as_f64().unwrap_or(f64::NAN),
-                        v["yaw_deg_apart"].as_f64().unwrap_or(f64::NAN),
-                        v["optimum"]["nmi"].as_f64().unwrap_or(f64::NAN),
-                        v["new_nmi"].as_f64().unwrap_or(f64::NAN),
-                    );
+            let decision = match policy::keep_served(cc.as_ref(), force) {
+                Some(why) => {
                     self.store
                         .record_kept(&run.pose_file, &why)
                         .map_err(|e| Error::stage("persist", e.to_string()))?;
@@ -598,8 +510,8 @@ impl Daemon {
                     self.served = Some(run.pose_file.clone());
                     // A pose served after the drift alarm answers it.
                     if let Some(d) = self.lock_status().last_drift_check.as_mut() {
-                        if d["moved"] == json!(true) {
-                            d["resolved"] = json!(format!("re-localized at {finished}"));
+                        if matches!(&d.outcome, DriftOutcome::Ran(s) if s.verdict.moved) {
+                            d.resolved = Some(format!("re-localized at {finished}"));
                         }
                     }
                     if let Err(e) = run.write_side_outputs(
@@ -610,34 +522,44 @@ impl Daemon {
                             .log(Level::Warning, &format!("report/overlay not written: {e}"));
                     }
                 }
-                let result = json!({
-                    "ok": true, "finished_utc": finished, "seconds": seconds,
-                    "served": accepted, "decision": why,
-                    "camera_center": c, "yaw_pitch_roll_deg": run.pose_file.yaw_pitch_roll_deg,
-                    "score": run.pose_file.quality.get("score"),
-                    "stages": run.pose_file.stages.iter().map(|s| json!({"name": s["name"], "seconds": s["seconds"]})).collect::<Vec<_>>(),
-                });
+                let result = RunResult {
+                    finished_utc: finished,
+                    seconds,
+                    outcome: RunOutcome::Localized {
+                        served: accepted,
+                        decision: why,
+                        camera_center: c,
+                        yaw_pitch_roll_deg: run.pose_file.yaw_pitch_roll_deg,
+                        score: status::score(&run.pose_file),
+                        stages: run
+                            .outcome
+                            .stages
+                            .iter()
+                            .map(|s| StageTime {
+                                name: s.name.name().to_string(),
+                                seconds: s.seconds,
+                            })
+                            .collect(),
+                    },
+                };
                 *lock(&self.shared.last_run) = Some(Arc::new(run));
+                self.policy.localized(
+                    Instant::now(),
+                    self.served.is_some(),
+                    &Timing::of(&self.cfg),
+                );
                 {
                     let mut s = self.lock_status();
-                    s.failures_in_a_row = 0;
+                    s.failures_in_a_row = self.policy.failures_in_a_row;
                     s.last_result = Some(result.clone());
                 }
-                self.next_localize = self.period(self.cfg.daemon.relocalize_interval_h * 3600.0);
-                self.next_drift = self.period(self.cfg.daemon.drift_check_interval_min * 60.0);
                 result
             }
             Err(e) => {
                 let msg = e.to_string();
-                let n = {
-                    let mut s = self.lock_status();
-                    s.failures_in_a_row += 1;
-                    s.failures_in_a_row
-                };
-                let d = &self.cfg.daemon;
-                let wait = (d.retry_initial_s * 2f64.powi(n.min(30) as i32 - 1))
-                    .min(d.retry_max_s.max(d.retry_initial_s));
-                self.next_localize = Some(Instant::now() + Duration::from_secs_f64(wait));
+                let wait = self.policy.failed(Instant::now(), &Timing::of(&self.cfg));
+                let n = self.policy.failures_in_a_row;
+                self.lock_status().failures_in_a_row = n;
                 self.log.log(
                     Level::Error,
                     &format!(
@@ -653,38 +575,39 @@ impl Daemon {
                     self.log
                         .log(Level::Warning, &format!("history not written: {e}"));
                 }
-                let result = json!({
-                    "ok": false, "finished_utc": finished, "seconds": seconds,
-                    "served": false, "error": msg, "retry_in_s": wait,
-                });
+                let result = RunResult {
+                    finished_utc: finished,
+                    seconds,
+                    outcome: RunOutcome::Failed {
+                        error: msg,
+                        retry_in_s: wait,
+                    },
+                };
                 self.lock_status().last_result = Some(result.clone());
                 result
             }
         };
         for w in self.waiters.drain(..) {
-            let _ = w.send(answer.clone());
+            let _ = w.send(Answer::Done(answer.clone()));
         }
         self.lock_status().running = None;
         self.update_state();
         self.send_ready();
     }
 
-    fn period(&self, secs: f64) -> Option<Instant> {
-        (secs > 0.0 && self.served.is_some())
-            .then(|| Instant::now() + Duration::from_secs_f64(secs))
-    }
-
     fn start_drift(&mut self) {
         let Some(served) = self.served.clone() else {
-            self.next_drift = None;
+            // The policy starts a drift check only while a pose is served.
             return;
         };
         self.log.log(Level::Info, "drift check");
-        self.job = Some(Job::Drift);
         self.job_started = Instant::now();
-        self.next_drift = None;
-        self.lock_status().running =
-            Some(json!({"job": "drift-check", "stage": "capture", "seconds": 0.0}));
+        self.lock_status().running = Some(Running {
+            job: JobKind::DriftCheck,
+            why: None,
+            stage: StageName::Capture,
+            seconds: 0.0,
+        });
         let (cfg, path, tx) = (self.cfg.clone(), self.config_path.clone(), self.tx.clone());
         let spawned = std::thread::Builder::new()
             .name("drift".into())
@@ -702,41 +625,49 @@ impl Daemon {
         }
     }
 
-    fn drift_done(&mut self, r: Result<Value>) {
-        self.job = None;
-        self.next_drift = self.period(self.cfg.daemon.drift_check_interval_min * 60.0);
-        let v = match r {
-            Ok(mut v) => {
-                v["checked_utc"] = json!(now_utc());
-                if v["moved"] == json!(true) {
+    fn drift_done(&mut self, r: Result<DriftSearch>) {
+        let moved = r.as_ref().is_ok_and(|d| d.verdict.moved);
+        self.policy
+            .drift_checked(Instant::now(), moved, &Timing::of(&self.cfg));
+        let outcome = match r {
+            Ok(d) => {
+                let v = &d.verdict;
+                if v.moved {
                     self.log.log(
                         Level::Warning,
-                        &format!("drift check: camera moved ({}); re-localizing", v["reason"]),
+                        &format!(
+                            "drift check: camera moved ({}); re-localizing",
+                            // As the JSON value was printed: the reason in quotes.
+                            serde_json::to_string(&v.reason).unwrap_or_default()
+                        ),
                     );
-                    // The served pose is known wrong now, so the new result replaces it even
-                    // if it scores lower (it still has to pass the quality gate).
-                    self.pending = Some((true, "drift check found the camera moved".into()));
                 } else {
                     self.log.log(
                         Level::Info,
                         &format!(
                             "drift check: ok (shift {:.3} m, yaw {:.3}°)",
-                            v["shift_m"].as_f64().unwrap_or(f64::NAN),
-                            v["yaw_deg"].as_f64().unwrap_or(f64::NAN)
+                            v.shift_m, v.yaw_deg
                         ),
                     );
                 }
-                v
+                DriftOutcome::Ran(d)
             }
             Err(e) => {
                 self.log
                     .log(Level::Warning, &format!("drift check could not run: {e}"));
-                json!({"checked_utc": now_utc(), "moved": null, "error": e.to_string()})
+                DriftOutcome::NotRun {
+                    moved: (),
+                    error: e.to_string(),
+                }
             }
         };
         {
             let mut s = self.lock_status();
-            s.last_drift_check = Some(v);
+            s.last_drift_check = Some(DriftCheck {
+                checked_utc: now_utc(),
+                outcome,
+                resolved: None,
+            });
             s.running = None;
         }
         self.update_state();
@@ -778,22 +709,19 @@ impl Daemon {
     /// Derive the state and summary line from what is known.
     fn update_state(&self) {
         let mut s = self.lock_status();
-        let last_failed = s
-            .last_result
-            .as_ref()
-            .is_some_and(|r| r["ok"] == json!(false));
+        let last_failed = s.last_result.as_ref().is_some_and(|r| !r.ok());
         let moved = s
             .last_drift_check
             .as_ref()
-            .is_some_and(|d| d["moved"] == json!(true) && d["resolved"].is_null());
+            .is_some_and(DriftCheck::unresolved_move);
         s.served = self
             .served
             .as_ref()
-            .map(|p| served_summary(&self.store.pose_path(), p));
+            .map(|p| Served::of(&self.store.pose_path(), p));
         let err = s
             .last_result
             .as_ref()
-            .and_then(|r| r["error"].as_str().map(str::to_string));
+            .and_then(|r| r.error().map(str::to_string));
         let (state, summary) = match (&self.served, err) {
             (None, None) => (State::Starting, "starting: first localization pending".into()),
             (None, Some(e)) => (State::Failed, format!("failed: no pose served; {e}")),
@@ -840,7 +768,7 @@ fn internal_error(stage: &'static str, p: Box<dyn std::any::Any + Send>) -> Erro
 }
 
 /// The drift check: fresh frames, then [`drift_search`] around the served pose.
-pub fn drift_check(cfg: &Config, config_path: &Path, served: &PoseFile) -> Result<Value> {
+pub fn drift_check(cfg: &Config, config_path: &Path, served: &PoseFile) -> Result<DriftSearch> {
     let (camera, image) = camera_and_frame(cfg, config_path, &Overrides::default(), &|_| {})?;
     let tile = load_tile(&cfg.map.tiles.join(&served.tile_id))?;
     drift_search(&camera, &image, &tile, &served.pose(), cfg)
@@ -856,7 +784,7 @@ pub fn drift_search(
     tile: &crate::map::Tile,
     pose: &crate::pose::CamFromMap,
     cfg: &Config,
-) -> Result<Value> {
+) -> Result<DriftSearch> {
     let points = mi_points(tile, pose, &Params::default());
     let search = SearchConfig {
         spec: DRIFT_SPEC,
@@ -870,7 +798,7 @@ pub fn drift_search(
         &search,
         &QualityConfig::default(),
     )?;
-    let mut v = drift_verdict(
+    let verdict = drift_verdict(
         &r.offsets,
         r.quality.accepted,
         r.quality.reason.as_deref(),
@@ -878,12 +806,14 @@ pub fn drift_search(
         cfg.daemon.drift_threshold_deg,
     );
     let (y, p, ro) = r.pose.yaw_pitch_roll();
-    v["optimum"] = json!({
-        "camera_center": <[f64; 3]>::from(r.pose.center().coords),
-        "yaw_pitch_roll_deg": [y.to_degrees(), p.to_degrees(), ro.to_degrees()],
-        "nmi": r.quality.nmi,
-    });
-    Ok(v)
+    Ok(DriftSearch {
+        verdict,
+        optimum: Optimum {
+            camera_center: <[f64; 3]>::from(r.pose.center().coords),
+            yaw_pitch_roll_deg: [y.to_degrees(), p.to_degrees(), ro.to_degrees()],
+            nmi: r.quality.nmi,
+        },
+    })
 }
 
 /// Horizontal distance (m) and absolute yaw difference (deg) between two poses.
@@ -896,9 +826,8 @@ fn pose_distance(a: &crate::pose::CamFromMap, b: &crate::pose::CamFromMap) -> (f
 /// When a new result lands away from the served pose, ask the new frames whether the served
 /// pose is still an MI peak that scores as well: then the camera has not moved and the new result
 /// is a different (wrong) optimum, whatever its own score. Runs in the worker thread. `None` when
-/// the two agree (or the check does not apply); otherwise the check's verdict, with
-/// `"served_still_best"`.
-fn cross_check(run: &Run, served: &PoseFile, cfg: &Config) -> Option<Value> {
+/// the two agree (or the check does not apply).
+fn cross_check(run: &Run, served: &PoseFile, cfg: &Config) -> Option<CrossCheck> {
     let (d, dyaw) = pose_distance(&run.outcome.pose, &served.pose());
     if d < cfg.daemon.drift_threshold_m && dyaw < cfg.daemon.drift_threshold_deg {
         return None;
@@ -906,25 +835,15 @@ fn cross_check(run: &Run, served: &PoseFile, cfg: &Config) -> Option<Value> {
     if served.tile_id != run.tile.id {
         return None;
     }
-    let mut v = match drift_search(&run.camera, &run.image, &run.tile, &served.pose(), cfg) {
-        Ok(v) => v,
-        Err(e) => json!({"moved": null, "error": e.to_string()}),
-    };
-    let served_nmi = v["optimum"]["nmi"].as_f64().unwrap_or(f64::NEG_INFINITY);
-    let new_nmi = run.outcome.refinement.quality.nmi;
-    // NMI of two poses on the same frame: the served one must be at least as good (within the
-    // jitter of a slightly different point set) to be preferred.
-    let served_best = v["moved"] == json!(false) && served_nmi >= new_nmi - CROSS_CHECK_NMI_SLACK;
-    v["distance_m"] = json!(d);
-    v["yaw_deg_apart"] = json!(dyaw);
-    v["new_nmi"] = json!(new_nmi);
-    v["served_still_best"] = json!(served_best);
-    Some(v)
+    let search = drift_search(&run.camera, &run.image, &run.tile, &served.pose(), cfg)
+        .map_err(|e| e.to_string());
+    Some(CrossCheck {
+        search,
+        distance_m: d,
+        yaw_deg_apart: dyaw,
+        new_nmi: run.outcome.refinement.quality.nmi,
+    })
 }
-
-/// How much lower the served pose's NMI on the new frames may be than the new result's and still
-/// be preferred by [`cross_check`] (point sets differ slightly between the two poses).
-pub const CROSS_CHECK_NMI_SLACK: f64 = 0.002;
 
 /// Judge a drift search's offsets (x, y, z m; yaw deg; …) and gate verdict against the thresholds.
 pub fn drift_verdict(
@@ -933,7 +852,7 @@ pub fn drift_verdict(
     gate_reason: Option<&str>,
     threshold_m: f64,
     threshold_deg: f64,
-) -> Value {
+) -> DriftVerdict {
     let shift = offsets[0].hypot(offsets[1]);
     let yaw = offsets[3];
     let reason = if !gate_accepted {
@@ -950,13 +869,13 @@ pub fn drift_verdict(
     } else {
         None
     };
-    json!({
-        "moved": reason.is_some(),
-        "reason": reason,
-        "shift_m": shift,
-        "dz_m": offsets[2],
-        "yaw_deg": yaw,
-    })
+    DriftVerdict {
+        moved: reason.is_some(),
+        reason,
+        shift_m: shift,
+        dz_m: offsets[2],
+        yaw_deg: yaw,
+    }
 }
 
 #[cfg(test)]
@@ -966,18 +885,16 @@ mod tests {
     #[test]
     fn drift_verdict_flags_shift_yaw_and_missing_peak() {
         let v = drift_verdict(&[0.02, -0.03, 0.01, 0.1, 0.0, 0.0], true, None, 0.1, 0.3);
-        assert_eq!(v["moved"], false);
+        assert!(!v.moved);
         let v = drift_verdict(&[0.12, 0.0, 0.0, 0.0, 0.0, 0.0], true, None, 0.1, 0.3);
-        assert_eq!(v["moved"], true);
-        assert!(v["reason"].as_str().unwrap().contains("shifted 0.120 m"));
+        assert!(v.moved);
+        assert!(v.reason.as_deref().unwrap().contains("shifted 0.120 m"));
         let v = drift_verdict(&[0.0, 0.0, 0.0, -0.5, 0.0, 0.0], true, None, 0.1, 0.3);
-        assert!(v["reason"]
-            .as_str()
-            .unwrap()
-            .contains("yaw changed -0.500°"));
+        assert!(v.reason.as_deref().unwrap().contains("yaw changed -0.500°"));
         let v = drift_verdict(&[0.0; 6], false, Some("optimum on the box edge"), 0.1, 0.3);
-        assert!(v["reason"]
-            .as_str()
+        assert!(v
+            .reason
+            .as_deref()
             .unwrap()
             .contains("optimum on the box edge"));
     }

@@ -1,328 +1,654 @@
-//! Initialization from a GPS prior alone (the seed's step 1), learning-free.
-//!
-//! Coarse stage: the fisheye frame is resampled once into the nominal bird's-eye view (see
-//! [`super::matching`]), the satellite image around the prior into an orientation field, and a dense
-//! yaw × height × translation sweep ranks hypotheses; a second sweep over the taller mounting
-//! heights, with the larger template they allow, adds its own few ([`CoarseParams::tall_from_m`]).
-//! Roll and pitch are taken as zero here (the node is mounted nadir within a few degrees); PnP on
-//! the fine correspondences recovers them.
+//! Initialization from a GPS prior alone (the seed's step 1), learning-free: the coarse
+//! stage's hypotheses ([`super::coarse`]), then per hypothesis the fine stage — ground patches
+//! matched against the satellite, PnP + RANSAC on their bearings — judged on the LiDAR MI
+//! ([`super::verify`]) when enabled.
 
-use super::matching::{
-    orientation_field, Candidate, Field, GrayF32, NominalField, SearchField, SweepParams,
-};
+use super::coarse::{coarse_candidates, satellite_gray, CoarseParams};
+use super::ground::{focal_px, ground_disc, height_at, Mip};
+use super::sweep::{orientation_field, Candidate, Field, GrayF32};
 use super::verify::MiVerifier;
 use crate::camera::CameraModel;
 use crate::map::Raster;
-use nalgebra::{Point2, Vector3};
+use crate::stage::StageName;
 use rayon::prelude::*;
 
-/// Settings of the coarse stage.
+/// Settings of the fine stage (local patch matching → PnP).
 #[derive(Debug, Clone, PartialEq)]
-pub struct CoarseParams {
-    /// Lowest and highest mounting height considered, metres.
-    pub height_range_m: (f64, f64),
-    /// Ratio between successive heights (scale step of the sweep).
-    pub height_ratio: f64,
-    /// Yaw step, degrees.
-    pub yaw_step_deg: f64,
-    /// Ground resolution of the sweep, metres per pixel.
-    pub res_m: f64,
-    /// Largest template radius, metres.
-    pub template_radius_m: f64,
-    /// Largest off-nadir ground angle used, degrees (beyond it ground is too oblique).
+pub struct FineParams {
+    /// Anchor spacing on the ground, metres.
+    pub anchor_spacing_m: f64,
+    /// Largest off-nadir angle of an anchor, degrees (oblique ground is smeared in the fisheye).
     pub max_off_nadir_deg: f64,
-    /// Step of the nominal view in normalised ground units (metres per metre of height).
-    pub nominal_dq: f64,
-    /// Candidates kept for the fine stage.
-    pub top_k: usize,
-    /// A second sweep over the heights from this one up (`None`: none), with the larger template
-    /// those heights allow ([`SweepParams::effective_template_radius_m`]); its best
-    /// [`CoarseParams::tall_top_k`] candidates join the list. The main sweep's template is what
-    /// the lowest height sees (8.2 m of ground at 3 m and 70°), so that no height is favoured by
-    /// a smaller, noisier correlation; on a tall pole that is only the ground within ≈ 40° of
-    /// nadir, and a road's edges and markings there can fit better at a wrong scale (`small`
-    /// seed 86: every top candidate at 6.55 m on a 9.96 m pole). The tall sweep's candidates
-    /// compete only in the LiDAR screening and the fine stage, not in the sweep's ranking.
-    pub tall_from_m: Option<f64>,
-    /// Candidates the tall sweep adds.
-    pub tall_top_k: usize,
+    /// Largest anchor distance from the nadir point, metres.
+    pub max_radius_m: f64,
+    /// Per iteration: (patch half-size m, search half-size m, resolution m/px, PnP inlier
+    /// tolerance in metres on the ground at nadir distance — converted to pixels for the current
+    /// height, because a fixed pixel threshold is metres on a 4 m pole and centimetres on a 15 m one).
+    pub iterations: Vec<(f64, f64, f64, f64)>,
+    /// Minimum correlation of an accepted patch match.
+    pub min_score: f64,
+    /// PnP / RANSAC settings (the threshold is overridden per iteration).
+    pub pnp: super::pnp::PnpParams,
+    /// Stop trying sweep candidates once one's PnP has at least this many inliers with ≥ 2/3 of
+    /// its patch matches agreeing; `None` tries every candidate and keeps the most inliers.
+    /// With a verifier ([`initialize`]'s `verifier`) the stop also needs the MI evidence, see there.
+    pub convincing_inliers: Option<usize>,
+    /// Independent verification of hypotheses against the LiDAR map, when [`initialize`] is given
+    /// a verifier: how long a sweep list it screens and how many fine stages it may run.
+    pub verify: VerifySchedule,
 }
 
-impl Default for CoarseParams {
+/// How [`initialize`] uses an [`MiVerifier`] (see there).
+#[derive(Debug, Clone, PartialEq)]
+pub struct VerifySchedule {
+    /// Whether the pipeline verifies at all (off = the satellite-only initializer, for
+    /// comparisons and for maps without usable reflectivity).
+    pub enabled: bool,
+    /// Sweep candidates screened by MI (the sweep list is lengthened to this; the satellite
+    /// ranking alone often has no correct candidate in its top 10 on low poles).
+    pub shortlist: usize,
+    /// Most fine stages (satellite matching + PnP) run, in decreasing screening MI.
+    pub max_fine: usize,
+    /// A tried candidate stands for its sweep pose rather than its PnP pose only if the sweep
+    /// pose's MI is higher by more than this fraction: the PnP pose carries tilt and height the
+    /// sweep pose lacks, and MI is nearly flat over a few decimetres (`5mp` seed 4: PnP 0.35 m
+    /// off at MI 0.437, its sweep pose 1.02 m off at 0.440).
+    pub sweep_margin: f64,
+    /// The verifier's own settings.
+    pub mi: super::verify::VerifyParams,
+}
+
+impl Default for VerifySchedule {
     fn default() -> Self {
-        CoarseParams {
-            height_range_m: (3.0, 15.0),
-            height_ratio: 1.05,
-            yaw_step_deg: 3.0,
-            res_m: 0.4,
-            template_radius_m: 20.0,
-            max_off_nadir_deg: 70.0,
-            nominal_dq: 0.01,
-            top_k: 10,
-            tall_from_m: Some(6.0),
-            tall_top_k: 10,
+        VerifySchedule {
+            enabled: true,
+            shortlist: 60,
+            max_fine: 10,
+            sweep_margin: 0.1,
+            mi: super::verify::VerifyParams::default(),
         }
     }
 }
 
-impl CoarseParams {
-    /// The geometric sequence of heights swept.
-    pub fn heights(&self) -> Vec<f64> {
-        let (lo, hi) = self.height_range_m;
-        let mut v = Vec::new();
-        let mut h = lo;
-        while h <= hi * (1.0 + 1e-9) {
-            v.push(h);
-            h *= self.height_ratio;
-        }
-        v
-    }
-}
-
-/// Bilinear sample of a gray u8 image (row-major `w × h`) at pixel-centre coordinates; `None`
-/// outside.
-#[inline]
-pub fn sample_gray(img: &[u8], w: usize, h: usize, x: f64, y: f64) -> Option<f32> {
-    if !(x >= 0.0 && y >= 0.0) {
-        return None;
-    }
-    let (x0, y0) = (x as usize, y as usize);
-    if x0 + 1 >= w || y0 + 1 >= h {
-        return None;
-    }
-    let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
-    let i = y0 * w + x0;
-    let p = |k: usize| img[k] as f32;
-    let top = p(i) * (1.0 - fx) + p(i + 1) * fx;
-    let bot = p(i + w) * (1.0 - fx) + p(i + w + 1) * fx;
-    Some(top * (1.0 - fy) + bot * fy)
-}
-
-/// A 2×2-box mip pyramid of a gray frame, so that resampling the fisheye onto coarse ground cells
-/// averages the pixels a cell covers instead of aliasing (a nadir pixel of a pole camera covers
-/// ~1–2 cm; ground cells here are 5–20 cm).
-pub struct Mip {
-    levels: Vec<(Vec<f32>, usize, usize)>,
-}
-
-/// Deepest pyramid level.
-const MIP_LEVELS: usize = 6;
-
-impl Mip {
-    /// Build from a row-major gray image.
-    pub fn new(img: &[u8], w: usize, h: usize) -> Self {
-        let mut levels = vec![(img.iter().map(|&v| v as f32).collect::<Vec<f32>>(), w, h)];
-        while levels.len() < MIP_LEVELS {
-            let (prev, pw, ph) = &levels[levels.len() - 1];
-            let (nw, nh) = (pw / 2, ph / 2);
-            if nw < 2 || nh < 2 {
-                break;
-            }
-            let mut next = vec![0.0; nw * nh];
-            for y in 0..nh {
-                for x in 0..nw {
-                    let i = 2 * y * pw + 2 * x;
-                    next[y * nw + x] =
-                        0.25 * (prev[i] + prev[i + 1] + prev[i + pw] + prev[i + pw + 1]);
-                }
-            }
-            levels.push((next, nw, nh));
-        }
-        Mip { levels }
-    }
-
-    /// Bilinear sample at level-0 pixel coordinates (u, v), at the level whose pixel is about
-    /// `footprint` level-0 pixels wide.
-    pub fn sample(&self, u: f64, v: f64, footprint: f64) -> Option<f32> {
-        let l = (footprint.max(1.0).log2().floor() as usize).min(self.levels.len() - 1);
-        let s = (1usize << l) as f64;
-        let (data, w, h) = &self.levels[l];
-        let (x, y) = ((u + 0.5) / s - 0.5, (v + 0.5) / s - 0.5);
-        if !(x >= 0.0 && y >= 0.0) {
-            return None;
-        }
-        let (x0, y0) = (x as usize, y as usize);
-        if x0 + 1 >= *w || y0 + 1 >= *h {
-            return None;
-        }
-        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
-        let i = y0 * w + x0;
-        let top = data[i] * (1.0 - fx) + data[i + 1] * fx;
-        let bot = data[i + w] * (1.0 - fx) + data[i + w + 1] * fx;
-        Some(top * (1.0 - fy) + bot * fy)
-    }
-}
-
-/// The nominal bird's-eye view: the ground as a north-up nadir camera at unit height would see it,
-/// over `|q| ≤ tan(max_off_nadir)`, step `dq`; and the pixels that are seen.
-pub fn nominal_view(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> (GrayF32, Vec<bool>) {
-    let q_max = p.max_off_nadir_deg.to_radians().tan();
-    let half = (q_max / p.nominal_dq).ceil() as usize;
-    let n = 2 * half + 1;
-    let (w, h) = (cam.width() as usize, cam.height() as usize);
-    let mip = Mip::new(image, w, h);
-    let rows: Vec<(Vec<f32>, Vec<bool>)> = (0..n)
-        .into_par_iter()
-        .map(|y| {
-            let mut vals = vec![0.0; n];
-            let mut ok = vec![false; n];
-            for x in 0..n {
-                let (qx, qy) = (
-                    (x as f64 - half as f64) * p.nominal_dq,
-                    (half as f64 - y as f64) * p.nominal_dq,
-                );
-                if qx * qx + qy * qy > q_max * q_max {
-                    continue;
-                }
-                // Ground offset (qx, qy, −1) in the map; a north-up nadir camera's optical frame is
-                // diag(1, −1, −1) of it.
-                let ray = Vector3::new(qx, -qy, 1.0);
-                if let Ok(px) = cam.project_visible(&ray) {
-                    // Footprint of the cell in fisheye pixels, from its neighbours' projections.
-                    let fp = [(p.nominal_dq, 0.0), (0.0, p.nominal_dq)]
-                        .iter()
-                        .filter_map(|(dx, dy)| {
-                            cam.project(&Vector3::new(qx + dx, -(qy + dy), 1.0)).ok()
-                        })
-                        .map(|q| (q - px).norm())
-                        .fold(1.0, f64::max);
-                    if let Some(v) = mip.sample(px.x, px.y, fp) {
-                        vals[x] = v;
-                        ok[x] = true;
-                    }
-                }
-            }
-            (vals, ok)
-        })
-        .collect();
-    let mut img = GrayF32::new(n, n);
-    let mut valid = vec![false; n * n];
-    for (y, (vals, ok)) in rows.into_iter().enumerate() {
-        img.data[y * n..(y + 1) * n].copy_from_slice(&vals);
-        valid[y * n..(y + 1) * n].copy_from_slice(&ok);
-    }
-    (img, valid)
-}
-
-/// Orientation-field pyramid of the nominal view.
-pub fn nominal_field(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> NominalField {
-    let (img, valid) = nominal_view(cam, image, p);
-    let mut levels = vec![orientation_field(&img, Some(&valid))];
-    // Enough levels to reach the coarsest template step (res / lowest height).
-    let coarsest = p.res_m / p.height_range_m.0.max(1e-3);
-    while p.nominal_dq * 2f64.powi(levels.len() as i32) <= coarsest * 2.0 {
-        let next = levels[levels.len() - 1].downsample2();
-        levels.push(next);
-    }
-    NominalField {
-        levels,
-        dq: p.nominal_dq,
-        q_max: p.max_off_nadir_deg.to_radians().tan(),
-    }
-}
-
-/// Luminance of the satellite layer, area-averaged to `res` m/px over a square of half-size
-/// `half_m` centred on (cx, cy) (map coordinates); outside the layer the field is zero.
-pub fn satellite_gray(
-    sat: &Raster<[u8; 3]>,
-    cx: f64,
-    cy: f64,
-    half_m: f64,
-    res: f64,
-) -> (GrayF32, Vec<bool>) {
-    let n = 2 * (half_m / res).round() as usize + 1;
-    let c = (n as f64 - 1.0) / 2.0;
-    let g = &sat.grid;
-    // Average the source pixels that fall inside each output cell (≥ 1 sample per cell).
-    let sub = ((res / g.res).round() as usize).max(1);
-    let mut img = GrayF32::new(n, n);
-    let mut valid = vec![false; n * n];
-    for y in 0..n {
-        for x in 0..n {
-            let (mx, my) = (cx + (x as f64 - c) * res, cy + (c - y as f64) * res);
-            let mut acc = 0.0f32;
-            let mut cnt = 0;
-            for sy in 0..sub {
-                for sx in 0..sub {
-                    let ox = (sx as f64 + 0.5) / sub as f64 - 0.5;
-                    let oy = (sy as f64 + 0.5) / sub as f64 - 0.5;
-                    let (px, py) = g.to_pixel(mx + ox * res, my - oy * res);
-                    let (col, row) = (px.round(), py.round());
-                    if col < 0.0 || row < 0.0 {
-                        continue;
-                    }
-                    if let Some([r, gg, b]) = sat.get(col as usize, row as usize) {
-                        // Rec. 601 luma: the camera is a gray sensor with a broad response.
-                        acc += 0.299 * r as f32 + 0.587 * gg as f32 + 0.114 * b as f32;
-                        cnt += 1;
-                    }
-                }
-            }
-            if cnt == sub * sub {
-                img.data[y * n + x] = acc / cnt as f32;
-                valid[y * n + x] = true;
-            }
+impl Default for FineParams {
+    fn default() -> Self {
+        FineParams {
+            anchor_spacing_m: 1.5,
+            max_off_nadir_deg: 65.0,
+            max_radius_m: 25.0,
+            iterations: vec![
+                (3.0, 2.0, 0.2, 0.6),
+                (3.0, 1.2, 0.2, 0.45),
+                (2.0, 0.6, 0.1, 0.3),
+                (2.0, 0.4, 0.1, 0.25),
+            ],
+            min_score: 0.35,
+            pnp: super::pnp::PnpParams::default(),
+            convincing_inliers: Some(CONVINCING_INLIERS),
+            verify: VerifySchedule::default(),
         }
     }
-    (img, valid)
 }
 
-/// Coarse stage: rank (yaw, height, position) hypotheses around the prior centre (cx, cy) within
-/// `search_radius_m`. Offsets in the returned candidates are relative to (cx, cy).
-pub fn coarse_candidates(
+/// Best-screened sweep candidates climbed on the LiDAR MI when no fine stage gave a pose.
+pub const CLIMB_CANDIDATES: usize = 5;
+
+/// One matched anchor: where the fisheye sees it, and where the satellite says it is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AnchorMatch {
+    /// Correspondence for PnP.
+    pub corr: super::pnp::Correspondence,
+    /// Patch correlation at the best shift.
+    pub score: f64,
+}
+
+/// Match ground patches seen through `pose` against the satellite; returns correspondences.
+pub fn match_anchors(
     cam: &dyn CameraModel,
     image: &[u8],
     sat: &Raster<[u8; 3]>,
-    (cx, cy): (f64, f64),
-    search_radius_m: f64,
-    p: &CoarseParams,
-) -> Vec<Candidate> {
-    let nominal = nominal_field(cam, image, p);
-    let heights = p.heights();
-    let sweep = |heights: Vec<f64>, top_k: usize, res: f64| {
-        let params = SweepParams {
-            yaw_step_deg: p.yaw_step_deg,
-            heights,
-            template_radius_m: p.template_radius_m,
-            top_k,
-            max_offset_m: search_radius_m,
-        };
-        // The field holds the search disk plus the template the sweep really uses (one pixel of
-        // slack for rounding): a larger one only costs FFT time.
-        let half = search_radius_m + params.effective_template_radius_m(nominal.q_max) + res;
-        let (gray, valid) = satellite_gray(sat, cx, cy, half, res);
-        let field: Field = orientation_field(&gray, Some(&valid));
-        let search = SearchField::new(&field, res);
-        super::matching::sweep(&search, &nominal, &params)
-    };
-    let tall: Vec<f64> = match p.tall_from_m {
-        Some(from) => heights.iter().copied().filter(|h| *h >= from).collect(),
-        None => Vec::new(),
-    };
-    let tall_sweep = !tall.is_empty() && tall.len() < heights.len() && p.tall_top_k > 0;
-    let mut cands = sweep(heights, p.top_k, p.res_m);
-    if tall_sweep {
-        for c in sweep(tall, p.tall_top_k, p.res_m) {
-            if !cands.contains(&c) {
-                cands.push(c);
+    heights: &Raster<f32>,
+    pose: &crate::pose::CamFromMap,
+    (patch_half, search_half, res): (f64, f64, f64),
+    p: &FineParams,
+) -> Vec<AnchorMatch> {
+    let c = pose.center();
+    let (_, radius) = ground_disc(heights, &c, p.max_off_nadir_deg, p.max_radius_m);
+    let n = (radius / p.anchor_spacing_m).floor() as i64;
+    let mut anchors = Vec::new();
+    for j in -n..=n {
+        for i in -n..=n {
+            let (dx, dy) = (i as f64 * p.anchor_spacing_m, j as f64 * p.anchor_spacing_m);
+            if dx * dx + dy * dy <= radius * radius {
+                anchors.push((c.x + dx, c.y + dy));
             }
         }
     }
-    cands
+    let mip = Mip::new(image, cam.width() as usize, cam.height() as usize);
+    let ph = (patch_half / res).round() as i64;
+    let sh = (search_half / res).round() as i64;
+    let side = (2 * ph + 1) as usize;
+    let max_theta = cam.max_theta();
+    anchors
+        .par_iter()
+        .filter_map(|&(ax, ay)| {
+            let az = height_at(heights, ax, ay)?;
+            // One pyramid level per patch: its cells' footprint in fisheye pixels at the anchor.
+            let pa = cam
+                .project_visible(&pose.transform(&nalgebra::Point3::new(ax, ay, az)).coords)
+                .ok()?;
+            let fp = [(res, 0.0), (0.0, res)]
+                .iter()
+                .filter_map(|(dx, dy)| {
+                    cam.project(
+                        &pose
+                            .transform(&nalgebra::Point3::new(ax + dx, ay + dy, az))
+                            .coords,
+                    )
+                    .ok()
+                })
+                .map(|q| (q - pa).norm())
+                .fold(1.0, f64::max);
+            // Fisheye patch resampled onto the ground around the anchor, through the current pose.
+            let mut patch = GrayF32::new(side, side);
+            let mut valid = vec![false; side * side];
+            let mut n_valid = 0;
+            for r in 0..side {
+                for col in 0..side {
+                    let (x, y) = (
+                        ax + (col as i64 - ph) as f64 * res,
+                        ay - (r as i64 - ph) as f64 * res,
+                    );
+                    let z = height_at(heights, x, y).unwrap_or(az);
+                    let pc = pose.transform(&nalgebra::Point3::new(x, y, z)).coords;
+                    if let Ok(px) = cam.project_visible_within(&pc, max_theta) {
+                        if let Some(v) = mip.sample(px.x, px.y, fp) {
+                            patch.data[r * side + col] = v;
+                            valid[r * side + col] = true;
+                            n_valid += 1;
+                        }
+                    }
+                }
+            }
+            if n_valid < side * side * 9 / 10 {
+                return None;
+            }
+            let pf = orientation_field(&patch, Some(&valid));
+            let (sg, sv) = satellite_gray(sat, ax, ay, patch_half + search_half, res);
+            let sf = orientation_field(&sg, Some(&sv));
+            let (score, sx, sy) = best_shift(&pf, &sf, ph, sh)?;
+            if score < p.min_score {
+                return None;
+            }
+            // The fisheye shows at the anchor's pixel the world point shifted by (sx, −sy)·res.
+            let (wx, wy) = (ax + sx * res, ay - sy * res);
+            let wz = height_at(heights, wx, wy).unwrap_or(az);
+            let pixel = cam
+                .project_visible(&pose.transform(&nalgebra::Point3::new(ax, ay, az)).coords)
+                .ok()?;
+            Some(AnchorMatch {
+                corr: super::pnp::Correspondence {
+                    pixel,
+                    world: nalgebra::Point3::new(wx, wy, wz),
+                },
+                score,
+            })
+        })
+        .collect()
 }
 
-/// Pixel where a map point offset (east, north, up) from a nadir camera at unit height projects; a
-/// helper for tests and diagnostics.
-pub fn nominal_pixel(cam: &dyn CameraModel, qx: f64, qy: f64) -> Option<Point2<f64>> {
-    cam.project_visible(&Vector3::new(qx, -qy, 1.0)).ok()
+/// Best shift of `patch` (half-size `ph`) inside `search` (half-size `ph + sh`) by normalised
+/// complex correlation, with a sub-pixel parabola fit; `None` if the peak is flat or on the edge.
+fn best_shift(patch: &Field, search: &Field, ph: i64, sh: i64) -> Option<(f64, f64, f64)> {
+    let side = (2 * ph + 1) as usize;
+    let sw = search.width;
+    let pn: f64 = patch.data.iter().map(|z| z.norm_sqr() as f64).sum();
+    if pn <= 0.0 {
+        return None;
+    }
+    let span = (2 * sh + 1) as usize;
+    let mut scores = vec![f64::NEG_INFINITY; span * span];
+    for oy in 0..span {
+        for ox in 0..span {
+            let (mut num, mut e) = (0.0f64, 0.0f64);
+            for r in 0..side {
+                let srow = &search.data[(oy + r) * sw + ox..(oy + r) * sw + ox + side];
+                let prow = &patch.data[r * side..(r + 1) * side];
+                for (s, t) in srow.iter().zip(prow) {
+                    num += (s * t.conj()).re as f64;
+                    e += s.norm_sqr() as f64;
+                }
+            }
+            if e > 0.0 {
+                scores[oy * span + ox] = num / (e * pn).sqrt();
+            }
+        }
+    }
+    let (bi, &best) = scores
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))?;
+    let (bx, by) = (bi % span, bi / span);
+    if bx == 0 || by == 0 || bx + 1 == span || by + 1 == span {
+        return None; // on the edge: the true shift may lie outside the window
+    }
+    let fit = |m: f64, c0: f64, p: f64| {
+        let d = m - 2.0 * c0 + p;
+        if d < 0.0 {
+            (0.5 * (m - p) / d).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
+    };
+    let dx = fit(scores[bi - 1], best, scores[bi + 1]);
+    let dy = fit(scores[bi - span], best, scores[bi + span]);
+    Some((best, bx as f64 + dx - sh as f64, by as f64 + dy - sh as f64))
+}
+
+/// PnP inliers (with ≥ 2/3 of the patch matches agreeing) that end the candidate search early
+/// (the default of [`FineParams::convincing_inliers`]).
+pub const CONVINCING_INLIERS: usize = 30;
+
+/// Result of [`initialize`].
+#[derive(Debug, Clone)]
+pub struct InitResult {
+    /// World→camera pose from PnP.
+    pub pose: crate::pose::CamFromMap,
+    /// The coarse candidate it grew from.
+    pub candidate: Candidate,
+    /// Correspondences given to the last PnP (0 when the pose is a verified sweep pose).
+    pub matches: usize,
+    /// PnP inliers of the last iteration (0 when the pose is a verified sweep pose).
+    pub inliers: usize,
+    /// PnP reprojection RMS of the last iteration, px (NaN when the pose is a verified sweep pose).
+    pub rms_px: f64,
+    /// Candidates whose fine stage ran (fewer than the sweep kept when one was convincing early).
+    pub candidates_tried: usize,
+    /// Rank of [`Self::candidate`] in the sweep's list, 0 = the sweep's best.
+    pub candidate_rank: usize,
+    /// With a verifier: the pose's bias-corrected MI with the LiDAR map (nats), and the runner-up
+    /// hypothesis' (another PnP pose or, if none, the best screened sweep candidate not tried).
+    pub mi: Option<(f64, Option<f64>)>,
+}
+
+/// What the fine stage made of one sweep candidate.
+#[derive(Debug, Clone)]
+pub struct FineOutcome {
+    /// World→camera pose of the last PnP.
+    pub pose: crate::pose::CamFromMap,
+    /// Correspondences given to the last PnP.
+    pub matches: usize,
+    /// Its inliers.
+    pub inliers: usize,
+    /// Its reprojection RMS, px.
+    pub rms_px: f64,
+}
+
+/// Fine stage of one sweep candidate (offset relative to `prior_xy`): the iterations of local
+/// patch matching + PnP of [`FineParams::iterations`], each from the previous pose. The error
+/// says which PnP failed and on how many matches.
+#[allow(clippy::too_many_arguments)]
+pub fn fine_stage<R: rand::Rng>(
+    cam: &dyn CameraModel,
+    image: &[u8],
+    sat: &Raster<[u8; 3]>,
+    heights: &Raster<f32>,
+    prior_xy: (f64, f64),
+    cand: &Candidate,
+    fine: &FineParams,
+    rng: &mut R,
+) -> std::result::Result<FineOutcome, String> {
+    let (cx, cy) = (prior_xy.0 + cand.offset[0], prior_xy.1 + cand.offset[1]);
+    let zg = height_at(heights, cx, cy).unwrap_or(0.0);
+    let mut pose = crate::pose::CamFromMap::from_center_ypr(
+        &nalgebra::Point3::new(cx, cy, zg + cand.height),
+        cand.yaw,
+        0.0,
+        0.0,
+    );
+    let mut outcome = Err("no fine iterations configured".to_string());
+    for &(ph, sh, res, tol_m) in &fine.iterations {
+        let m = match_anchors(cam, image, sat, heights, &pose, (ph, sh, res), fine);
+        let corr: Vec<_> = m.iter().map(|a| a.corr).collect();
+        let c = pose.center();
+        let cam_h = (c.z - height_at(heights, c.x, c.y).unwrap_or(c.z - cand.height)).max(1.0);
+        let params = super::pnp::PnpParams {
+            threshold_px: tol_m / cam_h * focal_px(cam),
+            ..fine.pnp
+        };
+        match super::pnp::solve_pnp_ransac(cam, &corr, &params, rng) {
+            Ok(r) => {
+                pose = r.pose;
+                outcome = Ok(FineOutcome {
+                    pose,
+                    matches: corr.len(),
+                    inliers: r.inliers.len(),
+                    rms_px: r.rms_px,
+                });
+            }
+            Err(e) => return Err(format!("{e} ({} patch matches)", corr.len())),
+        }
+    }
+    outcome
+}
+
+/// Full initialization: coarse sweep around the prior, then per candidate local matching + PnP.
+///
+/// Without a verifier the candidate with the most inliers wins (sweep order, early stop on a
+/// convincing PnP). With one ([`MiVerifier`], the LiDAR map), the hypotheses are judged by
+/// evidence the satellite matching cannot fake: the sweep list is lengthened to
+/// [`VerifySchedule::shortlist`], every candidate is screened by its MI with the LiDAR map, the
+/// fine stages run in decreasing screening MI (at most [`VerifySchedule::max_fine`]), and the
+/// hypothesis with the highest MI wins (a PnP pose, or a tried candidate's screened sweep pose
+/// where that has the higher MI, see `initialize_verified`). The search stops once the best PnP pose is convincing (inliers
+/// as above) and its MI is at least the screening MI of every candidate not yet tried — no
+/// remaining hypothesis has better evidence. Errors name the stage and the numbers.
+#[allow(clippy::too_many_arguments)]
+pub fn initialize<R: rand::Rng>(
+    cam: &dyn CameraModel,
+    image: &[u8],
+    sat: &Raster<[u8; 3]>,
+    heights: &Raster<f32>,
+    prior_xy: (f64, f64),
+    search_radius_m: f64,
+    coarse: &CoarseParams,
+    fine: &FineParams,
+    verifier: Option<&MiVerifier>,
+    rng: &mut R,
+) -> crate::Result<InitResult> {
+    let expected = (cam.width() as usize) * (cam.height() as usize);
+    if image.len() != expected {
+        return Err(crate::Error::stage(
+            StageName::Pnp.name(),
+            format!(
+                "image has {} pixels, camera expects {}×{}",
+                image.len(),
+                cam.width(),
+                cam.height()
+            ),
+        ));
+    }
+    let cands = match verifier {
+        Some(_) => {
+            let longer = CoarseParams {
+                top_k: coarse.top_k.max(fine.verify.shortlist),
+                ..coarse.clone()
+            };
+            coarse_candidates(cam, image, sat, prior_xy, search_radius_m, &longer)
+        }
+        None => coarse_candidates(cam, image, sat, prior_xy, search_radius_m, coarse),
+    };
+    if cands.is_empty() {
+        return Err(crate::Error::stage(
+            StageName::Pnp.name(),
+            "satellite match: no hypothesis scored (featureless view or satellite?)",
+        ));
+    }
+    if let Some(v) = verifier {
+        return initialize_verified(cam, image, sat, heights, prior_xy, &cands, fine, v, rng);
+    }
+    let mut best: Option<InitResult> = None;
+    let mut last_err = String::new();
+    let mut tried = 0;
+    for (rank, cand) in cands.iter().enumerate() {
+        tried = rank + 1;
+        let outcome = match fine_stage(cam, image, sat, heights, prior_xy, cand, fine, rng) {
+            Ok(f) => Some((f.pose, f.matches, f.inliers, f.rms_px)),
+            Err(e) => {
+                last_err = e;
+                None
+            }
+        };
+        if let Some((pose, matches, inliers, rms_px)) = outcome {
+            let convincing = fine
+                .convincing_inliers
+                .is_some_and(|n| inliers >= n && inliers * 3 >= matches * 2);
+            if best.as_ref().is_none_or(|b| inliers > b.inliers) {
+                best = Some(InitResult {
+                    pose,
+                    candidate: *cand,
+                    matches,
+                    inliers,
+                    rms_px,
+                    candidates_tried: 0,
+                    candidate_rank: rank,
+                    mi: None,
+                });
+            }
+            // The sweep's ranking is only a shortlist; a candidate whose fine stage agrees this
+            // well is the answer, and trying the rest would only cost time.
+            if convincing {
+                break;
+            }
+        }
+    }
+    if let Some(b) = best.as_mut() {
+        b.candidates_tried = tried;
+    }
+    best.ok_or_else(|| {
+        crate::Error::stage(
+            StageName::Pnp.name(),
+            format!(
+                "none of {} candidates gave a pose; last: {last_err}",
+                cands.len()
+            ),
+        )
+    })
+}
+
+/// The pose a sweep candidate stands for (offset relative to `prior_xy`, roll = pitch = 0), as the
+/// fine stage starts from it.
+pub fn candidate_pose(
+    heights: &Raster<f32>,
+    prior_xy: (f64, f64),
+    cand: &Candidate,
+) -> crate::pose::CamFromMap {
+    let (cx, cy) = (prior_xy.0 + cand.offset[0], prior_xy.1 + cand.offset[1]);
+    let zg = height_at(heights, cx, cy).unwrap_or(0.0);
+    crate::pose::CamFromMap::from_center_ypr(
+        &nalgebra::Point3::new(cx, cy, zg + cand.height),
+        cand.yaw,
+        0.0,
+        0.0,
+    )
+}
+
+/// [`initialize`] with a verifier: screen, fine stages in screening order, best MI wins.
+///
+/// Each tried candidate stands for the better (by MI, with [`VerifySchedule::sweep_margin`] in
+/// favour of PnP) of its PnP pose and its screened sweep pose:
+/// on low poles the fine stage sometimes fails on, or tilts away from, the very candidate the
+/// LiDAR map confirms best, and then the sweep pose (zero tilt, ≤ 0.2 m / 1° from the candidate)
+/// is the better start for the refinement. At least one fine stage must give a pose: a frame
+/// the satellite matching cannot confirm anywhere is an error, not a guess. When none does, the
+/// [`CLIMB_CANDIDATES`] best-screened candidates get a second chance: climbed on the LiDAR MI
+/// ([`MiVerifier::climb`]), then the fine stage again.
+#[allow(clippy::too_many_arguments)]
+fn initialize_verified<R: rand::Rng>(
+    cam: &dyn CameraModel,
+    image: &[u8],
+    sat: &Raster<[u8; 3]>,
+    heights: &Raster<f32>,
+    prior_xy: (f64, f64),
+    cands: &[Candidate],
+    fine: &FineParams,
+    verifier: &MiVerifier,
+    rng: &mut R,
+) -> crate::Result<InitResult> {
+    // Screening: MI of each sweep candidate's own pose. Candidates whose view holds too few LiDAR
+    // points have no evidence and go last, in sweep order.
+    let screened: Vec<Option<super::verify::Verdict>> = cands
+        .iter()
+        .map(|c| verifier.screen(&candidate_pose(heights, prior_xy, c)))
+        .collect();
+    let screen_mi = |i: usize| screened[i].map(|v| v.mi);
+    let mut order: Vec<usize> = (0..cands.len()).collect();
+    order.sort_by(|&a, &b| {
+        let key = |i: usize| screen_mi(i).unwrap_or(f64::NEG_INFINITY);
+        key(b).total_cmp(&key(a)).then(a.cmp(&b))
+    });
+    // Every tried candidate's hypothesis, in try order (ties go to the earlier one).
+    let mut pool: Vec<(f64, InitResult)> = Vec::new();
+    let mut any_pnp = false;
+    let mut last_err = String::new();
+    let mut tried = 0;
+    for (pos, &rank) in order.iter().enumerate().take(fine.verify.max_fine.max(1)) {
+        tried = pos + 1;
+        let cand = &cands[rank];
+        // Re-scored with the full verification (more points, finer grid) so that it competes
+        // with PnP poses on equal terms; the screening only orders.
+        let sweep =
+            screened[rank].and_then(|_| verifier.verify(&candidate_pose(heights, prior_xy, cand)));
+        let hyp = match fine_stage(cam, image, sat, heights, prior_xy, cand, fine, rng) {
+            Ok(f) => {
+                any_pnp = true;
+                let v = verifier.verify(&f.pose);
+                let pnp = InitResult {
+                    pose: f.pose,
+                    candidate: *cand,
+                    matches: f.matches,
+                    inliers: f.inliers,
+                    rms_px: f.rms_px,
+                    candidates_tried: 0,
+                    candidate_rank: rank,
+                    mi: v.map(|v| (v.mi, None)),
+                };
+                match (v, sweep) {
+                    (Some(v), Some(s)) if s.mi > v.mi * (1.0 + fine.verify.sweep_margin) => {
+                        Some((s.mi, sweep_result(cand, rank, &s)))
+                    }
+                    (Some(v), _) => Some((v.mi, pnp)),
+                    (None, Some(s)) => Some((s.mi, sweep_result(cand, rank, &s))),
+                    (None, None) => None,
+                }
+            }
+            Err(e) => {
+                last_err = e;
+                sweep.map(|s| (s.mi, sweep_result(cand, rank, &s)))
+            }
+        };
+        let Some((mi, h)) = hyp else { continue };
+        let convincing_pnp = h.inliers > 0
+            && fine
+                .convincing_inliers
+                .is_none_or(|n| h.inliers >= n && h.inliers * 3 >= h.matches * 2);
+        pool.push((mi, h));
+        // Stop once a convincing PnP pose is the best of the pool and no untried candidate
+        // screened better: the rest are in decreasing screening MI, so the next bounds them all.
+        let best_mi = pool.iter().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max);
+        let next = order.get(pos + 1).and_then(|&i| screen_mi(i));
+        if convincing_pnp && mi >= best_mi && next.is_none_or(|n| mi >= n) {
+            break;
+        }
+    }
+    if !any_pnp {
+        // Second chance: the sweep found the view but too coarsely for patch matching (on low
+        // poles a 1–3 m / 5–15° / one-height-step error leaves too few patches inside their
+        // search windows). Climb the best-screened candidates on the LiDAR MI and run the fine
+        // stage again from there; the satellite must still confirm (a PnP pose), so a frame it
+        // cannot confirm anywhere stays an error.
+        for &rank in order.iter().take(CLIMB_CANDIDATES) {
+            let cand = &cands[rank];
+            if screened[rank].is_none() {
+                continue;
+            }
+            let Some(up) = verifier.climb(&candidate_pose(heights, prior_xy, cand)) else {
+                continue;
+            };
+            let c = up.pose.center();
+            // As `candidate_pose` rebuilds it: ground 0 where the height layer has no data.
+            let ground = height_at(heights, c.x, c.y).unwrap_or(0.0);
+            let climbed = Candidate {
+                yaw: up.pose.yaw_pitch_roll().0,
+                height: c.z - ground,
+                offset: [c.x - prior_xy.0, c.y - prior_xy.1],
+                score: cand.score,
+            };
+            match fine_stage(cam, image, sat, heights, prior_xy, &climbed, fine, rng) {
+                Ok(f) => {
+                    any_pnp = true;
+                    if let Some(v) = verifier.verify(&f.pose) {
+                        pool.push((
+                            v.mi,
+                            InitResult {
+                                pose: f.pose,
+                                candidate: climbed,
+                                matches: f.matches,
+                                inliers: f.inliers,
+                                rms_px: f.rms_px,
+                                candidates_tried: 0,
+                                candidate_rank: rank,
+                                mi: Some((v.mi, None)),
+                            },
+                        ));
+                    }
+                }
+                Err(e) => last_err = e,
+            }
+        }
+    }
+    if !any_pnp {
+        return Err(crate::Error::stage(
+            StageName::Pnp.name(),
+            format!(
+                "none of the {tried} best-screened of {} candidates, nor {CLIMB_CANDIDATES} of them climbed on the LiDAR map, gave a PnP pose; last: {last_err}",
+                cands.len()
+            ),
+        ));
+    }
+    let Some(bi) = pool
+        .iter()
+        .enumerate()
+        .fold(None, |b: Option<usize>, (i, p)| match b {
+            Some(j) if pool[j].0 >= p.0 => Some(j),
+            _ => Some(i),
+        })
+    else {
+        return Err(crate::Error::stage(
+            StageName::Pnp.name(),
+            format!(
+                "no hypothesis of {tried} tried sees enough LiDAR points ({} needed) to verify",
+                verifier.params().min_points
+            ),
+        ));
+    };
+    // The strongest competitor: another tried hypothesis, or the best untried screening.
+    let others = pool
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| i != bi)
+        .map(|(_, p)| p.0)
+        .chain(order.iter().skip(tried).filter_map(|&i| screen_mi(i)))
+        .fold(None, |m: Option<f64>, x| Some(m.map_or(x, |m| m.max(x))));
+    let (mi, mut best) = pool.swap_remove(bi);
+    best.candidates_tried = tried;
+    best.mi = Some((mi, others));
+    Ok(best)
+}
+
+/// The hypothesis a screened sweep candidate stands for: the verifier's best pose near it, no
+/// PnP figures (0 matches and inliers).
+fn sweep_result(cand: &Candidate, rank: usize, s: &super::verify::Verdict) -> InitResult {
+    InitResult {
+        pose: s.pose,
+        candidate: *cand,
+        matches: 0,
+        inliers: 0,
+        rms_px: f64::NAN,
+        candidates_tried: 0,
+        candidate_rank: rank,
+        mi: Some((s.mi, None)),
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::camera::Mei;
+    use crate::localize::coarse::*;
     use crate::map::{Crs, GeoGrid};
     use crate::pose::CamFromMap;
+    use nalgebra::Point2;
     use nalgebra::Point3;
 
     fn marking(x: f64, y: f64) -> f32 {
@@ -519,691 +845,5 @@ mod tests {
             dxy < 0.3 && (c.z - sc.h).abs() < 0.3 && dyaw.to_degrees() < 1.0,
             "{r:?}"
         );
-    }
-}
-
-/// Settings of the fine stage (local patch matching → PnP).
-#[derive(Debug, Clone, PartialEq)]
-pub struct FineParams {
-    /// Anchor spacing on the ground, metres.
-    pub anchor_spacing_m: f64,
-    /// Largest off-nadir angle of an anchor, degrees (oblique ground is smeared in the fisheye).
-    pub max_off_nadir_deg: f64,
-    /// Largest anchor distance from the nadir point, metres.
-    pub max_radius_m: f64,
-    /// Per iteration: (patch half-size m, search half-size m, resolution m/px, PnP inlier
-    /// tolerance in metres on the ground at nadir distance — converted to pixels for the current
-    /// height, because a fixed pixel threshold is metres on a 4 m pole and centimetres on a 15 m one).
-    pub iterations: Vec<(f64, f64, f64, f64)>,
-    /// Minimum correlation of an accepted patch match.
-    pub min_score: f64,
-    /// PnP / RANSAC settings (the threshold is overridden per iteration).
-    pub pnp: super::pnp::PnpParams,
-    /// Stop trying sweep candidates once one's PnP has at least this many inliers with ≥ 2/3 of
-    /// its patch matches agreeing; `None` tries every candidate and keeps the most inliers.
-    /// With a verifier ([`initialize`]'s `verifier`) the stop also needs the MI evidence, see there.
-    pub convincing_inliers: Option<usize>,
-    /// Independent verification of hypotheses against the LiDAR map, when [`initialize`] is given
-    /// a verifier: how long a sweep list it screens and how many fine stages it may run.
-    pub verify: VerifySchedule,
-}
-
-/// How [`initialize`] uses an [`MiVerifier`] (see there).
-#[derive(Debug, Clone, PartialEq)]
-pub struct VerifySchedule {
-    /// Whether the pipeline verifies at all (off = the satellite-only initializer, for
-    /// comparisons and for maps without usable reflectivity).
-    pub enabled: bool,
-    /// Sweep candidates screened by MI (the sweep list is lengthened to this; the satellite
-    /// ranking alone often has no correct candidate in its top 10 on low poles).
-    pub shortlist: usize,
-    /// Most fine stages (satellite matching + PnP) run, in decreasing screening MI.
-    pub max_fine: usize,
-    /// A tried candidate stands for its sweep pose rather than its PnP pose only if the sweep
-    /// pose's MI is higher by more than this fraction: the PnP pose carries tilt and height the
-    /// sweep pose lacks, and MI is nearly flat over a few decimetres (`5mp` seed 4: PnP 0.35 m
-    /// off at MI 0.437, its sweep pose 1.02 m off at 0.440).
-    pub sweep_margin: f64,
-    /// The verifier's own settings.
-    pub mi: super::verify::VerifyParams,
-}
-
-impl Default for VerifySchedule {
-    fn default() -> Self {
-        VerifySchedule {
-            enabled: true,
-            shortlist: 60,
-            max_fine: 10,
-            sweep_margin: 0.1,
-            mi: super::verify::VerifyParams::default(),
-        }
-    }
-}
-
-impl Default for FineParams {
-    fn default() -> Self {
-        FineParams {
-            anchor_spacing_m: 1.5,
-            max_off_nadir_deg: 65.0,
-            max_radius_m: 25.0,
-            iterations: vec![
-                (3.0, 2.0, 0.2, 0.6),
-                (3.0, 1.2, 0.2, 0.45),
-                (2.0, 0.6, 0.1, 0.3),
-                (2.0, 0.4, 0.1, 0.25),
-            ],
-            min_score: 0.35,
-            pnp: super::pnp::PnpParams::default(),
-            convincing_inliers: Some(CONVINCING_INLIERS),
-            verify: VerifySchedule::default(),
-        }
-    }
-}
-
-/// Bilinear height of the LiDAR height layer at (x, y); `None` on no-data.
-pub fn height_at(hl: &Raster<f32>, x: f64, y: f64) -> Option<f64> {
-    let (px, py) = hl.grid.to_pixel(x, y);
-    if !(px >= 0.0 && py >= 0.0) {
-        return None;
-    }
-    let (c0, r0) = (px as usize, py as usize);
-    let (fx, fy) = (px - c0 as f64, py - r0 as f64);
-    let mut acc = 0.0;
-    for (dc, dr, w) in [
-        (0, 0, (1.0 - fx) * (1.0 - fy)),
-        (1, 0, fx * (1.0 - fy)),
-        (0, 1, (1.0 - fx) * fy),
-        (1, 1, fx * fy),
-    ] {
-        let v = hl.get(c0 + dc, r0 + dr)?;
-        if !v.is_finite() || hl.nodata.is_some_and(|nd| v == nd) {
-            return None;
-        }
-        acc += w * v as f64;
-    }
-    Some(acc)
-}
-
-/// Best-screened sweep candidates climbed on the LiDAR MI when no fine stage gave a pose.
-pub const CLIMB_CANDIDATES: usize = 5;
-
-/// Assumed camera height above ground where the height layer has no data under the camera, m.
-pub const FALLBACK_HEIGHT_M: f64 = 8.0;
-
-/// The camera centre `c`'s height above the LiDAR ground under it (at least 1 m;
-/// [`FALLBACK_HEIGHT_M`] on no-data) and the radius of the ground disc it sees within
-/// `max_off_nadir_deg` of nadir, capped at `max_radius_m`.
-pub fn ground_disc(
-    heights: &Raster<f32>,
-    c: &nalgebra::Point3<f64>,
-    max_off_nadir_deg: f64,
-    max_radius_m: f64,
-) -> (f64, f64) {
-    let ground = height_at(heights, c.x, c.y).unwrap_or(c.z - FALLBACK_HEIGHT_M);
-    let cam_h = (c.z - ground).max(1.0);
-    (
-        cam_h,
-        (cam_h * max_off_nadir_deg.to_radians().tan()).min(max_radius_m),
-    )
-}
-
-/// One matched anchor: where the fisheye sees it, and where the satellite says it is.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct AnchorMatch {
-    /// Correspondence for PnP.
-    pub corr: super::pnp::Correspondence,
-    /// Patch correlation at the best shift.
-    pub score: f64,
-}
-
-/// Match ground patches seen through `pose` against the satellite; returns correspondences.
-#[allow(clippy::too_many_arguments)]
-pub fn match_anchors(
-    cam: &dyn CameraModel,
-    image: &[u8],
-    sat: &Raster<[u8; 3]>,
-    heights: &Raster<f32>,
-    pose: &crate::pose::CamFromMap,
-    (patch_half, search_half, res): (f64, f64, f64),
-    p: &FineParams,
-) -> Vec<AnchorMatch> {
-    let c = pose.center();
-    let (_, radius) = ground_disc(heights, &c, p.max_off_nadir_deg, p.max_radius_m);
-    let n = (radius / p.anchor_spacing_m).floor() as i64;
-    let mut anchors = Vec::new();
-    for j in -n..=n {
-        for i in -n..=n {
-            let (dx, dy) = (i as f64 * p.anchor_spacing_m, j as f64 * p.anchor_spacing_m);
-            if dx * dx + dy * dy <= radius * radius {
-                anchors.push((c.x + dx, c.y + dy));
-            }
-        }
-    }
-    let mip = Mip::new(image, cam.width() as usize, cam.height() as usize);
-    let ph = (patch_half / res).round() as i64;
-    let sh = (search_half / res).round() as i64;
-    let side = (2 * ph + 1) as usize;
-    let max_theta = cam.max_theta();
-    anchors
-        .par_iter()
-        .filter_map(|&(ax, ay)| {
-            let az = height_at(heights, ax, ay)?;
-            // One pyramid level per patch: its cells' footprint in fisheye pixels at the anchor.
-            let pa = cam
-                .project_visible(&pose.transform(&nalgebra::Point3::new(ax, ay, az)).coords)
-                .ok()?;
-            let fp = [(res, 0.0), (0.0, res)]
-                .iter()
-                .filter_map(|(dx, dy)| {
-                    cam.project(
-                        &pose
-                            .transform(&nalgebra::Point3::new(ax + dx, ay + dy, az))
-                            .coords,
-                    )
-                    .ok()
-                })
-                .map(|q| (q - pa).norm())
-                .fold(1.0, f64::max);
-            // Fisheye patch resampled onto the ground around the anchor, through the current pose.
-            let mut patch = GrayF32::new(side, side);
-            let mut valid = vec![false; side * side];
-            let mut n_valid = 0;
-            for r in 0..side {
-                for col in 0..side {
-                    let (x, y) = (
-                        ax + (col as i64 - ph) as f64 * res,
-                        ay - (r as i64 - ph) as f64 * res,
-                    );
-                    let z = height_at(heights, x, y).unwrap_or(az);
-                    let pc = pose.transform(&nalgebra::Point3::new(x, y, z)).coords;
-                    if let Ok(px) = cam.project_visible_within(&pc, max_theta) {
-                        if let Some(v) = mip.sample(px.x, px.y, fp) {
-                            patch.data[r * side + col] = v;
-                            valid[r * side + col] = true;
-                            n_valid += 1;
-                        }
-                    }
-                }
-            }
-            if n_valid < side * side * 9 / 10 {
-                return None;
-            }
-            let pf = orientation_field(&patch, Some(&valid));
-            let (sg, sv) = satellite_gray(sat, ax, ay, patch_half + search_half, res);
-            let sf = orientation_field(&sg, Some(&sv));
-            let (score, sx, sy) = best_shift(&pf, &sf, ph, sh)?;
-            if score < p.min_score {
-                return None;
-            }
-            // The fisheye shows at the anchor's pixel the world point shifted by (sx, −sy)·res.
-            let (wx, wy) = (ax + sx * res, ay - sy * res);
-            let wz = height_at(heights, wx, wy).unwrap_or(az);
-            let pixel = cam
-                .project_visible(&pose.transform(&nalgebra::Point3::new(ax, ay, az)).coords)
-                .ok()?;
-            Some(AnchorMatch {
-                corr: super::pnp::Correspondence {
-                    pixel,
-                    world: nalgebra::Point3::new(wx, wy, wz),
-                },
-                score,
-            })
-        })
-        .collect()
-}
-
-/// Best shift of `patch` (half-size `ph`) inside `search` (half-size `ph + sh`) by normalised
-/// complex correlation, with a sub-pixel parabola fit; `None` if the peak is flat or on the edge.
-fn best_shift(patch: &Field, search: &Field, ph: i64, sh: i64) -> Option<(f64, f64, f64)> {
-    let side = (2 * ph + 1) as usize;
-    let sw = search.width;
-    let pn: f64 = patch.data.iter().map(|z| z.norm_sqr() as f64).sum();
-    if pn <= 0.0 {
-        return None;
-    }
-    let span = (2 * sh + 1) as usize;
-    let mut scores = vec![f64::NEG_INFINITY; span * span];
-    for oy in 0..span {
-        for ox in 0..span {
-            let (mut num, mut e) = (0.0f64, 0.0f64);
-            for r in 0..side {
-                let srow = &search.data[(oy + r) * sw + ox..(oy + r) * sw + ox + side];
-                let prow = &patch.data[r * side..(r + 1) * side];
-                for (s, t) in srow.iter().zip(prow) {
-                    num += (s * t.conj()).re as f64;
-                    e += s.norm_sqr() as f64;
-                }
-            }
-            if e > 0.0 {
-                scores[oy * span + ox] = num / (e * pn).sqrt();
-            }
-        }
-    }
-    let (bi, &best) = scores
-        .iter()
-        .enumerate()
-        .max_by(|a, b| a.1.total_cmp(b.1).then(b.0.cmp(&a.0)))?;
-    let (bx, by) = (bi % span, bi / span);
-    if bx == 0 || by == 0 || bx + 1 == span || by + 1 == span {
-        return None; // on the edge: the true shift may lie outside the window
-    }
-    let fit = |m: f64, c0: f64, p: f64| {
-        let d = m - 2.0 * c0 + p;
-        if d < 0.0 {
-            (0.5 * (m - p) / d).clamp(-0.5, 0.5)
-        } else {
-            0.0
-        }
-    };
-    let dx = fit(scores[bi - 1], best, scores[bi + 1]);
-    let dy = fit(scores[bi - span], best, scores[bi + span]);
-    Some((best, bx as f64 + dx - sh as f64, by as f64 + dy - sh as f64))
-}
-
-/// Focal length near the optical axis in pixels (the image scale of a nadir ray), from the model.
-pub fn focal_px(cam: &dyn CameraModel) -> f64 {
-    const D: f64 = 1e-3;
-    match (
-        cam.project(&Vector3::new(0.0, 0.0, 1.0)),
-        cam.project(&Vector3::new(D, 0.0, 1.0)),
-    ) {
-        (Ok(a), Ok(b)) => (b - a).norm() / D,
-        _ => cam.width() as f64 / 2.0,
-    }
-}
-
-/// PnP inliers (with ≥ 2/3 of the patch matches agreeing) that end the candidate search early
-/// (the default of [`FineParams::convincing_inliers`]).
-pub const CONVINCING_INLIERS: usize = 30;
-
-/// Result of [`initialize`].
-#[derive(Debug, Clone)]
-pub struct InitResult {
-    /// World→camera pose from PnP.
-    pub pose: crate::pose::CamFromMap,
-    /// The coarse candidate it grew from.
-    pub candidate: Candidate,
-    /// Correspondences given to the last PnP (0 when the pose is a verified sweep pose).
-    pub matches: usize,
-    /// PnP inliers of the last iteration (0 when the pose is a verified sweep pose).
-    pub inliers: usize,
-    /// PnP reprojection RMS of the last iteration, px (NaN when the pose is a verified sweep pose).
-    pub rms_px: f64,
-    /// Candidates whose fine stage ran (fewer than the sweep kept when one was convincing early).
-    pub candidates_tried: usize,
-    /// Rank of [`Self::candidate`] in the sweep's list, 0 = the sweep's best.
-    pub candidate_rank: usize,
-    /// With a verifier: the pose's bias-corrected MI with the LiDAR map (nats), and the runner-up
-    /// hypothesis' (another PnP pose or, if none, the best screened sweep candidate not tried).
-    pub mi: Option<(f64, Option<f64>)>,
-}
-
-/// What the fine stage made of one sweep candidate.
-#[derive(Debug, Clone)]
-pub struct FineOutcome {
-    /// World→camera pose of the last PnP.
-    pub pose: crate::pose::CamFromMap,
-    /// Correspondences given to the last PnP.
-    pub matches: usize,
-    /// Its inliers.
-    pub inliers: usize,
-    /// Its reprojection RMS, px.
-    pub rms_px: f64,
-}
-
-/// Fine stage of one sweep candidate (offset relative to `prior_xy`): the iterations of local
-/// patch matching + PnP of [`FineParams::iterations`], each from the previous pose. The error
-/// says which PnP failed and on how many matches.
-#[allow(clippy::too_many_arguments)]
-pub fn fine_stage<R: rand::Rng>(
-    cam: &dyn CameraModel,
-    image: &[u8],
-    sat: &Raster<[u8; 3]>,
-    heights: &Raster<f32>,
-    prior_xy: (f64, f64),
-    cand: &Candidate,
-    fine: &FineParams,
-    rng: &mut R,
-) -> std::result::Result<FineOutcome, String> {
-    let (cx, cy) = (prior_xy.0 + cand.offset[0], prior_xy.1 + cand.offset[1]);
-    let zg = height_at(heights, cx, cy).unwrap_or(0.0);
-    let mut pose = crate::pose::CamFromMap::from_center_ypr(
-        &nalgebra::Point3::new(cx, cy, zg + cand.height),
-        cand.yaw,
-        0.0,
-        0.0,
-    );
-    let mut outcome = Err("no fine iterations configured".to_string());
-    for &(ph, sh, res, tol_m) in &fine.iterations {
-        let m = match_anchors(cam, image, sat, heights, &pose, (ph, sh, res), fine);
-        let corr: Vec<_> = m.iter().map(|a| a.corr).collect();
-        let c = pose.center();
-        let cam_h = (c.z - height_at(heights, c.x, c.y).unwrap_or(c.z - cand.height)).max(1.0);
-        let params = super::pnp::PnpParams {
-            threshold_px: tol_m / cam_h * focal_px(cam),
-            ..fine.pnp
-        };
-        match super::pnp::solve_pnp_ransac(cam, &corr, &params, rng) {
-            Ok(r) => {
-                pose = r.pose;
-                outcome = Ok(FineOutcome {
-                    pose,
-                    matches: corr.len(),
-                    inliers: r.inliers.len(),
-                    rms_px: r.rms_px,
-                });
-            }
-            Err(e) => return Err(format!("{e} ({} patch matches)", corr.len())),
-        }
-    }
-    outcome
-}
-
-/// Full initialization: coarse sweep around the prior, then per candidate local matching + PnP.
-///
-/// Without a verifier the candidate with the most inliers wins (sweep order, early stop on a
-/// convincing PnP). With one ([`MiVerifier`], the LiDAR map), the hypotheses are judged by
-/// evidence the satellite matching cannot fake: the sweep list is lengthened to
-/// [`VerifySchedule::shortlist`], every candidate is screened by its MI with the LiDAR map, the
-/// fine stages run in decreasing screening MI (at most [`VerifySchedule::max_fine`]), and the
-/// hypothesis with the highest MI wins (a PnP pose, or a tried candidate's screened sweep pose
-/// where that has the higher MI, see `initialize_verified`). The search stops once the best PnP pose is convincing (inliers
-/// as above) and its MI is at least the screening MI of every candidate not yet tried — no
-/// remaining hypothesis has better evidence. Errors name the stage and the numbers.
-#[allow(clippy::too_many_arguments)]
-pub fn initialize<R: rand::Rng>(
-    cam: &dyn CameraModel,
-    image: &[u8],
-    sat: &Raster<[u8; 3]>,
-    heights: &Raster<f32>,
-    prior_xy: (f64, f64),
-    search_radius_m: f64,
-    coarse: &CoarseParams,
-    fine: &FineParams,
-    verifier: Option<&MiVerifier>,
-    rng: &mut R,
-) -> crate::Result<InitResult> {
-    let expected = (cam.width() as usize) * (cam.height() as usize);
-    if image.len() != expected {
-        return Err(crate::Error::stage(
-            "init",
-            format!(
-                "image has {} pixels, camera expects {}×{}",
-                image.len(),
-                cam.width(),
-                cam.height()
-            ),
-        ));
-    }
-    let cands = match verifier {
-        Some(_) => {
-            let longer = CoarseParams {
-                top_k: coarse.top_k.max(fine.verify.shortlist),
-                ..coarse.clone()
-            };
-            coarse_candidates(cam, image, sat, prior_xy, search_radius_m, &longer)
-        }
-        None => coarse_candidates(cam, image, sat, prior_xy, search_radius_m, coarse),
-    };
-    if cands.is_empty() {
-        return Err(crate::Error::stage(
-            "match",
-            "no hypothesis scored (featureless view or satellite?)",
-        ));
-    }
-    if let Some(v) = verifier {
-        return initialize_verified(cam, image, sat, heights, prior_xy, &cands, fine, v, rng);
-    }
-    let mut best: Option<InitResult> = None;
-    let mut last_err = String::new();
-    let mut tried = 0;
-    for (rank, cand) in cands.iter().enumerate() {
-        tried = rank + 1;
-        let outcome = match fine_stage(cam, image, sat, heights, prior_xy, cand, fine, rng) {
-            Ok(f) => Some((f.pose, f.matches, f.inliers, f.rms_px)),
-            Err(e) => {
-                last_err = e;
-                None
-            }
-        };
-        if let Some((pose, matches, inliers, rms_px)) = outcome {
-            let convincing = fine
-                .convincing_inliers
-                .is_some_and(|n| inliers >= n && inliers * 3 >= matches * 2);
-            if best.as_ref().is_none_or(|b| inliers > b.inliers) {
-                best = Some(InitResult {
-                    pose,
-                    candidate: *cand,
-                    matches,
-                    inliers,
-                    rms_px,
-                    candidates_tried: 0,
-                    candidate_rank: rank,
-                    mi: None,
-                });
-            }
-            // The sweep's ranking is only a shortlist; a candidate whose fine stage agrees this
-            // well is the answer, and trying the rest would only cost time.
-            if convincing {
-                break;
-            }
-        }
-    }
-    if let Some(b) = best.as_mut() {
-        b.candidates_tried = tried;
-    }
-    best.ok_or_else(|| {
-        crate::Error::stage(
-            "pnp",
-            format!(
-                "none of {} candidates gave a pose; last: {last_err}",
-                cands.len()
-            ),
-        )
-    })
-}
-
-/// The pose a sweep candidate stands for (offset relative to `prior_xy`, roll = pitch = 0), as the
-/// fine stage starts from it.
-pub fn candidate_pose(
-    heights: &Raster<f32>,
-    prior_xy: (f64, f64),
-    cand: &Candidate,
-) -> crate::pose::CamFromMap {
-    let (cx, cy) = (prior_xy.0 + cand.offset[0], prior_xy.1 + cand.offset[1]);
-    let zg = height_at(heights, cx, cy).unwrap_or(0.0);
-    crate::pose::CamFromMap::from_center_ypr(
-        &nalgebra::Point3::new(cx, cy, zg + cand.height),
-        cand.yaw,
-        0.0,
-        0.0,
-    )
-}
-
-/// [`initialize`] with a verifier: screen, fine stages in screening order, best MI wins.
-///
-/// Each tried candidate stands for the better (by MI, with [`VerifySchedule::sweep_margin`] in
-/// favour of PnP) of its PnP pose and its screened sweep pose:
-/// on low poles the fine stage sometimes fails on, or tilts away from, the very candidate the
-/// LiDAR map confirms best, and then the sweep pose (zero tilt, ≤ 0.2 m / 1° from the candidate)
-/// is the better start for the refinement. At least one fine stage must give a pose: a frame
-/// the satellite matching cannot confirm anywhere is an error, not a guess. When none does, the
-/// [`CLIMB_CANDIDATES`] best-screened candidates get a second chance: climbed on the LiDAR MI
-/// ([`MiVerifier::climb`]), then the fine stage again.
-#[allow(clippy::too_many_arguments)]
-fn initialize_verified<R: rand::Rng>(
-    cam: &dyn CameraModel,
-    image: &[u8],
-    sat: &Raster<[u8; 3]>,
-    heights: &Raster<f32>,
-    prior_xy: (f64, f64),
-    cands: &[Candidate],
-    fine: &FineParams,
-    verifier: &MiVerifier,
-    rng: &mut R,
-) -> crate::Result<InitResult> {
-    // Screening: MI of each sweep candidate's own pose. Candidates whose view holds too few LiDAR
-    // points have no evidence and go last, in sweep order.
-    let screened: Vec<Option<super::verify::Verdict>> = cands
-        .iter()
-        .map(|c| verifier.screen(&candidate_pose(heights, prior_xy, c)))
-        .collect();
-    let screen_mi = |i: usize| screened[i].map(|v| v.mi);
-    let mut order: Vec<usize> = (0..cands.len()).collect();
-    order.sort_by(|&a, &b| {
-        let key = |i: usize| screen_mi(i).unwrap_or(f64::NEG_INFINITY);
-        key(b).total_cmp(&key(a)).then(a.cmp(&b))
-    });
-    // Every tried candidate's hypothesis, in try order (ties go to the earlier one).
-    let mut pool: Vec<(f64, InitResult)> = Vec::new();
-    let mut any_pnp = false;
-    let mut last_err = String::new();
-    let mut tried = 0;
-    for (pos, &rank) in order.iter().enumerate().take(fine.verify.max_fine.max(1)) {
-        tried = pos + 1;
-        let cand = &cands[rank];
-        // Re-scored with the full verification (more points, finer grid) so that it competes
-        // with PnP poses on equal terms; the screening only orders.
-        let sweep =
-            screened[rank].and_then(|_| verifier.verify(&candidate_pose(heights, prior_xy, cand)));
-        let hyp = match fine_stage(cam, image, sat, heights, prior_xy, cand, fine, rng) {
-            Ok(f) => {
-                any_pnp = true;
-                let v = verifier.verify(&f.pose);
-                let pnp = InitResult {
-                    pose: f.pose,
-                    candidate: *cand,
-                    matches: f.matches,
-                    inliers: f.inliers,
-                    rms_px: f.rms_px,
-                    candidates_tried: 0,
-                    candidate_rank: rank,
-                    mi: v.map(|v| (v.mi, None)),
-                };
-                match (v, sweep) {
-                    (Some(v), Some(s)) if s.mi > v.mi * (1.0 + fine.verify.sweep_margin) => {
-                        Some((s.mi, sweep_result(cand, rank, &s)))
-                    }
-                    (Some(v), _) => Some((v.mi, pnp)),
-                    (None, Some(s)) => Some((s.mi, sweep_result(cand, rank, &s))),
-                    (None, None) => None,
-                }
-            }
-            Err(e) => {
-                last_err = e;
-                sweep.map(|s| (s.mi, sweep_result(cand, rank, &s)))
-            }
-        };
-        let Some((mi, h)) = hyp else { continue };
-        let convincing_pnp = h.inliers > 0
-            && fine
-                .convincing_inliers
-                .is_none_or(|n| h.inliers >= n && h.inliers * 3 >= h.matches * 2);
-        pool.push((mi, h));
-        // Stop once a convincing PnP pose is the best of the pool and no untried candidate
-        // screened better: the rest are in decreasing screening MI, so the next bounds them all.
-        let best_mi = pool.iter().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max);
-        let next = order.get(pos + 1).and_then(|&i| screen_mi(i));
-        if convincing_pnp && mi >= best_mi && next.is_none_or(|n| mi >= n) {
-            break;
-        }
-    }
-    if !any_pnp {
-        // Second chance: the sweep found the view but too coarsely for patch matching (on low
-        // poles a 1–3 m / 5–15° / one-height-step error leaves too few patches inside their
-        // search windows). Climb the best-screened candidates on the LiDAR MI and run the fine
-        // stage again from there; the satellite must still confirm (a PnP pose), so a frame it
-        // cannot confirm anywhere stays an error.
-        for &rank in order.iter().take(CLIMB_CANDIDATES) {
-            let cand = &cands[rank];
-            if screened[rank].is_none() {
-                continue;
-            }
-            let Some(up) = verifier.climb(&candidate_pose(heights, prior_xy, cand)) else {
-                continue;
-            };
-            let c = up.pose.center();
-            // As `candidate_pose` rebuilds it: ground 0 where the height layer has no data.
-            let ground = height_at(heights, c.x, c.y).unwrap_or(0.0);
-            let climbed = Candidate {
-                yaw: up.pose.yaw_pitch_roll().0,
-                height: c.z - ground,
-                offset: [c.x - prior_xy.0, c.y - prior_xy.1],
-                score: cand.score,
-            };
-            match fine_stage(cam, image, sat, heights, prior_xy, &climbed, fine, rng) {
-                Ok(f) => {
-                    any_pnp = true;
-                    if let Some(v) = verifier.verify(&f.pose) {
-                        pool.push((
-                            v.mi,
-                            InitResult {
-                                pose: f.pose,
-                                candidate: climbed,
-                                matches: f.matches,
-                                inliers: f.inliers,
-                                rms_px: f.rms_px,
-                                candidates_tried: 0,
-                                candidate_rank: rank,
-                                mi: Some((v.mi, None)),
-                            },
-                        ));
-                    }
-                }
-                Err(e) => last_err = e,
-            }
-        }
-    }
-    if !any_pnp {
-        return Err(crate::Error::stage(
-            "pnp",
-            format!(
-                "none of the {tried} best-screened of {} candidates, nor {CLIMB_CANDIDATES} of them climbed on the LiDAR map, gave a PnP pose; last: {last_err}",
-                cands.len()
-            ),
-        ));
-    }
-    let Some(bi) = pool
-        .iter()
-        .enumerate()
-        .fold(None, |b: Option<usize>, (i, p)| match b {
-            Some(j) if pool[j].0 >= p.0 => Some(j),
-            _ => Some(i),
-        })
-    else {
-        return Err(crate::Error::stage(
-            "pnp",
-            format!(
-                "no hypothesis of {tried} tried sees enough LiDAR points ({} needed) to verify",
-                verifier.params().min_points
-            ),
-        ));
-    };
-    // The strongest competitor: another tried hypothesis, or the best untried screening.
-    let others = pool
-        .iter()
-        .enumerate()
-        .filter(|&(i, _)| i != bi)
-        .map(|(_, p)| p.0)
-        .chain(order.iter().skip(tried).filter_map(|&i| screen_mi(i)))
-        .fold(None, |m: Option<f64>, x| Some(m.map_or(x, |m| m.max(x))));
-    let (mi, mut best) = pool.swap_remove(bi);
-    best.candidates_tried = tried;
-    best.mi = Some((mi, others));
-    Ok(best)
-}
-
-/// The hypothesis a screened sweep candidate stands for: the verifier's best pose near it, no
-/// PnP figures (0 matches and inliers).
-fn sweep_result(cand: &Candidate, rank: usize, s: &super::verify::Verdict) -> InitResult {
-    InitResult {
-        pose: s.pose,
-        candidate: *cand,
-        matches: 0,
-        inliers: 0,
-        rms_px: f64::NAN,
-        candidates_tried: 0,
-        candidate_rank: rank,
-        mi: Some((s.mi, None)),
     }
 }

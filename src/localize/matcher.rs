@@ -8,13 +8,15 @@
 //! [`MatchFile`] is built from its correspondence file. The trait is pure: the shell reads the
 //! file, the matcher sees only the frame and the map around the prior.
 
-use super::init::{height_at, FineParams, InitResult};
-use super::matching::Candidate;
+use super::ground::height_at;
+use super::init::{FineParams, InitResult};
 use super::pnp::{solve_pnp_ransac, Correspondence, PnpParams};
+use super::sweep::Candidate;
 use super::verify::MiVerifier;
 use crate::camera::CameraModel;
 use crate::error::{Error, Result};
 use crate::map::Raster;
+use crate::stage::StageName;
 use nalgebra::{Point2, Point3};
 
 /// What a matcher sees: the (temporally median-filtered) fisheye frame with its camera, and the
@@ -172,7 +174,7 @@ impl Matcher for MatchFile {
             .collect();
         if out.is_empty() {
             return Err(Error::stage(
-                "pnp",
+                StageName::Pnp.name(),
                 format!(
                     "match-file {}: none of its {} rows lies on the image and within {reach:.0} m of the prior with a height",
                     self.origin.display(),
@@ -218,7 +220,10 @@ pub fn initialize_with<R: rand::Rng>(
             .origin()
             .map(|p| format!(" {}", p.display()))
             .unwrap_or_default();
-        Error::stage("pnp", format!("{}{from}: {why}", matcher.name()))
+        Error::stage(
+            StageName::Pnp.name(),
+            format!("{}{from}: {why}", matcher.name()),
+        )
     })?;
     let pose = r.pose;
     let c = pose.center();

@@ -6,14 +6,17 @@
 //! [`points`] (the point type and its f32 hot-loop form), [`mi`] (the pure estimator), [`kernel`]
 //! (project + sample + joint histogram, the hot loop), [`search`] (exhaustive and tiled
 //! coarse-to-fine grid search), [`polish`] (a local 6-DoF Nelder–Mead after it), [`quality`] (peak statistics and the gate), [`refine`] (one call).
-//! [`matcher`] is the seam where another matcher (a learned one, or correspondences from a file)
-//! replaces the built-in satellite matching. [`points_io`] is the I/O shell that reads CSV / PCD / LAS point files. Design and measurements:
+//! Initialization: [`coarse`] (the dense orientation [`sweep`] over yaw × height × translation)
+//! then [`init`] (patch matching + [`pnp`], hypotheses judged by [`verify`]); [`ground`] holds the
+//! ground and image geometry they share. [`matcher`] is the seam where another matcher (a learned
+//! one, or correspondences from a file) replaces the built-in satellite matching. [`points_io`] is the I/O shell that reads CSV / PCD / LAS point files. Design and measurements:
 //! `docs/refine.md`.
 
+pub mod coarse;
+pub mod ground;
 pub mod init;
 pub mod kernel;
 pub mod matcher;
-pub mod matching;
 pub mod mi;
 pub mod pipeline;
 pub mod pnp;
@@ -25,5 +28,6 @@ pub mod quality;
 pub mod refine;
 pub mod search;
 pub mod study;
+pub mod sweep;
 pub mod synth;
 pub mod verify;

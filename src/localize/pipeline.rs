@@ -2,7 +2,8 @@
 //! quality gate. The shell (`infraloc localize`, `demo`, the daemon) gathers the inputs and writes
 //! the outputs; the clock for stage timings is injected.
 
-use super::init::{initialize, CoarseParams, FineParams, InitResult};
+use super::coarse::CoarseParams;
+use super::init::{initialize, FineParams, InitResult};
 use super::matcher::{initialize_with, MatchQuery, Matcher};
 use super::quality::QualityConfig;
 use super::refine::{refine_polished, PolishedSearch, Refinement};
@@ -12,6 +13,7 @@ use crate::camera::{Camera, CameraModel};
 use crate::error::{Error, Result};
 use crate::map::{ground_points, Tile};
 use crate::pose::CamFromMap;
+use crate::stage::StageName;
 use rand::SeedableRng;
 use serde_json::{json, Value};
 
@@ -87,7 +89,7 @@ impl Params {
 #[derive(Debug, Clone)]
 pub struct Stage {
     /// `prior`, `pnp` or `mi`.
-    pub name: &'static str,
+    pub name: StageName,
     /// The stage's pose, if it makes one.
     pub pose: Option<CamFromMap>,
     /// Wall time, seconds.
@@ -99,7 +101,8 @@ pub struct Stage {
 impl Stage {
     /// JSON form: name, seconds, detail, and the pose as centre + yaw/pitch/roll.
     pub fn to_json(&self) -> Value {
-        let mut v = json!({ "name": self.name, "seconds": self.seconds, "detail": self.detail });
+        let mut v =
+            json!({ "name": self.name.name(), "seconds": self.seconds, "detail": self.detail });
         if let Some(p) = &self.pose {
             let (y, pi, r) = p.yaw_pitch_roll();
             v["camera_center"] = json!(<[f64; 3]>::from(p.center().coords));
@@ -127,7 +130,7 @@ pub struct Outcome {
 pub fn mi_points(tile: &Tile, pose: &CamFromMap, p: &Params) -> Vec<crate::map::GroundPoint> {
     let c = pose.center();
     let (_, radius) =
-        super::init::ground_disc(&tile.height, &c, p.mi_max_off_nadir_deg, p.mi_radius_m);
+        super::ground::ground_disc(&tile.height, &c, p.mi_max_off_nadir_deg, p.mi_radius_m);
     ground_points(tile, (c.x, c.y), radius)
 }
 
@@ -145,7 +148,7 @@ pub fn localize(
     prior_sigma_m: f64,
     p: &Params,
     now: &dyn Fn() -> f64,
-    progress: &dyn Fn(&str),
+    progress: &dyn Fn(StageName),
 ) -> Result<Outcome> {
     let outcome = localize_ungated(
         camera,
@@ -167,7 +170,7 @@ pub fn quality_gate(o: &Outcome) -> Result<()> {
         return Ok(());
     }
     Err(Error::stage(
-        "mi",
+        StageName::Mi.name(),
         format!(
             "quality gate: {}",
             o.refinement.quality.reason.clone().unwrap_or_default()
@@ -187,38 +190,38 @@ pub fn localize_ungated(
     prior_sigma_m: f64,
     p: &Params,
     now: &dyn Fn() -> f64,
-    progress: &dyn Fn(&str),
+    progress: &dyn Fn(StageName),
 ) -> Result<Outcome> {
     let (w, h) = (camera.width() as usize, camera.height() as usize);
     if image.len() != w * h {
         return Err(Error::stage(
-            "capture",
+            StageName::Capture.name(),
             format!("frame has {} pixels, camera expects {w}×{h}", image.len()),
         ));
     }
     if !(prior_sigma_m > 0.0 && prior_xy.0.is_finite() && prior_xy.1.is_finite()) {
         return Err(Error::stage(
-            "prior",
+            StageName::Prior.name(),
             format!("unusable prior {prior_xy:?} σ {prior_sigma_m}"),
         ));
     }
     let radius = p.search_radius_m(prior_sigma_m);
     let mut stages = vec![Stage {
-        name: "prior",
+        name: StageName::Prior,
         pose: None,
         seconds: 0.0,
         detail: json!({ "x": prior_xy.0, "y": prior_xy.1, "sigma_m": prior_sigma_m, "search_radius_m": radius }),
     }];
     if !tile.satellite.grid.contains(prior_xy.0, prior_xy.1, 0.0) {
         return Err(Error::stage(
-            "prior",
+            StageName::Prior.name(),
             format!(
                 "prior ({:.1}, {:.1}) is outside tile {:?}",
                 prior_xy.0, prior_xy.1, tile.id
             ),
         ));
     }
-    progress("pnp");
+    progress(StageName::Pnp);
     let t0 = now();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(p.seed);
     // The LiDAR map judges the satellite matching's hypotheses (independent evidence).
@@ -254,7 +257,7 @@ pub fn localize_ungated(
     };
     let t1 = now();
     stages.push(Stage {
-        name: "pnp",
+        name: StageName::Pnp,
         pose: Some(init.pose),
         seconds: t1 - t0,
         detail: json!({
@@ -266,13 +269,13 @@ pub fn localize_ungated(
                         "offset_m": init.candidate.offset, "score": init.candidate.score },
         }),
     });
-    progress("mi");
+    progress(StageName::Mi);
     let points = mi_points(tile, &init.pose, p);
     let mask = camera.valid_mask();
     // Pitch and roll pivot about the ground under the camera (the tile's height layer).
     let pivot = |pose: &CamFromMap| {
         let c = pose.center();
-        super::init::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
+        super::ground::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
     };
     let (refinement, rounds) = refine_polished(
         camera,
@@ -287,7 +290,7 @@ pub fn localize_ungated(
     )?;
     let t2 = now();
     stages.push(Stage {
-        name: "mi",
+        name: StageName::Mi,
         pose: Some(refinement.pose),
         seconds: t2 - t1,
         detail: {
@@ -307,65 +310,56 @@ pub fn localize_ungated(
 
 /// Errors of each stage against a simulator `truth.json` (its text; `origin` names it in errors):
 /// for `prior` the horizontal distance of the GPS prior, for each stage with a pose (`pnp`, `mi`)
-/// horizontal, height, yaw and full-rotation errors and the mean reprojection error of the truth's
-/// control points (the seed paper's accuracy figure), and the number of control points. The
-/// report of `infraloc localize --truth` and `examples/pipeline_accuracy.rs` both use this.
+/// [`pose_errors`], and the number of control points. The report of `infraloc localize --truth`
+/// and `examples/pipeline_accuracy.rs` both use this.
 pub fn truth_errors(
     text: &str,
     origin: &std::path::Path,
     camera: &Camera,
     stages: &[Stage],
 ) -> Result<Value> {
-    let truth = crate::posefile::parse_pose(text, origin)?.pose;
-    let v: Value = serde_json::from_str(text).map_err(|e| Error::input(origin, e.to_string()))?;
-    let cps: Vec<([f64; 3], [f64; 2])> = v["control_points"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .filter_map(|c| {
-                    Some((
-                        serde_json::from_value(c["map"].clone()).ok()?,
-                        serde_json::from_value(c["pixel"].clone()).ok()?,
-                    ))
-                })
-                .collect()
-        })
-        .unwrap_or_default();
-    let tc = truth.center();
-    let err = |p: &CamFromMap| {
-        let c = p.center();
-        let dyaw = crate::pose::angle_difference(p.yaw_pitch_roll().0, truth.yaw_pitch_roll().0);
-        let reproj: Vec<f64> = cps
-            .iter()
-            .filter_map(|(m, px)| {
-                let q = camera
-                    .project(&p.transform(&nalgebra::Point3::from(*m)).coords)
-                    .ok()?;
-                Some(((q.x - px[0]).powi(2) + (q.y - px[1]).powi(2)).sqrt())
-            })
-            .collect();
-        let mean = if reproj.is_empty() {
-            f64::NAN
-        } else {
-            reproj.iter().sum::<f64>() / reproj.len() as f64
-        };
-        json!({
-            "horizontal_m": ((c.x - tc.x).powi(2) + (c.y - tc.y).powi(2)).sqrt(),
-            "height_m": (c.z - tc.z).abs(),
-            "yaw_deg": dyaw.abs().to_degrees(),
-            "rotation_deg": crate::pose::rotation_angle_between(&p.rotation, &truth.rotation).to_degrees(),
-            "control_points_mean_px": mean,
-        })
-    };
-    let mut out = json!({ "control_points": cps.len() });
+    let truth = crate::sim::truth::parse_truth(text, origin)?;
+    let tc = truth.pose.center();
+    let mut out = json!({ "control_points": truth.control_points.len() });
     for s in stages {
         if let Some(p) = &s.pose {
-            out[s.name] = err(p);
+            out[s.name.name()] = pose_errors(&truth, camera, p);
         } else if let (Some(x), Some(y)) = (s.detail["x"].as_f64(), s.detail["y"].as_f64()) {
             // The prior is a position only: no height, no heading.
-            out[s.name] =
+            out[s.name.name()] =
                 json!({ "horizontal_m": ((x - tc.x).powi(2) + (y - tc.y).powi(2)).sqrt() });
         }
     }
     Ok(out)
+}
+
+/// Errors of pose `p` against the truth: horizontal, height, yaw and full-rotation errors and the
+/// mean reprojection error of the truth's control points under `camera` (the seed paper's
+/// accuracy figure; NaN without control points).
+pub fn pose_errors(truth: &crate::sim::truth::Truth, camera: &Camera, p: &CamFromMap) -> Value {
+    let t = &truth.pose;
+    let (c, tc) = (p.center(), t.center());
+    let dyaw = crate::pose::angle_difference(p.yaw_pitch_roll().0, t.yaw_pitch_roll().0);
+    let reproj: Vec<f64> = truth
+        .control_points
+        .iter()
+        .filter_map(|cp| {
+            let q = camera
+                .project(&p.transform(&nalgebra::Point3::from(cp.map)).coords)
+                .ok()?;
+            Some(((q.x - cp.pixel[0]).powi(2) + (q.y - cp.pixel[1]).powi(2)).sqrt())
+        })
+        .collect();
+    let mean = if reproj.is_empty() {
+        f64::NAN
+    } else {
+        reproj.iter().sum::<f64>() / reproj.len() as f64
+    };
+    json!({
+        "horizontal_m": ((c.x - tc.x).powi(2) + (c.y - tc.y).powi(2)).sqrt(),
+        "height_m": (c.z - tc.z).abs(),
+        "yaw_deg": dyaw.abs().to_degrees(),
+        "rotation_deg": crate::pose::rotation_angle_between(&p.rotation, &t.rotation).to_degrees(),
+        "control_points_mean_px": mean,
+    })
 }

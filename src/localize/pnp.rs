@@ -9,6 +9,7 @@ use super::poly::real_roots;
 use crate::camera::CameraModel;
 use crate::error::{Error, Result};
 use crate::pose::CamFromMap;
+use crate::stage::StageName;
 use nalgebra::{DMatrix, DVector, Matrix3, Point2, Point3, Rotation3, Vector3};
 use rand::Rng;
 
@@ -143,7 +144,7 @@ pub fn solve_pnp_ransac<R: Rng>(
 ) -> Result<PnpResult> {
     if corr.len() < params.min_inliers.max(4) {
         return Err(Error::stage(
-            "pnp",
+            StageName::Pnp.name(),
             format!(
                 "{} correspondences < {} required",
                 corr.len(),
@@ -172,7 +173,7 @@ pub fn solve_pnp_ransac<R: Rng>(
         .collect();
     if usable.len() < 4 {
         return Err(Error::stage(
-            "pnp",
+            StageName::Pnp.name(),
             format!("{} unprojectable-free correspondences < 4", usable.len()),
         ));
     }
@@ -228,7 +229,8 @@ pub fn solve_pnp_ransac<R: Rng>(
             }
         }
     }
-    let (_, _, mut pose) = best.ok_or_else(|| Error::stage("pnp", "no P3P hypothesis"))?;
+    let (_, _, mut pose) =
+        best.ok_or_else(|| Error::stage(StageName::Pnp.name(), "no P3P hypothesis"))?;
     // Refine, re-select inliers, refine again: the first LM often recruits more inliers.
     for _ in 0..3 {
         let inliers: Vec<usize> = (0..local.len())
@@ -245,7 +247,7 @@ pub fn solve_pnp_ransac<R: Rng>(
         .collect();
     if inliers.len() < params.min_inliers {
         return Err(Error::stage(
-            "pnp",
+            StageName::Pnp.name(),
             format!(
                 "{} inliers < {} required",
                 inliers.len(),

@@ -117,7 +117,7 @@ impl PointSelection {
     pub fn points(&self, tile: &Tile, pose: &CamFromMap) -> Vec<crate::map::GroundPoint> {
         let c = pose.center();
         let (_, r) =
-            super::init::ground_disc(&tile.height, &c, self.max_off_nadir_deg, self.radius_m);
+            super::ground::ground_disc(&tile.height, &c, self.max_off_nadir_deg, self.radius_m);
         ground_points(tile, (c.x, c.y), r)
     }
 }

@@ -17,7 +17,7 @@
 //! [`VerifyParams::blur_m`] on the ground) and the score is the best over a small x/y/yaw grid
 //! around the hypothesis.
 
-use super::init::{focal_px, ground_disc, Mip};
+use super::ground::{focal_px, ground_disc, Mip};
 use super::mi::{bin_lut, mutual_information, Binning, JointHist};
 use crate::camera::CameraModel;
 use crate::map::{ground_points, Tile};

@@ -12,6 +12,7 @@ pub mod layers;
 pub mod noise;
 pub mod render;
 pub mod solids;
+pub mod truth;
 pub mod world;
 
 use crate::camera::{Camera, CameraModel, Equidistant, Mei};
@@ -109,7 +110,8 @@ pub struct Settings {
 /// A control point with its true image position.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TruthPoint {
-    /// Identifier (`a<approach>-<marking>-<vertex>`).
+    /// Identifier (`a<approach>-<marking>-<vertex>`; empty when a hand-written file has none).
+    #[serde(default)]
     pub id: String,
     /// Map coordinates (CRS of the scene).
     pub map: [f64; 3],

@@ -24,12 +24,12 @@ fn truth_control_points_reproject_within_a_hundredth_of_a_pixel() {
     let s = scene();
     let text = serde_json::to_string_pretty(&s.truth_json()).unwrap();
     let v: serde_json::Value = serde_json::from_str(&text).unwrap();
-    // Read back only through the file's own keys: pose (via the pose-file reader) and intrinsics.
-    let pose = crate::posefile::parse_pose(&text, std::path::Path::new("truth.json"))
-        .unwrap()
-        .pose;
+    // Read back only through the file's own keys: pose and control points (via the truth.json
+    // reader) and intrinsics.
+    let truth = super::truth::parse_truth(&text, std::path::Path::new("truth.json")).unwrap();
+    let pose = truth.pose;
     let cam: Camera = serde_json::from_value(v["intrinsics"].clone()).unwrap();
-    let pts: Vec<TruthPoint> = serde_json::from_value(v["control_points"].clone()).unwrap();
+    let pts: Vec<TruthPoint> = truth.control_points;
     assert!(pts.len() >= 10, "only {} control points visible", pts.len());
     for p in &pts {
         let pc = pose.transform(&Point3::new(p.map[0], p.map[1], p.map[2]));

@@ -1,5 +1,5 @@
-//! Estimator study (not a pass/fail test; run on demand):
-//! `cargo test --release --test study_estimator -- --ignored --nocapture`
+//! Estimator study (a measurement, not a pass/fail test; run on demand):
+//! `cargo run --release --example study_estimator`
 //!
 //! For each estimator setting, 1-D profiles of the objective through the true pose along x and yaw
 //! on several synthetic scenes, including an under-exposed image (gray squeezed into 0–63) and a
@@ -23,10 +23,8 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-#[test]
-#[ignore]
 #[allow(clippy::type_complexity)]
-fn study_estimator() {
+fn main() {
     let fisheye = Camera::Mei(Mei {
         width: 768,
         height: 768,

@@ -1,0 +1,415 @@
+//! The service's published state, typed: what the daemon serves in answer to `status` and to
+//! `relocalize --wait`, and what `infraloc status` / `infraloc relocalize` read back. One set of
+//! serde types on both sides of the control socket, so the client never guesses at a field.
+//!
+//! The JSON on the wire is what it was when these were built from `serde_json::json!`: the same
+//! keys with the same value types (`null` where a value is absent), so scripts reading
+//! `infraloc status --json` keep working.
+
+use crate::posefile::PoseFile;
+use crate::stage::StageName;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// What the service is doing, as `infraloc status` shows it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum State {
+    /// Booting: no pose served yet and the first localization not finished.
+    Starting,
+    /// A pose is served and the latest localization (or drift check) agreed with it.
+    Ok,
+    /// A pose is served but the latest attempt failed or the camera looks moved.
+    Degraded,
+    /// No pose is served and the latest attempt failed.
+    Failed,
+}
+
+impl State {
+    /// Name as printed.
+    pub fn name(self) -> &'static str {
+        match self {
+            State::Starting => "starting",
+            State::Ok => "ok",
+            State::Degraded => "degraded",
+            State::Failed => "failed",
+        }
+    }
+}
+
+/// The service's status (answer to the `status` request, with `"ok": true` beside it).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Status {
+    /// Overall state.
+    pub state: State,
+    /// One line a technician reads first.
+    pub summary: String,
+    /// Daemon process id.
+    pub pid: u32,
+    /// Software version.
+    pub version: String,
+    /// Config file in use.
+    pub config: PathBuf,
+    /// Seconds since start.
+    pub uptime_s: f64,
+    /// The served pose.
+    pub served: Option<Served>,
+    /// The job running now and its stage.
+    pub running: Option<Running>,
+    /// The latest localization's result.
+    pub last_result: Option<RunResult>,
+    /// The latest drift check's result.
+    pub last_drift_check: Option<DriftCheck>,
+    /// Failed localizations since the last good one.
+    pub failures_in_a_row: u32,
+    /// Seconds until the next scheduled localization (retry or periodic), if one is scheduled.
+    pub next_localize_in_s: Option<f64>,
+    /// Seconds until the next drift check, if one is scheduled.
+    pub next_drift_check_in_s: Option<f64>,
+    /// Why the last SIGHUP reload was refused (the running config stays in force).
+    pub reload_error: Option<String>,
+}
+
+/// Summary of the served pose file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Served {
+    /// The pose file.
+    pub file: PathBuf,
+    /// When the pose was computed.
+    pub timestamp_utc: String,
+    /// Tile it was computed in.
+    pub tile_id: String,
+    /// The map CRS.
+    pub crs: String,
+    /// Camera centre in the map CRS, metres.
+    pub camera_center: [f64; 3],
+    /// Yaw, pitch, roll, degrees.
+    pub yaw_pitch_roll_deg: [f64; 3],
+    /// The pose store's comparison score (the MI optimum's NMI), when the file has one.
+    pub score: Option<f64>,
+}
+
+impl Served {
+    /// The summary of pose file `p` stored at `path`.
+    pub fn of(path: &Path, p: &PoseFile) -> Served {
+        Served {
+            file: path.to_path_buf(),
+            timestamp_utc: p.timestamp_utc.clone(),
+            tile_id: p.tile_id.clone(),
+            crs: p.crs.clone(),
+            camera_center: p.camera_center,
+            yaw_pitch_roll_deg: p.yaw_pitch_roll_deg,
+            score: score(p),
+        }
+    }
+}
+
+/// The pose store's comparison score of `p` (`quality.score`), if it has a numeric one.
+pub fn score(p: &PoseFile) -> Option<f64> {
+    p.quality.get("score").and_then(serde_json::Value::as_f64)
+}
+
+/// A job of the service.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum JobKind {
+    /// A localization.
+    Localize,
+    /// A drift check.
+    DriftCheck,
+}
+
+impl JobKind {
+    /// Name as printed.
+    pub fn name(self) -> &'static str {
+        match self {
+            JobKind::Localize => "localize",
+            JobKind::DriftCheck => "drift-check",
+        }
+    }
+}
+
+/// The job running now.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Running {
+    /// Which job.
+    pub job: JobKind,
+    /// Why a localization runs (boot, scheduled, retry after failure, technician request, …).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub why: Option<String>,
+    /// The stage it is in.
+    pub stage: StageName,
+    /// Seconds since it started.
+    pub seconds: f64,
+}
+
+/// A progress message to a waiting technician: `{"progress": STAGE}`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Progress {
+    /// The stage that started.
+    pub progress: StageName,
+}
+
+/// One stage's wall time in a [`RunResult`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageTime {
+    /// Stage name as the pose file has it.
+    pub name: String,
+    /// Wall time, seconds.
+    pub seconds: f64,
+}
+
+/// A localization's result: the status's `last_result` and the answer to
+/// `relocalize --wait`. On the wire it carries `"ok"` (whether a pose was computed) and the
+/// outcome's fields beside the common ones.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(into = "RunResultWire", try_from = "RunResultWire")]
+pub struct RunResult {
+    /// When it finished.
+    pub finished_utc: String,
+    /// How long it took.
+    pub seconds: f64,
+    /// What came of it.
+    pub outcome: RunOutcome,
+}
+
+/// What came of a localization.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RunOutcome {
+    /// A pose was computed; the store served it or kept the served one.
+    Localized {
+        /// Whether the new pose is now served.
+        served: bool,
+        /// The pose store's (or the cross-check's) reason.
+        decision: String,
+        /// Camera centre, map CRS, metres.
+        camera_center: [f64; 3],
+        /// Yaw, pitch, roll, degrees.
+        yaw_pitch_roll_deg: [f64; 3],
+        /// The pose's comparison score, if it has one.
+        score: Option<f64>,
+        /// The pipeline's stages and their wall times.
+        stages: Vec<StageTime>,
+    },
+    /// No pose: the error, and when the next try is.
+    Failed {
+        /// The one-line error.
+        error: String,
+        /// Seconds until the retry.
+        retry_in_s: f64,
+    },
+}
+
+impl RunResult {
+    /// Whether a pose was computed.
+    pub fn ok(&self) -> bool {
+        matches!(self.outcome, RunOutcome::Localized { .. })
+    }
+
+    /// Whether the result is now the served pose.
+    pub fn served(&self) -> bool {
+        matches!(self.outcome, RunOutcome::Localized { served: true, .. })
+    }
+
+    /// The error, for a failed run.
+    pub fn error(&self) -> Option<&str> {
+        match &self.outcome {
+            RunOutcome::Failed { error, .. } => Some(error),
+            RunOutcome::Localized { .. } => None,
+        }
+    }
+}
+
+/// [`RunResult`] as JSON: every outcome's fields, those of the other outcome absent.
+#[derive(Serialize, Deserialize)]
+struct RunResultWire {
+    ok: bool,
+    finished_utc: String,
+    seconds: f64,
+    served: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    decision: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    camera_center: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    yaw_pitch_roll_deg: Option<[f64; 3]>,
+    // Present (possibly null) for a localized run, absent for a failed one.
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        with = "present_or_null"
+    )]
+    score: Option<Option<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    stages: Option<Vec<StageTime>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    error: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    retry_in_s: Option<f64>,
+}
+
+/// An optional field whose value may itself be `null`: absent → `None`, `null` →
+/// `Some(None)`.
+mod present_or_null {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    pub(super) fn serialize<S: Serializer>(
+        v: &Option<Option<f64>>,
+        s: S,
+    ) -> Result<S::Ok, S::Error> {
+        // Only called for `Some` (the field is skipped when `None`).
+        v.flatten().serialize(s)
+    }
+
+    pub(super) fn deserialize<'de, D: Deserializer<'de>>(
+        d: D,
+    ) -> Result<Option<Option<f64>>, D::Error> {
+        Option::<f64>::deserialize(d).map(Some)
+    }
+}
+
+impl From<RunResult> for RunResultWire {
+    fn from(r: RunResult) -> Self {
+        let mut w = RunResultWire {
+            ok: r.ok(),
+            finished_utc: r.finished_utc,
+            seconds: r.seconds,
+            served: false,
+            decision: None,
+            camera_center: None,
+            yaw_pitch_roll_deg: None,
+            score: None,
+            stages: None,
+            error: None,
+            retry_in_s: None,
+        };
+        match r.outcome {
+            RunOutcome::Localized {
+                served,
+                decision,
+                camera_center,
+                yaw_pitch_roll_deg,
+                score,
+                stages,
+            } => {
+                w.served = served;
+                w.decision = Some(decision);
+                w.camera_center = Some(camera_center);
+                w.yaw_pitch_roll_deg = Some(yaw_pitch_roll_deg);
+                w.score = Some(score);
+                w.stages = Some(stages);
+            }
+            RunOutcome::Failed { error, retry_in_s } => {
+                w.error = Some(error);
+                w.retry_in_s = Some(retry_in_s);
+            }
+        }
+        w
+    }
+}
+
+impl TryFrom<RunResultWire> for RunResult {
+    type Error = String;
+
+    fn try_from(w: RunResultWire) -> Result<Self, String> {
+        let missing = |k: &str| {
+            format!(
+                "a {} run result without \"{k}\"",
+                if w.ok { "successful" } else { "failed" }
+            )
+        };
+        let outcome = if w.ok {
+            RunOutcome::Localized {
+                served: w.served,
+                decision: w.decision.clone().ok_or_else(|| missing("decision"))?,
+                camera_center: w.camera_center.ok_or_else(|| missing("camera_center"))?,
+                yaw_pitch_roll_deg: w
+                    .yaw_pitch_roll_deg
+                    .ok_or_else(|| missing("yaw_pitch_roll_deg"))?,
+                score: w.score.ok_or_else(|| missing("score"))?,
+                stages: w.stages.clone().ok_or_else(|| missing("stages"))?,
+            }
+        } else {
+            RunOutcome::Failed {
+                error: w.error.clone().ok_or_else(|| missing("error"))?,
+                retry_in_s: w.retry_in_s.ok_or_else(|| missing("retry_in_s"))?,
+            }
+        };
+        Ok(RunResult {
+            finished_utc: w.finished_utc,
+            seconds: w.seconds,
+            outcome,
+        })
+    }
+}
+
+/// A drift search's judgement of the served pose against fresh frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DriftVerdict {
+    /// Whether the camera counts as moved.
+    pub moved: bool,
+    /// Why it counts as moved (`None` when it does not).
+    pub reason: Option<String>,
+    /// Horizontal distance of the optimum from the served pose, metres.
+    pub shift_m: f64,
+    /// Height offset of the optimum, metres.
+    pub dz_m: f64,
+    /// Yaw offset of the optimum, degrees.
+    pub yaw_deg: f64,
+}
+
+/// The optimum a drift search found.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Optimum {
+    /// Camera centre, map CRS, metres.
+    pub camera_center: [f64; 3],
+    /// Yaw, pitch, roll, degrees.
+    pub yaw_pitch_roll_deg: [f64; 3],
+    /// Its NMI on the fresh frames.
+    pub nmi: f64,
+}
+
+/// A drift search's answer: the verdict and the optimum it is based on.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DriftSearch {
+    /// The judgement.
+    #[serde(flatten)]
+    pub verdict: DriftVerdict,
+    /// The optimum.
+    pub optimum: Optimum,
+}
+
+/// The status's record of the latest drift check.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DriftCheck {
+    /// When it ran.
+    pub checked_utc: String,
+    /// What it found, or why it could not run.
+    #[serde(flatten)]
+    pub outcome: DriftOutcome,
+    /// For a camera found moved: the re-localization that answered it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resolved: Option<String>,
+}
+
+/// A drift check's outcome. On the wire a check that could not run has `"moved": null`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum DriftOutcome {
+    /// The search ran.
+    Ran(DriftSearch),
+    /// It could not run (no frames, no tile, …).
+    NotRun {
+        /// Always `null`: neither moved nor steady.
+        moved: (),
+        /// Why.
+        error: String,
+    },
+}
+
+impl DriftCheck {
+    /// Whether the check found the camera moved and no re-localization has answered it yet.
+    pub fn unresolved_move(&self) -> bool {
+        matches!(&self.outcome, DriftOutcome::Ran(s) if s.verdict.moved) && self.resolved.is_none()
+    }
+}
