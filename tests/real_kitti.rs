@@ -458,3 +458,113 @@ fn refine_from_perturbed_official_calibration() {
     }
     std::fs::remove_dir_all(&out).unwrap();
 }
+
+#[test]
+fn plot_mi_surface_on_real_frames_shows_the_lateral_yaw_valley() {
+    let Some(dir) = kitti_dir("plot_mi_surface_on_real_frames_shows_the_lateral_yaw_valley") else {
+        return;
+    };
+    let out = scratch("plot");
+    let (w, h) = (1400u32, 600u32);
+    for f in FRAMES {
+        let (cam, pose, _) = import(&dir, f, &out, None);
+        // The calibration pose with a covariance in its quality block (contracts §4), as a
+        // refined pose file carries one: σ 10 cm / 5 cm / 3 cm / 0.5°, lateral and yaw coupled.
+        let mut doc: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&pose).unwrap()).unwrap();
+        doc["quality"]["covariance"] = serde_json::json!([
+            [0.01, 0.0, 0.0, 0.0],
+            [0.0, 0.0025, 0.0, -0.0225],
+            [0.0, 0.0, 0.0009, 0.0],
+            [0.0, -0.0225, 0.0, 0.25]
+        ]);
+        let with_cov = out.join(format!("{f}.cov.json"));
+        std::fs::write(&with_cov, doc.to_string()).unwrap();
+        let (png, json) = (out.join(format!("{f}.png")), out.join(format!("{f}.json")));
+        let image = dir.join(format!("image_2/{f}.png"));
+        let points = dir.join(format!("velodyne/{f}.bin"));
+        let o = infraloc(&[
+            "plot",
+            "mi-surface",
+            "--camera",
+            s(&cam),
+            "--image",
+            s(&image),
+            "--points",
+            s(&points),
+            "--pose",
+            s(&with_cov),
+            "--search",
+            "x=0.5:0.02,y=0.5:0.02,z=0.3:0.02,yaw=2.5:0.05",
+            "--size",
+            &format!("{w},{h}"),
+            "--out",
+            s(&png),
+            "--json",
+            s(&json),
+        ]);
+        let stdout = String::from_utf8_lossy(&o.stdout).to_string();
+        assert!(
+            o.status.success(),
+            "{f}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let img = image::open(&png).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (w, h));
+        // Each panel has something drawn: the four curves (blue) on the left 40 %, then the two
+        // heat maps (the colour ramp) side by side, then the colour bar.
+        let count = |x0: u32, x1: u32, y0: u32, y1: u32, p: &dyn Fn(&image::Rgb<u8>) -> bool| {
+            (x0..x1)
+                .flat_map(|x| (y0..y1).map(move |y| (x, y)))
+                .filter(|&(x, y)| p(img.get_pixel(x, y)))
+                .count()
+        };
+        let blue = |p: &image::Rgb<u8>| p.0 == [0, 0, 255];
+        let ramp = |p: &image::Rgb<u8>| {
+            let (lo, hi) = (*p.0.iter().min().unwrap(), *p.0.iter().max().unwrap());
+            hi - lo > 40 && p.0 != [0, 0, 255] && p.0 != [255, 0, 0]
+        };
+        let (lw, top) = (w * 40 / 100, 30);
+        let mid = top + (h - top) / 2;
+        for (x0, y0) in [(0, top), (lw / 2, top), (0, mid), (lw / 2, mid)] {
+            let n = count(x0, x0 + lw / 2, y0, y0 + (h - top) / 2, &blue);
+            assert!(n > 100, "{f}: curve panel at ({x0}, {y0}): {n} blue pixels");
+        }
+        let map_w = (w - lw - 120) / 2;
+        for x0 in [lw, lw + map_w] {
+            let n = count(x0, x0 + map_w, top, h, &ramp);
+            let area = (map_w * (h - top)) as usize;
+            assert!(
+                n * 5 > area,
+                "{f}: heat map at x {x0}: {n} of {area} pixels coloured"
+            );
+        }
+        // Forward camera in the Velodyne frame: lateral (left of the view) is the LiDAR's +y.
+        let surf: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        let d = &surf["lateral_direction"];
+        assert!(d[1].as_f64().unwrap() > 0.99, "{f}: lateral direction {d}");
+        let (nl, ny) = (
+            surf["grid_lateral"].as_array().unwrap().len(),
+            surf["grid_yaw"].as_array().unwrap().len(),
+        );
+        assert_eq!(
+            surf["grid_lateral_yaw_mi"].as_array().unwrap().len(),
+            nl * ny
+        );
+        // The valley: moving the camera left and turning it right keep far points in place, so
+        // the high-MI region runs from +lateral/−yaw to −lateral/+yaw.
+        let line = stdout
+            .lines()
+            .find(|l| l.starts_with("yaw–lateral:"))
+            .unwrap_or_else(|| panic!("{f}: {stdout}"));
+        let corr: f64 = line
+            .rsplit("correlation ")
+            .next()
+            .and_then(|t| t.trim_end_matches(')').parse().ok())
+            .unwrap_or_else(|| panic!("{f}: {line}"));
+        println!("{f}: {line}");
+        assert!(corr < -0.5, "{f}: {line}");
+    }
+    std::fs::remove_dir_all(&out).unwrap();
+}

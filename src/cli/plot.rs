@@ -7,6 +7,7 @@
 
 use super::parse_size;
 use crate::error::{Error, Result};
+use crate::localize::points_io::read_points;
 use crate::localize::search::{SearchConfig, SearchSpec};
 use crate::localize::study::{
     mi_surface, offsets_from, Perturbation, PointSelection, Summary, Surface, Trial,
@@ -25,34 +26,60 @@ use crate::viz::FAMILY;
 /// `plot` subcommands.
 #[derive(Debug, clap::Subcommand)]
 pub enum Command {
-    /// MI along x, y, z, yaw and over the x–y plane around a pose (default: the truth).
+    /// MI along x, y, z, yaw, over the x–y plane and over yaw × lateral shift around a pose: on a
+    /// simulated scene (--scene) or on real inputs (--camera, --image, --points or --tiles, --pose).
     MiSurface(MiSurfaceArgs),
 }
 
 /// Arguments of `plot mi-surface`.
 #[derive(Debug, clap::Args)]
+#[command(group(clap::ArgGroup::new("inputs").required(true).args(["scene", "camera"])))]
 pub struct MiSurfaceArgs {
-    /// Simulated scene directory (`infraloc simulate --out DIR`).
+    /// Simulated scene directory (`infraloc simulate --out DIR`): its camera, frames' median, tile
+    /// and truth.
+    #[arg(long, conflicts_with_all = ["camera", "image", "points", "tiles"])]
+    pub scene: Option<PathBuf>,
+    /// Real inputs: camera intrinsics (any format `refine --camera` reads).
+    #[arg(long, requires = "image")]
+    pub camera: Option<PathBuf>,
+    /// Real inputs: the image (converted to gray), paired with --points.
     #[arg(long)]
-    pub scene: PathBuf,
-    /// Centre pose (pose-like JSON); default: the scene's truth.json.
+    pub image: Vec<PathBuf>,
+    /// Real inputs: point file (CSV, PCD, LAS, Velodyne .bin), all points used as given.
+    #[arg(long, conflicts_with = "tiles")]
+    pub points: Vec<PathBuf>,
+    /// Real inputs: tile cache; ground points within --radius of the camera (the pose's crs
+    /// finds the tile), as `refine --tiles`.
+    #[arg(long)]
+    pub tiles: Option<PathBuf>,
+    /// Radius (m) of tile ground points around the camera (with --tiles).
+    #[arg(long, default_value_t = 25.0)]
+    pub radius: f64,
+    /// Centre pose (pose-like JSON, e.g. the served pose.json); default with --scene: the truth.
+    /// A `quality.covariance` in it (contracts §4) is drawn as 1σ and 3σ ellipses.
     #[arg(long)]
     pub pose: Option<PathBuf>,
-    /// Output PNG; default: DIR/mi-surface.png.
+    /// A reference pose to mark (green), e.g. a calibration; default with --scene: the truth.
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
+    /// Output PNG; default: DIR/mi-surface.png with --scene (required otherwise).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Ranges and steps: x=HALF:STEP,y=…,z=…,yaw=… (m, deg), as `refine --search`.
     #[arg(long, default_value = "x=1:0.02,y=1:0.02,z=0.5:0.02,yaw=3:0.05")]
     pub search: String,
-    /// The x–y surface takes every N-th x and y step.
+    /// The x–y and yaw–lateral surfaces take every N-th step.
     #[arg(long, default_value_t = 2)]
     pub xy_stride: i64,
     /// Image size W,H in pixels.
-    #[arg(long, default_value = "1600,900")]
+    #[arg(long, default_value = "2000,900")]
     pub size: String,
-    /// Also write the curves and the surface as JSON here.
+    /// Also write the curves and the surfaces as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// The MI estimator (bins, objective, binning, Parzen smoothing), as `refine`'s.
+    #[command(flatten)]
+    pub estimator: super::estimator::EstimatorArgs,
 }
 
 /// Run a `plot` subcommand.
@@ -62,37 +89,226 @@ pub fn run(c: Command) -> Result<()> {
     }
 }
 
+/// The marginal covariance of x, y and yaw (m, m, deg) a pose file's `quality.covariance`
+/// carries (contracts §4): a matrix over [x, y, z, yaw(, pitch, roll)], or an object with that
+/// `covariance` matrix and the `axes` it is ordered by. `None` when the file has none.
+pub(crate) fn pose_covariance(
+    doc: &serde_json::Value,
+) -> std::result::Result<Option<[[f64; 3]; 3]>, String> {
+    let Some(c) = doc.get("quality").and_then(|q| q.get("covariance")) else {
+        return Ok(None);
+    };
+    if c.is_null() {
+        return Ok(None);
+    }
+    let (matrix, axes) = match c {
+        serde_json::Value::Object(o) => (
+            o.get("covariance")
+                .ok_or("quality.covariance: no \"covariance\" matrix")?,
+            o.get("axes").and_then(|a| a.as_array()).map(|a| {
+                a.iter()
+                    .map(|n| n.as_str().unwrap_or("").to_string())
+                    .collect::<Vec<_>>()
+            }),
+        ),
+        other => (other, None),
+    };
+    let rows: Vec<Vec<f64>> = matrix
+        .as_array()
+        .ok_or("quality.covariance: not a matrix")?
+        .iter()
+        .map(|r| {
+            r.as_array()
+                .map(|r| r.iter().map(|v| v.as_f64().unwrap_or(f64::NAN)).collect())
+                .unwrap_or_default()
+        })
+        .collect();
+    let n = rows.len();
+    if n < 4 || rows.iter().any(|r| r.len() != n) {
+        return Err(format!(
+            "quality.covariance: expected a square matrix over x, y, z, yaw(, pitch, roll), found {n} rows"
+        ));
+    }
+    if rows.iter().flatten().any(|v| !v.is_finite()) {
+        return Err("quality.covariance: not finite".into());
+    }
+    let names = axes.unwrap_or_else(|| {
+        ["x", "y", "z", "yaw", "pitch", "roll"][..n.min(6)]
+            .iter()
+            .map(|s| s.to_string())
+            .collect()
+    });
+    let at = |axis: &str| {
+        names
+            .iter()
+            .position(|a| a == axis)
+            .filter(|&i| i < n)
+            .ok_or_else(|| format!("quality.covariance: no axis {axis}"))
+    };
+    let idx = [at("x")?, at("y")?, at("yaw")?];
+    let m: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| rows[idx[i]][idx[j]]));
+    // A covariance is symmetric with non-negative variances.
+    if m[0][0] < 0.0 || m[1][1] < 0.0 || m[2][2] < 0.0 {
+        return Err("quality.covariance: negative variance".into());
+    }
+    Ok(Some(m))
+}
+
+/// The gray image at the camera's size.
+fn load_gray(path: &Path, cam: &crate::camera::Camera) -> Result<Vec<u8>> {
+    use crate::camera::CameraModel;
+    let img = crate::capture::load_gray(path)?;
+    if (img.width(), img.height()) != (cam.width(), cam.height()) {
+        return Err(Error::input(
+            path,
+            format!(
+                "image is {}×{} but the camera is {}×{}",
+                img.width(),
+                img.height(),
+                cam.width(),
+                cam.height()
+            ),
+        ));
+    }
+    Ok(img.into_raw())
+}
+
+/// Ground points of the tile covering the camera, within `radius` m of it.
+fn tile_points(
+    dir: &Path,
+    pose_path: &Path,
+    crs: Option<crate::map::Crs>,
+    c: &nalgebra::Point3<f64>,
+    radius: f64,
+) -> Result<Vec<crate::map::GroundPoint>> {
+    use crate::map::cache;
+    if !(radius > 0.0 && radius.is_finite()) {
+        return Err(Error::Invalid(format!(
+            "--radius {radius}: must be positive"
+        )));
+    }
+    let crs = crs
+        .ok_or_else(|| Error::input(pose_path, "no \"crs\": needed to find the tile in --tiles"))?;
+    let (lat, lon) = crate::geo::map_to_wgs84(crs, c.x, c.y)?;
+    let tref = cache::find_tile(dir, lat, lon, radius)?;
+    let tile = cache::load_tile(&tref.dir)?;
+    let pts = crate::map::ground_points(&tile, (c.x, c.y), radius);
+    if pts.is_empty() {
+        return Err(Error::input(
+            &tref.dir,
+            format!("no valid ground point within {radius} m of the camera"),
+        ));
+    }
+    Ok(pts)
+}
+
+/// What a surface is drawn around and against.
+struct Marks {
+    /// Whether the plotted pose is the scene's truth.
+    at_truth: bool,
+    /// The reference pose's offsets from the plotted pose (x, y, z m, yaw °).
+    truth: Option<[f64; 4]>,
+    /// Marginal covariance of x, y, yaw at the plotted pose.
+    cov: Option<[[f64; 3]; 3]>,
+}
+
 fn mi_surface_cmd(a: MiSurfaceArgs) -> Result<()> {
     let spec: SearchSpec = a.search.parse()?;
     let size = parse_size(&a.size)?;
-    let scene: SceneFiles = load_scene(&a.scene)?;
-    let pose = match &a.pose {
-        Some(p) => read_pose(p)?.pose,
-        None => scene.truth,
-    };
+    let mi = a.estimator.config()?;
     let cfg = SearchConfig {
         spec,
+        mi,
         ..Default::default()
     };
-    let points = PointSelection::default().points(&scene.tile, &pose);
-    let surf = mi_surface(
-        &scene.camera,
-        scene.gray.as_raw(),
-        &points,
-        &pose,
-        &cfg,
-        a.xy_stride,
-    )
-    .map_err(|e| Error::input(&a.scene, e.to_string()))?;
-    // Where the truth lies relative to the plotted pose (none when plotting around the truth).
-    let truth = offsets_from(&pose, &scene.truth);
-    let truth = if truth.iter().all(|v| v.abs() < 1e-9) {
-        None
-    } else {
-        Some(truth)
+    let read_doc = |p: &Path| -> Result<(crate::posefile::ReadPose, Option<[[f64; 3]; 3]>)> {
+        let text = std::fs::read_to_string(p).map_err(|e| Error::io(p, e))?;
+        let read = crate::posefile::parse_pose(&text, p)?;
+        let doc: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| Error::input(p, e.to_string()))?;
+        let cov = pose_covariance(&doc).map_err(|m| Error::input(p, m))?;
+        Ok((read, cov))
     };
-    let img = surface_chart(&surf, truth, size)?;
-    let out = a.out.unwrap_or_else(|| a.scene.join("mi-surface.png"));
+    let reference = a
+        .truth
+        .as_deref()
+        .map(read_pose)
+        .transpose()?
+        .map(|r| r.pose);
+    let (surf, pose, cov, out) = if let Some(dir) = &a.scene {
+        let scene: SceneFiles = load_scene(dir)?;
+        let (pose, cov) = match &a.pose {
+            Some(p) => {
+                let (r, c) = read_doc(p)?;
+                (r.pose, c)
+            }
+            None => (scene.truth, None),
+        };
+        let points = PointSelection::default().points(&scene.tile, &pose);
+        let surf = mi_surface(
+            &scene.camera,
+            scene.gray.as_raw(),
+            &points,
+            &pose,
+            &cfg,
+            a.xy_stride,
+        )
+        .map_err(|e| Error::input(dir, e.to_string()))?;
+        let out = a.out.clone().unwrap_or_else(|| dir.join("mi-surface.png"));
+        (
+            surf,
+            pose,
+            cov,
+            (out, Some(reference.unwrap_or(scene.truth))),
+        )
+    } else {
+        let (Some(camera), Some(pose_path)) = (&a.camera, &a.pose) else {
+            return Err(Error::Invalid(
+                "plot mi-surface: give --scene DIR, or --camera, --image, --points or --tiles, and --pose".into(),
+            ));
+        };
+        let out = a
+            .out
+            .clone()
+            .ok_or_else(|| Error::Invalid("plot mi-surface: give --out PNG".into()))?;
+        let cam = crate::camera::load_camera(camera)?;
+        let (read, cov) = read_doc(pose_path)?;
+        let pose = read.pose;
+        if a.image.len() != 1 || a.points.len() > 1 {
+            return Err(Error::Invalid(format!(
+                "plot mi-surface: one --image and one --points (or --tiles) for now, got {} and {}",
+                a.image.len(),
+                a.points.len()
+            )));
+        }
+        let points = match (&a.tiles, a.points.first()) {
+            (Some(dir), _) => tile_points(dir, pose_path, read.crs, &pose.center(), a.radius)?,
+            (None, Some(p)) => read_points(p)?,
+            (None, None) => {
+                return Err(Error::Invalid(
+                    "plot mi-surface: give --points FILE or --tiles DIR with --camera".into(),
+                ))
+            }
+        };
+        let gray = load_gray(&a.image[0], &cam)?;
+        let surf = mi_surface(&cam, &gray, &points, &pose, &cfg, a.xy_stride)?;
+        (surf, pose, cov, (out, reference))
+    };
+    let (out, reference) = out;
+    // Where the reference lies relative to the plotted pose (none when it is the plotted pose).
+    let truth = reference
+        .map(|r| offsets_from(&pose, &r))
+        .filter(|t| t.iter().any(|v| v.abs() >= 1e-9));
+    let at_truth = a.scene.is_some() && a.pose.is_none();
+    let img = surface_chart(
+        &surf,
+        &Marks {
+            at_truth,
+            truth,
+            cov,
+        },
+        size,
+    )?;
     save_png(&img, &out)?;
     if let Some(j) = &a.json {
         let text = serde_json::to_string_pretty(&surf)
@@ -108,8 +324,57 @@ fn mi_surface_cmd(a: MiSurfaceArgs) -> Result<()> {
             unit(name)
         );
     }
+    let v = valley(&surf);
+    println!(
+        "yaw–lateral: MI max at lateral {:+.3} m, yaw {:+.3}°; the top 10 % of the surface runs \
+         {:+.3} m per degree of yaw (correlation {:+.2})",
+        v.best.0, v.best.1, v.slope_m_per_deg, v.correlation
+    );
     println!("plot: wrote {} ({} points)", out.display(), surf.points);
     Ok(())
+}
+
+/// The yaw–lateral surface's maximum and the shape of its high region.
+struct Valley {
+    /// (lateral m, yaw °) of the maximum.
+    best: (f64, f64),
+    /// Regression slope of lateral on yaw over the cells in the top 10 % of the MI range, m/°.
+    slope_m_per_deg: f64,
+    /// Their lateral–yaw correlation (−1..1; ±1 = a straight valley, 0 = a round peak).
+    correlation: f64,
+}
+
+fn valley(s: &Surface) -> Valley {
+    let n = s.grid_lateral.len();
+    let v = &s.grid_lateral_yaw_mi;
+    let k = argmax(v);
+    let (lo, hi) = min_max(v.iter().copied());
+    let cut = hi - 0.1 * (hi - lo);
+    let top: Vec<(f64, f64)> = v
+        .iter()
+        .enumerate()
+        .filter(|(_, m)| **m >= cut)
+        .map(|(i, _)| (s.grid_lateral[i % n], s.grid_yaw[i / n]))
+        .collect();
+    let m = top.len().max(1) as f64;
+    let (ml, my) = top
+        .iter()
+        .fold((0.0, 0.0), |(a, b), (l, y)| (a + l / m, b + y / m));
+    let (mut sll, mut syy, mut sly) = (0.0, 0.0, 0.0);
+    for (l, y) in &top {
+        sll += (l - ml) * (l - ml);
+        syy += (y - my) * (y - my);
+        sly += (l - ml) * (y - my);
+    }
+    Valley {
+        best: (s.grid_lateral[k % n], s.grid_yaw[k / n]),
+        slope_m_per_deg: if syy > 0.0 { sly / syy } else { 0.0 },
+        correlation: if sll > 0.0 && syy > 0.0 {
+            sly / (sll * syy).sqrt()
+        } else {
+            0.0
+        },
+    }
 }
 
 fn unit(axis: &str) -> &'static str {
@@ -268,25 +533,136 @@ fn vline(c: &mut Chart, x: f64, style: ShapeStyle) -> Result<()> {
     Ok(())
 }
 
-/// The 1-D curves (2×2, left) and the x–y heat map with its colour bar (right).
-pub(crate) fn surface_chart(
-    s: &Surface,
-    truth: Option<[f64; 4]>,
-    size: (u32, u32),
-) -> Result<RgbImage> {
+/// Points of the ellipse {v : vᵀ C⁻¹ v = k²} of a 2×2 covariance around the origin.
+fn ellipse(c: [[f64; 2]; 2], k: f64) -> Vec<(f64, f64)> {
+    // Eigen-decomposition of the symmetric 2×2 in closed form.
+    let (a, b, d) = (c[0][0], 0.5 * (c[0][1] + c[1][0]), c[1][1]);
+    let mean = 0.5 * (a + d);
+    let r = (0.25 * (a - d) * (a - d) + b * b).sqrt();
+    let (l1, l2) = ((mean + r).max(0.0), (mean - r).max(0.0));
+    let t = 0.5 * (2.0 * b).atan2(a - d);
+    let (ct, st) = (t.cos(), t.sin());
+    (0..=180)
+        .map(|i| {
+            let u = i as f64 * std::f64::consts::TAU / 180.0;
+            let (p, q) = (k * l1.sqrt() * u.cos(), k * l2.sqrt() * u.sin());
+            (p * ct - q * st, p * st + q * ct)
+        })
+        .collect()
+}
+
+/// Draw a polyline clipped to the chart's ranges (segments leaving the plot are dropped).
+fn clipped_line(c: &mut Chart, pts: &[(f64, f64)], style: ShapeStyle) -> Result<()> {
+    let (xr, yr) = (c.x_range(), c.y_range());
+    let inside = |p: &(f64, f64)| xr.contains(&p.0) && yr.contains(&p.1);
+    let mut run: Vec<(f64, f64)> = Vec::new();
+    let mut runs = Vec::new();
+    for p in pts {
+        if inside(p) {
+            run.push(*p);
+        } else if !run.is_empty() {
+            runs.push(std::mem::take(&mut run));
+        }
+    }
+    runs.push(run);
+    for r in runs.into_iter().filter(|r| r.len() > 1) {
+        c.draw_series(LineSeries::new(r, style)).map_err(pe)?;
+    }
+    Ok(())
+}
+
+/// A heat map of `mi` over `xs` × `ys` (row-major, y slowest) on `area`, coloured on the shared
+/// scale `lo..hi`; the origin (white ×), the maximum (red ○), the reference (green ▲) and the 1σ
+/// and 3σ ellipses of `cov` when given. Returns the drawn chart's area for the colour bar.
+#[allow(clippy::too_many_arguments)]
+fn heat_map(
+    area: &DrawingArea<BitMapBackend, Shift>,
+    caption: &str,
+    (xs, ys, mi): (&[f64], &[f64], &[f64]),
+    (lo, hi): (f64, f64),
+    desc: (&str, &str),
+    reference: Option<(f64, f64)>,
+    cov: Option<[[f64; 2]; 2]>,
+    square_cells: bool,
+) -> Result<()> {
+    let (nx, ny) = (xs.len(), ys.len());
+    let half = |v: &[f64]| {
+        if v.len() > 1 {
+            (v[1] - v[0]) / 2.0
+        } else {
+            0.01
+        }
+    };
+    let (hx, hy) = (half(xs), half(ys));
+    let best = argmax(mi);
+    let (bx, by) = (xs[best % nx], ys[best / nx]);
+    let area = if square_cells {
+        square(area)
+    } else {
+        area.clone()
+    };
+    let mut chart = panel(
+        &area,
+        caption,
+        (xs[0] - hx)..(xs[nx - 1] + hx),
+        (ys[0] - hy)..(ys[ny - 1] + hy),
+        desc,
+    )?;
+    let norm = |v: f64| (v - lo) / (hi - lo).max(1e-12);
+    chart
+        .draw_series(mi.iter().enumerate().map(|(k, &v)| {
+            let (x, y) = (xs[k % nx], ys[k / nx]);
+            Rectangle::new([(x - hx, y - hy), (x + hx, y + hy)], ramp(norm(v)).filled())
+        }))
+        .map_err(pe)?;
+    if let Some(c) = cov {
+        clipped_line(&mut chart, &ellipse(c, 1.0), WHITE.stroke_width(2))?;
+        clipped_line(&mut chart, &ellipse(c, 3.0), WHITE.stroke_width(1))?;
+    }
+    chart
+        .draw_series(std::iter::once(Cross::new(
+            (0.0, 0.0),
+            7,
+            WHITE.stroke_width(2),
+        )))
+        .map_err(pe)?;
+    chart
+        .draw_series(std::iter::once(Circle::new(
+            (bx, by),
+            7,
+            RED.stroke_width(2),
+        )))
+        .map_err(pe)?;
+    if let Some(t) = reference {
+        chart
+            .draw_series(std::iter::once(TriangleMarker::new(
+                t,
+                8,
+                DARK_GREEN.filled(),
+            )))
+            .map_err(pe)?;
+    }
+    Ok(())
+}
+
+/// The 1-D curves (2×2, left), the x–y and yaw–lateral heat maps on one colour scale and the
+/// colour bar (right); the reference pose and the covariance's ellipses where given.
+fn surface_chart(s: &Surface, marks: &Marks, size: (u32, u32)) -> Result<RgbImage> {
+    let truth = marks.truth;
     draw(size, |root| {
-        let title = match truth {
-            None => format!(
-                "MI (nats) around the true pose, {} LiDAR points (fixed set); red: maximum",
-                s.points
-            ),
-            Some(_) => format!(
-                "MI (nats) around the given pose, {} LiDAR points (fixed set); red: maximum, green: truth",
-                s.points
-            ),
-        };
-        let root = root.titled(&title, text(22)).map_err(pe)?;
-        let (left, right) = root.split_horizontally(size.0 * 55 / 100);
+        let mut title = format!(
+            "MI (nats) around the {} pose, {} LiDAR points (fixed set); white ×: the pose, red ○: maximum",
+            if marks.at_truth { "true" } else { "given" },
+            s.points
+        );
+        if truth.is_some() {
+            title.push_str(", green: reference");
+        }
+        if marks.cov.is_some() {
+            title.push_str("; ellipses: 1σ (thick) and 3σ of the pose's covariance");
+        }
+        let root = root.titled(&title, text(20)).map_err(pe)?;
+        let (left, right) = root.split_horizontally(size.0 * 40 / 100);
         for (k, area) in left.split_evenly((2, 2)).iter().enumerate() {
             let Some((name, off, mi)) = s.profiles.get(k) else {
                 continue;
@@ -321,67 +697,57 @@ pub(crate) fn surface_chart(
                 .map_err(pe)?;
         }
 
-        let (map_area, bar_area) = right.split_horizontally(size.0 * 45 / 100 - 150);
-        let (lo, hi) = min_max(s.grid_mi.iter().copied());
-        let (nx, ny) = (s.grid_x.len(), s.grid_y.len());
-        let half = |v: &[f64]| {
-            if v.len() > 1 {
-                (v[1] - v[0]) / 2.0
-            } else {
-                0.01
-            }
-        };
-        let (hx, hy) = (half(&s.grid_x), half(&s.grid_y));
-        let best = argmax(&s.grid_mi);
-        let (bx, by) = (s.grid_x[best % nx], s.grid_y[best / nx]);
-        let map_area = square(&map_area);
-        let mut chart = panel(
-            &map_area,
-            &format!("x–y surface (z, yaw fixed): max at ({bx:+.2}, {by:+.2}) m"),
-            (s.grid_x[0] - hx)..(s.grid_x[nx - 1] + hx),
-            (s.grid_y[0] - hy)..(s.grid_y[ny - 1] + hy),
-            ("x offset (m)", "y offset (m)"),
-        )?;
-        let norm = |v: f64| (v - lo) / (hi - lo).max(1e-12);
-        chart
-            .draw_series(s.grid_mi.iter().enumerate().map(|(k, &v)| {
-                let (x, y) = (s.grid_x[k % nx], s.grid_y[k / nx]);
-                Rectangle::new([(x - hx, y - hy), (x + hx, y + hy)], ramp(norm(v)).filled())
-            }))
-            .map_err(pe)?;
-        chart
-            .draw_series(std::iter::once(Cross::new(
-                (0.0, 0.0),
-                7,
-                WHITE.stroke_width(2),
-            )))
-            .map_err(pe)?;
-        chart
-            .draw_series(std::iter::once(Circle::new(
-                (bx, by),
-                7,
-                RED.stroke_width(2),
-            )))
-            .map_err(pe)?;
-        if let Some(t) = truth {
-            chart
-                .draw_series(std::iter::once(TriangleMarker::new(
-                    (t[0], t[1]),
-                    8,
-                    DARK_GREEN.filled(),
-                )))
-                .map_err(pe)?;
-        }
+        const BAR_W: u32 = 120;
+        let (rw, _) = right.dim_in_pixel();
+        let map_w = rw.saturating_sub(BAR_W) / 2;
+        let (xy_area, rest) = right.split_horizontally(map_w);
+        let (yl_area, bar_area) = rest.split_horizontally(map_w);
+        let (lo, hi) = min_max(s.grid_mi.iter().chain(&s.grid_lateral_yaw_mi).copied());
 
-        // Colour bar: the ramp against the MI values it stands for, as tall as the map.
-        let (_, mh) = map_area.dim_in_pixel();
-        let (_, bh) = bar_area.dim_in_pixel();
-        let top = (bh.saturating_sub(mh)) / 2;
+        let best = argmax(&s.grid_mi);
+        let nx = s.grid_x.len();
+        let (bx, by) = (s.grid_x[best % nx], s.grid_y[best / nx]);
+        heat_map(
+            &xy_area,
+            &format!("x–y (z, yaw fixed): max at ({bx:+.2}, {by:+.2}) m"),
+            (&s.grid_x, &s.grid_y, &s.grid_mi),
+            (lo, hi),
+            ("x offset (m)", "y offset (m)"),
+            truth.map(|t| (t[0], t[1])),
+            marks.cov.map(|c| [[c[0][0], c[0][1]], [c[1][0], c[1][1]]]),
+            true,
+        )?;
+
+        // Lateral = d · (x, y) with d the unit vector left of the view.
+        let d = s.lateral_direction;
+        let lat_cov = marks.cov.map(|c| {
+            let var_l = d[0] * d[0] * c[0][0] + 2.0 * d[0] * d[1] * c[0][1] + d[1] * d[1] * c[1][1];
+            let cov_ly = d[0] * c[0][2] + d[1] * c[1][2];
+            [[var_l, cov_ly], [cov_ly, c[2][2]]]
+        });
+        let v = valley(s);
+        heat_map(
+            &yl_area,
+            &format!(
+                "yaw–lateral (z fixed; lateral: left of a view {}° from map x): max at {:+.2} m, {:+.2}°",
+                tick((-d[0]).atan2(d[1]).to_degrees(), 0),
+                v.best.0,
+                v.best.1
+            ),
+            (&s.grid_lateral, &s.grid_yaw, &s.grid_lateral_yaw_mi),
+            (lo, hi),
+            ("lateral offset (m)", "yaw offset (°)"),
+            truth.map(|t| (d[0] * t[0] + d[1] * t[1], t[3])),
+            lat_cov,
+            false,
+        )?;
+
+        // Colour bar: the ramp against the MI values it stands for.
         let mut bar = ChartBuilder::on(&bar_area)
-            .margin_top(top + 34)
-            .margin_bottom(top + 48)
+            .margin_top(60)
+            .margin_bottom(70)
             .margin_right(8)
-            .margin_left(30)
+            .margin_left(20)
             // Labels on the right, away from the heat map and not under the bar.
             .right_y_label_area_size(80)
             .build_cartesian_2d(0.0..1.0, padded(lo, hi, 0.0))
@@ -551,4 +917,82 @@ pub(crate) fn study_chart(
             .map_err(pe)?;
         Ok(())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    #[test]
+    fn covariance_from_a_matrix_or_an_object_with_axes() {
+        let m = json!([
+            [0.01, 0.002, 0.0, 0.003],
+            [0.002, 0.04, 0.0, -0.02],
+            [0.0, 0.0, 0.09, 0.0],
+            [0.003, -0.02, 0.0, 0.25]
+        ]);
+        let want = [
+            [0.01, 0.002, 0.003],
+            [0.002, 0.04, -0.02],
+            [0.003, -0.02, 0.25],
+        ];
+        let bare = json!({ "quality": { "covariance": m } });
+        assert_eq!(pose_covariance(&bare).unwrap(), Some(want));
+        // An object names its axes: here in another order, with pitch and roll.
+        let object = json!({ "quality": { "covariance": {
+            "axes": ["yaw", "x", "y", "z", "pitch", "roll"],
+            "covariance": [
+                [0.25, 0.003, -0.02, 0.0, 0.0, 0.0],
+                [0.003, 0.01, 0.002, 0.0, 0.0, 0.0],
+                [-0.02, 0.002, 0.04, 0.0, 0.0, 0.0],
+                [0.0, 0.0, 0.0, 0.09, 0.0, 0.0],
+                [0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+                [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+            ]
+        } } });
+        assert_eq!(pose_covariance(&object).unwrap(), Some(want));
+        assert_eq!(pose_covariance(&json!({ "quality": {} })).unwrap(), None);
+        assert_eq!(pose_covariance(&json!({})).unwrap(), None);
+        let bad = |v: serde_json::Value| {
+            pose_covariance(&json!({ "quality": { "covariance": v } })).unwrap_err()
+        };
+        assert!(bad(json!([[1.0, 0.0], [0.0, 1.0]])).contains("square matrix"));
+        assert!(bad(json!([
+            [1, 0, 0, 0],
+            [0, 1, 0, 0],
+            [0, 0, 1, 0],
+            [0, 0, 0, "x"]
+        ]))
+        .contains("not finite"));
+        assert!(bad(json!([
+            [1, 0, 0, 0],
+            [0, -1, 0, 0],
+            [0, 0, 1, 0],
+            [0, 0, 0, 1]
+        ]))
+        .contains("negative"));
+    }
+
+    #[test]
+    fn ellipse_is_the_mahalanobis_contour() {
+        let c = [[0.04, -0.018], [-0.018, 0.25]];
+        let inv = {
+            let det = c[0][0] * c[1][1] - c[0][1] * c[1][0];
+            [
+                [c[1][1] / det, -c[0][1] / det],
+                [-c[1][0] / det, c[0][0] / det],
+            ]
+        };
+        for k in [1.0, 3.0] {
+            for (x, y) in ellipse(c, k) {
+                let d2 = x * (inv[0][0] * x + inv[0][1] * y) + y * (inv[1][0] * x + inv[1][1] * y);
+                assert!((d2.sqrt() - k).abs() < 1e-9, "{d2}");
+            }
+        }
+        // Its extent along each axis is k·σ of that axis.
+        let e = ellipse(c, 3.0);
+        let xmax = e.iter().map(|p| p.0).fold(0.0, f64::max);
+        assert!((xmax - 3.0 * 0.2).abs() < 1e-3, "{xmax}");
+    }
 }

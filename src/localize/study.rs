@@ -349,13 +349,21 @@ pub struct Surface {
     pub grid_y: Vec<f64>,
     /// MI over the grid, row-major with y slowest: `mi[j * grid_x.len() + i]`.
     pub grid_mi: Vec<f64>,
+    /// Map x, y of the unit lateral direction (left of the view, [`lateral_direction`]).
+    pub lateral_direction: [f64; 2],
+    /// Lateral offsets of the yaw–lateral grid, metres.
+    pub grid_lateral: Vec<f64>,
+    /// Yaw offsets of the yaw–lateral grid, degrees.
+    pub grid_yaw: Vec<f64>,
+    /// MI over the yaw–lateral grid, yaw slowest: `mi[j * grid_lateral.len() + i]`.
+    pub grid_lateral_yaw_mi: Vec<f64>,
     /// Points in the fixed set.
     pub points: usize,
 }
 
 /// Evaluate MI around `pose` with the search's estimator: the box of `cfg.spec` (its fixed point
-/// set, full resolution), 1-D profiles at the finest step along x, y, z and yaw, and the x–y plane
-/// every `xy_stride` finest cells.
+/// set, full resolution), 1-D profiles at the finest step along x, y, z and yaw, the x–y plane
+/// and the yaw–lateral plane every `xy_stride` finest cells (see [`surface_of`]).
 pub fn mi_surface(
     camera: &Camera,
     gray: &[u8],
@@ -364,53 +372,105 @@ pub fn mi_surface(
     cfg: &SearchConfig,
     xy_stride: i64,
 ) -> Result<Surface> {
+    let mask = crate::camera::CameraModel::valid_mask(camera);
+    let ev = Evaluator::new(camera, gray, &mask, points, pose, cfg, 0)?;
+    surface_of(&ev, pose, xy_stride)
+}
+
+/// The horizontal unit vector (map x, y) to the *left* of the camera's view: perpendicular to
+/// the horizontal part of the optical axis, or, for a camera looking (nearly) straight down, of
+/// the image's up direction. The yaw–lateral plane moves the camera along it.
+pub fn lateral_direction(pose: &CamFromMap) -> [f64; 2] {
+    let inv = pose.rotation.inverse();
+    let axis = inv * nalgebra::Vector3::z();
+    // Below ~17° from the nadir the optical axis' horizontal part is short and unstable; the
+    // image's up direction (−y of the camera) is where a nadir camera "looks".
+    let view = if axis.xy().norm() > 0.3 {
+        axis.xy()
+    } else {
+        (inv * -nalgebra::Vector3::y()).xy()
+    };
+    let v = view.normalize();
+    [-v.y, v.x]
+}
+
+/// [`mi_surface`] on a prepared evaluator (its box and fixed point set; one view or several
+/// pooled): profiles at the finest step, the x–y plane (z and yaw fixed) and the yaw–lateral
+/// plane (z fixed; lateral along [`lateral_direction`], over the smaller of the x and y half
+/// ranges) every `xy_stride` finest cells.
+pub fn surface_of(ev: &Evaluator, pose: &CamFromMap, xy_stride: i64) -> Result<Surface> {
     if xy_stride < 1 {
         return Err(Error::Invalid(format!(
             "surface stride {xy_stride}: must be ≥ 1"
         )));
     }
-    let mask = crate::camera::CameraModel::valid_mask(camera);
-    let ev = Evaluator::new(camera, gray, &mask, points, pose, cfg, 0)?;
     let g = *ev.grid();
-    let score = |cells: &[[i64; 6]]| -> Vec<f64> {
+    let objective = ev.objective();
+    let score = |offsets: &[[f64; 6]]| -> Vec<f64> {
         // Chunks keep one scratch buffer per task; collect keeps the input order.
-        cells
+        offsets
             .par_chunks(16)
             .flat_map_iter(|chunk| {
                 let mut s = super::kernel::Scratch::default();
                 chunk
                     .iter()
-                    .map(|c| ev.score(0, g.index(c), &mut s).score)
+                    .map(|o| ev.value_at(0, o, &mut s).get(objective))
                     .collect::<Vec<_>>()
             })
             .collect()
     };
     let mut profiles = Vec::new();
     for axis in 0..4 {
-        let cells: Vec<[i64; 6]> = (-g.m[axis]..=g.m[axis])
-            .map(|k| {
-                let mut c = [0i64; 6];
-                c[axis] = k;
+        let offs: Vec<f64> = (-g.m[axis]..=g.m[axis])
+            .map(|k| k as f64 * g.step[axis])
+            .collect();
+        let cells: Vec<[f64; 6]> = offs
+            .iter()
+            .map(|&v| {
+                let mut c = [0.0; 6];
+                c[axis] = v;
                 c
             })
             .collect();
-        let offs = cells.iter().map(|c| g.offsets(c)[axis]).collect();
         profiles.push((AXES[axis].to_string(), offs, score(&cells)));
     }
-    let ks = |axis: usize| -> Vec<i64> {
-        let k = g.m[axis] / xy_stride;
+    let ks = |m: i64| -> Vec<i64> {
+        let k = m / xy_stride;
         (-k..=k).map(|j| j * xy_stride).collect()
     };
-    let (kx, ky) = (ks(0), ks(1));
-    let cells: Vec<[i64; 6]> = ky
+    let grid_x: Vec<f64> = ks(g.m[0]).iter().map(|&i| i as f64 * g.step[0]).collect();
+    let grid_y: Vec<f64> = ks(g.m[1]).iter().map(|&j| j as f64 * g.step[1]).collect();
+    let cells: Vec<[f64; 6]> = grid_y
         .iter()
-        .flat_map(|&j| kx.iter().map(move |&i| [i, j, 0, 0, 0, 0]))
+        .flat_map(|&y| grid_x.iter().map(move |&x| [x, y, 0.0, 0.0, 0.0, 0.0]))
         .collect();
+    let grid_mi = score(&cells);
+    // Lateral: the finer of the x and y steps, within both half ranges, so every pose lies
+    // inside the box whose fixed point set the evaluator holds.
+    let lat_step = g.step[0].min(g.step[1]);
+    let lat_m =
+        ((g.m[0] as f64 * g.step[0]).min(g.m[1] as f64 * g.step[1]) / lat_step).floor() as i64;
+    let dir = lateral_direction(pose);
+    let grid_lateral: Vec<f64> = ks(lat_m).iter().map(|&i| i as f64 * lat_step).collect();
+    let grid_yaw: Vec<f64> = ks(g.m[3]).iter().map(|&j| j as f64 * g.step[3]).collect();
+    let cells: Vec<[f64; 6]> = grid_yaw
+        .iter()
+        .flat_map(|&yaw| {
+            grid_lateral
+                .iter()
+                .map(move |&l| [l * dir[0], l * dir[1], 0.0, yaw, 0.0, 0.0])
+        })
+        .collect();
+    let grid_lateral_yaw_mi = score(&cells);
     Ok(Surface {
         profiles,
-        grid_x: kx.iter().map(|&i| i as f64 * g.step[0]).collect(),
-        grid_y: ky.iter().map(|&j| j as f64 * g.step[1]).collect(),
-        grid_mi: score(&cells),
+        grid_x,
+        grid_y,
+        grid_mi,
+        lateral_direction: dir,
+        grid_lateral,
+        grid_yaw,
+        grid_lateral_yaw_mi,
         points: ev.n_points,
     })
 }
