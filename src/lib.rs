@@ -11,6 +11,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod app;
+pub mod calib;
 pub mod camera;
 pub mod capture;
 pub mod cli;
