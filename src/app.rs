@@ -12,7 +12,7 @@ use crate::config::{Config, FrameSourceKind, GpsSourceKind, MatcherKind};
 use crate::error::{Error, Result};
 use crate::localize::matcher::{MatchFile, Matcher};
 use crate::localize::pipeline::{localize, Outcome, Params};
-use crate::map::cache::{find_tile, load_tile};
+use crate::map::cache::{load_covering, SkippedTile};
 use crate::map::{Crs, Tile};
 use crate::persist::write_atomic;
 use crate::posefile::{format_utc, PoseFile};
@@ -53,6 +53,63 @@ pub struct Outputs {
     pub overlay: Option<PathBuf>,
 }
 
+impl Outputs {
+    /// The files this run writes, each with what named it (the flag when given, else the
+    /// config key): pose, then report and overlay when set.
+    pub fn resolve(&self, cfg: &Config) -> Vec<(&'static str, PathBuf)> {
+        let pick = |flag: &'static str,
+                    key: &'static str,
+                    o: &Option<PathBuf>,
+                    c: Option<&PathBuf>| {
+            match (o, c) {
+                (Some(p), _) => Some((flag, p.clone())),
+                (None, Some(p)) => Some((key, p.clone())),
+                (None, None) => None,
+            }
+        };
+        [
+            pick("--out", "[output] pose", &self.pose, Some(&cfg.output.pose)),
+            pick(
+                "--report",
+                "[output] report",
+                &self.report,
+                cfg.output.report.as_ref(),
+            ),
+            pick(
+                "--overlay",
+                "[output] overlay",
+                &self.overlay,
+                cfg.output.overlay.as_ref(),
+            ),
+        ]
+        .into_iter()
+        .flatten()
+        .collect()
+    }
+
+    /// Check every output before any work (so that a run does not compute for a minute and then
+    /// fail to write): not a directory, its directory exists and is writable. Every problem is
+    /// reported, each naming the flag or key and the user's path: exit 78 when a config key is
+    /// at fault, else 1. Temp files that killed runs left beside the outputs are removed.
+    pub fn check(&self, cfg: &Config, cfg_path: &Path) -> Result<()> {
+        let mut found = crate::preflight::Findings::default();
+        let mut from_config = false;
+        for (name, path) in self.resolve(cfg) {
+            let before = found.problems.len();
+            crate::preflight::output_path(name, &path, false, &mut found);
+            from_config |= found.problems.len() > before && name.starts_with('[');
+            crate::persist::remove_stale_temps(&path);
+        }
+        if found.problems.is_empty() {
+            Ok(())
+        } else if from_config {
+            Error::config_problems(cfg_path, found.problems)
+        } else {
+            Err(Error::Invalid(found.problems.join("; ")))
+        }
+    }
+}
+
 /// Everything a localization run produced (used by `localize`, `demo` and the service).
 pub struct Run {
     /// Pipeline outcome.
@@ -69,6 +126,8 @@ pub struct Run {
     pub pose_file: PoseFile,
     /// The report.
     pub report: Value,
+    /// Tiles of the cache skipped as unreadable (the run went on without them).
+    pub skipped_tiles: Vec<SkippedTile>,
 }
 
 fn frames(ov: &Overrides, cfg: &Config, cfg_path: &Path) -> Result<Vec<GrayImage>> {
@@ -125,9 +184,16 @@ fn prior(ov: &Overrides, cfg: &Config) -> Result<((f64, f64, f64), Value)> {
     }
     let outcome = crate::gps_serial::acquire_prior(&g)?;
     let desc = serde_json::to_value(&outcome).unwrap_or(Value::Null);
-    let pos = outcome
-        .position()
-        .ok_or_else(|| Error::stage("prior", format!("no position: {desc}")))?;
+    let pos = outcome.position().ok_or_else(|| {
+        let why = match &outcome {
+            crate::gnss::prior::PriorOutcome::None { reason } => reason.as_str(),
+            _ => "no position",
+        };
+        Error::stage(
+            "prior",
+            format!("no position: {why}; and no [gps] fallback-wgs84 is set"),
+        )
+    })?;
     Ok((pos, desc))
 }
 
@@ -194,8 +260,20 @@ pub fn run(
     let ((lat, lon, sigma), prior_desc) = prior(ov, cfg)?;
     progress(StageName::Tile);
     let tiles = ov.tiles.clone().unwrap_or_else(|| cfg.map.tiles.clone());
-    let tref = find_tile(&tiles, lat, lon, cfg.map.search_margin_m)?;
-    let tile = load_tile(&tref.dir)?;
+    let params = Params {
+        matcher,
+        quality: cfg.quality,
+        ..Params::default()
+    };
+    // The covering tile's LiDAR layers must hold data around the prior: a damaged layer is a
+    // map fault, not a PnP or MI failure. Unreadable tiles elsewhere are skipped and reported.
+    let (tile, tref) = load_covering(
+        &tiles,
+        lat,
+        lon,
+        cfg.map.search_margin_m,
+        params.mi_radius_m,
+    )?;
     let crs = tile.reflectivity.grid.crs;
     let (px, py) = match crs {
         Crs::Epsg(_) => crate::geo::wgs84_to_map(crs, lat, lon)?,
@@ -205,11 +283,6 @@ pub fn run(
                 "tile CRS is LOCAL: a WGS84 prior cannot be placed in it",
             ))
         }
-    };
-    let params = Params {
-        matcher,
-        quality: cfg.quality,
-        ..Params::default()
     };
     let clock = |t: Instant| move || t.elapsed().as_secs_f64();
     let outcome = localize(
@@ -250,6 +323,9 @@ pub fn run(
         "stages": pf.stages,
         "seconds_total": t_start.elapsed().as_secs_f64(),
     });
+    if !tref.skipped.is_empty() {
+        report["skipped_tiles"] = json!(tref.skipped);
+    }
     if let Some(t) = &ov.truth {
         let text = std::fs::read_to_string(t).map_err(|e| Error::io(t, e))?;
         report["truth"] =
@@ -263,6 +339,7 @@ pub fn run(
         mi_radius_m: params.mi_radius_m,
         pose_file: pf,
         report,
+        skipped_tiles: tref.skipped,
     })
 }
 
@@ -299,16 +376,17 @@ impl Run {
         )
     }
 
-    /// Write the pose file, then the report and overlay (each atomically), where `out` says or
+    /// Write the report and overlay, then the pose file (each atomically), where `out` says or
     /// else where `cfg`'s `[output]` says (the report and overlay only when one of them names a
-    /// path).
+    /// path). The pose comes last, so an error (a non-zero exit) means the pose file is
+    /// untouched; check the paths first with [`Outputs::check`].
     pub fn write_outputs(&self, cfg: &Config, out: &Outputs) -> Result<()> {
-        let pose = out.pose.as_ref().unwrap_or(&cfg.output.pose);
-        write_atomic(pose, self.pose_file.to_json().as_bytes())?;
         self.write_side_outputs(
             out.report.as_ref().or(cfg.output.report.as_ref()),
             out.overlay.as_ref().or(cfg.output.overlay.as_ref()),
-        )
+        )?;
+        let pose = out.pose.as_ref().unwrap_or(&cfg.output.pose);
+        write_atomic(pose, self.pose_file.to_json().as_bytes())
     }
 
     /// Write the report JSON and the overlay PNG where asked (each atomically).

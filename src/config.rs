@@ -157,72 +157,6 @@ impl Default for CameraConfig {
     }
 }
 
-impl CameraConfig {
-    /// The frame-source keys: values in range and meaningful for the chosen source.
-    fn validate_source(&self, origin: &Path) -> Result<()> {
-        let kind = self.source.name();
-        let err = |msg: String| Err(Error::config(origin, format!("[camera] {msg}")));
-        if self.timeout_ms == 0 {
-            return err("timeout-ms must be at least 1".into());
-        }
-        if self.retry_attempts == 0 {
-            return err("retry-attempts must be at least 1".into());
-        }
-        if let Some(f) = &self.pixel_format {
-            let known = self.source.pixel_formats();
-            if !known.contains(&f.as_str()) {
-                return err(if known.is_empty() {
-                    format!("pixel-format is not used with source = \"{kind}\"")
-                } else {
-                    format!(
-                        "pixel-format = \"{f}\" is not one of {} (source = \"{kind}\")",
-                        known.join(", ")
-                    )
-                });
-            }
-        }
-        if self.resolution.is_some() && self.source != FrameSourceKind::V4l2 {
-            return err(format!(
-                "resolution is for source = \"v4l2\" (use region for aravis), not \"{kind}\""
-            ));
-        }
-        if let Some([w, h]) = self.resolution {
-            if w == 0 || h == 0 {
-                return err(format!("resolution = [{w}, {h}] must be positive"));
-            }
-        }
-        let aravis_only = [
-            ("region", self.region.is_some()),
-            ("exposure-us", self.exposure_us.is_some()),
-            ("gain-db", self.gain_db.is_some()),
-        ];
-        if let Some((key, _)) = aravis_only
-            .iter()
-            .find(|(_, set)| *set && self.source != FrameSourceKind::Aravis)
-        {
-            return err(format!("{key} is for source = \"aravis\", not \"{kind}\""));
-        }
-        if let Some([_, _, w, h]) = self.region {
-            if w == 0 || h == 0 {
-                return err(format!(
-                    "region width and height must be positive, got {w}x{h}"
-                ));
-            }
-        }
-        if let Some(e) = self.exposure_us {
-            if !(e > 0.0 && e.is_finite()) {
-                return err(format!("exposure-us = {e} must be > 0"));
-            }
-        }
-        if let Some(g) = self.gain_db {
-            if !g.is_finite() {
-                return err(format!("gain-db = {g} is not a number"));
-            }
-        }
-        Ok(())
-    }
-}
-
 /// Where the position prior comes from.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -364,9 +298,119 @@ impl Default for DaemonConfig {
 /// Control socket of the installed service.
 pub const DEFAULT_SOCKET: &str = "/run/infraloc/control.sock";
 
+/// Upper bounds of the numeric keys: beyond them a value is a typo or a unit mistake, and some
+/// (retries, back-offs, timeouts) would make a run wait for days without a word. Documented in
+/// `config/infraloc.toml` and docs/technician.md.
+pub mod limits {
+    /// `[camera] frame-count`.
+    pub const FRAME_COUNT: u64 = 100;
+    /// `[camera] frame-interval-ms` (one minute).
+    pub const FRAME_INTERVAL_MS: u64 = 60_000;
+    /// `[camera] settle-frames`.
+    pub const SETTLE_FRAMES: u64 = 1_000;
+    /// `[camera] timeout-ms` (one minute).
+    pub const TIMEOUT_MS: u64 = 60_000;
+    /// `[camera] retry-attempts`.
+    pub const RETRY_ATTEMPTS: u64 = 20;
+    /// `[camera] retry-backoff-ms`: the doubling back-off is capped at 30 s anyway.
+    pub const RETRY_BACKOFF_MS: u64 = 30_000;
+    /// `[camera] exposure-us` (ten seconds).
+    pub const EXPOSURE_US: f64 = 10_000_000.0;
+    /// `[gps] window-s`: the prior keeps at most 10 000 fixes, 1000 s at 10 Hz.
+    pub const GPS_WINDOW_S: f64 = 1_000.0;
+    /// `[gps] timeout-s` (one hour).
+    pub const GPS_TIMEOUT_S: f64 = 3_600.0;
+    /// `[gps] fallback-sigma-m`.
+    pub const SIGMA_M: f64 = 1_000.0;
+    /// `[gps] max-hdop`.
+    pub const HDOP: f64 = 100.0;
+    /// `[gps] min-fixes`: no more than the prior keeps.
+    pub const MIN_FIXES: u64 = 10_000;
+    /// `[gps] reconnect-max-s` (one hour).
+    pub const RECONNECT_S: f64 = 3_600.0;
+    /// `[gps] baud`.
+    pub const BAUD: u64 = 4_000_000;
+    /// `[map] search-margin-m`.
+    pub const MARGIN_M: f64 = 10_000.0;
+    /// `[daemon] history-len`.
+    pub const HISTORY_LEN: u64 = 10_000;
+    /// `[daemon] relocalize-interval-h` (one year).
+    pub const RELOCALIZE_INTERVAL_H: f64 = 8_760.0;
+    /// `[daemon] drift-check-interval-min` (one week).
+    pub const DRIFT_INTERVAL_MIN: f64 = 10_080.0;
+    /// `[daemon] retry-initial-s` (one day).
+    pub const RETRY_INITIAL_S: f64 = 86_400.0;
+    /// `[daemon] retry-max-s` (one week).
+    pub const RETRY_MAX_S: f64 = 604_800.0;
+    /// `[daemon] drift-threshold-m`.
+    pub const DRIFT_M: f64 = 100.0;
+    /// `[daemon] drift-threshold-deg`.
+    pub const DRIFT_DEG: f64 = 180.0;
+}
+
+/// The lower end of a float key's range.
+#[derive(Clone, Copy)]
+enum Low {
+    /// Strictly above.
+    Above(f64),
+    /// At or above.
+    AtLeast(f64),
+}
+use Low::{Above, AtLeast};
+
+/// Problems found so far, one line each.
+#[derive(Default)]
+struct Problems(Vec<String>);
+
+impl Problems {
+    fn push(&mut self, m: impl Into<String>) {
+        self.0.push(m.into());
+    }
+
+    /// An integer key within `lo..=hi`.
+    fn int(&mut self, key: &str, v: u64, lo: u64, hi: u64) {
+        if v < lo || v > hi {
+            self.push(format!("{key} = {v} is out of range: use {lo} to {hi}"));
+        }
+    }
+
+    /// A float key: finite, above (or at least) its lower end, at most `hi`.
+    fn float(&mut self, key: &str, v: f64, lo: Low, hi: f64) {
+        let (ok_low, lo_text) = match lo {
+            Above(l) => (v > l, format!("> {l}")),
+            AtLeast(l) => (v >= l, format!(">= {l}")),
+        };
+        if !v.is_finite() {
+            self.push(format!(
+                "{key} = {v} is not a finite number: use a value {lo_text} and <= {hi}"
+            ));
+        } else if !ok_low || v > hi {
+            self.push(format!(
+                "{key} = {v} is out of range: use a value {lo_text} and <= {hi}"
+            ));
+        }
+    }
+
+    /// A path key, when set, must not be empty (an empty path would resolve to the config's own
+    /// directory).
+    fn path(&mut self, key: &str, v: Option<&Path>) {
+        if v.is_some_and(|p| p.as_os_str().is_empty()) {
+            self.push(format!("{key} is empty: give a path"));
+        }
+    }
+}
+
 impl Config {
-    /// Parse TOML text. `origin` names the source in errors.
+    /// Parse and validate TOML text ([`Config::validate`]); relative paths stay as written.
+    /// `origin` names the source in errors.
     pub fn parse(text: &str, origin: &Path) -> Result<Config> {
+        let cfg = Config::parse_unchecked(text, origin)?;
+        cfg.validate(origin)?;
+        Ok(cfg)
+    }
+
+    /// Parse TOML text without [`Config::validate`] (tests of the validation itself).
+    pub(crate) fn parse_unchecked(text: &str, origin: &Path) -> Result<Config> {
         toml::from_str(text).map_err(|e| {
             // toml's message spans several lines with a source excerpt; keep one line.
             let msg = e.message().trim().to_string();
@@ -381,19 +425,33 @@ impl Config {
         })
     }
 
-    /// Read a config file and resolve its relative paths against the file's directory.
+    /// Read a config file, validate it ([`Config::validate`]: every key-level problem, exit 78)
+    /// and resolve its relative paths against the file's directory. The one way the program
+    /// reads its configuration, so no caller can skip the validation. What the config names on
+    /// this machine (files, devices, directories) is checked by [`crate::preflight`].
     pub fn load(path: &Path) -> Result<Config> {
+        let (cfg, problems) = Config::load_with_problems(path)?;
+        Error::config_problems(path, problems)?;
+        Ok(cfg)
+    }
+
+    /// Read a config file and resolve its paths, returning its [`Config::problems`] rather than
+    /// failing on them, so that [`crate::preflight`] can add what it finds on the machine and a
+    /// technician sees every problem at once. A file that cannot be read or parsed is an error.
+    pub(crate) fn load_with_problems(path: &Path) -> Result<(Config, Vec<String>)> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::config(path, e.to_string()))?;
-        let mut cfg = Config::parse(&text, path)?;
+        let mut cfg = Config::parse_unchecked(&text, path)?;
+        let problems = cfg.problems();
         let base = path.parent().unwrap_or(Path::new("."));
         cfg.resolve_paths(base);
-        Ok(cfg)
+        Ok((cfg, problems))
     }
 
     /// Make every relative path absolute against `base`.
     pub fn resolve_paths(&mut self, base: &Path) {
+        // An empty path stays empty, so validation can name it instead of it becoming `base`.
         let fix = |p: &mut PathBuf| {
-            if p.is_relative() {
+            if p.is_relative() && !p.as_os_str().is_empty() {
                 *p = base.join(&*p);
             }
         };
@@ -408,133 +466,249 @@ impl Config {
         self.init.matcher_path.as_mut().map(fix);
     }
 
-    /// Hard errors a parsed config can still have (missing required combinations). Exit 78.
+    /// Hard errors a parsed config can still have: missing required combinations, values out of
+    /// range or beyond the [`limits`]. Every problem is reported, each naming its `[section] key`
+    /// (one [`Error::Config`] for one problem, [`Error::ConfigList`] for several). Exit 78.
     pub fn validate(&self, origin: &Path) -> Result<()> {
-        self.quality
-            .validate()
-            .map_err(|m| Error::config(origin, format!("[quality] {m}")))?;
+        Error::config_problems(origin, self.problems())
+    }
+
+    /// The problems [`Config::validate`] reports, one line each, `[section] key …` first.
+    pub fn problems(&self) -> Vec<String> {
+        let mut p = Problems::default();
+        self.camera_problems(&mut p);
+        self.gps_problems(&mut p);
+        self.map_output_problems(&mut p);
+        self.daemon_problems(&mut p);
+        if self.init.matcher == MatcherKind::MatchFile && self.init.matcher_path.is_none() {
+            p.push("[init] matcher = \"match-file\" needs matcher-path");
+        }
+        if let Err(m) = self.quality.validate() {
+            p.push(format!("[quality] {m}"));
+        }
+        p.0
+    }
+
+    fn camera_problems(&self, p: &mut Problems) {
         let c = &self.camera;
-        if c.intrinsics_file.is_none() && c.intrinsics.is_none() {
-            return Err(Error::config(
-                origin,
-                "[camera]: set intrinsics-file or an inline [camera.intrinsics] table",
-            ));
+        match (&c.intrinsics_file, &c.intrinsics) {
+            (None, None) => {
+                p.push("[camera]: set intrinsics-file or an inline [camera.intrinsics] table")
+            }
+            (Some(_), Some(_)) => {
+                p.push("[camera]: intrinsics-file and [camera.intrinsics] are both set; keep one")
+            }
+            (_, Some(cam)) => {
+                if let Err(m) = cam.validate() {
+                    p.push(format!("[camera.intrinsics] {m}"));
+                }
+            }
+            (Some(_), None) => {}
         }
-        if c.intrinsics_file.is_some() && c.intrinsics.is_some() {
-            return Err(Error::config(
-                origin,
-                "[camera]: intrinsics-file and [camera.intrinsics] are both set; keep one",
-            ));
-        }
-        if let Some(cam) = &c.intrinsics {
-            cam.validate()
-                .map_err(|m| Error::config(origin, format!("[camera.intrinsics] {m}")))?;
-        }
+        p.path("[camera] intrinsics-file", c.intrinsics_file.as_deref());
+        p.path("[camera] frames", c.frames.as_deref());
         if c.source == FrameSourceKind::File && c.frames.is_none() {
-            return Err(Error::config(
-                origin,
-                "[camera] source = \"file\" needs frames",
+            p.push("[camera] source = \"file\" needs frames");
+        }
+        if c.source == FrameSourceKind::V4l2 && c.device.as_deref().is_none_or(str::is_empty) {
+            p.push("[camera] source = \"v4l2\" needs device");
+        }
+        p.int(
+            "[camera] frame-count",
+            c.frame_count.into(),
+            1,
+            limits::FRAME_COUNT,
+        );
+        p.int(
+            "[camera] frame-interval-ms",
+            c.frame_interval_ms,
+            0,
+            limits::FRAME_INTERVAL_MS,
+        );
+        p.int(
+            "[camera] settle-frames",
+            c.settle_frames.into(),
+            0,
+            limits::SETTLE_FRAMES,
+        );
+        p.int("[camera] timeout-ms", c.timeout_ms, 1, limits::TIMEOUT_MS);
+        p.int(
+            "[camera] retry-attempts",
+            c.retry_attempts.into(),
+            1,
+            limits::RETRY_ATTEMPTS,
+        );
+        p.int(
+            "[camera] retry-backoff-ms",
+            c.retry_backoff_ms,
+            0,
+            limits::RETRY_BACKOFF_MS,
+        );
+        let kind = c.source.name();
+        if let Some(f) = &c.pixel_format {
+            let known = c.source.pixel_formats();
+            if !known.contains(&f.as_str()) {
+                p.push(if known.is_empty() {
+                    format!("[camera] pixel-format is not used with source = \"{kind}\"")
+                } else {
+                    format!(
+                        "[camera] pixel-format = \"{f}\" is not one of {} (source = \"{kind}\")",
+                        known.join(", ")
+                    )
+                });
+            }
+        }
+        if c.resolution.is_some() && c.source != FrameSourceKind::V4l2 {
+            p.push(format!(
+                "[camera] resolution is for source = \"v4l2\" (use region for aravis), not \"{kind}\""
             ));
         }
-        if c.source != FrameSourceKind::File
-            && c.device.is_none()
-            && c.source == FrameSourceKind::V4l2
-        {
-            return Err(Error::config(
-                origin,
-                "[camera] source = \"v4l2\" needs device",
-            ));
+        if let Some([w, h]) = c.resolution {
+            if w == 0 || h == 0 {
+                p.push(format!("[camera] resolution = [{w}, {h}] must be positive"));
+            }
         }
-        if c.frame_count == 0 {
-            return Err(Error::config(
-                origin,
-                "[camera] frame-count must be at least 1",
-            ));
+        for (key, set) in [
+            ("region", c.region.is_some()),
+            ("exposure-us", c.exposure_us.is_some()),
+            ("gain-db", c.gain_db.is_some()),
+        ] {
+            if set && c.source != FrameSourceKind::Aravis {
+                p.push(format!(
+                    "[camera] {key} is for source = \"aravis\", not \"{kind}\""
+                ));
+            }
         }
-        c.validate_source(origin)?;
+        if let Some([_, _, w, h]) = c.region {
+            if w == 0 || h == 0 {
+                p.push(format!(
+                    "[camera] region width and height must be positive, got {w}x{h}"
+                ));
+            }
+        }
+        if let Some(e) = c.exposure_us {
+            p.float("[camera] exposure-us", e, Above(0.0), limits::EXPOSURE_US);
+        }
+        if let Some(g) = c.gain_db {
+            if !g.is_finite() {
+                p.push(format!("[camera] gain-db = {g} is not a finite number"));
+            }
+        }
+    }
+
+    fn gps_problems(&self, p: &mut Problems) {
         let g = &self.gps;
         match g.source {
             GpsSourceKind::NmeaFile if g.path.is_none() => {
-                return Err(Error::config(
-                    origin,
-                    "[gps] source = \"nmea-file\" needs path",
-                ))
+                p.push("[gps] source = \"nmea-file\" needs path")
             }
-            GpsSourceKind::Serial if g.device.is_none() => {
-                return Err(Error::config(
-                    origin,
-                    "[gps] source = \"serial\" needs device",
-                ))
+            GpsSourceKind::Serial if g.device.as_deref().is_none_or(str::is_empty) => {
+                p.push("[gps] source = \"serial\" needs device")
             }
             GpsSourceKind::Fixed if g.fallback_wgs84.is_none() => {
-                return Err(Error::config(
-                    origin,
-                    "[gps] source = \"fixed\" needs fallback-wgs84",
-                ))
+                p.push("[gps] source = \"fixed\" needs fallback-wgs84")
             }
             _ => {}
         }
+        p.path("[gps] path", g.path.as_deref());
         if let Some([lat, lon]) = g.fallback_wgs84 {
             if !(lat.abs() <= 90.0 && lon.abs() <= 180.0) {
-                return Err(Error::config(
-                    origin,
-                    format!("[gps] fallback-wgs84 = [{lat}, {lon}] is not a WGS84 position"),
+                p.push(format!(
+                    "[gps] fallback-wgs84 = [{lat}, {lon}] is not a WGS84 position"
                 ));
             }
         }
-        if !(g.window_s > 0.0 && g.timeout_s >= 0.0 && g.fallback_sigma_m > 0.0) {
-            return Err(Error::config(
-                origin,
-                "[gps] window-s and fallback-sigma-m must be > 0, timeout-s >= 0",
-            ));
+        p.float(
+            "[gps] window-s",
+            g.window_s,
+            Above(0.0),
+            limits::GPS_WINDOW_S,
+        );
+        p.float(
+            "[gps] timeout-s",
+            g.timeout_s,
+            AtLeast(0.0),
+            limits::GPS_TIMEOUT_S,
+        );
+        p.float(
+            "[gps] fallback-sigma-m",
+            g.fallback_sigma_m,
+            Above(0.0),
+            limits::SIGMA_M,
+        );
+        p.float("[gps] max-hdop", g.max_hdop, Above(0.0), limits::HDOP);
+        p.int("[gps] min-fixes", g.min_fixes as u64, 0, limits::MIN_FIXES);
+        p.float(
+            "[gps] reconnect-max-s",
+            g.reconnect_max_s,
+            Above(0.0),
+            limits::RECONNECT_S,
+        );
+        if g.source == GpsSourceKind::Serial {
+            p.int("[gps] baud", g.baud.into(), 1, limits::BAUD);
         }
-        if !(g.max_hdop > 0.0 && g.reconnect_max_s > 0.0 && g.reconnect_max_s.is_finite()) {
-            return Err(Error::config(
-                origin,
-                "[gps] max-hdop and reconnect-max-s must be > 0",
-            ));
-        }
-        if g.source == GpsSourceKind::Serial && g.baud == 0 {
-            return Err(Error::config(origin, "[gps] baud must be > 0"));
-        }
-        if !(self.map.search_margin_m >= 0.0) {
-            return Err(Error::config(origin, "[map] search-margin-m must be >= 0"));
-        }
+    }
+
+    fn map_output_problems(&self, p: &mut Problems) {
+        p.path("[map] tiles", Some(&self.map.tiles));
+        p.float(
+            "[map] search-margin-m",
+            self.map.search_margin_m,
+            AtLeast(0.0),
+            limits::MARGIN_M,
+        );
+        let o = &self.output;
+        p.path("[output] pose", Some(&o.pose));
+        p.path("[output] report", o.report.as_deref());
+        p.path("[output] overlay", o.overlay.as_deref());
+        p.path("[init] matcher-path", self.init.matcher_path.as_deref());
+    }
+
+    fn daemon_problems(&self, p: &mut Problems) {
         let d = &self.daemon;
-        for (key, v) in [
-            ("relocalize-interval-h", d.relocalize_interval_h),
-            ("drift-check-interval-min", d.drift_check_interval_min),
-        ] {
-            if !(v >= 0.0 && v.is_finite()) {
-                return Err(Error::config(
-                    origin,
-                    format!("[daemon] {key} = {v} must be >= 0 (0 = off)"),
-                ));
-            }
-        }
-        for (key, v) in [
-            ("retry-initial-s", d.retry_initial_s),
-            ("retry-max-s", d.retry_max_s),
-            ("drift-threshold-m", d.drift_threshold_m),
-            ("drift-threshold-deg", d.drift_threshold_deg),
-        ] {
-            if !(v > 0.0 && v.is_finite()) {
-                return Err(Error::config(
-                    origin,
-                    format!("[daemon] {key} = {v} must be > 0"),
-                ));
-            }
-        }
-        if d.history_len == 0 {
-            return Err(Error::config(origin, "[daemon] history-len must be >= 1"));
-        }
-        if self.init.matcher == MatcherKind::MatchFile && self.init.matcher_path.is_none() {
-            return Err(Error::config(
-                origin,
-                "[init] matcher = \"match-file\" needs matcher-path",
-            ));
-        }
-        Ok(())
+        p.path("[daemon] socket", Some(&d.socket));
+        p.int(
+            "[daemon] history-len",
+            d.history_len as u64,
+            1,
+            limits::HISTORY_LEN,
+        );
+        p.float(
+            "[daemon] relocalize-interval-h",
+            d.relocalize_interval_h,
+            AtLeast(0.0),
+            limits::RELOCALIZE_INTERVAL_H,
+        );
+        p.float(
+            "[daemon] drift-check-interval-min",
+            d.drift_check_interval_min,
+            AtLeast(0.0),
+            limits::DRIFT_INTERVAL_MIN,
+        );
+        p.float(
+            "[daemon] retry-initial-s",
+            d.retry_initial_s,
+            Above(0.0),
+            limits::RETRY_INITIAL_S,
+        );
+        p.float(
+            "[daemon] retry-max-s",
+            d.retry_max_s,
+            Above(0.0),
+            limits::RETRY_MAX_S,
+        );
+        p.float(
+            "[daemon] drift-threshold-m",
+            d.drift_threshold_m,
+            Above(0.0),
+            limits::DRIFT_M,
+        );
+        p.float(
+            "[daemon] drift-threshold-deg",
+            d.drift_threshold_deg,
+            Above(0.0),
+            limits::DRIFT_DEG,
+        );
     }
 
     /// Semantic warnings: legal but probably not what was meant.
@@ -626,8 +800,7 @@ fallback-wgs84 = [42.0, -83.0]
         assert!(Config::parse(&bad, Path::new("x.toml")).is_err());
         // Unusable values are a configuration error naming the parameter.
         let bad = t.replace("fx = 300.0", "fx = -300.0");
-        let c = Config::parse(&bad, Path::new("x.toml")).unwrap();
-        let e = c.validate(Path::new("x.toml")).unwrap_err();
+        let e = Config::parse(&bad, Path::new("x.toml")).unwrap_err();
         assert_eq!(e.exit_code(), crate::error::EXIT_CONFIG);
         assert!(
             e.to_string().contains("[camera.intrinsics] fx = -300"),
@@ -641,8 +814,7 @@ fallback-wgs84 = [42.0, -83.0]
         let gps = "[gps]\nsource = \"fixed\"\nfallback-wgs84 = [42.0, -83.0]\n";
         let ok = |extra: &str| {
             let t = format!("{base}{extra}{gps}");
-            let c = Config::parse(&t, Path::new("x.toml")).unwrap();
-            c.validate(Path::new("x.toml")).map(|_| c)
+            Config::parse(&t, Path::new("x.toml"))
         };
         let c = ok(
             "source = \"aravis\"\ndevice = \"Basler-123\"\npixel-format = \"BayerRG8\"\n\
@@ -691,8 +863,7 @@ fallback-wgs84 = [42.0, -83.0]
 
     #[test]
     fn missing_intrinsics_fails_validation() {
-        let c = Config::parse("[camera]\nframes = \"f\"\n", Path::new("x.toml")).unwrap();
-        let e = c.validate(Path::new("x.toml")).unwrap_err();
+        let e = Config::parse("[camera]\nframes = \"f\"\n", Path::new("x.toml")).unwrap_err();
         assert!(e.to_string().contains("intrinsics"));
     }
 }

@@ -16,9 +16,8 @@ use std::io::{Read, Write};
 use std::os::unix::fs::PermissionsExt;
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Arc;
-use std::time::Duration;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 /// Largest request the server reads; a longer length prefix closes the connection.
 pub const MAX_REQUEST_BYTES: u32 = 64 * 1024;
@@ -26,7 +25,7 @@ pub const MAX_REQUEST_BYTES: u32 = 64 * 1024;
 pub const MAX_RESPONSE_BYTES: u32 = 256 * 1024 * 1024;
 /// Clients served at once; the next one gets a `busy` answer.
 pub const MAX_CONNECTIONS: usize = 8;
-/// How long the server waits for a request once a client connected.
+/// How long a client may take to send its whole request once connected.
 pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long a write to a client may block (a stuck reader must not pin a server thread).
 pub const WRITE_TIMEOUT: Duration = Duration::from_secs(30);
@@ -149,14 +148,23 @@ impl Reply for StreamReply<'_> {
     }
 }
 
-/// Bind the control socket: create its directory if missing (0750; under systemd the
-/// RuntimeDirectory exists already), remove a stale socket left by a crash (only a socket, never
-/// another kind of file), bind, and set [`SOCKET_MODE`].
-pub fn bind(path: &Path) -> Result<UnixListener> {
+/// Mode of the socket's directory: the service's user (rwx) and group (r-x), nobody else.
+pub const DIR_MODE: u32 = 0o750;
+
+/// Bind the control socket: create its directory if missing ([`DIR_MODE`]; under systemd the
+/// RuntimeDirectory exists already), tighten an existing directory of ours that grants more than
+/// [`DIR_MODE`] (refuse one of another user's), remove a stale socket left by a crash (only a
+/// socket, never another kind of file), bind, and set [`SOCKET_MODE`]. Returns the listener and
+/// a note for the log when the directory's mode was changed.
+pub fn bind(path: &Path) -> Result<(UnixListener, Option<String>)> {
+    let mut note = None;
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         if !dir.exists() {
             std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-            let _ = std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o750));
+            std::fs::set_permissions(dir, std::fs::Permissions::from_mode(DIR_MODE))
+                .map_err(|e| Error::io(dir, e))?;
+        } else {
+            note = secure_dir(dir, path)?;
         }
     }
     if let Ok(meta) = std::fs::symlink_metadata(path) {
@@ -164,7 +172,7 @@ pub fn bind(path: &Path) -> Result<UnixListener> {
         if !meta.file_type().is_socket() {
             return Err(Error::input(
                 path,
-                "control socket path exists and is not a socket; refusing to replace it",
+                "the path exists and is not a socket; refusing to replace it",
             ));
         }
         // A live daemon still answering here means a second instance: refuse rather than steal.
@@ -179,7 +187,70 @@ pub fn bind(path: &Path) -> Result<UnixListener> {
     let l = UnixListener::bind(path).map_err(|e| Error::io(path, e))?;
     std::fs::set_permissions(path, std::fs::Permissions::from_mode(SOCKET_MODE))
         .map_err(|e| Error::io(path, e))?;
-    Ok(l)
+    Ok((l, note))
+}
+
+/// An existing socket directory should grant no more than [`DIR_MODE`]: others must not reach
+/// the socket, and nobody but the service may replace it. A directory of the service's own that
+/// holds nothing but the socket (a runtime directory whose mode was loosened) is tightened to
+/// it, and the note says so. Any other directory (another user's, a shared sticky one like /tmp,
+/// one with other files like /run or a scene directory) is not changed, since that would affect
+/// others: refused with the reason if group or others may write it (they could replace the
+/// socket), accepted with a note if they may only look in (the socket's 0660 keeps them out).
+fn secure_dir(dir: &Path, socket: &Path) -> Result<Option<String>> {
+    use std::os::unix::fs::MetadataExt;
+    let m = std::fs::metadata(dir).map_err(|e| Error::io(dir, e))?;
+    if !m.is_dir() {
+        return Err(Error::input(
+            dir,
+            "the socket's directory is not a directory",
+        ));
+    }
+    let mode = m.mode() & 0o7777;
+    if mode & !DIR_MODE == 0 {
+        return Ok(None);
+    }
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    let me = unsafe { libc::geteuid() };
+    let others = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .filter_map(|e| e.ok())
+        .any(|e| Some(e.file_name().as_os_str()) != socket.file_name());
+    let why_not = if m.uid() != me {
+        Some(format!(
+            "it belongs to uid {}, not this service's uid {me}",
+            m.uid()
+        ))
+    } else if mode & 0o1000 != 0 {
+        Some("it is a shared (sticky) directory".to_string())
+    } else if others {
+        Some("it holds other files".to_string())
+    } else {
+        None
+    };
+    if let Some(w) = why_not {
+        if mode & 0o022 == 0 {
+            // Others may only look in (0755, like /run or a scene directory): the socket's own
+            // mode (0660) keeps them out, and changing a shared directory would affect others.
+            return Ok(Some(format!(
+                "control socket directory {} has mode {mode:04o} (not tightened: {w}); the socket's mode {SOCKET_MODE:04o} keeps others out",
+                dir.display()
+            )));
+        }
+        return Err(Error::input(
+            dir,
+            format!(
+                "the socket's directory has mode {mode:04o}: others could replace the socket, and {w}, so it is not tightened; give the socket a directory of its own with mode 0750 (systemd's RuntimeDirectory)"
+            ),
+        ));
+    }
+    let tight = mode & DIR_MODE;
+    std::fs::set_permissions(dir, std::fs::Permissions::from_mode(tight))
+        .map_err(|e| Error::io(dir, e))?;
+    Ok(Some(format!(
+        "control socket directory {}: mode {mode:04o} tightened to {tight:04o}",
+        dir.display()
+    )))
 }
 
 /// The server's limits.
@@ -187,29 +258,230 @@ pub fn bind(path: &Path) -> Result<UnixListener> {
 pub struct Limits {
     /// Clients served at once.
     pub max_connections: usize,
-    /// How long to wait for a client's request.
+    /// How long a client may take to send its whole request (a deadline, not a per-read timeout:
+    /// a client trickling one byte at a time is cut off all the same).
     pub request_timeout: Duration,
+    /// A client that has not sent a whole request for this long is closed to make room for a
+    /// new one when every slot is taken (technician commands send theirs at once).
+    pub evict_idle_after: Duration,
+    /// Clients read at once beyond `max_connections` when nothing can be evicted: `status` is
+    /// answered there, anything else is told `busy`.
+    pub overflow_readers: usize,
+    /// How long such a client may take to send its request.
+    pub overflow_timeout: Duration,
 }
 
 impl Default for Limits {
-    /// [`MAX_CONNECTIONS`], [`REQUEST_TIMEOUT`].
+    /// [`MAX_CONNECTIONS`], [`REQUEST_TIMEOUT`], idle eviction after 250 ms, 4 overflow readers
+    /// with a 1 s deadline.
     fn default() -> Self {
         Limits {
             max_connections: MAX_CONNECTIONS,
             request_timeout: REQUEST_TIMEOUT,
+            evict_idle_after: Duration::from_millis(250),
+            overflow_readers: 4,
+            overflow_timeout: Duration::from_secs(1),
+        }
+    }
+}
+
+/// A [`Read`] over a stream that fails with `TimedOut` once `deadline` has passed, however the
+/// bytes trickle in.
+struct DeadlineReader<'a> {
+    stream: &'a UnixStream,
+    deadline: Instant,
+}
+
+impl Read for DeadlineReader<'_> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let left = self.deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::TimedOut,
+                "the request was not complete in time",
+            ));
+        }
+        self.stream.set_read_timeout(Some(left))?;
+        let mut s = self.stream;
+        match s.read(buf) {
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock) => {
+                Err(std::io::Error::new(
+                    std::io::ErrorKind::TimedOut,
+                    "the request was not complete in time",
+                ))
+            }
+            r => r,
+        }
+    }
+}
+
+/// Read one request frame, all of it before `timeout` from now.
+fn read_request(stream: &UnixStream, timeout: Duration) -> std::io::Result<Option<Vec<u8>>> {
+    let mut r = DeadlineReader {
+        stream,
+        deadline: Instant::now() + timeout,
+    };
+    read_frame(&mut r, MAX_REQUEST_BYTES)
+}
+
+/// One connection holding a slot.
+struct Conn {
+    id: u64,
+    since: Instant,
+    /// Still waiting for its request (evictable once idle long enough).
+    reading: bool,
+    /// A handle to close it on eviction.
+    stream: UnixStream,
+}
+
+#[derive(Default)]
+struct Table {
+    next_id: u64,
+    conns: Vec<Conn>,
+    overflow: usize,
+}
+
+/// The server's connection slots. Each admitted client holds a [`SlotGuard`] that gives the
+/// slot back when dropped, so a client thread that ends in any way (a panicking handler
+/// included) cannot leak it.
+#[derive(Default)]
+struct Slots(Mutex<Table>);
+
+/// How a new connection is admitted.
+enum Admit {
+    /// A slot of its own (maybe after evicting an idle client, whose description is given).
+    Slot(SlotGuard, Option<String>),
+    /// An overflow reader: `status` only.
+    Overflow(OverflowGuard),
+    /// Nothing left: answer busy at once.
+    Busy,
+}
+
+/// Gives back a connection slot when dropped.
+struct SlotGuard {
+    slots: Arc<Slots>,
+    id: u64,
+}
+
+impl SlotGuard {
+    /// The request has been read: the client is no longer idle.
+    fn serving(&self) {
+        let mut t = lock(&self.slots.0);
+        if let Some(c) = t.conns.iter_mut().find(|c| c.id == self.id) {
+            c.reading = false;
+        }
+    }
+}
+
+impl Drop for SlotGuard {
+    fn drop(&mut self) {
+        lock(&self.slots.0).conns.retain(|c| c.id != self.id);
+    }
+}
+
+/// Gives back an overflow reader when dropped.
+struct OverflowGuard(Arc<Slots>);
+
+impl Drop for OverflowGuard {
+    fn drop(&mut self) {
+        let mut t = lock(&self.0 .0);
+        t.overflow = t.overflow.saturating_sub(1);
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    // The table stays consistent under every operation, so a poisoned lock is still usable.
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+impl Slots {
+    fn admit(self: &Arc<Self>, stream: &UnixStream, limits: &Limits) -> Admit {
+        let mut t = lock(&self.0);
+        let mut evicted = None;
+        if t.conns.len() >= limits.max_connections {
+            let oldest_idle = t
+                .conns
+                .iter()
+                .enumerate()
+                .filter(|(_, c)| c.reading && c.since.elapsed() >= limits.evict_idle_after)
+                .min_by_key(|(_, c)| c.since)
+                .map(|(i, _)| i);
+            match oldest_idle {
+                Some(i) => {
+                    let c = t.conns.remove(i);
+                    let idle = c.since.elapsed().as_secs_f64();
+                    let _ = c.stream.set_write_timeout(Some(Duration::from_millis(100)));
+                    let _ = write_json(
+                        &mut &c.stream,
+                        &json!({"ok": false, "error": format!("closed: no complete request after {idle:.1} s while every slot was taken")}),
+                    );
+                    let _ = c.stream.shutdown(std::net::Shutdown::Both);
+                    evicted = Some(format!("an idle client (no request for {idle:.1} s)"));
+                }
+                None if t.overflow < limits.overflow_readers => {
+                    t.overflow += 1;
+                    return Admit::Overflow(OverflowGuard(self.clone()));
+                }
+                None => return Admit::Busy,
+            }
+        }
+        let Ok(handle) = stream.try_clone() else {
+            return Admit::Busy;
+        };
+        let id = t.next_id;
+        t.next_id += 1;
+        t.conns.push(Conn {
+            id,
+            since: Instant::now(),
+            reading: true,
+            stream: handle,
+        });
+        Admit::Slot(
+            SlotGuard {
+                slots: self.clone(),
+                id,
+            },
+            evicted,
+        )
+    }
+}
+
+/// The busy answer.
+fn busy(max: usize) -> Value {
+    json!({"ok": false, "error": format!("busy: {max} clients connected; try again in a few seconds")})
+}
+
+/// Answer busy to a client no thread could be spared for: write the reason, close our write side
+/// and drain what the client already sent, so that it reads the reason rather than a reset or a
+/// broken pipe (the client also reads the answer when its own write fails).
+fn refuse(stream: &mut UnixStream, max: usize) {
+    let _ = stream.set_write_timeout(Some(Duration::from_millis(200)));
+    let _ = write_json(stream, &busy(max));
+    let _ = stream.shutdown(std::net::Shutdown::Write);
+    if stream.set_nonblocking(true).is_ok() {
+        let mut buf = [0u8; 4096];
+        let mut left = MAX_REQUEST_BYTES as usize + 4;
+        while left > 0 {
+            match stream.read(&mut buf) {
+                Ok(0) | Err(_) => break,
+                Ok(n) => left = left.saturating_sub(n),
+            }
         }
     }
 }
 
 /// Serve connections on `listener` until the process ends, one thread per client, at most
-/// `limits.max_connections` at once. `log` receives one line per client and per protocol fault.
+/// `limits.max_connections` at once; beyond that an idle client is evicted, or the newcomer is
+/// read by an overflow reader that answers `status` and tells everything else `busy`. `log`
+/// receives one line per client and per protocol fault. A panicking handler answers an internal
+/// error and gives its slot back.
 pub fn serve(
     listener: UnixListener,
     handler: Arc<Handler>,
     log: Arc<dyn Fn(&str) + Send + Sync>,
     limits: Limits,
 ) -> std::thread::JoinHandle<()> {
-    let active = Arc::new(AtomicUsize::new(0));
+    let slots = Arc::new(Slots::default());
     std::thread::Builder::new()
         .name("control".into())
         .spawn(move || {
@@ -223,24 +495,33 @@ pub fn serve(
                     }
                 };
                 let max = limits.max_connections;
-                if active.fetch_add(1, Ordering::SeqCst) >= max {
-                    active.fetch_sub(1, Ordering::SeqCst);
-                    let _ = stream.set_write_timeout(Some(limits.request_timeout));
-                    let _ = write_json(
-                        &mut stream,
-                        &json!({"ok": false, "error": format!("busy: {max} clients connected")}),
-                    );
-                    continue;
-                }
-                let (h, l, a) = (handler.clone(), log.clone(), active.clone());
-                let spawned = std::thread::Builder::new()
-                    .name("control-client".into())
-                    .spawn(move || {
-                        serve_one(&mut stream, h.as_ref(), l.as_ref(), limits.request_timeout);
-                        a.fetch_sub(1, Ordering::SeqCst);
-                    });
+                let (h, l) = (handler.clone(), log.clone());
+                let spawned = match slots.admit(&stream, &limits) {
+                    Admit::Slot(guard, evicted) => {
+                        if let Some(e) = evicted {
+                            log(&format!("control: every slot taken; closed {e}"));
+                        }
+                        std::thread::Builder::new()
+                            .name("control-client".into())
+                            .spawn(move || {
+                                let _guard = &guard;
+                                serve_one(&mut stream, h.as_ref(), l.as_ref(), &limits, || {
+                                    guard.serving()
+                                });
+                            })
+                    }
+                    Admit::Overflow(guard) => std::thread::Builder::new()
+                        .name("control-overflow".into())
+                        .spawn(move || {
+                            let _guard = guard;
+                            serve_overflow(&mut stream, h.as_ref(), l.as_ref(), &limits);
+                        }),
+                    Admit::Busy => {
+                        refuse(&mut stream, max);
+                        continue;
+                    }
+                };
                 if spawned.is_err() {
-                    active.fetch_sub(1, Ordering::SeqCst);
                     log("control: cannot start a client thread");
                 }
             }
@@ -248,23 +529,45 @@ pub fn serve(
         .unwrap_or_else(|e| panic!("cannot start the control thread: {e}"))
 }
 
+fn peer(stream: &UnixStream) -> String {
+    match peer_cred(stream) {
+        Some(c) => format!("pid {} uid {} gid {}", c.pid, c.uid, c.gid),
+        None => "unknown peer".into(),
+    }
+}
+
+/// Call the handler; a panic becomes an error answer (the slot is given back by its guard).
+fn handle(handler: &Handler, req: Request, reply: &mut dyn Reply) -> (Value, Option<Vec<u8>>) {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| handler(req, reply))).unwrap_or_else(
+        |p| {
+            let what = p
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| p.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "panic".into());
+            (
+                json!({"ok": false, "error": format!("internal error: {what}")}),
+                None,
+            )
+        },
+    )
+}
+
 fn serve_one(
     stream: &mut UnixStream,
     handler: &Handler,
     log: &(dyn Fn(&str) + Send + Sync),
-    timeout: Duration,
+    limits: &Limits,
+    serving: impl FnOnce(),
 ) {
-    let who = match peer_cred(stream) {
-        Some(c) => format!("pid {} uid {} gid {}", c.pid, c.uid, c.gid),
-        None => "unknown peer".into(),
-    };
-    let _ = stream.set_read_timeout(Some(timeout));
+    let who = peer(stream);
     let _ = stream.set_write_timeout(Some(WRITE_TIMEOUT));
-    let req = match read_frame(stream, MAX_REQUEST_BYTES) {
+    let req = match read_request(stream, limits.request_timeout) {
         Ok(Some(b)) => serde_json::from_slice::<Request>(&b).map_err(|e| e.to_string()),
         Ok(None) => return,
         Err(e) => Err(e.to_string()),
     };
+    serving();
     let req = match req {
         Ok(r) => r,
         Err(e) => {
@@ -277,11 +580,49 @@ fn serve_one(
         }
     };
     log(&format!("control: {req:?} from {who}"));
-    let (answer, payload) = handler(req, &mut StreamReply(stream));
+    let (answer, payload) = handle(handler, req, &mut StreamReply(stream));
     if write_json(stream, &answer).is_ok() {
         if let Some(p) = payload {
             let _ = write_frame(stream, &p);
         }
+    }
+}
+
+/// A client beyond the limit: read its request (so that our answer, not a broken pipe, reaches
+/// it), answer `status`, tell anything else `busy`.
+fn serve_overflow(
+    stream: &mut UnixStream,
+    handler: &Handler,
+    log: &(dyn Fn(&str) + Send + Sync),
+    limits: &Limits,
+) {
+    let _ = stream.set_write_timeout(Some(limits.overflow_timeout));
+    let req = read_request(stream, limits.overflow_timeout);
+    let answer = match req {
+        Ok(Some(b)) => match serde_json::from_slice::<Request>(&b) {
+            Ok(Request::Status {}) => {
+                log(&format!(
+                    "control: Status from {} (every slot taken: answered on the overflow reader)",
+                    peer(stream)
+                ));
+                let mut sink = NoProgress;
+                handle(handler, Request::Status {}, &mut sink).0
+            }
+            Ok(_) => busy(limits.max_connections),
+            Err(e) => json!({"ok": false, "error": format!("bad request: {e}")}),
+        },
+        Ok(None) => return,
+        Err(_) => busy(limits.max_connections),
+    };
+    let _ = write_json(stream, &answer);
+}
+
+/// Progress is not streamed to overflow clients (status has none).
+struct NoProgress;
+
+impl Reply for NoProgress {
+    fn progress(&mut self, _: &Value) -> std::io::Result<()> {
+        Ok(())
     }
 }
 
@@ -317,7 +658,17 @@ impl Client {
         let io = |e: std::io::Error| Error::io(&self.path, e);
         self.stream.set_read_timeout(Some(timeout)).map_err(io)?;
         let text = serde_json::to_vec(req).map_err(|e| Error::Invalid(e.to_string()))?;
-        write_frame(&mut self.stream, &text).map_err(io)?;
+        if let Err(e) = write_frame(&mut self.stream, &text) {
+            // A server that turned us away (busy) may have closed before reading our request:
+            // its reason is waiting in our receive buffer, and it is what the technician needs.
+            return match read_frame(&mut self.stream, MAX_RESPONSE_BYTES) {
+                Ok(Some(frame)) => match serde_json::from_slice::<Value>(&frame) {
+                    Ok(v) if v.get("ok").is_some() => Ok((v, None)),
+                    _ => Err(io(e)),
+                },
+                _ => Err(io(e)),
+            };
+        }
         loop {
             let frame = read_frame(&mut self.stream, MAX_RESPONSE_BYTES)
                 .map_err(io)?
@@ -341,6 +692,7 @@ impl Client {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
 
     #[test]
     fn requests_round_trip_and_reject_unknown_fields() {
@@ -386,10 +738,71 @@ mod tests {
     }
 
     #[test]
+    fn a_panicking_client_thread_gives_its_slot_back() {
+        let (a, _b) = UnixStream::pair().unwrap();
+        let slots = Arc::new(Slots::default());
+        let limits = Limits {
+            max_connections: 1,
+            overflow_readers: 0,
+            ..Limits::default()
+        };
+        for _ in 0..3 {
+            let Admit::Slot(guard, _) = slots.admit(&a, &limits) else {
+                panic!("the only slot was not free: leaked by the previous thread");
+            };
+            guard.serving();
+            // The thread dies holding the guard, as a client thread whose handler panicked
+            // outside catch_unwind would.
+            let r = std::thread::spawn(move || {
+                let _g = guard;
+                panic!("handler bug");
+            })
+            .join();
+            assert!(r.is_err());
+        }
+        assert!(lock(&slots.0).conns.is_empty());
+        // With the slot held (and serving, so not evictable), the next one is busy.
+        let Admit::Slot(held, _) = slots.admit(&a, &limits) else {
+            panic!("slot not free");
+        };
+        held.serving();
+        assert!(matches!(slots.admit(&a, &limits), Admit::Busy));
+    }
+
+    #[test]
+    fn loose_socket_directory_of_ours_is_tightened() {
+        let d = tempfile::tempdir().unwrap();
+        let run = d.path().join("run");
+        std::fs::create_dir(&run).unwrap();
+        std::fs::set_permissions(&run, std::fs::Permissions::from_mode(0o777)).unwrap();
+        let (_l, note) = bind(&run.join("c.sock")).unwrap();
+        assert!(note.unwrap().contains("0777 tightened to 0750"));
+        let mode = std::fs::metadata(&run).unwrap().permissions().mode() & 0o7777;
+        assert_eq!(mode, 0o750);
+    }
+
+    #[test]
+    fn loose_shared_socket_directory_is_refused_not_changed() {
+        let d = tempfile::tempdir().unwrap();
+        let run = d.path().join("run");
+        std::fs::create_dir(&run).unwrap();
+        std::fs::write(run.join("other"), "").unwrap();
+        std::fs::set_permissions(&run, std::fs::Permissions::from_mode(0o775)).unwrap();
+        let e = bind(&run.join("c.sock")).unwrap_err().to_string();
+        assert!(
+            e.contains("mode 0775") && e.contains("holds other files"),
+            "{e}"
+        );
+        let mode = std::fs::metadata(&run).unwrap().permissions().mode() & 0o7777;
+        assert_eq!(mode, 0o775);
+    }
+
+    #[test]
     fn server_answers_limits_and_rejects_garbage() {
         let d = tempfile::tempdir().unwrap();
         let path = d.path().join("run/control.sock");
-        let l = bind(&path).unwrap();
+        let (l, note) = bind(&path).unwrap();
+        assert_eq!(note, None);
         let mode = std::fs::metadata(&path).unwrap().permissions().mode() & 0o777;
         assert_eq!(mode, SOCKET_MODE);
         // A second bind while the first is live is refused.

@@ -19,6 +19,16 @@ pub enum Error {
         /// What is wrong, naming the key.
         msg: String,
     },
+    /// Several configuration problems at once, each naming its key. Exit code 78. Renders as one
+    /// line (problems separated by "; ") for logs and the service's status; [`Error::lines`]
+    /// gives one line per problem for a terminal.
+    #[error("config {path}: {}", problems.join("; "))]
+    ConfigList {
+        /// Config file.
+        path: String,
+        /// What is wrong, one entry per problem, each naming its key.
+        problems: Vec<String>,
+    },
     /// An input file exists but its content is unusable.
     #[error("{path}: {msg}")]
     Input {
@@ -53,7 +63,7 @@ impl Error {
     /// Process exit code for this error.
     pub fn exit_code(&self) -> i32 {
         match self {
-            Error::Config { .. } => EXIT_CONFIG,
+            Error::Config { .. } | Error::ConfigList { .. } => EXIT_CONFIG,
             _ => EXIT_FAILURE,
         }
     }
@@ -79,6 +89,31 @@ impl Error {
         Error::Config {
             path: path.as_ref().display().to_string(),
             msg: msg.into(),
+        }
+    }
+
+    /// `Ok` without problems, [`Error::Config`] for one, [`Error::ConfigList`] for several.
+    pub fn config_problems(path: impl AsRef<Path>, mut problems: Vec<String>) -> Result<()> {
+        let path = path.as_ref().display().to_string();
+        match problems.len() {
+            0 => Ok(()),
+            1 => Err(Error::Config {
+                path,
+                msg: problems.remove(0),
+            }),
+            _ => Err(Error::ConfigList { path, problems }),
+        }
+    }
+
+    /// The error as a technician reads it on a terminal: one line, or one line per problem of
+    /// an [`Error::ConfigList`] (each `config PATH: problem`).
+    pub fn lines(&self) -> Vec<String> {
+        match self {
+            Error::ConfigList { path, problems } => problems
+                .iter()
+                .map(|p| format!("config {path}: {p}"))
+                .collect(),
+            e => vec![e.to_string()],
         }
     }
 

@@ -400,12 +400,7 @@ pub fn acquire_prior(g: &GpsConfig) -> Result<PriorOutcome> {
             for f in &fixes {
                 est.push(f);
             }
-            let why = format!(
-                "{}: {} fixes in {} sentences",
-                path.display(),
-                stats.fixes,
-                stats.sentences
-            );
+            let why = format!("{}: {}", path.display(), stats.describe());
             Ok(est.outcome(fallback, &why))
         }
         GpsSourceKind::Serial => {
@@ -434,9 +429,10 @@ pub fn acquire_prior(g: &GpsConfig) -> Result<PriorOutcome> {
             }
             let st = reader.status();
             let why = format!(
-                "after {:.0} s: {}",
+                "after {:.0} s: {}; {}",
                 start.elapsed().as_secs_f64(),
-                st.summary
+                st.summary,
+                st.decode.describe()
             );
             Ok(est.outcome(fallback, &why))
         }

@@ -11,6 +11,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod app;
+pub mod calib;
 pub mod camera;
 pub mod capture;
 pub mod cli;
@@ -26,6 +27,7 @@ pub mod map;
 pub mod persist;
 pub mod pose;
 pub mod posefile;
+pub mod preflight;
 pub mod scene;
 pub mod sim;
 pub mod stage;

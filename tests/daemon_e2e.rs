@@ -509,11 +509,36 @@ fn failing_case(edit: impl FnOnce(&mut toml::Table), want: &[&str]) {
     );
 }
 
+/// A tile cache whose one tile lies 10 km east of the scene: valid (the service starts), but no
+/// tile covers the camera. (An empty cache is a config problem the service refuses at start.)
+fn far_tiles() -> (tempfile::TempDir, String) {
+    let d = tempfile::tempdir().unwrap();
+    let src = scene().join("tiles/sim-0001");
+    let dst = d.path().join("sim-0001");
+    std::fs::create_dir_all(&dst).unwrap();
+    for e in std::fs::read_dir(&src).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), dst.join(e.file_name())).unwrap();
+    }
+    let m = dst.join("tile.toml");
+    let mut t: toml::Table = toml::from_str(&std::fs::read_to_string(&m).unwrap()).unwrap();
+    for layer in ["satellite", "reflectivity", "height"] {
+        let g = t["layers"][layer]["grid"].as_table().unwrap().clone();
+        let x0 = g["x0"].as_float().unwrap() + 10_000.0;
+        t.get_mut("layers").unwrap()[layer]["grid"]
+            .as_table_mut()
+            .unwrap()
+            .insert("x0".into(), x0.into());
+    }
+    std::fs::write(&m, toml::to_string(&t).unwrap()).unwrap();
+    let p = d.path().display().to_string();
+    (d, p)
+}
+
 #[test]
 fn missing_tile_keeps_the_pose() {
-    let empty = tempfile::tempdir().unwrap();
-    let p = empty.path().display().to_string();
-    failing_case(|t| set(t, "map", "tiles", p), &["tile"]);
+    let (_far, p) = far_tiles();
+    failing_case(|t| set(t, "map", "tiles", p), &["tile", "no tile covers"]);
 }
 
 #[test]
@@ -547,8 +572,7 @@ fn silent_gps_keeps_the_pose() {
 
 #[test]
 fn failure_without_a_stored_pose_is_failed_and_says_why() {
-    let empty = tempfile::tempdir().unwrap();
-    let p = empty.path().display().to_string();
+    let (_far, p) = far_tiles();
     let (w, cfg) = workdir(|t| set(t, "map", "tiles", p));
     let mut d = Daemon::start(&cfg);
     let ready = d.wait_notify("READY=1", Duration::from_secs(60));

@@ -160,5 +160,17 @@ fn bad_arguments_are_one_line_errors() {
         "--rotation",
         "0,0,0,0,0,0,0,0,0"
     ])
-    .contains("singular"));
+    .contains("--rotation is not a rotation matrix"));
+    // Scaled, sheared and mirrored matrices would zoom, skew or flip the output: refused.
+    for r in [
+        "2,0,0,0,2,0,0,0,2",
+        "1,0.2,0,0,1,0,0,0,1",
+        "-1,0,0,0,1,0,0,0,1",
+    ] {
+        let e = run(&["--size", "10,10", "--k", "1,1,1,1", "--rotation", r]);
+        assert!(
+            e.contains("--rotation is not a rotation matrix"),
+            "{r}: {e}"
+        );
+    }
 }

@@ -147,7 +147,7 @@ fn detect(text: &str) -> Syntax {
 
 /// A FileStorage-like tree: what OpenCV YAML, OpenCV XML and plain YAML have in common.
 #[derive(Debug, Clone, PartialEq)]
-enum Node {
+pub(crate) enum Node {
     /// A scalar, as text (numbers are parsed on use, so errors can name the key).
     Scalar(String),
     /// A mapping in file order.
@@ -164,14 +164,14 @@ enum Node {
 }
 
 impl Node {
-    fn get(&self, key: &str) -> Option<&Node> {
+    pub(crate) fn get(&self, key: &str) -> Option<&Node> {
         match self {
             Node::Map(m) => m.iter().find(|(k, _)| k == key).map(|(_, v)| v),
             _ => None,
         }
     }
 
-    fn kind(&self) -> &'static str {
+    pub(crate) fn kind(&self) -> &'static str {
         match self {
             Node::Scalar(_) => "a scalar",
             Node::Map(_) => "a mapping",
@@ -398,6 +398,22 @@ fn string<'a>(n: &'a Node, key: &str, ctx: &Ctx) -> Result<&'a str> {
 /// Parse an opencv-matrix: (rows, cols, row-major data). Checks the element count against the
 /// declared shape and channel count (`dt` such as `d`, `f` or `3d`).
 fn matrix(n: &Node, key: &str, ctx: &Ctx) -> Result<(usize, usize, Vec<f64>)> {
+    if let Node::Matrix { dt, .. } = n {
+        let channels = dt
+            .trim()
+            .trim_end_matches(|ch: char| ch.is_ascii_alphabetic());
+        if !channels.is_empty() && channels != "1" {
+            return Err(ctx.err(format!(
+                "{key}.dt: {dt:?} is a {channels}-channel matrix, expected one channel"
+            )));
+        }
+    }
+    let (r, c, _, values) = matrix_any(n, key, ctx)?;
+    Ok((r, c, values))
+}
+
+/// Parse an opencv-matrix of any channel count: (rows, cols, channels, interleaved data).
+fn matrix_any(n: &Node, key: &str, ctx: &Ctx) -> Result<(usize, usize, usize, Vec<f64>)> {
     let Node::Matrix {
         rows,
         cols,
@@ -423,22 +439,47 @@ fn matrix(n: &Node, key: &str, ctx: &Ctx) -> Result<(usize, usize, Vec<f64>)> {
         "" => 1,
         digits => int(digits, "dt")?,
     };
-    if channels != 1 {
-        return Err(ctx.err(format!(
-            "{key}.dt: {dt:?} is a {channels}-channel matrix, expected one channel"
-        )));
-    }
     let values = data
         .iter()
         .map(|s| parse_f64(s, &format!("{key}.data"), ctx))
         .collect::<Result<Vec<_>>>()?;
-    if values.len() != r * c {
+    if values.len() != r * c * channels {
+        let shape = if channels == 1 {
+            format!("{r}×{c}")
+        } else {
+            format!("{r}×{c} of {channels} channels")
+        };
         return Err(ctx.err(format!(
-            "{key}: declared {r}×{c} but data holds {} values",
+            "{key}: declared {shape} but data holds {} values",
             values.len()
         )));
     }
-    Ok((r, c, values))
+    Ok((r, c, channels, values))
+}
+
+/// Parse OpenCV FileStorage text (YAML or XML, detected from content) into the common tree, for
+/// readers of FileStorage files other than intrinsics (the calibrator's corner files).
+pub(crate) fn filestorage_tree(text: &str, origin: &Path) -> Result<Node> {
+    let ctx = Ctx { origin };
+    match detect(text) {
+        Syntax::Xml => xml_tree(text, &ctx),
+        Syntax::Yaml => yaml_tree(text, &ctx),
+        Syntax::Toml => Err(ctx.err("not an OpenCV FileStorage file (expected XML or YAML)")),
+    }
+}
+
+/// [`matrix_any`] for readers outside this module: (rows, cols, channels, interleaved data).
+pub(crate) fn filestorage_matrix(
+    n: &Node,
+    key: &str,
+    origin: &Path,
+) -> Result<(usize, usize, usize, Vec<f64>)> {
+    matrix_any(n, key, &Ctx { origin })
+}
+
+/// A number (scalar, 1×1 matrix or one-element sequence) for readers outside this module.
+pub(crate) fn filestorage_num(n: &Node, key: &str, origin: &Path) -> Result<f64> {
+    num(n, key, &Ctx { origin })
 }
 
 /// A list of numbers: a YAML sequence, or a 1×N / N×1 matrix.

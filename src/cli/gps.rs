@@ -41,9 +41,13 @@ fn decode(path: &std::path::Path) -> Result<()> {
         if write_err.is_some() {
             return;
         }
-        let r = serde_json::to_writer(&mut out, &f.record())
+        // Serialise first, so a closed stdout is the write's own BrokenPipe, not a serde error.
+        let r = serde_json::to_string(&f.record())
             .map_err(std::io::Error::other)
-            .and_then(|_| out.write_all(b"\n"));
+            .and_then(|line| {
+                out.write_all(line.as_bytes())?;
+                out.write_all(b"\n")
+            });
         if let Err(e) = r {
             write_err = Some(e);
         }
@@ -56,10 +60,16 @@ fn decode(path: &std::path::Path) -> Result<()> {
         d.push(&buf[..n], &mut emit);
     }
     d.finish(&mut emit);
-    if let Some(e) = write_err {
-        return Err(Error::io("<stdout>", e));
+    let flushed = match write_err {
+        Some(e) => Err(e),
+        None => out.flush(),
+    };
+    match flushed {
+        // The reader has all it wanted (`gps decode log | head`): stop quietly, as Unix tools do.
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(()),
+        Err(e) => return Err(Error::io("<stdout>", e)),
+        Ok(()) => {}
     }
-    out.flush().map_err(|e| Error::io("<stdout>", e))?;
     let s = d.stats();
     let fr = d.framing_stats();
     eprintln!(

@@ -91,7 +91,6 @@ fn run_pipeline(a: &Args) -> Result<Run> {
             .build_global();
     }
     let cfg = Config::load(&a.config)?;
-    cfg.validate(&a.config)?;
     run_and_write(&cfg, &a.config, &a.overrides()?, &a.outputs())
 }
 
@@ -103,6 +102,8 @@ pub(crate) fn run_and_write(
     ov: &Overrides,
     out: &Outputs,
 ) -> Result<Run> {
+    // Every output writable before anything is captured.
+    out.check(cfg, cfg_path)?;
     let stderr = std::io::stderr();
     let tty = stderr.is_terminal();
     let run = super::progress::with_progress(stderr, tty, |progress| {

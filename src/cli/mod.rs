@@ -1,6 +1,7 @@
 //! Command line (contracts §6). Each command's handler lives in its own file; this module only
 //! parses arguments, dispatches, and turns errors into one stderr line and an exit code.
 
+mod calibrate;
 mod demo;
 mod estimator;
 mod gps;
@@ -46,6 +47,8 @@ pub enum Command {
     Rectify(rectify::Args),
     /// MI refinement alone, from any initial pose.
     Refine(refine::Args),
+    /// Intrinsic calibration from checkerboard corners (Mei or equidistant model).
+    Calibrate(calibrate::Args),
     /// The seed's robustness study: MI refinement from random starts around a simulated truth.
     Study(study::Args),
     /// Charts: `plot mi-surface` (MI along each axis and over x–y around a pose).
@@ -83,19 +86,21 @@ pub fn main() -> i32 {
     if let Command::Status(t) = cli.command {
         return match tech::status(t) {
             Ok(code) => code,
-            Err(e) => {
-                eprintln!("infraloc: {e}");
-                e.exit_code()
-            }
+            Err(e) => report(&e),
         };
     }
     match run(cli) {
         Ok(()) => 0,
-        Err(e) => {
-            eprintln!("infraloc: {e}");
-            e.exit_code()
-        }
+        Err(e) => report(&e),
     }
+}
+
+/// Print `e` on stderr (one line per problem, each prefixed `infraloc: `); its exit code.
+fn report(e: &Error) -> i32 {
+    for l in e.lines() {
+        eprintln!("infraloc: {l}");
+    }
+    e.exit_code()
 }
 
 /// Dispatch a parsed command.
@@ -107,6 +112,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Project(a) => project::run(a),
         Command::Rectify(a) => rectify::run(a),
         Command::Refine(a) => refine::run(a),
+        Command::Calibrate(a) => calibrate::run(a),
         Command::Study(a) => study::run(a),
         Command::Plot(c) => plot::run(c),
         Command::Tile(c) => tile::run(c),

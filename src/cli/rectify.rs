@@ -39,6 +39,23 @@ pub struct Args {
 /// Largest output side accepted (OpenCV's maps use 16-bit coordinates internally too).
 const MAX_SIDE: f64 = 32767.0;
 
+/// How far `RᵀR` may be from the identity (per element) and `det R` from 1: a rotation typed
+/// with 6 to 9 significant digits passes, a scaled, sheared or mirrored matrix does not.
+const ROTATION_TOL: f64 = 1e-5;
+
+/// `--rotation` must be a rotation: orthonormal with determinant +1. A scaled or sheared matrix
+/// would silently zoom or skew the output; OpenCV applies it all the same.
+fn check_rotation(r: &Matrix3<f64>) -> Result<()> {
+    let off = (r.transpose() * r - Matrix3::identity()).abs().max();
+    let det = r.determinant();
+    if off > ROTATION_TOL || (det - 1.0).abs() > ROTATION_TOL {
+        return Err(Error::Invalid(format!(
+            "--rotation is not a rotation matrix: RᵀR differs from the identity by up to {off:.3e} and det R = {det:.6} (need an orthonormal matrix with det +1, within {ROTATION_TOL:e})"
+        )));
+    }
+    Ok(())
+}
+
 /// Run `rectify`.
 pub fn run(a: Args) -> Result<()> {
     let [w, h] = parse_list::<2>("--size", &a.size)?;
@@ -61,6 +78,7 @@ pub fn run(a: Args) -> Result<()> {
             "--k / --rotation: values must be finite".into(),
         ));
     }
+    check_rotation(&r)?;
 
     let cam = load_camera(&a.camera)?;
     let gray = crate::capture::load_gray(&a.image)?;

@@ -14,6 +14,8 @@ use std::time::Duration;
 pub const EXIT_DEGRADED: i32 = 3;
 /// Exit code of `status` when no pose is served and the last attempt failed.
 pub const EXIT_FAILED: i32 = 4;
+/// How long a technician command keeps retrying a `busy` answer.
+const BUSY_RETRY: Duration = Duration::from_secs(3);
 /// How long a non-waiting request may take.
 const ANSWER_TIMEOUT: Duration = Duration::from_secs(10);
 
@@ -68,8 +70,18 @@ impl Target {
         })
     }
 
+    /// One request; a `busy` answer (every slot taken, the request not run) is retried for up to
+    /// [`BUSY_RETRY`], then shown as the server's reason.
     fn call(&self, req: Request) -> Result<(Value, Option<Vec<u8>>)> {
-        self.connect()?.call(&req, ANSWER_TIMEOUT, |_| {})
+        let start = std::time::Instant::now();
+        loop {
+            let (v, payload) = self.connect()?.call(&req, ANSWER_TIMEOUT, |_| {})?;
+            let busy = v["error"].as_str().is_some_and(|e| e.starts_with("busy"));
+            if !busy || start.elapsed() >= BUSY_RETRY {
+                return Ok((v, payload));
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        }
     }
 }
 

@@ -113,10 +113,44 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 /// Run the service with the config at `config_path` until SIGTERM. Errors: a bad config
 /// ([`Error::Config`], exit 78) or a control socket that cannot be bound.
 pub fn run(config_path: &Path) -> Result<()> {
-    let cfg = load_config(config_path)?;
+    // The same validation as `infraloc validate`: every problem, exit 78, before anything runs.
+    let (cfg, warnings) = crate::preflight::load_for_service(config_path)?;
     let log = Arc::new(Logger::new());
-    for w in cfg.check() {
+    for w in warnings {
         log.log(Level::Warning, &format!("config: {w}"));
+    }
+    // The state directory is ours to create (systemd's StateDirectory= does it for the unit; a
+    // hand-started service must not lose its first run to a missing directory).
+    match crate::preflight::create_state_dir(&cfg) {
+        Ok(Some(d)) => log.log(
+            Level::Info,
+            &format!("created the state directory {} (0750)", d.display()),
+        ),
+        Ok(None) => {}
+        Err(e) => {
+            return Err(Error::config(
+                config_path,
+                format!("[output] pose: cannot create its directory: {e}"),
+            ))
+        }
+    }
+    // Temp files of writes a kill -9 interrupted are removed before anything is written.
+    let history = cfg.output.pose.with_file_name(crate::store::HISTORY_FILE);
+    for target in [
+        Some(&cfg.output.pose),
+        Some(&history),
+        cfg.output.report.as_ref(),
+        cfg.output.overlay.as_ref(),
+    ]
+    .into_iter()
+    .flatten()
+    {
+        for f in crate::persist::remove_stale_temps(target) {
+            log.log(
+                Level::Info,
+                &format!("removed {} (left by an interrupted write)", f.display()),
+            );
+        }
     }
     let store = PoseStore::at(&cfg.output.pose, cfg.daemon.history_len);
     let started = Instant::now();
@@ -165,7 +199,11 @@ pub fn run(config_path: &Path) -> Result<()> {
         last_run: Mutex::new(None),
     });
     let (tx, rx) = channel::<Event>();
-    let listener = control::bind(&cfg.daemon.socket)?;
+    let (listener, note) = control::bind(&cfg.daemon.socket)
+        .map_err(|e| Error::config(config_path, format!("[daemon] socket: {e}")))?;
+    if let Some(n) = note {
+        log.log(Level::Warning, &n);
+    }
     start_signals(tx.clone())?;
     let handler = make_handler(shared.clone(), store.clone(), tx.clone(), config_path);
     let l2 = log.clone();
@@ -208,10 +246,9 @@ pub fn run(config_path: &Path) -> Result<()> {
     result
 }
 
-fn load_config(path: &Path) -> Result<Config> {
-    let cfg = Config::load(path)?;
-    cfg.validate(path)?;
-    Ok(cfg)
+/// The config as the service reads it at start and on reload, with its warnings.
+fn load_config(path: &Path) -> Result<(Config, Vec<String>)> {
+    crate::preflight::load_for_service(path)
 }
 
 fn start_signals(tx: Sender<Event>) -> Result<()> {
@@ -257,8 +294,8 @@ fn make_handler(
             Err(e) => (json!({"ok": false, "error": e.to_string()}), None),
         },
         Request::Validate {} => match load_config(&config_path) {
-            Ok(c) => (
-                json!({"ok": true, "config": config_path, "warnings": c.check()}),
+            Ok((_, warnings)) => (
+                json!({"ok": true, "config": config_path, "warnings": warnings}),
                 None,
             ),
             Err(e) => (
@@ -542,6 +579,10 @@ impl Daemon {
                             .collect(),
                     },
                 };
+                for t in &run.skipped_tiles {
+                    self.log
+                        .log(Level::Warning, &format!("tile cache: skipped {}", t.reason));
+                }
                 *lock(&self.shared.last_run) = Some(Arc::new(run));
                 self.policy.localized(
                     Instant::now(),
@@ -675,7 +716,11 @@ impl Daemon {
 
     fn reload(&mut self) {
         match load_config(&self.config_path) {
-            Ok(c) => {
+            Ok((c, warnings)) => {
+                for w in warnings {
+                    self.log
+                        .log(Level::Warning, &format!("reload: config: {w}"));
+                }
                 if c.daemon.socket != self.cfg.daemon.socket {
                     self.log.log(
                         Level::Warning,

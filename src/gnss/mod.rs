@@ -30,6 +30,42 @@ pub struct DecodeStats {
     pub no_fix_sentences: u64,
 }
 
+impl DecodeStats {
+    /// The counts in words, for a technician: `120 lines: 80 sentences (37 lines with checksum
+    /// errors, 3 unparsable, 20 sentences without a fix), 60 fixes`.
+    pub fn describe(&self) -> String {
+        let plural =
+            |n: u64, one: &str, many: &str| format!("{n} {}", if n == 1 { one } else { many });
+        let mut notes = Vec::new();
+        if self.checksum_errors > 0 {
+            notes.push(format!(
+                "{} with checksum errors",
+                plural(self.checksum_errors, "line", "lines")
+            ));
+        }
+        if self.parse_errors > 0 {
+            notes.push(format!("{} unparsable", self.parse_errors));
+        }
+        if self.no_fix_sentences > 0 {
+            notes.push(format!(
+                "{} without a fix",
+                plural(self.no_fix_sentences, "sentence", "sentences")
+            ));
+        }
+        let notes = if notes.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", notes.join(", "))
+        };
+        format!(
+            "{}: {}{notes}, {}",
+            plural(self.lines, "line", "lines"),
+            plural(self.sentences, "sentence", "sentences"),
+            plural(self.fixes, "fix", "fixes")
+        )
+    }
+}
+
 /// Framing + parsing + merging in one: bytes in, fixes out. Used by the file decoder, the serial
 /// reader and the fuzz target alike, so they cannot disagree.
 #[derive(Debug, Clone, Default)]

@@ -307,8 +307,9 @@ impl PriorEstimator {
             return PriorOutcome::Gnss(e);
         }
         let reason = format!(
-            "{why_no_fix}: {} usable fixes in the window (need {}), {} ignored",
-            self.window().len(),
+            "{why_no_fix}; {} usable in the {} s window (need {}), {} left out for quality, HDOP or a missing time",
+            plural(self.window().len(), "fix", "fixes"),
+            self.settings.window_s,
             self.settings.min_fixes.max(1),
             self.ignored
         );
@@ -322,6 +323,10 @@ impl PriorEstimator {
             None => PriorOutcome::None { reason },
         }
     }
+}
+
+fn plural(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
 }
 
 #[cfg(test)]

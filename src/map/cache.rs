@@ -162,6 +162,8 @@ pub struct TileRef {
     pub position: (f64, f64),
     /// Covered extent `(xmin, ymin, xmax, ymax)`: where the satellite and LiDAR layers overlap.
     pub extent: (f64, f64, f64, f64),
+    /// Other tile directories of the cache that were skipped as unreadable.
+    pub skipped: Vec<SkippedTile>,
 }
 
 fn check_id(id: &str) -> Result<()> {
@@ -575,17 +577,36 @@ fn rect_distance(x: f64, y: f64, e: (f64, f64, f64, f64)) -> (f64, f64) {
     (dx.hypot(dy), inside)
 }
 
-/// Find the tile of `cache_dir` that covers WGS84 (`lat`, `lon`) with at least `margin_m` metres
-/// to spare on every side (of the area where satellite and LiDAR layers overlap).
-///
-/// Reads manifests only. Hidden entries (temporaries of [`write_tile`]) are skipped; any other
-/// directory must be a tile. If several tiles cover the position the one where it lies deepest
-/// inside wins (ties: smallest id). If none does, the error names the nearest tile and its
-/// distance in metres: planar in the tile's CRS, or, for positions more than 9° of longitude from
-/// the tile's zone, the great-circle distance to the tile centre. A missing or empty cache and a
-/// position no tile covers are errors of the `tile` stage (`tile: CACHE_DIR: …`), as the other
-/// stages of a localization name themselves; an unreadable manifest names its file.
-pub fn find_tile(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<TileRef> {
+/// A tile directory of the cache that could not be used, and why (shown in the report and in
+/// `infraloc status`; the search goes on without it).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct SkippedTile {
+    /// The tile directory.
+    pub dir: PathBuf,
+    /// Why it was skipped: the error naming its file.
+    pub reason: String,
+}
+
+impl std::fmt::Display for SkippedTile {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.reason)
+    }
+}
+
+/// What a search of the cache found.
+struct Scan {
+    /// Tiles covering the position with the margin, deepest first (ties: smallest id).
+    covering: Vec<TileRef>,
+    /// Tiles whose manifest could not be read.
+    skipped: Vec<SkippedTile>,
+    /// (distance, id, depth) of the nearest tile.
+    nearest: Option<(f64, String, f64)>,
+    /// A tile whose extent holds the position only in the prior's own UTM zone: its manifest's
+    /// CRS is wrong. (id, manifest CRS, the prior's CRS).
+    crs_mismatch: Option<(String, Crs, Crs)>,
+}
+
+fn scan(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<Scan> {
     let tile_err = |msg: String| Error::stage("tile", format!("{}: {msg}", cache_dir.display()));
     let entries = fs::read_dir(cache_dir).map_err(|e| tile_err(e.to_string()))?;
     let mut dirs: Vec<PathBuf> = Vec::new();
@@ -598,12 +619,30 @@ pub fn find_tile(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<
         dirs.push(e.path());
     }
     dirs.sort();
-    // (depth inside, ref) of the best cover; (distance, id, depth) of the nearest tile.
-    let mut best: Option<(f64, TileRef)> = None;
-    let mut nearest: Option<(f64, String, f64)> = None;
+    let prior_crs =
+        (lat.abs() <= 90.0 && lon.is_finite()).then(|| Crs::Epsg(geo::utm_epsg_for(lat, lon)));
+    let mut found = Scan {
+        covering: Vec::new(),
+        skipped: Vec::new(),
+        nearest: None,
+        crs_mismatch: None,
+    };
+    let mut depths: Vec<f64> = Vec::new();
     for dir in dirs {
-        let m = read_manifest(&dir)?;
-        let crs = manifest_crs(&m, &dir.join(MANIFEST))?;
+        let manifest = read_manifest(&dir).and_then(|m| {
+            let crs = manifest_crs(&m, &dir.join(MANIFEST))?;
+            Ok((m, crs))
+        });
+        let (m, crs) = match manifest {
+            Ok(v) => v,
+            Err(e) => {
+                found.skipped.push(SkippedTile {
+                    dir: dir.clone(),
+                    reason: e.to_string(),
+                });
+                continue;
+            }
+        };
         let extent = coverage(&m);
         let (zone, _) =
             geo::check_crs(crs).map_err(|e| Error::input(dir.join(MANIFEST), e.to_string()))?;
@@ -612,17 +651,20 @@ pub fn find_tile(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<
             let (x, y) = geo::wgs84_to_map(crs, lat, lon)
                 .map_err(|e| Error::input(dir.join(MANIFEST), e.to_string()))?;
             let (dist, inside) = rect_distance(x, y, extent);
-            if inside >= margin_m && best.as_ref().is_none_or(|(d, _)| inside > *d) {
-                best = Some((
-                    inside,
+            if inside >= margin_m {
+                let at = depths.partition_point(|d| *d >= inside);
+                depths.insert(at, inside);
+                found.covering.insert(
+                    at,
                     TileRef {
                         id: m.id.clone(),
                         dir: dir.clone(),
                         crs,
                         position: (x, y),
                         extent,
+                        skipped: Vec::new(),
                     },
-                ));
+                );
             }
             (dist, inside)
         } else {
@@ -634,21 +676,195 @@ pub fn find_tile(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<
             .map_err(|e| Error::input(dir.join(MANIFEST), e.to_string()))?;
             (geo::great_circle_m(lat, lon, clat, clon), f64::NEG_INFINITY)
         };
-        if nearest.as_ref().is_none_or(|(d, _, _)| dist < *d) {
-            nearest = Some((dist, m.id.clone(), inside));
+        if found.nearest.as_ref().is_none_or(|(d, _, _)| dist < *d) {
+            found.nearest = Some((dist, m.id.clone(), inside));
+        }
+        // A manifest written with the wrong zone: the extent holds the position in the prior's
+        // own zone, not in the zone the manifest claims.
+        if let Some(pc) = prior_crs.filter(|pc| *pc != crs && inside < 0.0) {
+            if let Ok((x, y)) = geo::wgs84_to_map(pc, lat, lon) {
+                if rect_distance(x, y, extent).1 >= 0.0 && found.crs_mismatch.is_none() {
+                    found.crs_mismatch = Some((m.id.clone(), crs, pc));
+                }
+            }
         }
     }
-    if let Some((_, r)) = best {
-        return Ok(r);
+    Ok(found)
+}
+
+/// Find the tile of `cache_dir` that covers WGS84 (`lat`, `lon`) with at least `margin_m` metres
+/// to spare on every side (of the area where satellite and LiDAR layers overlap).
+///
+/// Reads manifests only. Hidden entries (temporaries of [`write_tile`]) are skipped; so is a
+/// tile directory whose manifest cannot be read (it is listed in [`TileRef::skipped`], and named
+/// in the error if no tile covers the position). If several tiles cover the position the one
+/// where it lies deepest inside wins (ties: smallest id). If none does, the error names the
+/// nearest tile and its distance in metres: planar in the tile's CRS, or, for positions more
+/// than 9° of longitude from the tile's zone, the great-circle distance to the tile centre; a
+/// tile whose extent holds the position only in the prior's own UTM zone is named as a CRS
+/// mismatch instead. A missing or empty cache and a position no tile covers are errors of the
+/// `tile` stage (`tile: CACHE_DIR: …`), as the other stages of a localization name themselves.
+pub fn find_tile(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<TileRef> {
+    let found = scan(cache_dir, lat, lon, margin_m)?;
+    match found.covering.into_iter().next() {
+        Some(mut r) => {
+            r.skipped = found.skipped;
+            Ok(r)
+        }
+        None => Err(no_cover(
+            cache_dir,
+            lat,
+            lon,
+            margin_m,
+            found.nearest,
+            found.crs_mismatch,
+            &found.skipped,
+        )),
     }
+}
+
+fn no_cover(
+    cache_dir: &Path,
+    lat: f64,
+    lon: f64,
+    margin_m: f64,
+    nearest: Option<(f64, String, f64)>,
+    mismatch: Option<(String, Crs, Crs)>,
+    skipped: &[SkippedTile],
+) -> Error {
     let where_ = format!("lat {lat:.7}, lon {lon:.7}");
-    Err(tile_err(match nearest {
-        None => format!("no tiles in the cache (looking for {where_})"),
-        Some((0.0, id, inside)) => format!(
+    let skipped_note = match skipped.len() {
+        0 => String::new(),
+        n => format!(
+            " ({n} tile{} skipped: {})",
+            if n == 1 { "" } else { "s" },
+            skipped
+                .iter()
+                .map(|s| s.reason.as_str())
+                .collect::<Vec<_>>()
+                .join("; ")
+        ),
+    };
+    let msg = match (mismatch, nearest) {
+        // A tile holds the position in its own CRS, only too near its edge: that is the story,
+        // whatever another tile's numbers would mean in another zone.
+        (_, Some((0.0, id, inside))) => format!(
             "no tile covers {where_} with a {margin_m} m margin; nearest tile {id:?} has it only {inside:.1} m inside its edge"
         ),
-        Some((dist, id, _)) => format!(
+        (Some((id, crs, pc)), _) => format!(
+            "CRS mismatch: tile {id:?}'s manifest says {crs}, but its extent holds {where_} only in {pc}, the prior's UTM zone; the manifest's crs is wrong (re-import the tile with the right --crs)"
+        ),
+        (None, None) if skipped.is_empty() => {
+            format!("no tiles in the cache (looking for {where_})")
+        }
+        (None, None) => format!("no usable tile in the cache (looking for {where_})"),
+        (None, Some((dist, id, _))) => format!(
             "no tile covers {where_}; nearest tile {id:?} is {dist:.1} m away (margin {margin_m} m)"
         ),
+    };
+    Error::stage(
+        "tile",
+        format!("{}: {msg}{skipped_note}", cache_dir.display()),
+    )
+}
+
+/// Below this fraction of valid samples in a LiDAR layer around the prior, the tile is refused:
+/// an all-NaN or all-nodata layer would otherwise surface as a PnP or MI failure that points at
+/// the camera.
+pub const MIN_VALID_FRACTION: f64 = 0.10;
+
+/// Fraction of valid samples of the reflectivity and height layers within `radius_m` of `(x,
+/// y)`; a layer below [`MIN_VALID_FRACTION`] is an error of the `tile` stage naming the layer's
+/// file. A disc that misses the grid counts as empty.
+pub fn check_layers_near(tile: &Tile, dir: &Path, (x, y): (f64, f64), radius_m: f64) -> Result<()> {
+    let g = tile.reflectivity.grid;
+    let (c, r) = g.to_pixel(x, y);
+    let rp = (radius_m / g.res).ceil().max(1.0);
+    let (mut n, mut refl_ok, mut height_ok) = (0usize, 0usize, 0usize);
+    let r0 = (r - rp).floor() as i64;
+    let c0 = (c - rp).floor() as i64;
+    for row in r0..=(r + rp).ceil() as i64 {
+        for col in c0..=(c + rp).ceil() as i64 {
+            let (dc, dr) = (col as f64 - c, row as f64 - r);
+            if dc * dc + dr * dr > rp * rp {
+                continue;
+            }
+            n += 1;
+            if row < 0 || col < 0 {
+                continue;
+            }
+            let (col, row) = (col as usize, row as usize);
+            if let Some(v) = tile.reflectivity.get(col, row) {
+                refl_ok += usize::from(Some(v) != tile.reflectivity.nodata);
+            }
+            if let Some(h) = tile.height.get(col, row) {
+                height_ok += usize::from(h.is_finite() && Some(h) != tile.height.nodata);
+            }
+        }
+    }
+    let n = n.max(1) as f64;
+    for (layer, file, ok) in [
+        ("height", HEIGHT_FILE, height_ok),
+        ("reflectivity", REFLECTIVITY_FILE, refl_ok),
+    ] {
+        let frac = ok as f64 / n;
+        if frac < MIN_VALID_FRACTION {
+            return Err(Error::stage(
+                "tile",
+                format!(
+                    "{}: {layer} layer has valid data in only {:.1} % of the {radius_m:.0} m around the prior (need {:.0} %): the map tile is damaged or does not cover this ground",
+                    dir.join(file).display(),
+                    100.0 * frac,
+                    100.0 * MIN_VALID_FRACTION
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The tile a localization uses at WGS84 (`lat`, `lon`): the covering tiles ([`find_tile`]'s
+/// order) are loaded in turn, each checked with [`check_layers_near`] over `radius_m`; a tile
+/// that fails to load is skipped (and listed) in favour of the next one that covers the
+/// position. The error, when none is usable, is the first covering tile's (a `tile:` line naming
+/// its file and layer), or [`find_tile`]'s when none covers.
+pub fn load_covering(
+    cache_dir: &Path,
+    lat: f64,
+    lon: f64,
+    margin_m: f64,
+    radius_m: f64,
+) -> Result<(Tile, TileRef)> {
+    let found = scan(cache_dir, lat, lon, margin_m)?;
+    let mut skipped = found.skipped;
+    let mut first_err = None;
+    for mut r in found.covering {
+        let loaded = load_tile(&r.dir)
+            .map_err(|e| Error::stage("tile", e.to_string()))
+            .and_then(|t| check_layers_near(&t, &r.dir, r.position, radius_m).map(|_| t));
+        match loaded {
+            Ok(t) => {
+                r.skipped = skipped;
+                return Ok((t, r));
+            }
+            Err(e) => {
+                skipped.push(SkippedTile {
+                    dir: r.dir.clone(),
+                    reason: e.to_string(),
+                });
+                first_err.get_or_insert(e);
+            }
+        }
+    }
+    Err(first_err.unwrap_or_else(|| {
+        no_cover(
+            cache_dir,
+            lat,
+            lon,
+            margin_m,
+            found.nearest,
+            found.crs_mismatch,
+            &skipped,
+        )
     }))
 }

@@ -1,0 +1,520 @@
+//! What a configuration names, checked on this machine before any work (I/O shell).
+//!
+//! [`crate::config::Config::load`] checks the keys; this module opens what they point at: the
+//! intrinsics parse, the frames source exists, the tile cache holds a tile with a readable
+//! manifest, the match file parses, output directories exist and are writable, the control
+//! socket's path is free. Every problem is collected (each naming its `[section] key`), so a
+//! technician fixes them all in one pass. Things that may legitimately appear later (a camera or
+//! receiver device that is plugged in after boot, the service's state and runtime directories,
+//! which the service creates) are warnings, not problems.
+//!
+//! `infraloc validate`, the service at start and on reload (SIGHUP, `validate --running`) and
+//! `localize` run the same checks; `localize` checks the outputs it was given on its command line
+//! as well, before it captures anything.
+
+use crate::config::{Config, FrameSourceKind, GpsSourceKind, MatcherKind};
+use crate::error::{Error, Result};
+use std::os::unix::fs::{FileTypeExt, MetadataExt};
+use std::path::{Path, PathBuf};
+
+/// Which run the config is checked for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Scope {
+    /// A one-shot `localize`: the state directory must exist already (nobody creates it), the
+    /// control socket is not used.
+    Localize,
+    /// The service (and `validate`): the state directory may be missing (the service creates
+    /// it), the control socket's path must be usable.
+    Service,
+}
+
+/// What the checks found.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Findings {
+    /// Problems that stop the node, one line each naming the key.
+    pub problems: Vec<String>,
+    /// Things to look at that do not stop it.
+    pub warnings: Vec<String>,
+}
+
+impl Findings {
+    /// `Err` (exit 78, every problem) when there are problems, else the warnings.
+    pub fn into_result(self, origin: &Path) -> Result<Vec<String>> {
+        Error::config_problems(origin, self.problems)?;
+        Ok(self.warnings)
+    }
+}
+
+/// The service's validation of the config at `path`: its keys ([`Config::load`]), then what they
+/// name on this machine ([`check`] for the service). The config and its warnings, or every
+/// problem (exit 78). `infraloc validate` runs this, and the service at start, on reload and for
+/// `validate --running`.
+pub fn load_for_service(path: &Path) -> Result<(Config, Vec<String>)> {
+    let (cfg, mut problems) = Config::load_with_problems(path)?;
+    let found = check(&cfg, Scope::Service);
+    problems.extend(found.problems);
+    Error::config_problems(path, problems)?;
+    let mut warnings = found.warnings;
+    warnings.extend(cfg.check());
+    Ok((cfg, warnings))
+}
+
+/// The service's state directory: where the pose file lives.
+pub fn state_dir(cfg: &Config) -> Option<&Path> {
+    cfg.output
+        .pose
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+}
+
+/// Create the state directory (mode 0750) if it is missing; the created path, if any.
+pub fn create_state_dir(cfg: &Config) -> Result<Option<PathBuf>> {
+    let Some(dir) = state_dir(cfg) else {
+        return Ok(None);
+    };
+    if dir.exists() {
+        return Ok(None);
+    }
+    use std::os::unix::fs::DirBuilderExt;
+    std::fs::DirBuilder::new()
+        .recursive(true)
+        .mode(0o750)
+        .create(dir)
+        .map_err(|e| Error::io(dir, e))?;
+    // The umask may have taken bits the mode asked for; the mode is the intent.
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o750))
+        .map_err(|e| Error::io(dir, e))?;
+    Ok(Some(dir.to_path_buf()))
+}
+
+/// Check everything `cfg` names for a run of kind `scope`. `cfg` has been loaded (its keys
+/// validated, its paths absolute).
+pub fn check(cfg: &Config, scope: Scope) -> Findings {
+    // Empty paths are the key validation's problem already; checking them here would only
+    // repeat it in other words.
+    let mut cfg = cfg.clone();
+    let drop_empty = |p: &mut Option<PathBuf>| {
+        if p.as_ref().is_some_and(|p| p.as_os_str().is_empty()) {
+            *p = None;
+        }
+    };
+    drop_empty(&mut cfg.camera.intrinsics_file);
+    drop_empty(&mut cfg.camera.frames);
+    drop_empty(&mut cfg.gps.path);
+    drop_empty(&mut cfg.output.report);
+    drop_empty(&mut cfg.output.overlay);
+    drop_empty(&mut cfg.init.matcher_path);
+    let cfg = &cfg;
+    let mut f = Findings::default();
+    camera(cfg, &mut f);
+    gps(cfg, &mut f);
+    tiles(cfg, &mut f);
+    if cfg.init.matcher == MatcherKind::MatchFile {
+        if let Some(p) = &cfg.init.matcher_path {
+            match std::fs::read_to_string(p) {
+                Ok(text) => {
+                    if let Err(e) = crate::localize::matcher::MatchFile::parse(&text, p) {
+                        f.problems
+                            .push(format!("[init] matcher-path {}: {e}", p.display()));
+                    }
+                }
+                Err(e) => f
+                    .problems
+                    .push(format!("[init] matcher-path {}: {e}", p.display())),
+            }
+        }
+    }
+    let state = state_dir(cfg).map(Path::to_path_buf);
+    let o = &cfg.output;
+    for (key, path) in [
+        (
+            "[output] pose",
+            Some(&o.pose).filter(|p| !p.as_os_str().is_empty()),
+        ),
+        ("[output] report", o.report.as_ref()),
+        ("[output] overlay", o.overlay.as_ref()),
+    ] {
+        if let Some(p) = path {
+            let may_be_created =
+                scope == Scope::Service && p.parent().is_some_and(|d| Some(d) == state.as_deref());
+            output_path(key, p, may_be_created, &mut f);
+        }
+    }
+    if scope == Scope::Service && !cfg.daemon.socket.as_os_str().is_empty() {
+        socket(&cfg.daemon.socket, &mut f);
+    }
+    f
+}
+
+/// Check an output file path: not a directory, its directory exists (or, if `may_be_created`,
+/// will be created by the service) and is writable. Used for the config's outputs and for
+/// `localize`'s `--out`, `--report` and `--overlay`.
+pub fn output_path(key: &str, p: &Path, may_be_created: bool, f: &mut Findings) {
+    if p.is_dir() {
+        f.problems.push(format!(
+            "{key} {} is a directory; give a file path",
+            p.display()
+        ));
+        return;
+    }
+    if p.file_name().is_none() {
+        f.problems
+            .push(format!("{key} {} is not a file path", p.display()));
+        return;
+    }
+    let dir = match p.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    match std::fs::metadata(dir) {
+        Err(_) if may_be_created => f.warnings.push(format!(
+            "{key}: directory {} does not exist yet; the service creates it at start",
+            dir.display()
+        )),
+        Err(e) => f.problems.push(format!(
+            "{key} {}: directory {}: {e}",
+            p.display(),
+            dir.display()
+        )),
+        Ok(m) if !m.is_dir() => f.problems.push(format!(
+            "{key} {}: {} is not a directory",
+            p.display(),
+            dir.display()
+        )),
+        Ok(m) => {
+            if let Some(w) = not_writable(dir, &m) {
+                // Another user's directory (the service's, 0750) cannot be judged from a
+                // technician's account: say so instead of failing.
+                if is_ours(&m) {
+                    f.problems.push(format!("{key} {}: {w}", p.display()));
+                } else {
+                    f.warnings.push(format!(
+                        "{key} {}: {w} by you (uid {}); the directory belongs to uid {}, which must be able to write it (`validate --running` asks the service itself)",
+                        p.display(),
+                        euid(),
+                        m.uid()
+                    ));
+                }
+            }
+        }
+    }
+}
+
+fn euid() -> u32 {
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    unsafe { libc::geteuid() }
+}
+
+fn is_ours(m: &std::fs::Metadata) -> bool {
+    let me = euid();
+    me == 0 || m.uid() == me
+}
+
+/// Why `dir` is not writable by this process, if it is not.
+fn not_writable(dir: &Path, _m: &std::fs::Metadata) -> Option<String> {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    // SAFETY: `c` is a valid NUL-terminated path for the duration of the call.
+    let rc = unsafe { libc::access(c.as_ptr(), libc::W_OK | libc::X_OK) };
+    (rc != 0).then(|| {
+        format!(
+            "directory {} is not writable ({})",
+            dir.display(),
+            std::io::Error::last_os_error()
+        )
+    })
+}
+
+fn camera(cfg: &Config, f: &mut Findings) {
+    let c = &cfg.camera;
+    if let Some(p) = &c.intrinsics_file {
+        let file = strip_selector(p);
+        match std::fs::metadata(&file) {
+            Err(e) => f
+                .problems
+                .push(format!("[camera] intrinsics-file {}: {e}", file.display())),
+            Ok(m) if m.is_dir() => f.problems.push(format!(
+                "[camera] intrinsics-file {} is a directory, not an intrinsics file",
+                file.display()
+            )),
+            Ok(_) => {
+                if let Err(e) = crate::camera::import::load_camera(p) {
+                    f.problems.push(format!("[camera] intrinsics-file: {e}"));
+                }
+            }
+        }
+    }
+    match c.source {
+        FrameSourceKind::File => {
+            if let Some(p) = &c.frames {
+                let mut src = crate::capture::FileSource::new(p);
+                if let Err(e) = crate::capture::FrameSource::open(&mut src) {
+                    f.problems
+                        .push(format!("[camera] frames {}: {}", p.display(), e.detail));
+                }
+            }
+        }
+        FrameSourceKind::V4l2 => {
+            if !cfg!(feature = "v4l") {
+                f.problems.push(
+                    "[camera] source = \"v4l2\": this build has no support for it (cargo feature `v4l`)"
+                        .into(),
+                );
+            }
+            if let Some(d) = &c.device {
+                device("[camera] device", d, "capture retries until it appears", f);
+            }
+        }
+        FrameSourceKind::Aravis => {
+            if !cfg!(feature = "aravis") {
+                f.problems.push(
+                    "[camera] source = \"aravis\": this build has no support for it (cargo feature `aravis`)"
+                        .into(),
+                );
+            }
+        }
+    }
+}
+
+/// `file.yaml:cam1` (a camchain's named camera) → `file.yaml`, when the whole path is not a file.
+fn strip_selector(p: &Path) -> PathBuf {
+    if p.exists() {
+        return p.to_path_buf();
+    }
+    let s = p.to_string_lossy();
+    match s.rsplit_once(':') {
+        Some((file, sel)) if !sel.contains('/') && !file.is_empty() => PathBuf::from(file),
+        _ => p.to_path_buf(),
+    }
+}
+
+/// A device node: missing is a warning (it may be plugged in later), anything but a character
+/// device is a problem.
+fn device(key: &str, d: &str, later: &str, f: &mut Findings) {
+    match std::fs::metadata(d) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => f
+            .warnings
+            .push(format!("{key} {d} does not exist (yet): {later}")),
+        Err(e) => f.problems.push(format!("{key} {d}: {e}")),
+        Ok(m) if !m.file_type().is_char_device() => f
+            .problems
+            .push(format!("{key} {d} is not a character device")),
+        Ok(_) => {}
+    }
+}
+
+fn gps(cfg: &Config, f: &mut Findings) {
+    let g = &cfg.gps;
+    match g.source {
+        GpsSourceKind::NmeaFile => {
+            if let Some(p) = &g.path {
+                match std::fs::File::open(p).and_then(|h| h.metadata()) {
+                    Err(e) => f.problems.push(format!("[gps] path {}: {e}", p.display())),
+                    Ok(m) if !m.is_file() => f.problems.push(format!(
+                        "[gps] path {} is not a file (an NMEA log)",
+                        p.display()
+                    )),
+                    Ok(_) => {}
+                }
+            }
+        }
+        GpsSourceKind::Serial => {
+            if let Some(d) = &g.device {
+                let later = if g.fallback_wgs84.is_some() {
+                    "the prior uses fallback-wgs84 until it appears"
+                } else {
+                    "no prior until it appears"
+                };
+                device("[gps] device", d, later, f);
+            }
+        }
+        GpsSourceKind::Fixed => {}
+    }
+}
+
+fn tiles(cfg: &Config, f: &mut Findings) {
+    let dir = &cfg.map.tiles;
+    let key = "[map] tiles";
+    if dir.as_os_str().is_empty() {
+        return;
+    }
+    let entries = match std::fs::metadata(dir) {
+        Err(e) => {
+            f.problems.push(format!(
+                "{key} {}: {e} (import a tile with `infraloc tile import`)",
+                dir.display()
+            ));
+            return;
+        }
+        Ok(m) if !m.is_dir() => {
+            f.problems.push(format!(
+                "{key} {} is not a directory (the tile cache is a directory of tile directories)",
+                dir.display()
+            ));
+            return;
+        }
+        Ok(_) => match std::fs::read_dir(dir) {
+            Ok(e) => e,
+            Err(e) => {
+                f.problems.push(format!("{key} {}: {e}", dir.display()));
+                return;
+            }
+        },
+    };
+    let mut good = 0;
+    let mut bad = 0;
+    let mut tile_dirs: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.is_dir()
+                && !p
+                    .file_name()
+                    .is_some_and(|n| n.to_string_lossy().starts_with('.'))
+        })
+        .collect();
+    tile_dirs.sort();
+    for t in &tile_dirs {
+        match crate::map::cache::read_manifest(t) {
+            Ok(_) => good += 1,
+            Err(e) => {
+                bad += 1;
+                f.warnings.push(format!(
+                    "{key}: tile {} is skipped: {e}",
+                    t.file_name().unwrap_or_default().to_string_lossy()
+                ));
+            }
+        }
+    }
+    if good == 0 {
+        f.problems.push(format!(
+            "{key} {}: no tile with a readable manifest ({bad} unreadable); import one with `infraloc tile import`",
+            dir.display()
+        ));
+        return;
+    }
+    // A known position the cache should cover: the surveyed fallback.
+    if let Some([lat, lon]) = cfg.gps.fallback_wgs84 {
+        if let Err(e) = crate::map::cache::find_tile(dir, lat, lon, cfg.map.search_margin_m) {
+            f.warnings.push(format!("{key}: for fallback-wgs84: {e}"));
+        }
+    }
+}
+
+fn socket(p: &Path, f: &mut Findings) {
+    let key = "[daemon] socket";
+    match std::fs::symlink_metadata(p) {
+        Ok(m) if m.is_dir() => f.problems.push(format!(
+            "{key} {} is a directory; give the socket's file path",
+            p.display()
+        )),
+        Ok(m) if !m.file_type().is_socket() => f.problems.push(format!(
+            "{key} {} exists and is not a socket; the service will not replace it",
+            p.display()
+        )),
+        _ => {}
+    }
+    if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+        match std::fs::metadata(dir) {
+            Err(_) => f.warnings.push(format!(
+                "{key}: directory {} does not exist yet; the service creates it (0750) at start",
+                dir.display()
+            )),
+            Ok(m) if !m.is_dir() => f.problems.push(format!(
+                "{key} {}: {} is not a directory",
+                p.display(),
+                dir.display()
+            )),
+            Ok(_) => {}
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg_in(dir: &Path, extra: &str) -> Config {
+        let text = format!(
+            "[camera]\nintrinsics-file = \"cam.yaml\"\nsource = \"file\"\nframes = \"frames\"\n\
+             [gps]\nsource = \"fixed\"\nfallback-wgs84 = [42.0, -83.0]\n\
+             [output]\npose = \"state/pose.json\"\n[daemon]\nsocket = \"run/c.sock\"\n{extra}"
+        );
+        let p = dir.join("c.toml");
+        std::fs::write(&p, text).unwrap();
+        Config::load(&p).unwrap()
+    }
+
+    #[test]
+    fn every_missing_thing_is_one_problem_naming_its_key() {
+        let d = tempfile::tempdir().unwrap();
+        let f = check(&cfg_in(d.path(), ""), Scope::Service);
+        let keys: Vec<&str> = f
+            .problems
+            .iter()
+            .map(|p| p.split(' ').take(2).collect::<Vec<_>>())
+            .map(|v| {
+                if v[1].starts_with("intr") {
+                    "intrinsics"
+                } else {
+                    v[1]
+                }
+            })
+            .collect();
+        assert_eq!(keys, ["intrinsics", "frames", "tiles"], "{f:?}");
+        // The state and runtime directories are the service's to create: warnings.
+        assert!(
+            f.warnings
+                .iter()
+                .any(|w| w.contains("[output] pose") && w.contains("the service creates it")),
+            "{f:?}"
+        );
+        assert!(
+            f.warnings.iter().any(|w| w.starts_with("[daemon] socket")),
+            "{f:?}"
+        );
+        // A one-shot localize has nobody to create it.
+        let f = check(&cfg_in(d.path(), ""), Scope::Localize);
+        assert!(
+            f.problems.iter().any(|p| p.starts_with("[output] pose")),
+            "{f:?}"
+        );
+    }
+
+    #[test]
+    fn directories_where_files_belong_are_problems() {
+        let d = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(d.path().join("cam.yaml")).unwrap();
+        std::fs::write(d.path().join("tiles"), "not a dir").unwrap();
+        std::fs::create_dir_all(d.path().join("state/pose.json")).unwrap();
+        std::fs::create_dir_all(d.path().join("run")).unwrap();
+        std::fs::write(d.path().join("run/c.sock"), "").unwrap();
+        let f = check(&cfg_in(d.path(), ""), Scope::Service);
+        let all = f.problems.join("\n");
+        for want in [
+            "intrinsics-file",
+            "is a directory, not an intrinsics file",
+            "[map] tiles",
+            "is not a directory",
+            "[output] pose",
+            "[daemon] socket",
+            "is not a socket",
+        ] {
+            assert!(all.contains(want), "{want}: {all}");
+        }
+    }
+
+    #[test]
+    fn state_dir_is_created_0750() {
+        use std::os::unix::fs::PermissionsExt;
+        let d = tempfile::tempdir().unwrap();
+        let c = cfg_in(d.path(), "");
+        assert_eq!(
+            create_state_dir(&c).unwrap().as_deref(),
+            Some(d.path().join("state").as_path())
+        );
+        let m = std::fs::metadata(d.path().join("state")).unwrap();
+        assert_eq!(m.permissions().mode() & 0o777, 0o750);
+        assert_eq!(create_state_dir(&c).unwrap(), None);
+    }
+}

@@ -1,0 +1,98 @@
+//! Issue 19's small ones through the binary: the `prior:` failure in words with the sentence
+//! counts (checksum errors included), and `gps decode | head` ending quietly. (`rectify
+//! --rotation` with a non-rotation is in tests/rectify_reference.rs, `retry-max-s = inf` in
+//! tests/validate_cli.rs.)
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::OnceLock;
+
+const BIN: &str = env!("CARGO_BIN_EXE_infraloc");
+
+fn scene() -> &'static Path {
+    static SCENE: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    &SCENE
+        .get_or_init(|| {
+            let d = tempfile::tempdir().unwrap();
+            let dir = d.path().join("scene");
+            common::simulate(BIN, &dir, &["--seed", "3", "--preset", "small"]);
+            (d, dir)
+        })
+        .1
+}
+
+#[test]
+fn prior_failure_counts_the_sentences_in_words() {
+    let w = tempfile::tempdir().unwrap();
+    // The scene's log with every checksum broken, plus two lines of noise.
+    let log = std::fs::read_to_string(scene().join("gps.nmea")).unwrap();
+    let broken: String = log
+        .lines()
+        .map(|l| match l.rsplit_once('*') {
+            Some((body, _)) => format!("{body}*00\n"),
+            None => format!("{l}\n"),
+        })
+        .collect();
+    let n = log.lines().filter(|l| l.starts_with('$')).count();
+    let nmea = w.path().join("bad.nmea");
+    std::fs::write(&nmea, format!("{broken}hello\n$GPXXX,1*2\n")).unwrap();
+    std::fs::write(w.path().join("pose.json"), "OLD").unwrap();
+    let out = Command::new(BIN)
+        .args(["localize", "--config"])
+        .arg(scene().join("infraloc.toml"))
+        .arg("--gps-nmea")
+        .arg(&nmea)
+        .arg("--out")
+        .arg(w.path().join("pose.json"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.starts_with("infraloc: prior: no position: "), "{err}");
+    assert!(
+        err.contains(&format!("{n} lines with checksum errors")),
+        "{err} (want {n} checksum errors)"
+    );
+    assert!(
+        err.contains("0 fixes") && err.contains("fallback-wgs84"),
+        "{err}"
+    );
+    assert!(!err.contains('{') && !err.contains('"'), "raw JSON: {err}");
+    assert_eq!(
+        std::fs::read_to_string(w.path().join("pose.json")).unwrap(),
+        "OLD"
+    );
+}
+
+#[test]
+fn gps_decode_into_a_closed_pipe_exits_quietly() {
+    let w = tempfile::tempdir().unwrap();
+    // ~2 MB of sentences: far more than a pipe buffer holds.
+    let log = std::fs::read_to_string(scene().join("gps.nmea")).unwrap();
+    let big = w.path().join("big.nmea");
+    std::fs::write(&big, log.repeat(2_000_000 / log.len() + 1)).unwrap();
+    let mut child = Command::new(BIN)
+        .args(["gps", "decode"])
+        .arg(&big)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // `| head -1`: read one line, then close the pipe.
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    assert!(first.starts_with("{\"time\""), "{first}");
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !err.contains("Broken pipe") && !err.contains("os error 32"),
+        "{err}"
+    );
+    assert_eq!(out.status.code(), Some(0), "{err}");
+}
