@@ -94,29 +94,3 @@ fn main() {
         }
     }
 }
-
-/// First-order (Miller–Madow) bias of the plug-in MI: ((m_xy − 1) − (m_x − 1) − (m_y − 1)) / 2N.
-fn miller_madow(h: &JointHist) -> f64 {
-    let s = h.stride();
-    let n = h.valid_count() as f64;
-    if n == 0.0 {
-        return 0.0;
-    }
-    let mut mx = 0;
-    let mut my = vec![false; h.cols];
-    let mut mxy = 0;
-    for r in 0..h.rows {
-        let row = &h.counts[r * s..r * s + h.cols];
-        if row.iter().any(|&c| c > 0) {
-            mx += 1;
-        }
-        for (j, &c) in row.iter().enumerate() {
-            if c > 0 {
-                mxy += 1;
-                my[j] = true;
-            }
-        }
-    }
-    let my = my.iter().filter(|&&b| b).count();
-    ((mxy as f64 - 1.0) - (mx as f64 - 1.0) - (my as f64 - 1.0)) / (2.0 * n)
-}

@@ -107,7 +107,10 @@ fn recovers_truth_from_perturbed_starts() {
             "tiled must evaluate ≥ 50× fewer point-poses"
         );
         assert!(q.accepted, "{:?}", q.reason);
-        assert!(q.axes.iter().all(|a| a.sigma > 0.0 && a.sigma < 0.05));
+        assert!(q
+            .axes
+            .iter()
+            .all(|a| a.fisher_sigma > 0.0 && a.fisher_sigma < 0.05));
     }
 }
 
