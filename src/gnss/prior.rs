@@ -453,7 +453,7 @@ mod tests {
             } => {
                 assert_eq!((lat, sigma_m), (42.0, 5.0));
                 assert!(
-                    reason.contains("no fix after 120 s") && reason.contains("0 usable"),
+                    reason.contains("no fix after 120 s") && reason.contains("0 fixes usable"),
                     "{reason}"
                 );
             }
