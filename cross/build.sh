@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Build the aarch64 release binary and (optionally) run it under qemu-user.
-#   cross/build.sh            build target/aarch64-unknown-linux-gnu/release/infraloc (default features)
+#   cross/build.sh            build target/aarch64-unknown-linux-gnu/release/infraloc (features: v4l,
+#                             the node's camera; the default build has no capture backend)
 #   cross/build.sh --demo     … and run `infraloc demo --preset small` under qemu
 #   cross/build.sh --check    … and localize a host-simulated scene under qemu: the aarch64 pose must
 #                             equal the host binary's and be within the demo's thresholds (CI runs this)
@@ -17,9 +18,11 @@ for arg in "$@"; do
 done
 rustup target list --installed | grep -qx "$TARGET" || rustup target add "$TARGET"
 CARGO=(cargo --config cross/config.toml)
+# The package's features ([package.metadata.deb] features in Cargo.toml; tests/packaging.rs checks).
+FEATURES=(--features v4l)
 
 t0=$SECONDS
-"${CARGO[@]}" build --release --target "$TARGET"
+"${CARGO[@]}" build --release --target "$TARGET" "${FEATURES[@]}"
 echo "cross/build.sh: aarch64 build took $((SECONDS - t0)) s"
 file "$BIN" 2>/dev/null || true
 
@@ -67,7 +70,7 @@ for arg in "$@"; do
           "infraloc binary will fail with 'Exec format error' (apt-get install qemu-user-binfmt)" >&2
       fi
       t=$SECONDS
-      INFRALOC_QEMU=1 "${CARGO[@]}" test --release --target "$TARGET"
+      INFRALOC_QEMU=1 "${CARGO[@]}" test --release --target "$TARGET" "${FEATURES[@]}"
       echo "cross/build.sh: tests under qemu took $((SECONDS - t)) s"
       ;;
     --demo)

@@ -80,6 +80,33 @@ impl FrameSourceKind {
         }
     }
 
+    /// Whether this build can capture from this kind of source: the camera backends are cargo
+    /// features (`v4l`, `aravis`) so that the default build needs no C toolchain or system
+    /// library (docs/architecture.md, "Capture backends are cargo features").
+    pub fn compiled_in(self) -> bool {
+        match self {
+            FrameSourceKind::File => true,
+            FrameSourceKind::V4l2 => cfg!(feature = "v4l"),
+            FrameSourceKind::Aravis => cfg!(feature = "aravis"),
+        }
+    }
+
+    /// The one-line problem for a source kind this build lacks: the key, and how to get a build
+    /// that has it.
+    pub fn missing_backend_problem(self) -> String {
+        match self {
+            FrameSourceKind::File => String::new(),
+            FrameSourceKind::V4l2 => "[camera] source = \"v4l2\": this build has no V4L2 capture; \
+                 install the infraloc .deb or build with `cargo build --release --features v4l` \
+                 (needs libclang-dev)"
+                .into(),
+            FrameSourceKind::Aravis => "[camera] source = \"aravis\": this build has no Aravis \
+                 capture; build with `cargo build --release --features aravis` (needs \
+                 libaravis-dev)"
+                .into(),
+        }
+    }
+
     /// Pixel formats (`pixel-format`) this source kind can convert to gray.
     pub fn pixel_formats(self) -> &'static [&'static str] {
         match self {
@@ -220,7 +247,7 @@ impl Default for GpsConfig {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
 pub struct MapConfig {
-    /// Tile cache directory (contracts §3).
+    /// Tile cache directory (docs/interfaces.md, "Tile cache").
     pub tiles: PathBuf,
     /// A tile covers a position if the position is at least this far inside it, metres.
     pub search_margin_m: f64,
@@ -239,7 +266,7 @@ impl Default for MapConfig {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
 pub struct OutputConfig {
-    /// Pose file for the detection pipeline (contracts §4).
+    /// Pose file for the detection pipeline (docs/interfaces.md, "Pose file").
     pub pose: PathBuf,
     /// Optional report JSON.
     pub report: Option<PathBuf>,
@@ -510,6 +537,9 @@ impl Config {
         if c.source == FrameSourceKind::File && c.frames.is_none() {
             p.push("[camera] source = \"file\" needs frames");
         }
+        if !c.source.compiled_in() {
+            p.push(c.source.missing_backend_problem());
+        }
         if c.source == FrameSourceKind::V4l2 && c.device.as_deref().is_none_or(str::is_empty) {
             p.push("[camera] source = \"v4l2\" needs device");
         }
@@ -771,6 +801,37 @@ mod tests {
         let s = e.to_string();
         assert!(s.contains("frame-cont") && s.contains("line 2"), "{s}");
         assert!(!s.contains('\n'));
+    }
+
+    #[test]
+    fn a_source_this_build_lacks_is_a_config_error_saying_how_to_get_one() {
+        let t = "[camera]\nintrinsics-file = \"c.yaml\"\nsource = \"v4l2\"\n\
+                 device = \"/dev/video0\"\n[gps]\nsource = \"fixed\"\n\
+                 fallback-wgs84 = [42.0, -83.0]\n";
+        for (kind, feature) in [
+            (FrameSourceKind::V4l2, "v4l"),
+            (FrameSourceKind::Aravis, "aravis"),
+        ] {
+            let m = kind.missing_backend_problem();
+            let key = format!("[camera] source = \"{}\"", kind.name());
+            assert!(m.starts_with(&key), "{m}");
+            assert!(m.contains(&format!("--features {feature}")), "{m}");
+            assert!(!m.contains('\n'));
+            let text = t.replace("\"v4l2\"", &format!("\"{}\"", kind.name()));
+            match Config::parse(&text, Path::new("x.toml")) {
+                Ok(_) => assert!(kind.compiled_in(), "{key} accepted without its backend"),
+                Err(e) => {
+                    assert!(!kind.compiled_in(), "{e}");
+                    assert_eq!(e.exit_code(), crate::error::EXIT_CONFIG);
+                    assert_eq!(e.to_string(), format!("config x.toml: {m}"));
+                }
+            }
+        }
+        assert_eq!(
+            FrameSourceKind::V4l2.compiled_in(),
+            cfg!(feature = "v4l"),
+            "the v4l2 source follows the `v4l` feature"
+        );
     }
 
     #[test]

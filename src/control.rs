@@ -39,7 +39,7 @@ pub enum Request {
     /// The service's state, served pose, last run, schedules.
     // Struct variants (not unit) so that `deny_unknown_fields` also rejects stray keys here.
     Status {},
-    /// The served pose file (contracts §4) as JSON.
+    /// The served pose file (docs/interfaces.md, "Pose file") as JSON.
     GetPose {},
     /// Localize now. With `wait`, progress is streamed and the final answer is the run's result;
     /// `force` serves the result even if its quality is below the served pose's.

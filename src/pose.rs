@@ -1,6 +1,6 @@
 //! Rigid transforms typed by the frames they connect, so that `world→camera` is a type.
 //!
-//! Conventions (contracts §1): map frame W = projected CRS (x east, y north, z up); camera frame C =
+//! Conventions (docs/interfaces.md, "Frames and conventions"): map frame W = projected CRS (x east, y north, z up); camera frame C =
 //! OpenCV optical (x right, y down, z forward). A [`CamFromMap`] maps `X_c = R·X_w + t`.
 //!
 //! Yaw/pitch/roll are defined relative to a *nadir* camera whose image x axis points east and whose

@@ -1,4 +1,4 @@
-//! The pose file read by the detection pipeline: `infraloc.pose.v1` JSON (contracts §4).
+//! The pose file read by the detection pipeline: `infraloc.pose.v1` JSON (docs/interfaces.md, "Pose file").
 //!
 //! Writing always emits every required key in every representation (matrix, rvec, quaternion,
 //! yaw/pitch/roll) derived from one [`CamFromMap`], so they cannot disagree. Reading needs only

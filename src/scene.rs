@@ -1,5 +1,5 @@
-//! A simulated scene directory read back into memory (contracts §5: truth.json, camera.yaml,
-//! frames/, tiles/), for the commands that study a scene (`study`, `plot mi-surface`). The
+//! A simulated scene directory read back into memory (truth.json, camera.yaml, frames/, tiles/;
+//! docs/interfaces.md, "Scene directory"), for the commands that study a scene (`study`, `plot mi-surface`). The
 //! directory is written by `infraloc simulate`.
 
 use crate::camera::import::load_camera;

@@ -91,7 +91,9 @@ fn deb_ships_what_the_units_reference() {
     ] {
         assert!(has(p), "{p} is not in the .deb assets: {installed:?}");
     }
-    // Every unit in systemd/ is shipped.
+    // Every unit in systemd/ is shipped, and so is every page its Documentation= names
+    // (`man:NAME(N)` → /usr/share/man/manN/NAME.N; cargo-deb gzips it there).
+    let mut man_links = 0;
     for e in std::fs::read_dir(root().join("systemd")).unwrap() {
         let name = e.unwrap().file_name().into_string().unwrap();
         if name.ends_with(".service") || name.ends_with(".timer") {
@@ -99,8 +101,23 @@ fn deb_ships_what_the_units_reference() {
                 has(&format!("/lib/systemd/system/{name}")),
                 "systemd/{name} is not shipped"
             );
+            let unit = std::fs::read_to_string(root().join("systemd").join(&name)).unwrap();
+            let docs = unit
+                .lines()
+                .filter_map(|l| l.strip_prefix("Documentation="))
+                .flat_map(str::split_whitespace);
+            for page in docs.filter_map(|d| d.strip_prefix("man:")) {
+                let (page, sect) = page.trim_end_matches(')').split_once('(').unwrap();
+                let path = format!("/usr/share/man/man{sect}/{page}.{sect}");
+                assert!(
+                    has(&path),
+                    "{name}: {page}({sect}) is not shipped as {path}"
+                );
+                man_links += 1;
+            }
         }
     }
+    assert!(man_links >= 3, "{man_links} man: links in the units");
     // conf-files are shipped files under /etc.
     let meta = deb_metadata();
     for c in meta["conf-files"].as_array().unwrap() {
@@ -174,9 +191,17 @@ fn gige_dropin_verifies() {
     )
     .unwrap();
 
+    // The man check on: the pages the .deb installs, on MANPATH.
+    let man = Command::new(env!("CARGO_BIN_EXE_infraloc"))
+        .args(["man", "--out"])
+        .arg(dir.path().join("man"))
+        .status()
+        .unwrap();
+    assert!(man.success());
     let out = Command::new("systemd-analyze")
-        .args(["verify", "--man=no", "./infraloc.service"])
+        .args(["verify", "./infraloc.service"])
         .current_dir(dir.path())
+        .env("MANPATH", dir.path().join("man"))
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -212,5 +237,81 @@ fn gige_dropin_verifies() {
     assert!(
         score <= MAX_GIGE_EXPOSURE,
         "exposure with the GigE drop-in {score} > {MAX_GIGE_EXPOSURE}: {line}"
+    );
+}
+
+/// The crates of the dependency graph (normal and build edges) for `features` (none: the
+/// default build), as `name` per line.
+fn graph_crates(features: &[&str]) -> Vec<String> {
+    let mut cmd = Command::new(env!("CARGO"));
+    cmd.current_dir(root())
+        .args([
+            "tree",
+            "--offline",
+            "-e",
+            "normal,build",
+            "--prefix",
+            "none",
+        ])
+        .args(["--format", "{p}"]);
+    if !features.is_empty() {
+        cmd.args(["--features", &features.join(",")]);
+    }
+    let out = cmd.output().expect("cargo tree");
+    assert!(
+        out.status.success(),
+        "cargo tree: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .filter_map(|l| l.split_whitespace().next().map(str::to_string))
+        .collect()
+}
+
+/// The default build (`cargo run --release -- demo`) needs nothing but a Rust toolchain: no
+/// bindgen (libclang), no C compiler driver, no pkg-config/cmake probing for a system library.
+/// The `v4l` graph is the control: it must show bindgen, or this check could not fail.
+#[test]
+fn default_build_needs_no_libclang_or_system_library() {
+    const NATIVE: [&str; 5] = ["bindgen", "cc", "pkg-config", "cmake", "system-deps"];
+    let default = graph_crates(&[]);
+    assert!(default.iter().any(|c| c == "nalgebra"), "{default:?}");
+    let native: Vec<&String> = default
+        .iter()
+        .filter(|c| NATIVE.contains(&c.as_str()))
+        .collect();
+    assert!(
+        native.is_empty(),
+        "the default build needs native tooling through {native:?}"
+    );
+    assert!(graph_crates(&["v4l"]).iter().any(|c| c == "bindgen"));
+}
+
+/// The package and the node's cross build have the V4L2 backend the node's camera needs; the
+/// default build has none (docs/architecture.md, "Capture backends are cargo features").
+#[test]
+fn package_and_cross_builds_enable_v4l() {
+    let text = std::fs::read_to_string(root().join("Cargo.toml")).unwrap();
+    let manifest: toml::Table = toml::from_str(&text).unwrap();
+    let default = manifest["features"]["default"].as_array().unwrap();
+    assert!(
+        !default.iter().any(|f| f.as_str() == Some("v4l")),
+        "v4l is a default feature again: the default build would need libclang"
+    );
+    let meta = deb_metadata();
+    let deb_features: Vec<&str> = meta["features"]
+        .as_array()
+        .expect("[package.metadata.deb] features")
+        .iter()
+        .filter_map(|f| f.as_str())
+        .collect();
+    assert!(deb_features.contains(&"v4l"), "{deb_features:?}");
+    let cross = std::fs::read_to_string(root().join("cross/build.sh")).unwrap();
+    assert!(
+        cross.contains("FEATURES=(--features v4l)")
+            && cross.contains(r#"build --release --target "$TARGET" "${FEATURES[@]}""#),
+        "cross/build.sh no longer builds with --features v4l"
     );
 }

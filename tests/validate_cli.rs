@@ -287,7 +287,11 @@ fn what_may_appear_later_is_a_warning() {
         );
     } else {
         // Without the v4l2 backend the source itself is the problem, named as such.
-        assert!(err.contains("cargo feature `v4l`"), "{err}");
+        assert!(
+            err.contains("this build has no V4L2 capture") && err.contains("--features v4l"),
+            "{err}"
+        );
+        assert_eq!(out.status.code(), Some(78), "{err}");
     }
     assert!(
         err.contains("[output] pose: directory") && err.contains("the service creates it"),

@@ -378,7 +378,7 @@ fn rms_of(r: &[[f64; 2]]) -> f64 {
     (r.iter().map(|e| e[0] * e[0] + e[1] * e[1]).sum::<f64>() / r.len().max(1) as f64).sqrt()
 }
 
-/// The calibration as OpenCV FileStorage YAML: the camera (contracts §2, read back by
+/// The calibration as OpenCV FileStorage YAML: the camera (docs/interfaces.md, "Camera intrinsics files"; read back by
 /// [`crate::camera::load_camera`] and by `cv2.FileStorage`) plus `rms`.
 pub fn to_yaml(c: &Calibration) -> String {
     let mut s = crate::camera::to_opencv_yaml(&c.camera);

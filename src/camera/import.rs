@@ -1,4 +1,4 @@
-//! Intrinsics files (contracts §2): OpenCV FileStorage (YAML or XML), Kalibr camchain YAML,
+//! Intrinsics files (docs/interfaces.md, "Camera intrinsics files"): OpenCV FileStorage (YAML or XML), Kalibr camchain YAML,
 //! KITTI-360 MEI YAML and the native TOML table, detected from content; and the KITTI object
 //! benchmark's calibration file ([`parse_kitti_calib`]: rectified pinholes plus the Velodyne →
 //! camera extrinsic), which holds no image size and so becomes a camera only with one given

@@ -244,13 +244,10 @@ pub fn source_from_config(c: &CameraConfig) -> Result<Box<dyn FrameSource>> {
         FrameSourceKind::V4l2 => Ok(Box::new(V4l2Source::from_config(c)?)),
         #[cfg(feature = "aravis")]
         FrameSourceKind::Aravis => Ok(Box::new(AravisSource::from_config(c)?)),
+        // Config::load refuses these first (exit 78); a caller that built its CameraConfig
+        // itself gets the same line.
         #[allow(unreachable_patterns)]
-        other => Err(Error::Invalid(format!(
-            "[camera] source = \"{}\": this build has no support for it (rebuild with cargo \
-             feature `{}`)",
-            other.name(),
-            other.name().replace("v4l2", "v4l")
-        ))),
+        other => Err(Error::Invalid(other.missing_backend_problem())),
     }
 }
 

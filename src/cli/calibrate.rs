@@ -1,5 +1,5 @@
 //! `infraloc calibrate --model mei|equidistant --corners FILE --out CAM.yaml [--report JSON]
-//! [--coverage PNG]` (contracts §6): read the corners, run [`crate::calib`], write the intrinsics
+//! [--coverage PNG]` (docs/interfaces.md, "Command line and exit codes"): read the corners, run [`crate::calib`], write the intrinsics
 //! (OpenCV FileStorage YAML that `load_camera` reads back), the report and the coverage picture.
 
 use crate::calib::{self, corners, Calibration, LensModel};

@@ -103,7 +103,7 @@ pub fn run(a: Args) -> Result<()> {
         "scene: {} (seed {}, {:?}, {:?}) in {:.1} s",
         place, a.seed, a.preset, a.difficulty, t_sim
     );
-    // The picture is the demo's point (contracts §6): it goes where it survives the scene.
+    // The picture is the demo's point (docs/interfaces.md, "Command line and exit codes"): it goes where it survives the scene.
     let overlay = match (&a.overlay, &a.keep) {
         (Some(p), _) => p.clone(),
         (None, Some(d)) => d.join("overlay.png"),

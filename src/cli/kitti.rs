@@ -1,7 +1,7 @@
 //! `infraloc kitti import`: a KITTI object-benchmark frame's calibration as infraloc inputs.
 //!
 //! A KITTI `calib/NNNNNN.txt` holds the rectified pinholes `P0..P3` and the Velodyne → camera
-//! extrinsic but no image size, so it is not an intrinsics file by itself (contracts §2). This
+//! extrinsic but no image size, so it is not an intrinsics file by itself (docs/interfaces.md, "Camera intrinsics files"). This
 //! command reads it with the frame's image (for the size) and writes
 //! - the camera as OpenCV FileStorage YAML (Mei with ξ = 0 and no distortion: exactly the pinhole),
 //! - the camera's pose with the **Velodyne frame as the map frame** (`"crs": "LOCAL"`: x forward,
@@ -40,7 +40,7 @@ pub struct ImportArgs {
     /// Which rectified camera: P0, P1 (gray), P2 (left colour, default), P3.
     #[arg(long, default_value = "P2")]
     pub camera: String,
-    /// Write the camera here (OpenCV FileStorage YAML, contracts §2.1).
+    /// Write the camera here (OpenCV FileStorage YAML, docs/interfaces.md, "Camera intrinsics files").
     #[arg(long)]
     pub camera_out: PathBuf,
     /// Write the calibration's camera pose here (Velodyne frame as the map, crs LOCAL).

@@ -1,4 +1,4 @@
-//! `infraloc localize`: the full two-step pipeline, one shot (contracts §6). The run itself is
+//! `infraloc localize`: the full two-step pipeline, one shot (docs/interfaces.md, "Command line and exit codes"). The run itself is
 //! [`crate::app`]; this file turns the flags into its overrides and prints the result.
 
 use crate::app::{Outputs, Overrides, Run};

@@ -1,4 +1,4 @@
-//! Command line (contracts §6). Each command's handler lives in its own file; this module only
+//! Command line (docs/interfaces.md, "Command line and exit codes"). Each command's handler lives in its own file; this module only
 //! parses arguments, dispatches, and turns errors into one stderr line and an exit code.
 
 mod calibrate;
@@ -7,6 +7,7 @@ mod estimator;
 mod gps;
 mod kitti;
 mod localize;
+pub mod man;
 mod plot;
 mod progress;
 mod project;
@@ -39,7 +40,7 @@ pub enum Command {
     Demo(demo::Args),
     /// Localize the camera: GPS prior → satellite matching + PnP → MI refinement → pose file.
     Localize(localize::Args),
-    /// Generate a simulated scene directory (contracts §5).
+    /// Generate a simulated scene directory (docs/interfaces.md, "Scene directory").
     Simulate(simulate::Args),
     /// Project points through a camera model: CSV x,y,z → CSV u,v on stdout.
     Project(project::Args),
@@ -73,10 +74,14 @@ pub enum Command {
     Status(tech::Target),
     /// Ask the service to localize now (`--wait`: show progress and the result).
     Relocalize(tech::RelocalizeArgs),
-    /// Print the pose the service serves (contracts §4).
+    /// Print the pose the service serves (docs/interfaces.md, "Pose file").
     Pose(tech::Target),
     /// Save the LiDAR-over-image overlay of the service's latest run as PNG.
     Overlay(tech::OverlayArgs),
+    /// Write the manual pages (infraloc.1 from these definitions, infraloc.toml.5) into a
+    /// directory; the package build and tests use it.
+    #[command(hide = true)]
+    Man(man::Args),
 }
 
 /// Run the CLI with the process arguments; returns the exit code.
@@ -124,6 +129,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Relocalize(a) => tech::relocalize(a),
         Command::Pose(t) => tech::pose(t),
         Command::Overlay(a) => tech::overlay(a),
+        Command::Man(a) => man::run(a),
     }
 }
 

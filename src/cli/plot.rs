@@ -1,4 +1,4 @@
-//! `infraloc plot mi-surface` (contracts §6): the seed's 1-D MI-vs-perturbation curves and the 2-D
+//! `infraloc plot mi-surface` (docs/interfaces.md, "Command line and exit codes"): the seed's 1-D MI-vs-perturbation curves and the 2-D
 //! x–y MI surface around a pose, as one PNG; and the chart drawing shared with `infraloc study`.
 //!
 //! Charts are drawn with `plotters` into an RGB buffer and encoded with `image`; text uses the
@@ -56,7 +56,7 @@ pub struct MiSurfaceArgs {
     #[arg(long, default_value_t = 25.0)]
     pub radius: f64,
     /// Centre pose (pose-like JSON, e.g. the served pose.json); default with --scene: the truth.
-    /// A `quality.covariance` in it (contracts §4) is drawn as 1σ and 3σ ellipses.
+    /// A `quality.covariance` in it (docs/interfaces.md, "Pose file") is drawn as 1σ and 3σ ellipses.
     #[arg(long)]
     pub pose: Option<PathBuf>,
     /// A reference pose to mark (green), e.g. a calibration; default with --scene: the truth.
@@ -90,7 +90,7 @@ pub fn run(c: Command) -> Result<()> {
 }
 
 /// The marginal covariance of x, y and yaw (m, m, deg) a pose file's `quality.covariance`
-/// carries (contracts §4): a matrix over [x, y, z, yaw(, pitch, roll)], or an object with that
+/// carries (docs/interfaces.md, "Pose file"): a matrix over [x, y, z, yaw(, pitch, roll)], or an object with that
 /// `covariance` matrix and the `axes` it is ordered by. `None` when the file has none.
 pub(crate) fn pose_covariance(
     doc: &serde_json::Value,

@@ -1,4 +1,4 @@
-//! `infraloc project --camera CAM [--pose POSE.json] --points CSV` (contracts §6).
+//! `infraloc project --camera CAM [--pose POSE.json] --points CSV` (docs/interfaces.md, "Command line and exit codes").
 //!
 //! Reads `x,y,z` rows (an optional header line is detected; columns after the third are ignored),
 //! in the camera frame, or in the map frame when a pose is given (`X_c = R·X_w + t`), and prints
@@ -33,7 +33,7 @@ pub struct Args {
 /// Run `project`.
 pub fn run(a: Args) -> Result<()> {
     let cam = load_camera(&a.camera)?;
-    // Pose file (contracts §4) or a simulator truth.json: only the rotation and translation are used.
+    // Pose file (docs/interfaces.md, "Pose file") or a simulator truth.json: only the rotation and translation are used.
     let pose = a
         .pose
         .as_deref()

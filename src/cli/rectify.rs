@@ -1,5 +1,5 @@
 //! `infraloc rectify`: perspective rectification of a fisheye/omnidirectional image with
-//! `cv::omnidir::initUndistortRectifyMap(…, RECTIFY_PERSPECTIVE)` semantics (contracts §6).
+//! `cv::omnidir::initUndistortRectifyMap(…, RECTIFY_PERSPECTIVE)` semantics (docs/interfaces.md, "Command line and exit codes").
 
 use super::parse_list;
 use crate::camera::import::load_camera;

@@ -1,4 +1,4 @@
-//! `infraloc refine`: MI refinement alone, from any initial pose (contracts §6).
+//! `infraloc refine`: MI refinement alone, from any initial pose (docs/interfaces.md, "Command line and exit codes").
 
 use crate::camera::import::load_camera;
 use crate::camera::CameraModel;
@@ -51,7 +51,7 @@ pub struct Args {
     /// Radius (m) of tile ground points around the camera (with --tiles).
     #[arg(long, default_value_t = DEFAULT_RADIUS_M)]
     pub radius: f64,
-    /// Write the refined pose here (contracts §4); only when the quality gate accepts.
+    /// Write the refined pose here (docs/interfaces.md, "Pose file"); only when the quality gate accepts.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Write a JSON report (search counters, quality) here, accepted or not.

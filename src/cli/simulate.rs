@@ -1,5 +1,5 @@
 //! `infraloc simulate`: generate a scene in memory ([`crate::sim`]) and write the scene directory
-//! of contracts §5.
+//! of docs/interfaces.md, "Scene directory".
 
 use crate::config::{Config, GpsSourceKind};
 use crate::error::{Error, Result};
@@ -113,7 +113,7 @@ pub fn frame_name(i: usize) -> String {
     format!("{i:03}.png")
 }
 
-/// Write the scene directory (contracts §5) into `dir`.
+/// Write the scene directory (docs/interfaces.md, "Scene directory") into `dir`.
 pub fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
     let frames_dir = dir.join("frames");
     fs::create_dir_all(&frames_dir).map_err(|e| Error::io(&frames_dir, e))?;

@@ -1,4 +1,4 @@
-//! `infraloc study` (contracts §6): the seed's robustness study on a simulated scene — MI
+//! `infraloc study` (docs/interfaces.md, "Command line and exit codes"): the seed's robustness study on a simulated scene — MI
 //! refinement from seeded random initializations around the truth, a summary on stdout, a scatter
 //! plot PNG and a JSON file with every trial. The computation is [`crate::localize::study`]; this
 //! file reads the scene and writes the outputs.

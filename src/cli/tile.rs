@@ -1,4 +1,4 @@
-//! `infraloc tile …`: tile cache operations (contracts §3, §6).
+//! `infraloc tile …`: tile cache operations (docs/interfaces.md, "Tile cache" and "Command line").
 
 use crate::error::{Error, Result};
 use crate::map::cache::write_tile_with;

@@ -64,7 +64,7 @@ impl Fix {
         Some(d.days_since_epoch() as f64 * 86_400.0 + t.ms_of_day() as f64 / 1000.0)
     }
 
-    /// The `infraloc gps decode` JSON record (contracts §6).
+    /// The `infraloc gps decode` JSON record (docs/interfaces.md, "Command line and exit codes").
     pub fn record(&self) -> FixRecord {
         FixRecord {
             time: self.iso_time(),

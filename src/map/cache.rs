@@ -1,4 +1,4 @@
-//! The on-disk tile cache (contracts §3), I/O shell.
+//! The on-disk tile cache (docs/interfaces.md, "Tile cache"), I/O shell.
 //!
 //! ```text
 //! <cache>/<tile-id>/tile.toml            manifest: crs, layers (file, grid, nodata), provenance

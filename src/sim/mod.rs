@@ -1,6 +1,6 @@
 //! Scene simulator: a seeded intersection world, its LiDAR and satellite map layers, fisheye
 //! frames ray-cast from a true pose, a noisy GPS log and surveyed control points — everything
-//! `infraloc simulate` writes (contracts §5), generated in memory. Pure: no files, no clock.
+//! `infraloc simulate` writes (docs/interfaces.md, "Scene directory"), generated in memory. Pure: no files, no clock.
 //!
 //! The three ground-seeing sensors share one world ([`world`]) but see it through different
 //! physics ([`appearance`]): that is the modality gap every accuracy number is measured across.
@@ -590,7 +590,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
 }
 
 impl Scene {
-    /// truth.json content (contracts §5): a full `infraloc.pose.v1` document of the true pose
+    /// truth.json content (docs/interfaces.md, "Scene directory"): a full `infraloc.pose.v1` document of the true pose
     /// (so every pose reader accepts it) plus control points, GPS truth, seed and settings.
     pub fn truth_json(&self) -> serde_json::Value {
         let s = &self.start;

@@ -1,4 +1,4 @@
-//! Reading a simulator `truth.json` back (contracts §5): the one parser every reader uses (the
+//! Reading a simulator `truth.json` back (docs/interfaces.md, "Scene directory"): the one parser every reader uses (the
 //! scene reader, the report's errors against truth, the simulator's own tests). A malformed
 //! control point is an error naming the file, never silently dropped.
 
