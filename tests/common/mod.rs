@@ -98,3 +98,49 @@ pub fn simulate(bin: &str, dir: &Path, args: &[&str]) {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// Check OpenMetrics/Prometheus text with Prometheus's own parser and linter (`promtool check
+/// metrics`, Debian package `prometheus`, installed by `.ci/setup`). `Err` with promtool's
+/// complaint if it refuses the text. Without promtool the test fails under CI (`CI` set) and
+/// otherwise says loudly that the parser check was skipped (`Ok(false)`).
+pub fn promtool_check(text: &str) -> Result<bool, String> {
+    use std::io::Write;
+    use std::process::{Command, Stdio};
+    let child = Command::new("promtool")
+        .args(["check", "metrics"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn();
+    let mut child = match child {
+        Ok(c) => c,
+        Err(e) => {
+            assert!(
+                std::env::var_os("CI").is_none(),
+                "promtool missing in CI ({e}): .ci/setup installs the prometheus package"
+            );
+            eprintln!(
+                "\n*** SKIPPED the Prometheus parser check: promtool not found ({e}); \
+                 `apt-get install prometheus` (or `bash .ci/setup`) to run it ***\n"
+            );
+            return Ok(false);
+        }
+    };
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(text.as_bytes())
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    if out.status.success() {
+        Ok(true)
+    } else {
+        Err(format!(
+            "promtool check metrics refused the text ({}): {}{}",
+            out.status,
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        ))
+    }
+}
