@@ -21,7 +21,7 @@
 
 use infraloc::camera::import::{parse_camera, to_opencv_yaml};
 use infraloc::config::{Config, GpsSourceKind};
-use infraloc::localize::pipeline::{self, Params};
+use infraloc::localize::pipeline::{self, Params, PnpDetail, PriorDetail, StageDetail};
 use infraloc::localize::pnp::{refine_lm, Correspondence};
 use infraloc::pose::CamFromMap;
 use infraloc::sim::{self, Difficulty, Lens, Preset, Settings};
@@ -228,7 +228,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
                 name: StageName::Prior,
                 pose: None,
                 seconds: 0.0,
-                detail: json!({ "x": xy.0, "y": xy.1 }),
+                detail: StageDetail::Prior(PriorDetail::new(xy, sigma, params)),
             };
             rec["errors"] =
                 pipeline::truth_errors(&truth_text, &truth_path, &camera, &[prior_stage])?;
@@ -280,8 +280,10 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
             rec["seconds"]["mi"] = json!(out.stages[2].seconds);
             rec["seconds"]["localize"] =
                 json!(inputs_s + out.stages[2].seconds + out.stages[1].seconds);
-            rec["init"] = out.stages[1].detail.clone();
-            rec["rounds"] = out.stages[2].detail["rounds"].clone();
+            rec["init"] = json!(out.stages[1].detail);
+            if let StageDetail::Mi(d) = &out.stages[2].detail {
+                rec["rounds"] = json!(d.rounds);
+            }
             rec["mi_quality"] =
                 serde_json::to_value(&out.refinement.quality).unwrap_or(Value::Null);
         }
@@ -328,7 +330,7 @@ fn init_only(
         name: StageName::Prior,
         pose: None,
         seconds: 0.0,
-        detail: json!({ "x": xy.0, "y": xy.1 }),
+        detail: StageDetail::Prior(PriorDetail::new(xy, sigma, p)),
     };
     let mut rec =
         json!({ "seed": scene.settings.seed, "seconds": { "simulate": sim_s, "init": secs } });
@@ -343,7 +345,7 @@ fn init_only(
                     name: StageName::Pnp,
                     pose: Some(r.pose),
                     seconds: secs,
-                    detail: Value::Null,
+                    detail: StageDetail::Pnp(PnpDetail::new(&r, "dense-sweep")),
                 },
             ]
         }
