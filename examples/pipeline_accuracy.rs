@@ -21,6 +21,8 @@
 
 use infraloc::camera::import::{parse_camera, to_opencv_yaml};
 use infraloc::config::{Config, GpsSourceKind};
+use infraloc::localize::frame::{Frame, MapLayers};
+use infraloc::localize::init::SearchArea;
 use infraloc::localize::pipeline::{self, Params, PnpDetail, PriorDetail, StageDetail};
 use infraloc::localize::pnp::{refine_lm, Correspondence};
 use infraloc::pose::CamFromMap;
@@ -184,8 +186,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
     if o.init_only {
         return init_only(
             &scene,
-            &camera,
-            image.as_raw(),
+            &Frame::new(&camera, image.as_raw())?,
             &tile,
             xy,
             sigma,
@@ -195,8 +196,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
     }
     let now = || clock.elapsed().as_secs_f64();
     let outcome = pipeline::localize_ungated(
-        &camera,
-        image.as_raw(),
+        &Frame::new(&camera, image.as_raw())?,
         &tile,
         xy,
         sigma,
@@ -293,17 +293,16 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
 
 /// `--init-only`: the pipeline's initialization step alone (same search radius, seed and
 /// parameters), scored like the full run; for comparing initializer variants cheaply.
-#[allow(clippy::too_many_arguments)]
 fn init_only(
     scene: &sim::Scene,
-    camera: &infraloc::camera::Camera,
-    image: &[u8],
+    frame: &Frame<'_>,
     tile: &infraloc::map::Tile,
     xy: (f64, f64),
     sigma: f64,
     p: &Params,
     sim_s: f64,
 ) -> infraloc::Result<Value> {
+    let (camera, image) = (frame.camera(), frame.gray());
     use rand::SeedableRng;
     let t = Instant::now();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(p.seed);
@@ -312,12 +311,15 @@ fn init_only(
         infraloc::localize::verify::MiVerifier::new(camera, image, tile, p.fine.verify.mi.clone())
     });
     let init = infraloc::localize::init::initialize(
-        camera,
-        image,
-        &tile.satellite,
-        &tile.height,
-        xy,
-        p.search_radius_m(sigma),
+        frame,
+        MapLayers {
+            satellite: &tile.satellite,
+            heights: &tile.height,
+        },
+        SearchArea {
+            center: xy,
+            radius_m: p.search_radius_m(sigma),
+        },
         &p.coarse,
         &p.fine,
         verifier.as_ref(),

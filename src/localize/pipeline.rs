@@ -3,7 +3,8 @@
 //! the outputs; the clock for stage timings is injected.
 
 use super::coarse::CoarseParams;
-use super::init::{initialize, FineParams, InitResult};
+use super::frame::{Frame, MapLayers};
+use super::init::{initialize, FineParams, InitResult, SearchArea};
 use super::matcher::{initialize_with, MatchQuery, Matcher};
 use super::quality::QualityConfig;
 use super::refine::{refine_polished, PolishedSearch, Refinement, Report, Round};
@@ -110,7 +111,7 @@ pub enum StageDetail {
     /// `pnp`: what initialization matched and solved.
     Pnp(PnpDetail),
     /// `mi`: the refinement's report and its search/polish rounds.
-    Mi(MiDetail),
+    Mi(Box<MiDetail>),
 }
 
 /// The `prior` stage's figures.
@@ -247,10 +248,8 @@ pub fn mi_points(tile: &Tile, pose: &CamFromMap, p: &Params) -> Vec<crate::map::
 /// (refinement and gate), for a terminal's status line or the service's status. Errors name the
 /// stage and the numbers; a refinement the quality gate rejects is an error (see
 /// [`quality_gate`]).
-#[allow(clippy::too_many_arguments)]
 pub fn localize(
-    camera: &Camera,
-    image: &[u8],
+    frame: &Frame<'_>,
     tile: &Tile,
     prior_xy: (f64, f64),
     prior_sigma_m: f64,
@@ -258,16 +257,7 @@ pub fn localize(
     now: &dyn Fn() -> f64,
     progress: &dyn Fn(StageName),
 ) -> Result<Outcome> {
-    let outcome = localize_ungated(
-        camera,
-        image,
-        tile,
-        prior_xy,
-        prior_sigma_m,
-        p,
-        now,
-        progress,
-    )?;
+    let outcome = localize_ungated(frame, tile, prior_xy, prior_sigma_m, p, now, progress)?;
     quality_gate(&outcome)?;
     Ok(outcome)
 }
@@ -289,10 +279,8 @@ pub fn quality_gate(o: &Outcome) -> Result<()> {
 /// [`localize`] without the quality gate: the outcome whatever the gate would say, so that an
 /// evaluation can still see the stages of a rejected run (`examples/pipeline_accuracy.rs`);
 /// `progress` as there.
-#[allow(clippy::too_many_arguments)]
 pub fn localize_ungated(
-    camera: &Camera,
-    image: &[u8],
+    frame: &Frame<'_>,
     tile: &Tile,
     prior_xy: (f64, f64),
     prior_sigma_m: f64,
@@ -300,13 +288,7 @@ pub fn localize_ungated(
     now: &dyn Fn() -> f64,
     progress: &dyn Fn(StageName),
 ) -> Result<Outcome> {
-    let (w, h) = (camera.width() as usize, camera.height() as usize);
-    if image.len() != w * h {
-        return Err(Error::stage(
-            StageName::Capture.name(),
-            format!("frame has {} pixels, camera expects {w}×{h}", image.len()),
-        ));
-    }
+    let (camera, image) = (frame.camera(), frame.gray());
     if !(prior_sigma_m > 0.0 && prior_xy.0.is_finite() && prior_xy.1.is_finite()) {
         return Err(Error::stage(
             StageName::Prior.name(),
@@ -340,12 +322,15 @@ pub fn localize_ungated(
         .then(|| MiVerifier::new(camera, image, tile, p.fine.verify.mi.clone()));
     let init = match &p.matcher {
         None => initialize(
-            camera,
-            image,
-            &tile.satellite,
-            &tile.height,
-            prior_xy,
-            radius,
+            frame,
+            MapLayers {
+                satellite: &tile.satellite,
+                heights: &tile.height,
+            },
+            SearchArea {
+                center: prior_xy,
+                radius_m: radius,
+            },
             &p.coarse,
             &p.fine,
             verifier.as_ref(),
@@ -375,7 +360,6 @@ pub fn localize_ungated(
     });
     progress(StageName::Mi);
     let points = mi_points(tile, &init.pose, p);
-    let mask = camera.valid_mask();
     // Pitch and roll pivot about the ground under the camera (the tile's height layer).
     let pivot = |pose: &CamFromMap| {
         let c = pose.center();
@@ -385,7 +369,7 @@ pub fn localize_ungated(
         camera,
         &[View {
             gray: image,
-            mask: &mask,
+            mask: frame.mask(),
             points: &points,
         }],
         &init.pose,
@@ -399,10 +383,10 @@ pub fn localize_ungated(
         name: StageName::Mi,
         pose: Some(refinement.pose),
         seconds: t2 - t1,
-        detail: StageDetail::Mi(MiDetail {
+        detail: StageDetail::Mi(Box::new(MiDetail {
             report: refinement.report(p.search.mode),
             rounds,
-        }),
+        })),
     });
     Ok(Outcome {
         pose: refinement.pose,
