@@ -54,7 +54,7 @@ pub struct Params {
 /// Default of [`Params::mi_max_off_nadir_deg`]. The far ground is what pins down tilt and yaw
 /// (a tilt moves it most, and yaw has the longest lever arm there); on low poles a 70° disc has
 /// only an ≈ 11–14 m radius and the 6-DoF objective has ridges where roll trades for yaw and
-/// position. Measured on the simulator (docs/accuracy.md, "Ground disc for MI: 70° → 78°"):
+/// position. Measured on the simulator (CHANGELOG.md, "Ground disc for MI: 70° → 78°"):
 /// `small` 1–100 within 10 cm / 0.2° went from 95 to 99, `5mp` 1–20 from 19 to 20 (with the
 /// fourth search round, [`super::refine::SEARCH_ROUNDS`]), and with the true intrinsics the medians
 /// halved (`small` 1–12: 2.6 → 1.2 cm horizontal, 1.8 → 0.8 cm height). The price: a wrong focal

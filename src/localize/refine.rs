@@ -314,7 +314,7 @@ pub fn refine_polished(
             // A re-polish (after one ended on its box's edge or moved) starts from that end only:
             // the tilt starts already explored ±`tilt_starts_deg` around this search's optimum, and five starts
             // per re-polish were most of the slow seeds' time (`5mp` 7 and 14: three 5-start
-            // polishes in their first round). docs/accuracy.md "Re-polishes from one start".
+            // polishes in their first round). CHANGELOG.md "Re-polishes from one start".
             let params = if pi > 0 {
                 super::polish::PolishParams {
                     tilt_starts_deg: 0.0,
