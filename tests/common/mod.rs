@@ -99,10 +99,30 @@ pub fn simulate(bin: &str, dir: &Path, args: &[&str]) {
     );
 }
 
+/// Whether the tests run under CI (`CI` set to anything but empty, `0` or `false`), where every
+/// tool and data set a test needs must be present.
+pub fn under_ci() -> bool {
+    std::env::var("CI").is_ok_and(|v| !matches!(v.as_str(), "" | "0" | "false"))
+}
+
+/// Say that `test` is skipped and why, straight to the process's stderr: libtest captures
+/// `eprintln!` of a passing test, which would make the skip silent.
+pub fn skip(test: &str, why: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "\nSKIPPED {test}: {why}");
+}
+
+/// A test that needs something this machine lacks: fails under CI (where it must be there),
+/// otherwise skips visibly ([`skip`]).
+pub fn skip_unless_ci(test: &str, why: &str) {
+    assert!(!under_ci(), "{test}: {why} (required under CI)");
+    skip(test, why);
+}
+
 /// Check OpenMetrics/Prometheus text with Prometheus's own parser and linter (`promtool check
 /// metrics`, Debian package `prometheus`, installed by `.ci/setup`). `Err` with promtool's
-/// complaint if it refuses the text. Without promtool the test fails under CI (`CI` set) and
-/// otherwise says loudly that the parser check was skipped (`Ok(false)`).
+/// complaint if it refuses the text. Without promtool the test fails under CI and otherwise
+/// says on stderr that the parser check was skipped ([`skip_unless_ci`], `Ok(false)`).
 pub fn promtool_check(text: &str) -> Result<bool, String> {
     use std::io::Write;
     use std::process::{Command, Stdio};
@@ -115,13 +135,9 @@ pub fn promtool_check(text: &str) -> Result<bool, String> {
     let mut child = match child {
         Ok(c) => c,
         Err(e) => {
-            assert!(
-                std::env::var_os("CI").is_none(),
-                "promtool missing in CI ({e}): .ci/setup installs the prometheus package"
-            );
-            eprintln!(
-                "\n*** SKIPPED the Prometheus parser check: promtool not found ({e}); \
-                 `apt-get install prometheus` (or `bash .ci/setup`) to run it ***\n"
+            skip_unless_ci(
+                "the Prometheus parser check (promtool check metrics)",
+                &format!("promtool not found ({e}); `bash .ci/setup` unpacks it"),
             );
             return Ok(false);
         }
