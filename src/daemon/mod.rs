@@ -84,7 +84,7 @@ enum Answer {
     /// A stage started.
     Progress(StageName),
     /// The run's result.
-    Done(RunResult),
+    Done(Box<RunResult>),
     /// No result will come (the daemon is stopping).
     Refused(String),
 }
@@ -686,7 +686,7 @@ impl Daemon {
             }
         };
         for w in self.waiters.drain(..) {
-            let _ = w.send(Answer::Done(answer.clone()));
+            let _ = w.send(Answer::Done(Box::new(answer.clone())));
         }
         self.lock_status().running = None;
         self.update_state();
