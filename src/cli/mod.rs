@@ -13,6 +13,7 @@ mod progress;
 mod project;
 mod rectify;
 mod refine;
+mod selftest;
 mod simulate;
 mod study;
 mod tech;
@@ -71,7 +72,7 @@ pub enum Command {
     /// watchdog (run by infraloc.service).
     Daemon(tech::DaemonArgs),
     /// The service's state, served pose, last run and schedules (exit 3 degraded, 4 failed).
-    Status(tech::Target),
+    Status(tech::StatusArgs),
     /// Ask the service to localize now (`--wait`: show progress and the result).
     Relocalize(tech::RelocalizeArgs),
     /// Print the pose the service serves (docs/interfaces.md, "Pose file").
@@ -82,6 +83,10 @@ pub enum Command {
     /// directory; the package build and tests use it.
     #[command(hide = true)]
     Man(man::Args),
+    /// Check the MI kernel's SIMD copy against the reference loop on this CPU (run by CI on the
+    /// aarch64 binary under qemu).
+    #[command(hide = true)]
+    SelfTest(selftest::Args),
 }
 
 /// Run the CLI with the process arguments; returns the exit code.
@@ -130,6 +135,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Pose(t) => tech::pose(t),
         Command::Overlay(a) => tech::overlay(a),
         Command::Man(a) => man::run(a),
+        Command::SelfTest(a) => selftest::run(a),
     }
 }
 

@@ -287,7 +287,6 @@ pub struct Round {
 /// "Moved" is measured on the polish's parameters: x, y, z offsets and the three angles, with
 /// pitch and roll about the pivot (a tilt of 0.4° about a 10 m pivot also moves the camera centre
 /// ≈ 7 cm, which the 0.5° threshold, not the 5 cm one, stands for).
-#[allow(clippy::too_many_arguments)]
 pub fn refine_polished(
     cam: &Camera,
     views: &[View<'_>],
