@@ -260,9 +260,17 @@ pub fn run(
     let ((lat, lon, sigma), prior_desc) = prior(ov, cfg)?;
     progress(StageName::Tile);
     let tiles = ov.tiles.clone().unwrap_or_else(|| cfg.map.tiles.clone());
+    // The camera file's stated intrinsics uncertainty goes into the pose's covariance.
+    let intrinsics_sigma = match (&ov.camera, &cfg.camera.intrinsics_file) {
+        (Some(p), _) | (None, Some(p)) => crate::camera::import::load_intrinsics_sigma(p)?,
+        (None, None) => None,
+    };
     let params = Params {
         matcher,
-        quality: cfg.quality,
+        quality: crate::localize::quality::QualityConfig {
+            intrinsics_sigma,
+            ..cfg.quality
+        },
         ..Params::default()
     };
     // The covering tile's LiDAR layers must hold data around the prior: a damaged layer is a

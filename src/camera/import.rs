@@ -76,6 +76,103 @@ pub fn parse_camera_named(text: &str, origin: &Path, camera: Option<&str>) -> Re
     Ok(cam)
 }
 
+/// How uncertain a camera file's intrinsics are, 1σ, in the two modes that move a fisheye's
+/// ground mapping most: a common scale of the focal lengths, and the principal point. A
+/// calibration states them (`infraloc calibrate`'s parameter σ; the simulator's `hard` scenes,
+/// whose given intrinsics are wrong on purpose, state the spread they were drawn from); the MI
+/// refinement carries them into the pose's covariance ([`crate::localize::uncertainty`]).
+/// OpenCV FileStorage keys `sigma_focal_rel` and `sigma_principal_point_px`, both optional.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct IntrinsicsSigma {
+    /// σ of the focal lengths' common scale, relative (0.002 = 0.2 %).
+    pub focal_rel: f64,
+    /// σ of each principal-point coordinate, pixels.
+    pub principal_point_px: f64,
+}
+
+impl IntrinsicsSigma {
+    /// The three independent 1σ perturbations of `cam`: focal scale, cx, cy (a mode whose σ is
+    /// 0 is left out).
+    pub fn perturbed(&self, cam: &Camera) -> Vec<Camera> {
+        let mut out = Vec::new();
+        let apply = |f: &dyn Fn(&mut f64, &mut f64, &mut f64, &mut f64)| {
+            let mut c = cam.clone();
+            match &mut c {
+                Camera::Mei(m) => f(&mut m.fx, &mut m.fy, &mut m.cx, &mut m.cy),
+                Camera::Equidistant(e) => {
+                    f(&mut e.fx, &mut e.fy, &mut e.cx, &mut e.cy);
+                    e.cache = Default::default();
+                }
+            }
+            c
+        };
+        if self.focal_rel > 0.0 {
+            let k = 1.0 + self.focal_rel;
+            out.push(apply(&|fx, fy, _, _| {
+                *fx *= k;
+                *fy *= k;
+            }));
+        }
+        if self.principal_point_px > 0.0 {
+            let d = self.principal_point_px;
+            out.push(apply(&|_, _, cx, _| *cx += d));
+            out.push(apply(&|_, _, _, cy| *cy += d));
+        }
+        out
+    }
+
+    /// The FileStorage YAML lines for these σ (appended to [`to_opencv_yaml`]'s output).
+    pub fn yaml_lines(&self) -> String {
+        format!(
+            "sigma_focal_rel: {}\nsigma_principal_point_px: {}\n",
+            real(self.focal_rel),
+            real(self.principal_point_px)
+        )
+    }
+}
+
+/// Read a camera file's stated intrinsics uncertainty ([`parse_intrinsics_sigma`]); `path` as
+/// for [`load_camera`].
+pub fn load_intrinsics_sigma(path: &Path) -> Result<Option<IntrinsicsSigma>> {
+    let (file, _) = split_selector(path);
+    let text = std::fs::read_to_string(&file).map_err(|e| Error::io(&file, e))?;
+    parse_intrinsics_sigma(&text, &file)
+}
+
+/// The intrinsics' stated uncertainty in an OpenCV FileStorage file (YAML or XML), if it states
+/// one (see [`IntrinsicsSigma`]); other formats state none. A key that is present but not a
+/// finite number ≥ 0 (or a focal σ of 50 % or more) is an error naming it.
+pub fn parse_intrinsics_sigma(text: &str, origin: &Path) -> Result<Option<IntrinsicsSigma>> {
+    let ctx = Ctx { origin };
+    let root = match detect(text) {
+        Syntax::Xml => xml_tree(text, &ctx)?,
+        Syntax::Yaml if !is_kitti_calib(text) => yaml_tree(text, &ctx)?,
+        _ => return Ok(None),
+    };
+    let f = opt_num(&root, "sigma_focal_rel", &ctx)?;
+    let c = opt_num(&root, "sigma_principal_point_px", &ctx)?;
+    if f.is_none() && c.is_none() {
+        return Ok(None);
+    }
+    let s = IntrinsicsSigma {
+        focal_rel: f.unwrap_or(0.0),
+        principal_point_px: c.unwrap_or(0.0),
+    };
+    for (key, v, max) in [
+        ("sigma_focal_rel", s.focal_rel, 0.5),
+        (
+            "sigma_principal_point_px",
+            s.principal_point_px,
+            f64::INFINITY,
+        ),
+    ] {
+        if !(v.is_finite() && v >= 0.0 && v < max) {
+            return Err(ctx.err(format!("{key}: {v} is not a finite σ ≥ 0 (and < {max})")));
+        }
+    }
+    Ok(Some(s))
+}
+
 /// Split `file#cam1` into the file and the selector, unless the whole path is an existing file.
 fn split_selector(path: &Path) -> (PathBuf, Option<String>) {
     if path.is_file() {

@@ -144,6 +144,10 @@ pub fn run(a: Args) -> Result<()> {
         )));
     }
     let cam = load_camera(&a.camera)?;
+    let qcfg = QualityConfig {
+        intrinsics_sigma: crate::camera::import::load_intrinsics_sigma(&a.camera)?,
+        ..qcfg
+    };
     let mut grays = Vec::with_capacity(a.image.len());
     for path in &a.image {
         let (w, h, gray) = load_gray(path)?;

@@ -125,10 +125,11 @@ pub fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
             .save(&p)
             .map_err(|e| Error::Invalid(format!("{}: {e}", p.display())))?;
     }
-    write(
-        &dir.join("camera.yaml"),
-        crate::camera::import::to_opencv_yaml(&scene.camera_given),
-    )?;
+    let mut cam_yaml = crate::camera::import::to_opencv_yaml(&scene.camera_given);
+    if let Some(s) = &scene.camera_sigma {
+        cam_yaml.push_str(&s.yaml_lines());
+    }
+    write(&dir.join("camera.yaml"), cam_yaml)?;
     write(&dir.join("gps.nmea"), &scene.nmea)?;
     let s = &scene.settings;
     let provenance = Provenance {

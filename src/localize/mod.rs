@@ -30,5 +30,6 @@ pub mod search;
 pub mod study;
 pub mod sweep;
 pub mod synth;
+pub mod truth_eval;
 pub mod uncertainty;
 pub mod verify;

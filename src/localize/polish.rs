@@ -264,6 +264,28 @@ impl PolishRecord {
     }
 }
 
+/// The search configuration whose fixed point set a local optimisation within `p`'s ±bound box
+/// uses: the points visible from every lattice pose of that box (two cells per side; the grid
+/// only selects the point set). A held axis (bound 0) is not an axis of the box.
+pub fn box_config(search: &SearchConfig, p: &PolishParams, pivot: Option<f64>) -> SearchConfig {
+    let r = |i: usize| AxisRange {
+        half: p.bound[i],
+        step: p.bound[i] / 2.0,
+    };
+    SearchConfig {
+        spec: SearchSpec {
+            x: r(0),
+            y: r(1),
+            z: r(2),
+            yaw: r(3),
+            pitch: p.is_free(4).then(|| r(4)),
+            roll: p.is_free(5).then(|| r(5)),
+            tilt_pivot_m: pivot,
+        },
+        ..*search
+    }
+}
+
 /// Polish `pose` over the free parameters of `p` (all six by default) on `views` (one or more
 /// image/point-set pairs sharing the pose, pooled into one histogram per pose):
 /// pitch and roll pivot `pivot` metres below the camera on its axis (see
@@ -279,25 +301,7 @@ pub fn polish_pose(
     search: &SearchConfig,
     p: &PolishParams,
 ) -> Result<(CamFromMap, PolishRecord)> {
-    // The grid only selects the point set; two cells per side.
-    let r = |i: usize| AxisRange {
-        half: p.bound[i],
-        step: p.bound[i] / 2.0,
-    };
-    let cfg = SearchConfig {
-        spec: SearchSpec {
-            x: r(0),
-            y: r(1),
-            z: r(2),
-            yaw: r(3),
-            // A tilt held fixed (bound 0, a 4-DoF polish) is not an axis of the box.
-            pitch: p.is_free(4).then(|| r(4)),
-            roll: p.is_free(5).then(|| r(5)),
-            tilt_pivot_m: pivot,
-        },
-        ..*search
-    };
-    let ev = Evaluator::pooled(camera, views, pose, &cfg, 0)?;
+    let ev = Evaluator::pooled(camera, views, pose, &box_config(search, p, pivot), 0)?;
     let objective = ev.objective();
     let ev = &ev;
     let res = nelder_mead_multi(

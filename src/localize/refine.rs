@@ -99,7 +99,7 @@ pub fn refine_masked(
     qcfg: &QualityConfig,
 ) -> Result<Refinement> {
     let r = search_views(cam, &[View { gray, mask, points }], init, cfg, qcfg)?;
-    with_uncertainty(cam, &[View { gray, mask, points }], r, cfg, qcfg)
+    with_uncertainty(cam, &[View { gray, mask, points }], r, cfg, qcfg, None)
 }
 
 /// The grid search and its quality on pooled views, without the uncertainty estimate.
@@ -133,22 +133,33 @@ fn search_views(
 }
 
 /// Estimate the answer's uncertainty ([`super::uncertainty`]) on the same views and estimator,
-/// over x, y, z and yaw at the answer's tilt, and apply the σ gate. The tilt is held: the
-/// pipeline's 6-DoF polish settles it with its multi-start, and the detection pipeline's ground
-/// error is governed by the position and yaw (docs/refine.md "Uncertainty").
+/// and apply the σ gate. `tilt_pivot`: `None` holds the answer's tilt (a 4-DoF refinement); `Some`
+/// frees pitch and roll about that pivot ([`polish_pose`]'s), for an answer whose tilt the 6-DoF
+/// polish settled, so the position's σ carries the tilt–position valley.
+///
+/// [`polish_pose`]: super::polish::polish_pose
 fn with_uncertainty(
     cam: &Camera,
     views: &[View<'_>],
     mut r: Refinement,
     cfg: &SearchConfig,
     qcfg: &QualityConfig,
+    tilt_pivot: Option<Option<f64>>,
 ) -> Result<Refinement> {
+    let polish = match tilt_pivot {
+        Some(_) => super::polish::PolishParams {
+            bound: JACKKNIFE_BOUND,
+            ..Default::default()
+        },
+        None => super::polish::PolishParams::four_dof(),
+    };
     let u = estimate(
         cam,
         views,
         &r.pose,
         cfg,
-        &super::polish::PolishParams::four_dof(),
+        &polish,
+        tilt_pivot.flatten(),
         &UncertaintyConfig {
             folds: qcfg.jackknife_folds,
         },
@@ -158,12 +169,19 @@ fn with_uncertainty(
     // the search resolves: the variance is floored at (half the finest step)² per axis.
     let mut u = u;
     let axes = cfg.spec.axes();
-    for (i, ax) in axes.iter().enumerate().take(u.sigma.len().min(4)) {
-        let floor = 0.5 * ax.step;
+    for i in 0..u.sigma.len() {
+        // Tilts are not searched on a grid: they share the yaw's resolution.
+        let floor = 0.5 * axes[i.min(3)].step;
         if u.matrix[i][i] < floor * floor {
             u.matrix[i][i] = floor * floor;
             u.sigma[i] = floor;
         }
+    }
+    if let Some(s) = &qcfg.intrinsics_sigma {
+        super::uncertainty::add_intrinsics(
+            &mut u,
+            &super::uncertainty::intrinsics_deltas(cam, views, &r.pose, s),
+        );
     }
     r.stats.poses += u.poses as u64;
     r.stats.point_evaluations +=
@@ -171,6 +189,11 @@ fn with_uncertainty(
     apply_uncertainty(&mut r.quality, u, qcfg);
     Ok(r)
 }
+
+/// Each jackknife group's re-optimisation box when the tilt is free: x, y, z ±15 cm, yaw ±0.5°
+/// (the polish's), pitch and roll ±1° — wide enough for the tilt–position valley of a pose that
+/// the 6-DoF polish settled, narrow enough to keep the far field in the fixed point set.
+const JACKKNIFE_BOUND: [f64; 6] = [0.15, 0.15, 0.15, 0.5, 1.0, 1.0];
 
 /// Settings of [`refine_polished`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -299,7 +322,10 @@ pub fn refine_polished(
 ) -> Result<(Refinement, Vec<Round>)> {
     let Some(p) = p else {
         let r = search_views(cam, views, init, cfg, qcfg)?;
-        return Ok((with_uncertainty(cam, views, r, cfg, qcfg)?, Vec::new()));
+        return Ok((
+            with_uncertainty(cam, views, r, cfg, qcfg, None)?,
+            Vec::new(),
+        ));
     };
     let mut rounds = Vec::new();
     let mut start = *init;
@@ -356,7 +382,9 @@ pub fn refine_polished(
                 r.offsets = crate::pose::offsets_between(init, &r.pose);
                 r.stats.poses = poses;
                 r.stats.point_evaluations = point_evaluations;
-                return Ok((with_uncertainty(cam, views, r, cfg, qcfg)?, rounds));
+                // A finish that moved the tilt has its tilt uncertain too: the jackknife frees it.
+                let tilt = (p.polish.is_free(4) || p.polish.is_free(5)).then(|| pivot(&r.pose));
+                return Ok((with_uncertainty(cam, views, r, cfg, qcfg, tilt)?, rounds));
             }
         }
     }

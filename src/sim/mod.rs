@@ -159,6 +159,9 @@ pub struct Scene {
     pub camera_true: Camera,
     /// Intrinsics handed to the localizer (perturbed in `hard`).
     pub camera_given: Camera,
+    /// The given intrinsics' stated uncertainty (`hard`: the spread their errors are drawn
+    /// from, as a calibration report would state it; `easy`: none, they are exact).
+    pub camera_sigma: Option<crate::camera::import::IntrinsicsSigma>,
     /// True pose in the map CRS.
     pub pose: CamFromMap,
     /// Map tile (satellite, reflectivity, height, control points).
@@ -223,11 +226,31 @@ fn true_camera(rng: &mut ChaCha8Rng, preset: Preset, lens: Lens) -> Camera {
 
 /// The intrinsics a slightly wrong calibration would give: focal ±0.15–0.3 %, principal point
 /// ±1–2 px.
+/// `hard`'s focal scale error: ± this range (relative), uniform in magnitude, random sign.
+const HARD_FOCAL_ERROR: (f64, f64) = (0.0015, 0.003);
+/// `hard`'s principal-point error per coordinate: ± this range (px).
+const HARD_PRINCIPAL_POINT_ERROR: (f64, f64) = (1.0, 2.0);
+
+/// Mean square of a magnitude uniform in `[a, b)` with a random sign.
+#[cfg(test)]
+const fn rms_uniform(a: f64, b: f64) -> f64 {
+    // E[x²] = (b³ − a³) / (3 (b − a)); no const sqrt, so the caller's value is checked in a test.
+    (b * b * b - a * a * a) / (3.0 * (b - a))
+}
+
+/// The 1σ `hard` states for its given intrinsics: the RMS of the errors [`perturbed_camera`] draws.
+pub const HARD_INTRINSICS_SIGMA: crate::camera::import::IntrinsicsSigma =
+    crate::camera::import::IntrinsicsSigma {
+        focal_rel: 0.002_291_3,
+        principal_point_px: 1.527_5,
+    };
+
 fn perturbed_camera(rng: &mut ChaCha8Rng, cam: &Camera) -> Camera {
     let sign = |rng: &mut ChaCha8Rng| if rng.random_bool(0.5) { 1.0 } else { -1.0 };
-    let fs = 1.0 + sign(rng) * rng.random_range(0.0015..0.003);
-    let dx = sign(rng) * rng.random_range(1.0..2.0);
-    let dy = sign(rng) * rng.random_range(1.0..2.0);
+    let fs = 1.0 + sign(rng) * rng.random_range(HARD_FOCAL_ERROR.0..HARD_FOCAL_ERROR.1);
+    let (a, b) = HARD_PRINCIPAL_POINT_ERROR;
+    let dx = sign(rng) * rng.random_range(a..b);
+    let dy = sign(rng) * rng.random_range(a..b);
     let mut c = cam.clone();
     match &mut c {
         Camera::Mei(m) => {
@@ -578,6 +601,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         world,
         camera_true,
         camera_given,
+        camera_sigma: hard.then_some(HARD_INTRINSICS_SIGMA),
         pose,
         tile,
         frames,
