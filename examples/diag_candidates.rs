@@ -4,6 +4,7 @@
 use infraloc::camera::CameraModel;
 use infraloc::config::{Config, GpsSourceKind};
 use infraloc::localize::coarse::*;
+use infraloc::localize::frame::{Frame, MapLayers};
 use infraloc::localize::ground::*;
 use infraloc::localize::init::*;
 use infraloc::localize::pipeline::Params;
@@ -48,6 +49,7 @@ fn main() {
         .map(|f| image::GrayImage::from_raw(w, h, f.clone()).unwrap())
         .collect();
     let img = infraloc::capture::temporal_median(&frames).unwrap();
+    let frame = Frame::new(cam, img.as_raw()).unwrap();
     let mut p = Params::default();
     // DIAG_TOPK=N: a longer sweep list; DIAG_FINE=N: fine stage only for the first N.
     if let Some(k) = std::env::var("DIAG_TOPK").ok().and_then(|s| s.parse().ok()) {
@@ -173,10 +175,11 @@ fn main() {
         }
         let t = std::time::Instant::now();
         match fine_stage(
-            cam,
-            img.as_raw(),
-            &tile.satellite,
-            &tile.height,
+            &frame,
+            MapLayers {
+                satellite: &tile.satellite,
+                heights: &tile.height,
+            },
             prior,
             k,
             &p.fine,

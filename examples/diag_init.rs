@@ -2,6 +2,7 @@
 //! `cargo run --release --example diag_init -- SCENE_DIR`
 use infraloc::camera::{import::load_camera, CameraModel};
 use infraloc::localize::coarse::*;
+use infraloc::localize::frame::{Frame, MapLayers};
 use infraloc::localize::ground::*;
 use infraloc::localize::init::*;
 fn main() {
@@ -105,12 +106,15 @@ fn main() {
     }
     let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0);
     let r = initialize(
-        &cam,
-        img.as_raw(),
-        &tile.satellite,
-        &tile.height,
-        prior,
-        15.0,
+        &Frame::new(&cam, img.as_raw()).unwrap(),
+        MapLayers {
+            satellite: &tile.satellite,
+            heights: &tile.height,
+        },
+        SearchArea {
+            center: prior,
+            radius_m: 15.0,
+        },
         &CoarseParams::default(),
         &FineParams::default(),
         None,

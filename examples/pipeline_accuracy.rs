@@ -21,7 +21,9 @@
 
 use infraloc::camera::import::{parse_camera, to_opencv_yaml};
 use infraloc::config::{Config, GpsSourceKind};
-use infraloc::localize::pipeline::{self, Params};
+use infraloc::localize::frame::{Frame, MapLayers};
+use infraloc::localize::init::SearchArea;
+use infraloc::localize::pipeline::{self, Params, PnpDetail, PriorDetail, StageDetail};
 use infraloc::localize::truth_eval;
 use infraloc::pose::CamFromMap;
 use infraloc::sim::{self, Difficulty, Lens, Preset, Settings};
@@ -190,8 +192,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
     if o.init_only {
         return init_only(
             &scene,
-            &camera,
-            image.as_raw(),
+            &Frame::new(&camera, image.as_raw())?,
             &tile,
             xy,
             sigma,
@@ -201,8 +202,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
     }
     let now = || clock.elapsed().as_secs_f64();
     let outcome = pipeline::localize_ungated(
-        &camera,
-        image.as_raw(),
+        &Frame::new(&camera, image.as_raw())?,
         &tile,
         xy,
         sigma,
@@ -234,7 +234,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
                 name: StageName::Prior,
                 pose: None,
                 seconds: 0.0,
-                detail: json!({ "x": xy.0, "y": xy.1 }),
+                detail: StageDetail::Prior(PriorDetail::new(xy, sigma, params)),
             };
             rec["errors"] =
                 pipeline::truth_errors(&truth_text, &truth_path, &camera, &[prior_stage])?;
@@ -294,8 +294,10 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
             rec["seconds"]["mi"] = json!(out.stages[2].seconds);
             rec["seconds"]["localize"] =
                 json!(inputs_s + out.stages[2].seconds + out.stages[1].seconds);
-            rec["init"] = out.stages[1].detail.clone();
-            rec["rounds"] = out.stages[2].detail["rounds"].clone();
+            rec["init"] = json!(out.stages[1].detail);
+            if let StageDetail::Mi(d) = &out.stages[2].detail {
+                rec["rounds"] = json!(d.rounds);
+            }
             rec["mi_quality"] =
                 serde_json::to_value(&out.refinement.quality).unwrap_or(Value::Null);
         }
@@ -305,17 +307,16 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
 
 /// `--init-only`: the pipeline's initialization step alone (same search radius, seed and
 /// parameters), scored like the full run; for comparing initializer variants cheaply.
-#[allow(clippy::too_many_arguments)]
 fn init_only(
     scene: &sim::Scene,
-    camera: &infraloc::camera::Camera,
-    image: &[u8],
+    frame: &Frame<'_>,
     tile: &infraloc::map::Tile,
     xy: (f64, f64),
     sigma: f64,
     p: &Params,
     sim_s: f64,
 ) -> infraloc::Result<Value> {
+    let (camera, image) = (frame.camera(), frame.gray());
     use rand::SeedableRng;
     let t = Instant::now();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(p.seed);
@@ -324,12 +325,15 @@ fn init_only(
         infraloc::localize::verify::MiVerifier::new(camera, image, tile, p.fine.verify.mi.clone())
     });
     let init = infraloc::localize::init::initialize(
-        camera,
-        image,
-        &tile.satellite,
-        &tile.height,
-        xy,
-        p.search_radius_m(sigma),
+        frame,
+        MapLayers {
+            satellite: &tile.satellite,
+            heights: &tile.height,
+        },
+        SearchArea {
+            center: xy,
+            radius_m: p.search_radius_m(sigma),
+        },
         &p.coarse,
         &p.fine,
         verifier.as_ref(),
@@ -342,7 +346,7 @@ fn init_only(
         name: StageName::Prior,
         pose: None,
         seconds: 0.0,
-        detail: json!({ "x": xy.0, "y": xy.1 }),
+        detail: StageDetail::Prior(PriorDetail::new(xy, sigma, p)),
     };
     let mut rec =
         json!({ "seed": scene.settings.seed, "seconds": { "simulate": sim_s, "init": secs } });
@@ -357,7 +361,7 @@ fn init_only(
                     name: StageName::Pnp,
                     pose: Some(r.pose),
                     seconds: secs,
-                    detail: Value::Null,
+                    detail: StageDetail::Pnp(PnpDetail::new(&r, "dense-sweep")),
                 },
             ]
         }

@@ -10,6 +10,7 @@ use crate::camera::{import::load_camera, Camera, CameraModel};
 use crate::capture::load_gray;
 use crate::config::{Config, FrameSourceKind, GpsSourceKind, MatcherKind};
 use crate::error::{Error, Result};
+use crate::localize::frame::Frame;
 use crate::localize::matcher::{MatchFile, Matcher};
 use crate::localize::pipeline::{localize, Outcome, Params};
 use crate::map::cache::{load_covering, SkippedTile};
@@ -294,8 +295,7 @@ pub fn run(
     };
     let clock = |t: Instant| move || t.elapsed().as_secs_f64();
     let outcome = localize(
-        &camera,
-        image.as_raw(),
+        &Frame::new(&camera, image.as_raw())?,
         &tile,
         (px, py),
         sigma,

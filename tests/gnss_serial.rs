@@ -26,7 +26,10 @@ const BITS_PER_BYTE: f64 = 10.0; // 8N1: start + 8 data + stop
 
 fn skip_under_qemu() -> bool {
     if std::env::var_os("INFRALOC_QEMU").is_some_and(|v| v == "1") {
-        eprintln!("skipped: INFRALOC_QEMU=1 (qemu-user lacks the TCGETS2 baud-rate ioctls)");
+        common::skip(
+            "gnss_serial",
+            "INFRALOC_QEMU=1 (qemu-user lacks the TCGETS2 baud-rate ioctls)",
+        );
         return true;
     }
     false

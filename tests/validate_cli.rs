@@ -312,7 +312,10 @@ fn keys_only_skips_the_machine_checks() {
 fn read_only_output_directory_is_a_problem() {
     use std::os::unix::fs::PermissionsExt;
     if unsafe_euid_is_root() {
-        eprintln!("skipped: running as root, which may write any directory");
+        common::skip(
+            "validate_cli::keys_only_skips_the_machine_checks",
+            "running as root, which may write any directory",
+        );
         return;
     }
     let (w, cfg) = config(|t, w| {

@@ -73,11 +73,12 @@ fn decode(path: &std::path::Path) -> Result<()> {
     let s = d.stats();
     let fr = d.framing_stats();
     eprintln!(
-        "{}: {} fixes from {} sentences ({} without fix, {} checksum errors, {} unparsable, {} garbage bytes, {} over-long lines)",
+        "{}: {} fixes from {} sentences ({} without fix, {} corrupt dates dropped, {} checksum errors, {} unparsable, {} garbage bytes, {} over-long lines)",
         path.display(),
         s.fixes,
         s.sentences,
         s.no_fix_sentences,
+        s.dropped_dates,
         s.checksum_errors,
         s.parse_errors,
         fr.garbage_bytes,

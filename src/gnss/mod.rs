@@ -28,11 +28,13 @@ pub struct DecodeStats {
     pub fixes: u64,
     /// Sentences that declared no fix.
     pub no_fix_sentences: u64,
+    /// RMC sentences kept without their corrupt date field (position kept, as gpsd does).
+    pub dropped_dates: u64,
 }
 
 impl DecodeStats {
     /// The counts in words, for a technician: `120 lines: 80 sentences (37 lines with checksum
-    /// errors, 3 unparsable, 20 sentences without a fix), 60 fixes`.
+    /// errors, 3 unparsable, 20 sentences without a fix, 1 corrupt date dropped), 60 fixes`.
     pub fn describe(&self) -> String {
         let plural =
             |n: u64, one: &str, many: &str| format!("{n} {}", if n == 1 { one } else { many });
@@ -50,6 +52,12 @@ impl DecodeStats {
             notes.push(format!(
                 "{} without a fix",
                 plural(self.no_fix_sentences, "sentence", "sentences")
+            ));
+        }
+        if self.dropped_dates > 0 {
+            notes.push(format!(
+                "{} dropped",
+                plural(self.dropped_dates, "corrupt date", "corrupt dates")
             ));
         }
         let notes = if notes.is_empty() {
@@ -116,6 +124,9 @@ impl Decoder {
                 stats.sentences += 1;
                 if s.checksum == nmea::Checksum::Absent {
                     stats.unchecked_sentences += 1;
+                }
+                if matches!(s.body, nmea::Body::Rmc(r) if r.date_dropped) {
+                    stats.dropped_dates += 1;
                 }
                 if let Some(f) = merger.push(&s) {
                     on_fix(f);

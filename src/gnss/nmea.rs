@@ -11,6 +11,8 @@
 //! - Empty fields are `None`; a sentence whose fix fields are empty or that declares no fix
 //!   (GGA quality 0, RMC/GLL status `V`, GNS mode all `N`) is parsed fine and simply yields no
 //!   position ([`Sentence::position`] is `None`).
+//! - An RMC whose date field is corrupt (`2208-1`) keeps its time and position and loses only the
+//!   date ([`Rmc::date_dropped`]), as gpsd does; any other malformed field rejects the sentence.
 
 use std::fmt;
 
@@ -278,6 +280,10 @@ pub struct Rmc {
     pub pos: Option<LatLon>,
     /// Date.
     pub date: Option<Date>,
+    /// The date field was present but is not a `ddmmyy` date (receivers do send e.g. `2208-1`).
+    /// Like gpsd, the sentence is kept without its date rather than thrown away, because its
+    /// position is fine; [`crate::gnss::DecodeStats::dropped_dates`] counts these.
+    pub date_dropped: bool,
     /// NMEA 2.3+ mode indicator (`A`, `D`, `R`, `N`, …), if present.
     pub mode: Option<u8>,
 }
@@ -708,8 +714,10 @@ fn parse_rmc(fs: &mut Fields<'_>) -> Result<Rmc, NmeaError> {
     let valid = status(s, is)?;
     let pos = latlon(fs)?;
     fs.skip(2); // speed, course
-    let (d, id) = fs.next();
-    let date = opt(d, id, "date", parse_date6)?;
+    let (d, _) = fs.next();
+    // A corrupt date drops the date only (see `Rmc::date_dropped`).
+    let date = parse_date6(d);
+    let date_dropped = !d.is_empty() && date.is_none();
     fs.skip(2); // magnetic variation, E/W
     let (m, im) = fs.next();
     let mode = mode_char(m, im)?;
@@ -718,6 +726,7 @@ fn parse_rmc(fs: &mut Fields<'_>) -> Result<Rmc, NmeaError> {
         valid,
         pos,
         date,
+        date_dropped,
         mode,
     })
 }
@@ -1114,11 +1123,39 @@ mod tests {
         assert!(parse(b"$GPGGA,126000,4552.6,S,17030.00668,E,1,12,0.6,14.2,M,1.8,M,,").is_err());
         assert!(parse(b"$GPGGA,120000,4560.0,S,17030.00668,E,1,12,0.6,14.2,M,1.8,M,,").is_err());
         assert!(parse(b"$GPGGA,120000,4552.6,X,17030.00668,E,1,12,0.6,14.2,M,1.8,M,,").is_err());
-        assert!(parse(b"$GPRMC,120000,A,4552.6,S,17030.00668,E,,,320119,,,A").is_err());
+        // An RMC's corrupt date is dropped, not the sentence (see `corrupt_rmc_date_is_dropped`).
+        assert!(parse(b"$GPRMC,120000,A,4552.6,X,17030.00668,E,,,120119,,,A").is_err());
         assert_eq!(parse(b"GPGGA,1"), Err(NmeaError::NoStart));
         assert_eq!(parse(b"$G"), Err(NmeaError::BadAddress));
         assert_eq!(parse(b"$"), Err(NmeaError::BadAddress));
         assert_eq!(parse(b"$PQVERNO"), Err(NmeaError::NoFields));
+    }
+
+    #[test]
+    fn corrupt_rmc_date_is_dropped() {
+        // From a real receiver; gpsd reports lat 48.483341667, lon 0.366691667 and no time.
+        let s = parse(b"$GPRMC,000231.099,A,4829.0005,N,00022.0015,E,0.15,212.28,2208-1,,,A*73")
+            .unwrap();
+        let Body::Rmc(r) = s.body else { panic!() };
+        assert_eq!((r.date, r.date_dropped), (None, true));
+        let (p, q) = s.position().unwrap();
+        assert!((p.lat - 48.483341667).abs() < 1e-9 && (p.lon - 0.366691667).abs() < 1e-9);
+        assert_eq!(q, quality::GPS);
+        for bad in ["320119", "120019", "12011", "1201190", "12-119"] {
+            let line = format!("$GPRMC,120000,A,4552.6,S,17030.00668,E,,,{bad},,,A");
+            let Body::Rmc(r) = parse(line.as_bytes()).unwrap().body else {
+                panic!()
+            };
+            assert_eq!((r.date, r.date_dropped), (None, true), "{bad}");
+        }
+        // An empty date is not a dropped one.
+        let Body::Rmc(r) = parse(b"$GPRMC,120000,A,4552.6,S,17030.00668,E,,,,,,A")
+            .unwrap()
+            .body
+        else {
+            panic!()
+        };
+        assert_eq!((r.date, r.date_dropped), (None, false));
     }
 
     #[test]

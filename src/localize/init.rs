@@ -4,6 +4,7 @@
 //! ([`super::verify`]) when enabled.
 
 use super::coarse::{coarse_candidates, satellite_gray, CoarseParams};
+use super::frame::{Frame, MapLayers};
 use super::ground::{focal_px, ground_disc, height_at, Mip};
 use super::sweep::{orientation_field, Candidate, Field, GrayF32};
 use super::verify::MiVerifier;
@@ -11,6 +12,15 @@ use crate::camera::CameraModel;
 use crate::map::Raster;
 use crate::stage::StageName;
 use rayon::prelude::*;
+
+/// Where initialization looks: within `radius_m` of the prior position `center` (map CRS, metres).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SearchArea {
+    /// The prior position.
+    pub center: (f64, f64),
+    /// Search radius, metres.
+    pub radius_m: f64,
+}
 
 /// Settings of the fine stage (local patch matching → PnP).
 #[derive(Debug, Clone, PartialEq)]
@@ -287,17 +297,16 @@ pub struct FineOutcome {
 /// Fine stage of one sweep candidate (offset relative to `prior_xy`): the iterations of local
 /// patch matching + PnP of [`FineParams::iterations`], each from the previous pose. The error
 /// says which PnP failed and on how many matches.
-#[allow(clippy::too_many_arguments)]
 pub fn fine_stage<R: rand::Rng>(
-    cam: &dyn CameraModel,
-    image: &[u8],
-    sat: &Raster<[u8; 3]>,
-    heights: &Raster<f32>,
+    frame: &Frame<'_>,
+    map: MapLayers<'_>,
     prior_xy: (f64, f64),
     cand: &Candidate,
     fine: &FineParams,
     rng: &mut R,
 ) -> std::result::Result<FineOutcome, String> {
+    let (cam, image): (&dyn CameraModel, _) = (frame.camera(), frame.gray());
+    let (sat, heights) = (map.satellite, map.heights);
     let (cx, cy) = (prior_xy.0 + cand.offset[0], prior_xy.1 + cand.offset[1]);
     let zg = height_at(heights, cx, cy).unwrap_or(0.0);
     let mut pose = crate::pose::CamFromMap::from_center_ypr(
@@ -343,31 +352,18 @@ pub fn fine_stage<R: rand::Rng>(
 /// where that has the higher MI, see `initialize_verified`). The search stops once the best PnP pose is convincing (inliers
 /// as above) and its MI is at least the screening MI of every candidate not yet tried — no
 /// remaining hypothesis has better evidence. Errors name the stage and the numbers.
-#[allow(clippy::too_many_arguments)]
 pub fn initialize<R: rand::Rng>(
-    cam: &dyn CameraModel,
-    image: &[u8],
-    sat: &Raster<[u8; 3]>,
-    heights: &Raster<f32>,
-    prior_xy: (f64, f64),
-    search_radius_m: f64,
+    frame: &Frame<'_>,
+    map: MapLayers<'_>,
+    area: SearchArea,
     coarse: &CoarseParams,
     fine: &FineParams,
     verifier: Option<&MiVerifier>,
     rng: &mut R,
 ) -> crate::Result<InitResult> {
-    let expected = (cam.width() as usize) * (cam.height() as usize);
-    if image.len() != expected {
-        return Err(crate::Error::stage(
-            StageName::Pnp.name(),
-            format!(
-                "image has {} pixels, camera expects {}×{}",
-                image.len(),
-                cam.width(),
-                cam.height()
-            ),
-        ));
-    }
+    let (cam, image): (&dyn CameraModel, _) = (frame.camera(), frame.gray());
+    let sat = map.satellite;
+    let (prior_xy, search_radius_m) = (area.center, area.radius_m);
     let cands = match verifier {
         Some(_) => {
             let longer = CoarseParams {
@@ -385,14 +381,14 @@ pub fn initialize<R: rand::Rng>(
         ));
     }
     if let Some(v) = verifier {
-        return initialize_verified(cam, image, sat, heights, prior_xy, &cands, fine, v, rng);
+        return initialize_verified(frame, map, prior_xy, &cands, fine, v, rng);
     }
     let mut best: Option<InitResult> = None;
     let mut last_err = String::new();
     let mut tried = 0;
     for (rank, cand) in cands.iter().enumerate() {
         tried = rank + 1;
-        let outcome = match fine_stage(cam, image, sat, heights, prior_xy, cand, fine, rng) {
+        let outcome = match fine_stage(frame, map, prior_xy, cand, fine, rng) {
             Ok(f) => Some((f.pose, f.matches, f.inliers, f.rms_px)),
             Err(e) => {
                 last_err = e;
@@ -463,18 +459,16 @@ pub fn candidate_pose(
 /// the satellite matching cannot confirm anywhere is an error, not a guess. When none does, the
 /// [`CLIMB_CANDIDATES`] best-screened candidates get a second chance: climbed on the LiDAR MI
 /// ([`MiVerifier::climb`]), then the fine stage again.
-#[allow(clippy::too_many_arguments)]
 fn initialize_verified<R: rand::Rng>(
-    cam: &dyn CameraModel,
-    image: &[u8],
-    sat: &Raster<[u8; 3]>,
-    heights: &Raster<f32>,
+    frame: &Frame<'_>,
+    map: MapLayers<'_>,
     prior_xy: (f64, f64),
     cands: &[Candidate],
     fine: &FineParams,
     verifier: &MiVerifier,
     rng: &mut R,
 ) -> crate::Result<InitResult> {
+    let heights = map.heights;
     // Screening: MI of each sweep candidate's own pose. Candidates whose view holds too few LiDAR
     // points have no evidence and go last, in sweep order.
     let screened: Vec<Option<super::verify::Verdict>> = cands
@@ -499,7 +493,7 @@ fn initialize_verified<R: rand::Rng>(
         // with PnP poses on equal terms; the screening only orders.
         let sweep =
             screened[rank].and_then(|_| verifier.verify(&candidate_pose(heights, prior_xy, cand)));
-        let hyp = match fine_stage(cam, image, sat, heights, prior_xy, cand, fine, rng) {
+        let hyp = match fine_stage(frame, map, prior_xy, cand, fine, rng) {
             Ok(f) => {
                 any_pnp = true;
                 let v = verifier.verify(&f.pose);
@@ -564,7 +558,7 @@ fn initialize_verified<R: rand::Rng>(
                 offset: [c.x - prior_xy.0, c.y - prior_xy.1],
                 score: cand.score,
             };
-            match fine_stage(cam, image, sat, heights, prior_xy, &climbed, fine, rng) {
+            match fine_stage(frame, map, prior_xy, &climbed, fine, rng) {
                 Ok(f) => {
                     any_pnp = true;
                     if let Some(v) = verifier.verify(&f.pose) {
@@ -824,13 +818,17 @@ mod tests {
             height_range_m: (6.0, 12.0),
             ..CoarseParams::default()
         };
+        let cam = crate::camera::Camera::Mei(sc.cam.clone());
         let r = initialize(
-            &sc.cam,
-            &sc.img,
-            &sc.sat,
-            &sc.heights,
-            (0.0, 0.0),
-            12.0,
+            &Frame::new(&cam, &sc.img).unwrap(),
+            MapLayers {
+                satellite: &sc.sat,
+                heights: &sc.heights,
+            },
+            SearchArea {
+                center: (0.0, 0.0),
+                radius_m: 12.0,
+            },
             &coarse,
             &FineParams::default(),
             None,

@@ -13,6 +13,7 @@
 //! `docs/refine.md`.
 
 pub mod coarse;
+pub mod frame;
 pub mod ground;
 pub mod init;
 pub mod kernel;

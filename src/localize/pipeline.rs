@@ -3,10 +3,11 @@
 //! the outputs; the clock for stage timings is injected.
 
 use super::coarse::CoarseParams;
-use super::init::{initialize, FineParams, InitResult};
+use super::frame::{Frame, MapLayers};
+use super::init::{initialize, FineParams, InitResult, SearchArea};
 use super::matcher::{initialize_with, MatchQuery, Matcher};
 use super::quality::QualityConfig;
-use super::refine::{refine_polished, PolishedSearch, Refinement};
+use super::refine::{refine_polished, PolishedSearch, Refinement, Report, Round};
 use super::search::SearchConfig;
 use super::search::View;
 use super::verify::MiVerifier;
@@ -16,6 +17,7 @@ use crate::map::{ground_points, Tile};
 use crate::pose::CamFromMap;
 use crate::stage::StageName;
 use rand::SeedableRng;
+use serde::Serialize;
 use serde_json::{json, Value};
 
 /// Pipeline settings.
@@ -52,7 +54,7 @@ pub struct Params {
 /// Default of [`Params::mi_max_off_nadir_deg`]. The far ground is what pins down tilt and yaw
 /// (a tilt moves it most, and yaw has the longest lever arm there); on low poles a 70° disc has
 /// only an ≈ 11–14 m radius and the 6-DoF objective has ridges where roll trades for yaw and
-/// position. Measured on the simulator (docs/accuracy.md, "Ground disc for MI: 70° → 78°"):
+/// position. Measured on the simulator (CHANGELOG.md, "Ground disc for MI: 70° → 78°"):
 /// `small` 1–100 within 10 cm / 0.2° went from 95 to 99, `5mp` 1–20 from 19 to 20 (with the
 /// fourth search round, [`super::refine::SEARCH_ROUNDS`]), and with the true intrinsics the medians
 /// halved (`small` 1–12: 2.6 → 1.2 cm horizontal, 1.8 → 0.8 cm height). The price: a wrong focal
@@ -96,7 +98,113 @@ pub struct Stage {
     /// Wall time, seconds.
     pub seconds: f64,
     /// Stage-specific figures.
-    pub detail: Value,
+    pub detail: StageDetail,
+}
+
+/// A stage's own figures, one type per stage. Serialized (keys sorted, as the pose file and the
+/// report have always shown them) under the stage's `detail`.
+#[derive(Debug, Clone, Serialize)]
+#[serde(untagged)]
+pub enum StageDetail {
+    /// `prior`: where the prior put the camera and how far initialization looks around it.
+    Prior(PriorDetail),
+    /// `pnp`: what initialization matched and solved.
+    Pnp(PnpDetail),
+    /// `mi`: the refinement's report and its search/polish rounds.
+    Mi(Box<MiDetail>),
+}
+
+/// The `prior` stage's figures.
+#[derive(Debug, Clone, Serialize)]
+pub struct PriorDetail {
+    /// Prior position, map CRS, metres.
+    pub x: f64,
+    /// Prior position, map CRS, metres.
+    pub y: f64,
+    /// Its horizontal standard deviation, metres.
+    pub sigma_m: f64,
+    /// Radius initialization searches around it, metres.
+    pub search_radius_m: f64,
+}
+
+/// The `pnp` stage's figures.
+#[derive(Debug, Clone, Serialize)]
+pub struct PnpDetail {
+    /// Correspondences given to the last PnP.
+    pub matches: usize,
+    /// Its inliers.
+    pub inliers: usize,
+    /// Its reprojection RMS, px (NaN → `null` for a verified sweep pose).
+    pub rms_px: f64,
+    /// Sweep candidates whose fine stage ran.
+    pub candidates: usize,
+    /// Rank of the chosen candidate in the sweep's list.
+    pub candidate_rank: usize,
+    /// The matcher's name (`dense-sweep` for the built-in one).
+    pub matcher: String,
+    /// With a verifier: the pose's MI with the LiDAR map, nats.
+    pub mi: Option<f64>,
+    /// … and the runner-up hypothesis' MI.
+    pub mi_runner_up: Option<f64>,
+    /// The coarse candidate the pose grew from.
+    pub coarse: CoarseDetail,
+}
+
+impl PriorDetail {
+    /// The prior at `xy` with σ `sigma_m`, searched within `p`'s radius for that σ.
+    pub fn new(xy: (f64, f64), sigma_m: f64, p: &Params) -> Self {
+        PriorDetail {
+            x: xy.0,
+            y: xy.1,
+            sigma_m,
+            search_radius_m: p.search_radius_m(sigma_m),
+        }
+    }
+}
+
+impl PnpDetail {
+    /// The figures of initialization result `init`, made by the matcher named `matcher`.
+    pub fn new(init: &InitResult, matcher: &str) -> Self {
+        PnpDetail {
+            matches: init.matches,
+            inliers: init.inliers,
+            rms_px: init.rms_px,
+            candidates: init.candidates_tried,
+            candidate_rank: init.candidate_rank,
+            matcher: matcher.to_string(),
+            mi: init.mi.map(|m| m.0),
+            mi_runner_up: init.mi.and_then(|m| m.1),
+            coarse: CoarseDetail {
+                yaw_deg: init.candidate.yaw.to_degrees(),
+                height_m: init.candidate.height,
+                offset_m: init.candidate.offset,
+                score: init.candidate.score,
+            },
+        }
+    }
+}
+
+/// The coarse sweep candidate of a [`PnpDetail`].
+#[derive(Debug, Clone, Serialize)]
+pub struct CoarseDetail {
+    /// Yaw, degrees.
+    pub yaw_deg: f64,
+    /// Camera height, metres.
+    pub height_m: f64,
+    /// Offset from the prior, metres.
+    pub offset_m: [f64; 2],
+    /// The sweep's score.
+    pub score: f64,
+}
+
+/// The `mi` stage's figures.
+#[derive(Debug, Clone, Serialize)]
+pub struct MiDetail {
+    /// The refinement's summary (offsets, points, counters, quality).
+    #[serde(flatten)]
+    pub report: Report,
+    /// Each search and the polishes after it.
+    pub rounds: Vec<Round>,
 }
 
 impl Stage {
@@ -140,10 +248,8 @@ pub fn mi_points(tile: &Tile, pose: &CamFromMap, p: &Params) -> Vec<crate::map::
 /// (refinement and gate), for a terminal's status line or the service's status. Errors name the
 /// stage and the numbers; a refinement the quality gate rejects is an error (see
 /// [`quality_gate`]).
-#[allow(clippy::too_many_arguments)]
 pub fn localize(
-    camera: &Camera,
-    image: &[u8],
+    frame: &Frame<'_>,
     tile: &Tile,
     prior_xy: (f64, f64),
     prior_sigma_m: f64,
@@ -151,16 +257,7 @@ pub fn localize(
     now: &dyn Fn() -> f64,
     progress: &dyn Fn(StageName),
 ) -> Result<Outcome> {
-    let outcome = localize_ungated(
-        camera,
-        image,
-        tile,
-        prior_xy,
-        prior_sigma_m,
-        p,
-        now,
-        progress,
-    )?;
+    let outcome = localize_ungated(frame, tile, prior_xy, prior_sigma_m, p, now, progress)?;
     quality_gate(&outcome)?;
     Ok(outcome)
 }
@@ -182,10 +279,8 @@ pub fn quality_gate(o: &Outcome) -> Result<()> {
 /// [`localize`] without the quality gate: the outcome whatever the gate would say, so that an
 /// evaluation can still see the stages of a rejected run (`examples/pipeline_accuracy.rs`);
 /// `progress` as there.
-#[allow(clippy::too_many_arguments)]
 pub fn localize_ungated(
-    camera: &Camera,
-    image: &[u8],
+    frame: &Frame<'_>,
     tile: &Tile,
     prior_xy: (f64, f64),
     prior_sigma_m: f64,
@@ -193,13 +288,7 @@ pub fn localize_ungated(
     now: &dyn Fn() -> f64,
     progress: &dyn Fn(StageName),
 ) -> Result<Outcome> {
-    let (w, h) = (camera.width() as usize, camera.height() as usize);
-    if image.len() != w * h {
-        return Err(Error::stage(
-            StageName::Capture.name(),
-            format!("frame has {} pixels, camera expects {w}×{h}", image.len()),
-        ));
-    }
+    let (camera, image) = (frame.camera(), frame.gray());
     if !(prior_sigma_m > 0.0 && prior_xy.0.is_finite() && prior_xy.1.is_finite()) {
         return Err(Error::stage(
             StageName::Prior.name(),
@@ -211,7 +300,7 @@ pub fn localize_ungated(
         name: StageName::Prior,
         pose: None,
         seconds: 0.0,
-        detail: json!({ "x": prior_xy.0, "y": prior_xy.1, "sigma_m": prior_sigma_m, "search_radius_m": radius }),
+        detail: StageDetail::Prior(PriorDetail::new(prior_xy, prior_sigma_m, p)),
     }];
     if !tile.satellite.grid.contains(prior_xy.0, prior_xy.1, 0.0) {
         return Err(Error::stage(
@@ -233,12 +322,15 @@ pub fn localize_ungated(
         .then(|| MiVerifier::new(camera, image, tile, p.fine.verify.mi.clone()));
     let init = match &p.matcher {
         None => initialize(
-            camera,
-            image,
-            &tile.satellite,
-            &tile.height,
-            prior_xy,
-            radius,
+            frame,
+            MapLayers {
+                satellite: &tile.satellite,
+                heights: &tile.height,
+            },
+            SearchArea {
+                center: prior_xy,
+                radius_m: radius,
+            },
             &p.coarse,
             &p.fine,
             verifier.as_ref(),
@@ -261,18 +353,13 @@ pub fn localize_ungated(
         name: StageName::Pnp,
         pose: Some(init.pose),
         seconds: t1 - t0,
-        detail: json!({
-            "matches": init.matches, "inliers": init.inliers, "rms_px": init.rms_px,
-            "candidates": init.candidates_tried, "candidate_rank": init.candidate_rank,
-            "matcher": p.matcher.as_ref().map_or("dense-sweep", |m| m.name()),
-            "mi": init.mi.map(|m| m.0), "mi_runner_up": init.mi.and_then(|m| m.1),
-            "coarse": { "yaw_deg": init.candidate.yaw.to_degrees(), "height_m": init.candidate.height,
-                        "offset_m": init.candidate.offset, "score": init.candidate.score },
-        }),
+        detail: StageDetail::Pnp(PnpDetail::new(
+            &init,
+            p.matcher.as_ref().map_or("dense-sweep", |m| m.name()),
+        )),
     });
     progress(StageName::Mi);
     let points = mi_points(tile, &init.pose, p);
-    let mask = camera.valid_mask();
     // Pitch and roll pivot about the ground under the camera (the tile's height layer).
     let pivot = |pose: &CamFromMap| {
         let c = pose.center();
@@ -282,7 +369,7 @@ pub fn localize_ungated(
         camera,
         &[View {
             gray: image,
-            mask: &mask,
+            mask: frame.mask(),
             points: &points,
         }],
         &init.pose,
@@ -296,12 +383,10 @@ pub fn localize_ungated(
         name: StageName::Mi,
         pose: Some(refinement.pose),
         seconds: t2 - t1,
-        detail: {
-            let mut d =
-                serde_json::to_value(refinement.report(p.search.mode)).unwrap_or(Value::Null);
-            d["rounds"] = serde_json::to_value(&rounds).unwrap_or(Value::Null);
-            d
-        },
+        detail: StageDetail::Mi(Box::new(MiDetail {
+            report: refinement.report(p.search.mode),
+            rounds,
+        })),
     });
     Ok(Outcome {
         pose: refinement.pose,
@@ -347,10 +432,10 @@ pub fn truth_errors(
                 });
             }
             out[s.name.name()] = e;
-        } else if let (Some(x), Some(y)) = (s.detail["x"].as_f64(), s.detail["y"].as_f64()) {
+        } else if let StageDetail::Prior(d) = &s.detail {
             // The prior is a position only: no height, no heading.
             out[s.name.name()] =
-                json!({ "horizontal_m": ((x - tc.x).powi(2) + (y - tc.y).powi(2)).sqrt() });
+                json!({ "horizontal_m": ((d.x - tc.x).powi(2) + (d.y - tc.y).powi(2)).sqrt() });
         }
     }
     Ok(out)

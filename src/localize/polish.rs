@@ -292,7 +292,6 @@ pub fn box_config(search: &SearchConfig, p: &PolishParams, pivot: Option<f64>) -
 /// [`SearchSpec::tilt_pivot_m`]); the objective and estimator are `search`'s; the fixed point set
 /// is the one visible from every lattice pose of the ±`bound` box. Returns the polished pose and
 /// what the polish did.
-#[allow(clippy::too_many_arguments)]
 pub fn polish_pose(
     camera: &Camera,
     views: &[View<'_>],

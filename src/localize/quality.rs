@@ -140,7 +140,7 @@ impl QualityConfig {
 /// other checks accepted had a 2-cell yaw basin (`small` 29, 16.6 m off) and 3-, 4- and 5-cell
 /// z, y, x basins (`5mp` 3, 11 m off); a biased but nearby one (`5mp` 4, 0.21 m) had 6 cells.
 /// One good result has since been refused by it (`small` 86 on main 6de2e75: 5.9 cm off, a
-/// 4-cell z basin; docs/accuracy.md). A refused good pose costs a retry and the node keeps its last pose; a published wrong one
+/// 4-cell z basin; CHANGELOG.md "Quality gate: basin rule"). A refused good pose costs a retry and the node keeps its last pose; a published wrong one
 /// sends every detection metres astray, so the margin sits on the refusing side.
 pub const MIN_BASIN_STEPS: i64 = 5;
 

@@ -310,7 +310,6 @@ pub struct Round {
 /// "Moved" is measured on the polish's parameters: x, y, z offsets and the three angles, with
 /// pitch and roll about the pivot (a tilt of 0.4° about a 10 m pivot also moves the camera centre
 /// ≈ 7 cm, which the 0.5° threshold, not the 5 cm one, stands for).
-#[allow(clippy::too_many_arguments)]
 pub fn refine_polished(
     cam: &Camera,
     views: &[View<'_>],
@@ -341,7 +340,7 @@ pub fn refine_polished(
             // A re-polish (after one ended on its box's edge or moved) starts from that end only:
             // the tilt starts already explored ±`tilt_starts_deg` around this search's optimum, and five starts
             // per re-polish were most of the slow seeds' time (`5mp` 7 and 14: three 5-start
-            // polishes in their first round). docs/accuracy.md "Re-polishes from one start".
+            // polishes in their first round). CHANGELOG.md "Re-polishes from one start".
             let params = if pi > 0 {
                 super::polish::PolishParams {
                     tilt_starts_deg: 0.0,

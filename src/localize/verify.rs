@@ -3,7 +3,7 @@
 //! The initializer's hypotheses come from satellite matching, and its own evidence (PnP inliers)
 //! cannot tell a right pose from a self-consistent wrong one: road markings look alike after a
 //! half turn, and the fine stage converges to agreeing local matches around whatever pose it starts
-//! from (`docs/accuracy.md`, "What fails, and why"). The LiDAR ground reflectivity is a second,
+//! from (`CHANGELOG.md`, "What fails, and why"). The LiDAR ground reflectivity is a second,
 //! satellite-independent modality of the same ground, so the MI between it and the fisheye image
 //! at a hypothesis is evidence the satellite matching cannot fake.
 //!

@@ -98,3 +98,23 @@ pub fn simulate(bin: &str, dir: &Path, args: &[&str]) {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// Whether the tests run under CI (`CI` set to anything but empty, `0` or `false`), where every
+/// tool and data set a test needs must be present.
+pub fn under_ci() -> bool {
+    std::env::var("CI").is_ok_and(|v| !matches!(v.as_str(), "" | "0" | "false"))
+}
+
+/// Say that `test` is skipped and why, straight to the process's stderr: libtest captures
+/// `eprintln!` of a passing test, which would make the skip silent.
+pub fn skip(test: &str, why: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "\nSKIPPED {test}: {why}");
+}
+
+/// A test that needs something this machine lacks: fails under CI (where it must be there),
+/// otherwise skips visibly ([`skip`]).
+pub fn skip_unless_ci(test: &str, why: &str) {
+    assert!(!under_ci(), "{test}: {why} (required under CI)");
+    skip(test, why);
+}
