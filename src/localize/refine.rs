@@ -177,16 +177,22 @@ fn with_uncertainty(
             u.sigma[i] = floor;
         }
     }
+    r.stats.poses += u.poses as u64;
+    r.stats.point_evaluations +=
+        (u.poses as u64) * (u.points as u64) * (u.folds as u64 - 1) / u.folds as u64;
+    // The gate judges what this run's data supports (the jackknife). The camera file's stated
+    // intrinsics uncertainty is the calibration's, the same for every run: it goes into the
+    // reported σ and covariance (what the detection pipeline inherits) but refusing every run
+    // for it would leave the node without a pose until someone re-calibrates.
+    apply_uncertainty(&mut r.quality, u.clone(), qcfg);
     if let Some(s) = &qcfg.intrinsics_sigma {
         super::uncertainty::add_intrinsics(
             &mut u,
             &super::uncertainty::intrinsics_deltas(cam, views, &r.pose, s),
         );
+        r.quality.sigma = Some(super::quality::Sigma::of(&u));
+        r.quality.covariance = Some(u);
     }
-    r.stats.poses += u.poses as u64;
-    r.stats.point_evaluations +=
-        (u.poses as u64) * (u.points as u64) * (u.folds as u64 - 1) / u.folds as u64;
-    apply_uncertainty(&mut r.quality, u, qcfg);
     Ok(r)
 }
 
