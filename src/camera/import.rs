@@ -1124,6 +1124,46 @@ mod tests {
 
     const P: &str = "test.yaml";
 
+    #[test]
+    fn a_stated_intrinsics_sigma_round_trips_and_bad_values_name_the_key() {
+        let cam = Camera::Mei(Mei::pinhole(640, 480, 300.0, 300.0, 320.0, 240.0));
+        let plain = to_opencv_yaml(&cam);
+        assert_eq!(parse_intrinsics_sigma(&plain, Path::new(P)).unwrap(), None);
+        let s = IntrinsicsSigma {
+            focal_rel: 0.002,
+            principal_point_px: 1.5,
+        };
+        let text = format!("{plain}{}", s.yaml_lines());
+        assert_eq!(
+            parse_intrinsics_sigma(&text, Path::new(P)).unwrap(),
+            Some(s)
+        );
+        // The camera itself still parses from the same file.
+        assert_eq!(parse(&text).unwrap(), cam);
+        // Three 1σ modes: the focal scale moves fx and fy together, then cx, then cy.
+        let m = s.perturbed(&cam);
+        assert_eq!(m.len(), 3);
+        let Camera::Mei(f) = &m[0] else {
+            unreachable!()
+        };
+        assert!((f.fx - 300.6).abs() < 1e-9 && (f.fy - 300.6).abs() < 1e-9 && f.cx == 320.0);
+        let Camera::Mei(c) = &m[2] else {
+            unreachable!()
+        };
+        assert!(c.cy == 241.5 && c.cx == 320.0 && c.fx == 300.0);
+        for bad in [
+            "sigma_focal_rel: -0.1\n",
+            "sigma_principal_point_px: .nan\n",
+            "sigma_focal_rel: 0.7\n",
+        ] {
+            let e = parse_intrinsics_sigma(&format!("{plain}{bad}"), Path::new(P))
+                .expect_err(bad)
+                .to_string();
+            let key = bad.split(':').next().unwrap_or_default();
+            assert!(e.contains(P) && e.contains(key), "{bad}: {e}");
+        }
+    }
+
     fn parse(text: &str) -> Result<Camera> {
         parse_camera(text, Path::new(P))
     }

@@ -282,6 +282,66 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_focal_scale_moves_a_nadir_camera_s_height_and_a_principal_point_its_tilt() {
+        use crate::camera::Mei;
+        use crate::map::GroundPoint;
+        let cam = Camera::Mei(Mei::pinhole(800, 800, 200.0, 200.0, 400.0, 400.0));
+        let pose =
+            CamFromMap::from_center_ypr(&nalgebra::Point3::new(0.0, 0.0, 10.0), 0.4, 0.0, 0.0);
+        let points: Vec<GroundPoint> = (-12..=12)
+            .flat_map(|i| (-12..=12).map(move |j| (i, j)))
+            .map(|(i, j)| GroundPoint {
+                x: i as f64,
+                y: j as f64,
+                z: 0.0,
+                reflectivity: 0,
+            })
+            .collect();
+        let (gray, mask) = (vec![0u8; 800 * 800], vec![1u8; 800 * 800]);
+        let views = [View {
+            gray: &gray,
+            mask: &mask,
+            points: &points,
+        }];
+        let s = IntrinsicsSigma {
+            focal_rel: 0.01,
+            principal_point_px: 2.0,
+        };
+        let d = intrinsics_deltas(&cam, &views, &pose, &s);
+        assert_eq!(d.len(), 3);
+        // A pinhole 1 % longer sees the ground as from 1 % higher: +10 cm, no shift, no turn.
+        assert!((d[0][2] - 0.1).abs() < 0.005, "{:?}", d[0]);
+        assert!(
+            d[0][0].abs() < 1e-3 && d[0][1].abs() < 1e-3 && d[0][3].abs() < 1e-3,
+            "{:?}",
+            d[0]
+        );
+        // 2 px of principal point is a tilt of atan(2/200) ≈ 0.57°, or the equivalent shift.
+        let tilt = (d[1][4].powi(2) + d[1][5].powi(2)).sqrt();
+        let shift = d[1][0].hypot(d[1][1]);
+        assert!(tilt > 0.3 || shift > 0.05, "{:?}", d[1]);
+        let mut u = Uncertainty {
+            axes: AXES.iter().map(|a| a.to_string()).collect(),
+            units: vec!["m".into(); 6],
+            sigma: vec![0.01; 6],
+            matrix: (0..6)
+                .map(|a| (0..6).map(|b| if a == b { 1e-4 } else { 0.0 }).collect())
+                .collect(),
+            group_optima: Vec::new(),
+            peak: true,
+            folds: 8,
+            intrinsics: Vec::new(),
+            points: points.len(),
+            poses: 0,
+        };
+        add_intrinsics(&mut u, &d);
+        assert!(
+            (u.sigma[2] - (1e-4 + d.iter().map(|e| e[2] * e[2]).sum::<f64>()).sqrt()).abs() < 1e-12
+        );
+        assert_eq!(u.intrinsics.len(), 3);
+    }
+
+    #[test]
     fn groups_cover_the_fixed_set_once() {
         // Covered by tests/refine_pooled.rs end to end; here: the config's defaults are sane.
         let c = UncertaintyConfig::default();
