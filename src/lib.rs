@@ -10,7 +10,7 @@
 // `!(x > 0.0)` is how this crate rejects NaN together with out-of-range values; keep it.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-pub mod app;
+pub(crate) mod app;
 pub mod calib;
 pub mod camera;
 pub mod capture;
@@ -24,14 +24,14 @@ pub mod gnss;
 pub mod gps_serial;
 pub mod localize;
 pub mod map;
-pub mod persist;
+pub(crate) mod persist;
 pub mod pose;
 pub mod posefile;
-pub mod preflight;
+pub(crate) mod preflight;
 pub mod scene;
 pub mod sim;
 pub mod stage;
 pub mod store;
-pub mod viz;
+pub(crate) mod viz;
 
 pub use error::{Error, Result};

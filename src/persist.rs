@@ -13,7 +13,7 @@ fn temp_prefix(name: &std::ffi::OsStr) -> String {
 
 /// Atomically replace `path` with `bytes`. Errors name `path` (the file the caller asked for),
 /// never the temp file, which is removed on failure.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
@@ -48,7 +48,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 /// Remove the temp files that writes of `target` left behind when their process was killed
 /// (kill -9, power loss): `.NAME.tmp.PID.SEQ` beside it whose PID is not a live process. Returns
 /// the files removed. Called at the start of `localize` and of the service.
-pub fn remove_stale_temps(target: &Path) -> Vec<std::path::PathBuf> {
+pub(crate) fn remove_stale_temps(target: &Path) -> Vec<std::path::PathBuf> {
     let (Some(dir), Some(name)) = (target.parent(), target.file_name()) else {
         return Vec::new();
     };

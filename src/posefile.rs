@@ -13,7 +13,7 @@ use serde_json::Value;
 use std::path::Path;
 
 /// Schema identifier of the pose file.
-pub const SCHEMA_V1: &str = "infraloc.pose.v1";
+pub(crate) const SCHEMA_V1: &str = "infraloc.pose.v1";
 
 /// Software block of the pose file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -124,7 +124,7 @@ pub struct ReadPose {
 }
 
 /// Parse pose-like JSON text. `origin` names the source in errors.
-pub fn parse_pose(text: &str, origin: &Path) -> Result<ReadPose> {
+pub(crate) fn parse_pose(text: &str, origin: &Path) -> Result<ReadPose> {
     let m: MinimalPose = serde_json::from_str(text)
         .map_err(|e| Error::input(origin, format!("not a pose file: {e}")))?;
     let finite = m
@@ -171,7 +171,7 @@ pub fn read_pose(path: &Path) -> Result<ReadPose> {
 
 /// Format seconds since the Unix epoch (+ milliseconds) as `YYYY-MM-DDTHH:MM:SS[.mmm]Z`.
 /// Pure: the caller supplies the clock reading.
-pub fn format_utc(unix_secs: i64, millis: Option<u32>) -> String {
+pub(crate) fn format_utc(unix_secs: i64, millis: Option<u32>) -> String {
     let days = unix_secs.div_euclid(86_400);
     let sod = unix_secs.rem_euclid(86_400);
     let (y, mo, d) = civil_from_days(days);
@@ -188,7 +188,7 @@ pub fn format_utc(unix_secs: i64, millis: Option<u32>) -> String {
 }
 
 /// Proleptic Gregorian date from days since 1970-01-01 (Howard Hinnant's civil algorithm).
-pub fn civil_from_days(z: i64) -> (i64, u32, u32) {
+pub(crate) fn civil_from_days(z: i64) -> (i64, u32, u32) {
     let z = z + 719_468;
     let era = z.div_euclid(146_097);
     let doe = z.rem_euclid(146_097);
@@ -200,8 +200,9 @@ pub fn civil_from_days(z: i64) -> (i64, u32, u32) {
     (yoe + era * 400 + i64::from(m <= 2), m, d)
 }
 
+#[cfg(test)]
 /// Days since 1970-01-01 of a proleptic Gregorian date (inverse of [`civil_from_days`]).
-pub fn days_from_civil(y: i64, m: u32, d: u32) -> i64 {
+pub(crate) fn days_from_civil(y: i64, m: u32, d: u32) -> i64 {
     let y = if m <= 2 { y - 1 } else { y };
     let era = y.div_euclid(400);
     let yoe = y.rem_euclid(400);

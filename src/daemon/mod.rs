@@ -26,14 +26,14 @@ use crate::posefile::{format_utc, PoseFile};
 use crate::stage::StageName;
 use crate::store::{Decision, PoseStore};
 use notify::{Level, Logger};
-pub use policy::CROSS_CHECK_NMI_SLACK;
 use policy::{Action, CrossCheck, Policy, Requested, Timing};
 use serde_json::{json, Value};
+pub(crate) use status::State;
+pub use status::Status;
 use status::{
     DriftCheck, DriftOutcome, DriftSearch, DriftVerdict, JobKind, Optimum, Progress, RunOutcome,
     RunResult, Running, Served, StageTime,
 };
-pub use status::{State, Status};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{channel, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -42,11 +42,11 @@ use std::time::{Duration, Instant};
 /// Longest the main loop sleeps between looks at its timers.
 const TICK: Duration = Duration::from_millis(500);
 /// How long a technician's `relocalize --wait` may wait between two progress messages.
-pub const WAIT_TIMEOUT: Duration = Duration::from_secs(30 * 60);
+pub(crate) const WAIT_TIMEOUT: Duration = Duration::from_secs(30 * 60);
 /// The drift check's search box around the served pose: wide enough to see a knocked camera
 /// (the thresholds are 0.1 m / 0.3° by default), narrow enough to cost a fraction of a
 /// localization.
-pub const DRIFT_SPEC: SearchSpec = SearchSpec {
+pub(crate) const DRIFT_SPEC: SearchSpec = SearchSpec {
     x: AxisRange {
         half: 0.5,
         step: 0.02,
@@ -823,7 +823,7 @@ pub fn drift_check(cfg: &Config, config_path: &Path, served: &PoseFile) -> Resul
 /// the optimum is `drift-threshold-m` or more away horizontally, `drift-threshold-deg` or more in
 /// yaw, or there is no acceptable MI peak in the box at all. The answer also carries the
 /// optimum's pose and NMI.
-pub fn drift_search(
+pub(crate) fn drift_search(
     camera: &crate::camera::Camera,
     image: &image::GrayImage,
     tile: &crate::map::Tile,
@@ -891,7 +891,7 @@ fn cross_check(run: &Run, served: &PoseFile, cfg: &Config) -> Option<CrossCheck>
 }
 
 /// Judge a drift search's offsets (x, y, z m; yaw deg; …) and gate verdict against the thresholds.
-pub fn drift_verdict(
+pub(crate) fn drift_verdict(
     offsets: &[f64; 6],
     gate_accepted: bool,
     gate_reason: Option<&str>,

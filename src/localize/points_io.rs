@@ -421,18 +421,18 @@ fn le_f64(b: &[u8], o: usize) -> std::result::Result<f64, String> {
 
 /// LAS public-header offsets (ASPRS LAS 1.2–1.4 specification, table "Public Header Block").
 mod las {
-    pub const VERSION_MAJOR: usize = 24;
-    pub const VERSION_MINOR: usize = 25;
-    pub const OFFSET_TO_POINTS: usize = 96;
-    pub const POINT_FORMAT: usize = 104;
-    pub const RECORD_LENGTH: usize = 105;
-    pub const LEGACY_COUNT: usize = 107;
-    pub const SCALE: usize = 131;
-    pub const OFFSET: usize = 155;
+    pub(crate) const VERSION_MAJOR: usize = 24;
+    pub(crate) const VERSION_MINOR: usize = 25;
+    pub(crate) const OFFSET_TO_POINTS: usize = 96;
+    pub(crate) const POINT_FORMAT: usize = 104;
+    pub(crate) const RECORD_LENGTH: usize = 105;
+    pub(crate) const LEGACY_COUNT: usize = 107;
+    pub(crate) const SCALE: usize = 131;
+    pub(crate) const OFFSET: usize = 155;
     /// LAS 1.4 64-bit point count.
-    pub const COUNT_64: usize = 247;
+    pub(crate) const COUNT_64: usize = 247;
     /// Bytes of X, Y, Z (i32 each) + intensity (u16), common to formats 0–10.
-    pub const MIN_RECORD: usize = 14;
+    pub(crate) const MIN_RECORD: usize = 14;
 }
 
 /// Parse a LAS file.
@@ -489,8 +489,9 @@ pub fn parse_las(b: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> {
     let need = n.checked_mul(rec).and_then(|d| d.checked_add(start));
     if need.is_none_or(|need| b.len() < need) {
         return Err(format!(
-            "LAS file has {} bytes, too few for its {n} points of {rec} bytes from offset {start}",
-            b.len()
+            "LAS file has {} bytes, its {n} points of {rec} bytes from offset {start} need {}",
+            b.len(),
+            need.map_or("more than can be addressed".to_string(), |k| k.to_string())
         ));
     }
     let mut xyz = Vec::with_capacity(n);
@@ -515,7 +516,7 @@ mod tests {
         // COUNT of a field unreadable (taken as 0): the binary reader indexed an empty slice.
         let mut pcd =
             b"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 2\nTYPE F F F U\n\
-            COUNT 1 1 1 I1W\nDTH 2\nHEIGHT \0\01NT 1 1 1 1\nW\nPOINTS 2\nDATA binary\n"
+            COUNT 1 1 1 I1W\nDTH 2\nHEIGHT \0\x001NT 1 1 1 1\nW\nPOINTS 2\nDATA binary\n"
                 .to_vec();
         pcd.extend_from_slice(&[0, 0, 0x80, 0x3f, 0, 0, 0, 0x40, 0, 0, 0x40, 0x40, 0x2c, 1]);
         pcd.extend_from_slice(&[
@@ -550,7 +551,9 @@ mod tests {
         las[107..111].copy_from_slice(&0u32.to_le_bytes());
         las.resize(255, 0);
         las[247..255].copy_from_slice(&u64::MAX.to_le_bytes());
-        assert!(parse_las(&las).unwrap_err().contains("too few"));
+        assert!(parse_las(&las)
+            .unwrap_err()
+            .contains("need more than can be addressed"));
     }
 
     #[test]
