@@ -27,7 +27,7 @@ use std::time::Instant;
 /// What a caller replaces in the config for one run (`infraloc localize`'s flags). The default
 /// replaces nothing: the run is the config's, as the service runs it.
 #[derive(Debug, Clone, Default)]
-pub(crate) struct Overrides {
+pub struct Overrides {
     /// Intrinsics file instead of the config's camera.
     pub camera: Option<PathBuf>,
     /// Frames to use instead of capturing; several are median-filtered.
@@ -201,7 +201,7 @@ fn prior(ov: &Overrides, cfg: &Config) -> Result<((f64, f64, f64), Value)> {
 /// The camera intrinsics and the (temporally median-filtered) frame under `cfg` (read from
 /// `cfg_path`, which errors name) and `ov`, checked to agree in size. `progress(Capture)` is
 /// called before frames are taken.
-pub(crate) fn camera_and_frame(
+pub fn camera_and_frame(
     cfg: &Config,
     cfg_path: &Path,
     ov: &Overrides,

@@ -10,7 +10,7 @@
 // `!(x > 0.0)` is how this crate rejects NaN together with out-of-range values; keep it.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-pub(crate) mod app;
+pub mod app;
 pub mod calib;
 pub mod camera;
 pub mod capture;

@@ -12,6 +12,7 @@ mod progress;
 mod project;
 mod rectify;
 mod refine;
+mod selftest;
 mod simulate;
 mod study;
 mod tech;
@@ -77,6 +78,10 @@ pub enum Command {
     Pose(tech::Target),
     /// Save the LiDAR-over-image overlay of the service's latest run as PNG.
     Overlay(tech::OverlayArgs),
+    /// Check the MI kernel's SIMD copy against the reference loop on this CPU (run by CI on the
+    /// aarch64 binary under qemu).
+    #[command(hide = true)]
+    SelfTest(selftest::Args),
 }
 
 /// Run the CLI with the process arguments; returns the exit code.
@@ -124,6 +129,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Relocalize(a) => tech::relocalize(a),
         Command::Pose(t) => tech::pose(t),
         Command::Overlay(a) => tech::overlay(a),
+        Command::SelfTest(a) => selftest::run(a),
     }
 }
 

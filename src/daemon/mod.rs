@@ -18,9 +18,10 @@ use crate::config::Config;
 use crate::control::{self, Reply, Request};
 use crate::error::{Error, Result};
 use crate::localize::pipeline::{mi_points, Params};
-use crate::localize::quality::QualityConfig;
-use crate::localize::refine::refine;
-use crate::localize::search::{AxisRange, SearchConfig, SearchSpec};
+use crate::localize::quality::{assess, QualityConfig};
+use crate::localize::search::{
+    search, AxisRange, Evaluator, SearchConfig, SearchSpec, View, MAX_LEVEL,
+};
 use crate::map::cache::load_tile;
 use crate::posefile::{format_utc, PoseFile};
 use crate::stage::StageName;
@@ -46,7 +47,7 @@ pub(crate) const WAIT_TIMEOUT: Duration = Duration::from_secs(30 * 60);
 /// The drift check's search box around the served pose: wide enough to see a knocked camera
 /// (the thresholds are 0.1 m / 0.3° by default), narrow enough to cost a fraction of a
 /// localization.
-pub(crate) const DRIFT_SPEC: SearchSpec = SearchSpec {
+pub const DRIFT_SPEC: SearchSpec = SearchSpec {
     x: AxisRange {
         half: 0.5,
         step: 0.02,
@@ -819,44 +820,82 @@ pub fn drift_check(cfg: &Config, config_path: &Path, served: &PoseFile) -> Resul
     drift_search(&camera, &image, &tile, &served.pose(), cfg)
 }
 
+/// The drift check keeps every `DRIFT_THIN`-th LiDAR cell along both map axes (a 0.2 m grid
+/// from the 0.1 m tiles, a quarter of the points): its thresholds (0.1 m, 0.3°) are five times the
+/// search step, so it needs the peak's place, not the full set's precision, and it runs on the
+/// node's schedule for its whole life (issue 18: ≤ 0.5 CPU-s; docs/benchmarks.md "Drift check").
+pub const DRIFT_THIN: i64 = 2;
+
+/// The camera's validity mask, computed once per camera for the process (the drift check runs on
+/// a schedule with the same camera; the mask depends on nothing else).
+fn cached_mask(camera: &crate::camera::Camera) -> Arc<Vec<u8>> {
+    use crate::camera::CameraModel;
+    static CACHE: Mutex<Option<(crate::camera::Camera, Arc<Vec<u8>>)>> = Mutex::new(None);
+    let mut c = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+    match &*c {
+        Some((cam, mask)) if cam == camera => mask.clone(),
+        _ => {
+            let mask = Arc::new(camera.valid_mask());
+            *c = Some((camera.clone(), mask.clone()));
+            mask
+        }
+    }
+}
+
 /// A narrow MI search ([`DRIFT_SPEC`]) around `pose` on `image`. The camera counts as moved when
 /// the optimum is `drift-threshold-m` or more away horizontally, `drift-threshold-deg` or more in
 /// yaw, or there is no acceptable MI peak in the box at all. The answer also carries the
 /// optimum's pose and NMI.
-pub(crate) fn drift_search(
+///
+/// The search and its quality gate are those of a localization's MI stage, on the thinned point
+/// set ([`DRIFT_THIN`]) and without the jackknife uncertainty: the verdict asks where the peak is
+/// and whether it is clear, not how precise the served pose is.
+pub fn drift_search(
     camera: &crate::camera::Camera,
     image: &image::GrayImage,
     tile: &crate::map::Tile,
     pose: &crate::pose::CamFromMap,
     cfg: &Config,
 ) -> Result<DriftSearch> {
-    let points = mi_points(tile, pose, &Params::default());
-    let search = SearchConfig {
+    let g = tile.reflectivity.grid;
+    let on_grid = |v: f64| (v.round() as i64).rem_euclid(DRIFT_THIN) == 0;
+    let points: Vec<_> = mi_points(tile, pose, &Params::default())
+        .into_iter()
+        .filter(|p| {
+            let (c, r) = g.to_pixel(p.x, p.y);
+            on_grid(c) && on_grid(r)
+        })
+        .collect();
+    let search_cfg = SearchConfig {
         spec: DRIFT_SPEC,
         ..SearchConfig::default()
     };
-    let r = refine(
-        camera,
-        image.as_raw(),
-        &points,
-        pose,
-        &search,
-        &QualityConfig::default(),
-    )?;
+    let mask = cached_mask(camera);
+    let views = [View {
+        gray: image.as_raw(),
+        mask: &mask,
+        points: &points,
+    }];
+    let ev = Evaluator::pooled(camera, &views, pose, &search_cfg, MAX_LEVEL)?;
+    let res = search(&ev, &search_cfg);
+    let quality = assess(&ev, &res, &QualityConfig::default());
+    if !res.pose.translation.iter().all(|v| v.is_finite()) {
+        return Err(Error::stage("mi", "refined pose is not finite"));
+    }
     let verdict = drift_verdict(
-        &r.offsets,
-        r.quality.accepted,
-        r.quality.reason.as_deref(),
+        &res.offsets,
+        quality.accepted,
+        quality.reason.as_deref(),
         cfg.daemon.drift_threshold_m,
         cfg.daemon.drift_threshold_deg,
     );
-    let (y, p, ro) = r.pose.yaw_pitch_roll();
+    let (y, p, ro) = res.pose.yaw_pitch_roll();
     Ok(DriftSearch {
         verdict,
         optimum: Optimum {
-            camera_center: <[f64; 3]>::from(r.pose.center().coords),
+            camera_center: <[f64; 3]>::from(res.pose.center().coords),
             yaw_pitch_roll_deg: [y.to_degrees(), p.to_degrees(), ro.to_degrees()],
-            nmi: r.quality.nmi,
+            nmi: quality.nmi,
         },
     })
 }

@@ -229,7 +229,6 @@ impl JointHist {
             .sum()
     }
 
-    #[cfg(test)]
     /// Points that did not.
     pub(crate) fn invalid_count(&self) -> u64 {
         let s = self.stride();

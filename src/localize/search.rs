@@ -29,7 +29,9 @@
 // Axis-indexed loops over parallel fixed-size arrays ([_; 6]) read clearer with the index.
 #![allow(clippy::needless_range_loop)]
 
-use super::kernel::{accumulate, visible, BinnedImage, FastCamera, GrayLevel, PoseF32, Scratch};
+use super::kernel::{
+    accumulate, visible, visible_from_all, BinnedImage, FastCamera, GrayLevel, PoseF32, Scratch,
+};
 use super::mi::{bin_lut, mutual_information, JointHist, MiConfig, MiValue};
 use super::points::{validate, GroundPoint, PreparedPoints};
 use crate::camera::{Camera, CameraModel};
@@ -815,32 +817,24 @@ fn prepare_view(
     let keep = if cfg.fixed_point_set {
         let eroded = erode(mask, w, h, cfg.visibility_margin_px);
         let img_e = BinnedImage::new(w, h, gray, &eroded, &lut_gray, invalid);
-        // The 3^d lattice poses in parallel, each thread AND-ing into its own flags, then
-        // the threads' flags AND-ed: AND is associative and commutative, so the set does not
-        // depend on how rayon splits the work.
-        let n = raw.len();
-        box_lattice(grid)
-            .par_iter()
-            .fold(
-                || (vec![true; n], vec![false; n]),
-                |(mut keep, mut vis), cell| {
-                    let p = PoseF32::new(
-                        &pose_at_pivot(init, &grid.offsets(cell), grid.pivot),
-                        origin,
-                    );
-                    visible(&raw, &p, &cam0, &img_e, invalid, &mut vis);
-                    keep.iter_mut().zip(&vis).for_each(|(k, &v)| *k &= v);
-                    (keep, vis)
-                },
-            )
-            .map(|(keep, _)| keep)
-            .reduce(
-                || vec![true; n],
-                |mut a, b| {
-                    a.iter_mut().zip(&b).for_each(|(x, &y)| *x &= y);
-                    a
-                },
-            )
+        // A point is kept when every pose of the 3^d lattice sees it. Blocks of points in
+        // parallel, each tested against all the poses at once (`visible_from_all`): the flags do
+        // not depend on how the work is split, since each point's flag is its own AND.
+        let poses: Vec<PoseF32> = box_lattice(grid)
+            .iter()
+            .map(|cell| {
+                PoseF32::new(
+                    &pose_at_pivot(init, &grid.offsets(cell), grid.pivot),
+                    origin,
+                )
+            })
+            .collect();
+        const BLOCK: usize = 2048;
+        let mut keep = vec![true; raw.len()];
+        keep.par_chunks_mut(BLOCK).enumerate().for_each(|(b, k)| {
+            visible_from_all(&raw, b * BLOCK, &poses, &cam0, &img_e, invalid, k)
+        });
+        keep
     } else {
         let mut vis = vec![false; raw.len()];
         let p = PoseF32::new(init, origin);

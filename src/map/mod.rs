@@ -75,7 +75,7 @@ impl GeoGrid {
 
     /// Continuous pixel coordinates of a map point, pixel centres at integers.
     #[inline]
-    pub(crate) fn to_pixel(self, x: f64, y: f64) -> (f64, f64) {
+    pub fn to_pixel(self, x: f64, y: f64) -> (f64, f64) {
         (
             (x - self.x0) / self.res - 0.5,
             (self.y0 - y) / self.res - 0.5,
