@@ -278,6 +278,10 @@ pub struct DaemonConfig {
     pub drift_threshold_m: f64,
     /// … or a yaw change of at least this, degrees.
     pub drift_threshold_deg: f64,
+    /// Directory of node_exporter's textfile collector: the service keeps
+    /// [`crate::daemon::metrics::FILE_NAME`] there up to date (OpenMetrics text, written
+    /// atomically). `None`: no metrics file.
+    pub metrics_dir: Option<PathBuf>,
 }
 
 impl Default for DaemonConfig {
@@ -291,6 +295,7 @@ impl Default for DaemonConfig {
             drift_check_interval_min: 30.0,
             drift_threshold_m: 0.1,
             drift_threshold_deg: 0.3,
+            metrics_dir: None,
         }
     }
 }
@@ -463,6 +468,7 @@ impl Config {
         self.output.report.as_mut().map(fix);
         self.output.overlay.as_mut().map(fix);
         fix(&mut self.daemon.socket);
+        self.daemon.metrics_dir.as_mut().map(fix);
         self.init.matcher_path.as_mut().map(fix);
     }
 
@@ -667,6 +673,7 @@ impl Config {
     fn daemon_problems(&self, p: &mut Problems) {
         let d = &self.daemon;
         p.path("[daemon] socket", Some(&d.socket));
+        p.path("[daemon] metrics-dir", d.metrics_dir.as_deref());
         p.int(
             "[daemon] history-len",
             d.history_len as u64,

@@ -24,7 +24,7 @@ pub mod gnss;
 pub mod gps_serial;
 pub mod localize;
 pub mod map;
-pub(crate) mod persist;
+pub mod persist;
 pub mod pose;
 pub mod posefile;
 pub(crate) mod preflight;

@@ -140,7 +140,39 @@ pub(crate) fn check(cfg: &Config, scope: Scope) -> Findings {
     if scope == Scope::Service && !cfg.daemon.socket.as_os_str().is_empty() {
         socket(&cfg.daemon.socket, &mut f);
     }
+    if let Some(d) = cfg.daemon.metrics_dir.as_ref() {
+        if scope == Scope::Service && !d.as_os_str().is_empty() {
+            metrics_dir(d, &mut f);
+        }
+    }
     f
+}
+
+/// `[daemon] metrics-dir`: node_exporter's textfile directory, which must exist (the service
+/// does not create another program's directory) and be writable by the service.
+fn metrics_dir(d: &Path, f: &mut Findings) {
+    let key = "[daemon] metrics-dir";
+    match std::fs::metadata(d) {
+        Err(e) => f.problems.push(format!(
+            "{key} {}: {e} (node_exporter's textfile directory; create it or remove the key)",
+            d.display()
+        )),
+        Ok(m) if !m.is_dir() => f
+            .problems
+            .push(format!("{key} {} is not a directory", d.display())),
+        Ok(m) => {
+            if let Some(w) = not_writable(d, &m) {
+                if is_ours(&m) {
+                    f.problems.push(format!("{key}: {w}"));
+                } else {
+                    f.warnings.push(format!(
+                        "{key}: {w} by you (uid {}); the service's user must be able to write it (`validate --running` asks the service itself)",
+                        euid()
+                    ));
+                }
+            }
+        }
+    }
 }
 
 /// Check an output file path: not a directory, its directory exists (or, if `may_be_created`,
@@ -512,5 +544,33 @@ mod tests {
         let m = std::fs::metadata(d.path().join("state")).unwrap();
         assert_eq!(m.permissions().mode() & 0o777, 0o750);
         assert_eq!(create_state_dir(&c).unwrap(), None);
+    }
+
+    #[test]
+    fn metrics_dir_must_be_an_existing_directory() {
+        let d = tempfile::tempdir().unwrap();
+        let problems = |extra: &str| check(&cfg_in(d.path(), extra), Scope::Service).problems;
+        let metrics: Vec<String> = problems("metrics-dir = \"textfile\"")
+            .into_iter()
+            .filter(|p| p.starts_with("[daemon] metrics-dir"))
+            .collect();
+        assert_eq!(metrics.len(), 1, "{metrics:?}");
+        assert!(metrics[0].contains("textfile"), "{metrics:?}");
+        std::fs::write(d.path().join("textfile"), "").unwrap();
+        let p = problems("metrics-dir = \"textfile\"").join("\n");
+        assert!(
+            p.contains("[daemon] metrics-dir") && p.contains("is not a directory"),
+            "{p}"
+        );
+        std::fs::remove_file(d.path().join("textfile")).unwrap();
+        std::fs::create_dir(d.path().join("textfile")).unwrap();
+        let p = problems("metrics-dir = \"textfile\"");
+        assert!(!p.iter().any(|p| p.contains("metrics-dir")), "{p:?}");
+        // A one-shot localize writes no metrics.
+        let f = check(&cfg_in(d.path(), "metrics-dir = \"nope\""), Scope::Localize);
+        assert!(
+            !f.problems.iter().any(|p| p.contains("metrics-dir")),
+            "{f:?}"
+        );
     }
 }

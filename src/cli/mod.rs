@@ -71,7 +71,7 @@ pub enum Command {
     /// watchdog (run by infraloc.service).
     Daemon(tech::DaemonArgs),
     /// The service's state, served pose, last run and schedules (exit 3 degraded, 4 failed).
-    Status(tech::Target),
+    Status(tech::StatusArgs),
     /// Ask the service to localize now (`--wait`: show progress and the result).
     Relocalize(tech::RelocalizeArgs),
     /// Print the pose the service serves (contracts §4).

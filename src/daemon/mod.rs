@@ -9,6 +9,7 @@
 //! config on SIGHUP (a bad file is reported and the running config kept) and ends cleanly on
 //! SIGTERM. Every decision is one log line and is visible in `infraloc status`.
 
+pub mod metrics;
 pub mod notify;
 mod policy;
 pub mod status;
@@ -29,7 +30,7 @@ use crate::store::{Decision, PoseStore};
 use notify::{Level, Logger};
 use policy::{Action, CrossCheck, Policy, Requested, Timing};
 use serde_json::{json, Value};
-pub(crate) use status::State;
+pub use status::State;
 pub use status::Status;
 use status::{
     DriftCheck, DriftOutcome, DriftSearch, DriftVerdict, JobKind, Optimum, Progress, RunOutcome,
@@ -42,6 +43,9 @@ use std::time::{Duration, Instant};
 
 /// Longest the main loop sleeps between looks at its timers.
 const TICK: Duration = Duration::from_millis(500);
+/// How often the metrics file is rewritten when nothing happens and systemd asked for no
+/// watchdog (with a watchdog, it is rewritten with every ping).
+const METRICS_PERIOD: Duration = Duration::from_secs(60);
 /// How long a technician's `relocalize --wait` may wait between two progress messages.
 pub(crate) const WAIT_TIMEOUT: Duration = Duration::from_secs(30 * 60);
 /// The drift check's search box around the served pose: wide enough to see a knocked camera
@@ -81,7 +85,7 @@ enum Answer {
     /// A stage started.
     Progress(StageName),
     /// The run's result.
-    Done(RunResult),
+    Done(Box<RunResult>),
     /// No result will come (the daemon is stopping).
     Refused(String),
 }
@@ -137,11 +141,13 @@ pub fn run(config_path: &Path) -> Result<()> {
     }
     // Temp files of writes a kill -9 interrupted are removed before anything is written.
     let history = cfg.output.pose.with_file_name(crate::store::HISTORY_FILE);
+    let metrics_file = cfg.daemon.metrics_dir.as_deref().map(metrics::file_in);
     for target in [
         Some(&cfg.output.pose),
         Some(&history),
         cfg.output.report.as_ref(),
         cfg.output.overlay.as_ref(),
+        metrics_file.as_ref(),
     ]
     .into_iter()
     .flatten()
@@ -235,6 +241,7 @@ pub fn run(config_path: &Path) -> Result<()> {
         job_started: Instant::now(),
         waiters: Vec::new(),
         started,
+        metrics_error: None,
     };
     if d.served.is_some() {
         // The stored pose is served already: the service is useful from this moment.
@@ -378,6 +385,8 @@ struct Daemon {
     /// Technicians waiting for the running (or next) localization.
     waiters: Vec<Sender<Answer>>,
     started: Instant,
+    /// The last metrics write error logged (the same one is not logged again every minute).
+    metrics_error: Option<String>,
 }
 
 impl Daemon {
@@ -387,6 +396,9 @@ impl Daemon {
         if watchdog.is_some() {
             notify::notify("WATCHDOG=1");
         }
+        let metrics_period = watchdog.map_or(METRICS_PERIOD, |w| w / 2);
+        let mut last_metrics = Instant::now();
+        self.write_metrics();
         loop {
             // The watchdog is fed from this loop, so a wedged loop is what systemd restarts.
             if let Some(w) = watchdog {
@@ -395,9 +407,20 @@ impl Daemon {
                     last_ping = Instant::now();
                 }
             }
+            // The metrics file's age (node_exporter's node_textfile_mtime_seconds) tells a
+            // wedged or stopped service from a quiet one.
+            if last_metrics.elapsed() >= metrics_period {
+                self.write_metrics();
+                last_metrics = Instant::now();
+            }
             self.run_timers();
             self.refresh_status();
-            match rx.recv_timeout(TICK) {
+            let event = rx.recv_timeout(TICK);
+            if event.is_ok() {
+                // Every event changes what the status says: the metrics follow at once.
+                last_metrics = Instant::now();
+            }
+            match event {
                 Ok(Event::Terminate) => {
                     self.log.log(Level::Info, "SIGTERM: stopping");
                     for w in self.waiters.drain(..) {
@@ -430,8 +453,40 @@ impl Daemon {
                 }
                 Ok(Event::LocalizeDone(r)) => self.localize_done(*r),
                 Ok(Event::DriftDone(r)) => self.drift_done(r),
-                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Timeout) => continue,
                 Err(RecvTimeoutError::Disconnected) => return Ok(()),
+            }
+            self.write_metrics();
+        }
+    }
+
+    /// Rewrite the metrics file (`[daemon] metrics-dir`), if configured. A failure is logged
+    /// (once per distinct error) and never stops the service.
+    fn write_metrics(&mut self) {
+        let Some(dir) = self.cfg.daemon.metrics_dir.clone() else {
+            return;
+        };
+        self.refresh_status();
+        let s = self.lock_status().clone();
+        match metrics::write(&dir, &s) {
+            Ok(()) => {
+                if self.metrics_error.take().is_some() {
+                    self.log.log(
+                        Level::Info,
+                        &format!(
+                            "metrics: {} written again",
+                            metrics::file_in(&dir).display()
+                        ),
+                    );
+                }
+            }
+            Err(e) => {
+                let e = format!("[daemon] metrics-dir: {e}");
+                if self.metrics_error.as_deref() != Some(e.as_str()) {
+                    self.log
+                        .log(Level::Warning, &format!("metrics not written: {e}"));
+                    self.metrics_error = Some(e);
+                }
             }
         }
     }
@@ -569,6 +624,8 @@ impl Daemon {
                         camera_center: c,
                         yaw_pitch_roll_deg: run.pose_file.yaw_pitch_roll_deg,
                         score: status::score(&run.pose_file),
+                        sigma: run.pose_file.sigma(),
+                        skipped_tiles: run.skipped_tiles.clone(),
                         stages: run
                             .outcome
                             .stages
@@ -630,7 +687,7 @@ impl Daemon {
             }
         };
         for w in self.waiters.drain(..) {
-            let _ = w.send(Answer::Done(answer.clone()));
+            let _ = w.send(Answer::Done(Box::new(answer.clone())));
         }
         self.lock_status().running = None;
         self.update_state();

@@ -583,7 +583,7 @@ fn rect_distance(x: f64, y: f64, e: (f64, f64, f64, f64)) -> (f64, f64) {
 
 /// A tile directory of the cache that could not be used, and why (shown in the report and in
 /// `infraloc status`; the search goes on without it).
-#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct SkippedTile {
     /// The tile directory.
     pub dir: PathBuf,
