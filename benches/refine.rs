@@ -24,7 +24,7 @@
 //! `REPEATS` times and the fastest wall time is kept, with its CPU time). Figures:
 //! docs/benchmarks.md "MI refinement".
 
-use infraloc::camera::{Camera, CameraModel, Mei};
+use infraloc::camera::CameraModel;
 use infraloc::localize::quality::{assess, QualityConfig};
 use infraloc::localize::search::{search, Evaluator, SearchConfig, MAX_LEVEL};
 use infraloc::localize::synth::{ground_points, render, Texture};
@@ -32,27 +32,12 @@ use infraloc::pose::CamFromMap;
 use nalgebra::{Point3, Vector3};
 use std::time::Instant;
 
+#[path = "../examples/common/mod.rs"]
+mod common;
+use common::preset_camera;
+
 /// Runs per configuration (the fastest is kept: the least disturbed by other processes).
 const REPEATS: usize = 3;
-
-/// The `5mp` preset's given intrinsics (scene seed 2).
-fn camera() -> Camera {
-    Camera::Mei(Mei {
-        width: 2448,
-        height: 2048,
-        fx: 1199.27,
-        fy: 1198.64,
-        cx: 1225.22,
-        cy: 1026.07,
-        skew: 0.0,
-        xi: 1.2,
-        k1: -0.2673,
-        k2: 0.0929,
-        p1: -1.7e-4,
-        p2: -3.1e-5,
-        fov_deg: Some(185.0),
-    })
-}
 
 /// Process CPU time (user + system), seconds.
 fn cpu_s() -> f64 {
@@ -103,7 +88,7 @@ struct Run {
 
 fn main() {
     // `cargo bench` passes `--bench`; a filter argument is not supported (one configuration set).
-    let cam = camera();
+    let cam = preset_camera(2448, 2048);
     let tex = Texture::new(2);
     let truth = CamFromMap::from_center_ypr(&Point3::new(50.0, 40.0, 10.4), 1.72, -0.0013, 0.0);
     let t0 = Instant::now();

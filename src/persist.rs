@@ -12,8 +12,14 @@ fn temp_prefix(name: &std::ffi::OsStr) -> String {
 }
 
 /// Atomically replace `path` with `bytes`. Errors name `path` (the file the caller asked for),
-/// never the temp file, which is removed on failure.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+/// never the temp file, which is removed on failure. The file's mode is 0666 less the umask.
+pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_atomic_mode(path, bytes, None)
+}
+
+/// [`write_atomic`] with the file's mode set to `mode` whatever the umask (the metrics file
+/// must be readable by node_exporter's user while the service's umask is 0027).
+pub(crate) fn write_atomic_mode(path: &Path, bytes: &[u8], mode: Option<u32>) -> Result<()> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
@@ -31,6 +37,11 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
             .create_new(true)
             .open(&tmp)
             .map_err(|e| Error::io(path, e))?;
+        if let Some(m) = mode {
+            use std::os::unix::fs::PermissionsExt;
+            f.set_permissions(fs::Permissions::from_mode(m))
+                .map_err(|e| Error::io(path, e))?;
+        }
         f.write_all(bytes).map_err(|e| Error::io(path, e))?;
         f.sync_all().map_err(|e| Error::io(path, e))?;
         drop(f);

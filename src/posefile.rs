@@ -6,6 +6,7 @@
 //! hand-written initial pose is accepted too.
 
 use crate::error::{Error, Result};
+use crate::localize::quality::Sigma;
 use crate::map::Crs;
 use crate::pose::CamFromMap;
 use serde::{Deserialize, Serialize};
@@ -97,6 +98,18 @@ impl PoseFile {
         CamFromMap::from_rows(self.rotation_cam_from_map, self.translation_cam_from_map)
     }
 
+    /// The marginal σ per axis of `quality.sigma`, if the file has a well-formed one.
+    pub fn sigma(&self) -> Option<Sigma> {
+        #[derive(Deserialize)]
+        struct QualitySigma {
+            #[serde(default)]
+            sigma: Option<Sigma>,
+        }
+        QualitySigma::deserialize(&self.quality)
+            .ok()
+            .and_then(|q| q.sigma)
+    }
+
     /// Pretty JSON text with a trailing newline.
     pub fn to_json(&self) -> String {
         // Serialising plain data cannot fail; fall back to an empty object rather than panic.
@@ -170,45 +183,25 @@ pub fn read_pose(path: &Path) -> Result<ReadPose> {
 }
 
 /// Format seconds since the Unix epoch (+ milliseconds) as `YYYY-MM-DDTHH:MM:SS[.mmm]Z`.
-/// Pure: the caller supplies the clock reading.
+/// Pure: the caller supplies the clock reading. A time chrono cannot represent (beyond
+/// ±262,000 years) is written as the epoch.
 pub fn format_utc(unix_secs: i64, millis: Option<u32>) -> String {
-    let days = unix_secs.div_euclid(86_400);
-    let sod = unix_secs.rem_euclid(86_400);
-    let (y, mo, d) = civil_from_days(days);
-    let base = format!(
-        "{y:04}-{mo:02}-{d:02}T{:02}:{:02}:{:02}",
-        sod / 3600,
-        sod % 3600 / 60,
-        sod % 60
-    );
-    match millis {
-        Some(ms) => format!("{base}.{:03}Z", ms.min(999)),
-        None => format!("{base}Z"),
-    }
+    use chrono::{DateTime, SecondsFormat};
+    let nanos = millis.map_or(0, |ms| ms.min(999) * 1_000_000);
+    let t = DateTime::from_timestamp(unix_secs, nanos).unwrap_or_default();
+    let precision = if millis.is_some() {
+        SecondsFormat::Millis
+    } else {
+        SecondsFormat::Secs
+    };
+    t.to_rfc3339_opts(precision, true)
 }
 
-/// Proleptic Gregorian date from days since 1970-01-01 (Howard Hinnant's civil algorithm).
-pub fn civil_from_days(z: i64) -> (i64, u32, u32) {
-    let z = z + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
-    (yoe + era * 400 + i64::from(m <= 2), m, d)
-}
-
-/// Days since 1970-01-01 of a proleptic Gregorian date (inverse of [`civil_from_days`]).
-pub fn days_from_civil(y: i64, m: u32, d: u32) -> i64 {
-    let y = if m <= 2 { y - 1 } else { y };
-    let era = y.div_euclid(400);
-    let yoe = y.rem_euclid(400);
-    let mp = (i64::from(m) + 9) % 12;
-    let doy = (153 * mp + 2) / 5 + i64::from(d) - 1;
-    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
-    era * 146_097 + doe - 719_468
+/// Seconds since the Unix epoch of an RFC 3339 timestamp (as [`format_utc`] writes them, or with
+/// an offset); `None` if it is not one.
+pub fn parse_utc(s: &str) -> Option<f64> {
+    let t = chrono::DateTime::parse_from_rfc3339(s).ok()?;
+    Some(t.timestamp() as f64 + f64::from(t.timestamp_subsec_nanos()) * 1e-9)
 }
 
 #[cfg(test)]
@@ -271,9 +264,18 @@ mod tests {
             "2026-11-21T12:00:00.005Z"
         );
         assert_eq!(format_utc(951_782_400, None), "2000-02-29T00:00:00Z");
-        for d in [-800_000i64, -1, 0, 59, 11_016, 20_000, 2_000_000] {
-            let (y, m, dd) = civil_from_days(d);
-            assert_eq!(days_from_civil(y, m, dd), d);
+        for d in [-700_000i64, -1, 0, 59, 11_016, 20_000, 2_000_000] {
+            assert_eq!(
+                parse_utc(&format_utc(d * 86_400, None)),
+                Some((d * 86_400) as f64)
+            );
         }
+        let t = parse_utc("2026-11-21T12:00:00.005Z").unwrap();
+        assert!((t - 1_795_262_400.005).abs() < 1e-6, "{t}");
+        assert_eq!(
+            parse_utc("2026-11-21T13:00:00+01:00"),
+            Some(1_795_262_400.0)
+        );
+        assert_eq!(parse_utc("yesterday"), None);
     }
 }

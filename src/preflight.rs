@@ -19,9 +19,11 @@ use std::path::{Path, PathBuf};
 
 /// Which run the config is checked for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Scope {
+pub(crate) enum Scope {
     /// A one-shot `localize`: the state directory must exist already (nobody creates it), the
-    /// control socket is not used.
+    /// control socket is not used. (Only the tests check for it: `localize` runs the checks of
+    /// `app`, not this one.)
+    #[cfg(test)]
     Localize,
     /// The service (and `validate`): the state directory may be missing (the service creates
     /// it), the control socket's path must be usable.
@@ -30,26 +32,20 @@ pub enum Scope {
 
 /// What the checks found.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct Findings {
+pub(crate) struct Findings {
     /// Problems that stop the node, one line each naming the key.
     pub problems: Vec<String>,
     /// Things to look at that do not stop it.
     pub warnings: Vec<String>,
 }
 
-impl Findings {
-    /// `Err` (exit 78, every problem) when there are problems, else the warnings.
-    pub fn into_result(self, origin: &Path) -> Result<Vec<String>> {
-        Error::config_problems(origin, self.problems)?;
-        Ok(self.warnings)
-    }
-}
+impl Findings {}
 
 /// The service's validation of the config at `path`: its keys ([`Config::load`]), then what they
 /// name on this machine ([`check`] for the service). The config and its warnings, or every
 /// problem (exit 78). `infraloc validate` runs this, and the service at start, on reload and for
 /// `validate --running`.
-pub fn load_for_service(path: &Path) -> Result<(Config, Vec<String>)> {
+pub(crate) fn load_for_service(path: &Path) -> Result<(Config, Vec<String>)> {
     let (cfg, mut problems) = Config::load_with_problems(path)?;
     let found = check(&cfg, Scope::Service);
     problems.extend(found.problems);
@@ -60,7 +56,7 @@ pub fn load_for_service(path: &Path) -> Result<(Config, Vec<String>)> {
 }
 
 /// The service's state directory: where the pose file lives.
-pub fn state_dir(cfg: &Config) -> Option<&Path> {
+pub(crate) fn state_dir(cfg: &Config) -> Option<&Path> {
     cfg.output
         .pose
         .parent()
@@ -68,7 +64,7 @@ pub fn state_dir(cfg: &Config) -> Option<&Path> {
 }
 
 /// Create the state directory (mode 0750) if it is missing; the created path, if any.
-pub fn create_state_dir(cfg: &Config) -> Result<Option<PathBuf>> {
+pub(crate) fn create_state_dir(cfg: &Config) -> Result<Option<PathBuf>> {
     let Some(dir) = state_dir(cfg) else {
         return Ok(None);
     };
@@ -90,7 +86,7 @@ pub fn create_state_dir(cfg: &Config) -> Result<Option<PathBuf>> {
 
 /// Check everything `cfg` names for a run of kind `scope`. `cfg` has been loaded (its keys
 /// validated, its paths absolute).
-pub fn check(cfg: &Config, scope: Scope) -> Findings {
+pub(crate) fn check(cfg: &Config, scope: Scope) -> Findings {
     // Empty paths are the key validation's problem already; checking them here would only
     // repeat it in other words.
     let mut cfg = cfg.clone();
@@ -144,13 +140,45 @@ pub fn check(cfg: &Config, scope: Scope) -> Findings {
     if scope == Scope::Service && !cfg.daemon.socket.as_os_str().is_empty() {
         socket(&cfg.daemon.socket, &mut f);
     }
+    if let Some(d) = cfg.daemon.metrics_dir.as_ref() {
+        if scope == Scope::Service && !d.as_os_str().is_empty() {
+            metrics_dir(d, &mut f);
+        }
+    }
     f
+}
+
+/// `[daemon] metrics-dir`: node_exporter's textfile directory, which must exist (the service
+/// does not create another program's directory) and be writable by the service.
+fn metrics_dir(d: &Path, f: &mut Findings) {
+    let key = "[daemon] metrics-dir";
+    match std::fs::metadata(d) {
+        Err(e) => f.problems.push(format!(
+            "{key} {}: {e} (node_exporter's textfile directory; create it or remove the key)",
+            d.display()
+        )),
+        Ok(m) if !m.is_dir() => f
+            .problems
+            .push(format!("{key} {} is not a directory", d.display())),
+        Ok(m) => {
+            if let Some(w) = not_writable(d, &m) {
+                if is_ours(&m) {
+                    f.problems.push(format!("{key}: {w}"));
+                } else {
+                    f.warnings.push(format!(
+                        "{key}: {w} by you (uid {}); the service's user must be able to write it (`validate --running` asks the service itself)",
+                        euid()
+                    ));
+                }
+            }
+        }
+    }
 }
 
 /// Check an output file path: not a directory, its directory exists (or, if `may_be_created`,
 /// will be created by the service) and is writable. Used for the config's outputs and for
 /// `localize`'s `--out`, `--report` and `--overlay`.
-pub fn output_path(key: &str, p: &Path, may_be_created: bool, f: &mut Findings) {
+pub(crate) fn output_path(key: &str, p: &Path, may_be_created: bool, f: &mut Findings) {
     if p.is_dir() {
         f.problems.push(format!(
             "{key} {} is a directory; give a file path",
@@ -516,5 +544,33 @@ mod tests {
         let m = std::fs::metadata(d.path().join("state")).unwrap();
         assert_eq!(m.permissions().mode() & 0o777, 0o750);
         assert_eq!(create_state_dir(&c).unwrap(), None);
+    }
+
+    #[test]
+    fn metrics_dir_must_be_an_existing_directory() {
+        let d = tempfile::tempdir().unwrap();
+        let problems = |extra: &str| check(&cfg_in(d.path(), extra), Scope::Service).problems;
+        let metrics: Vec<String> = problems("metrics-dir = \"textfile\"")
+            .into_iter()
+            .filter(|p| p.starts_with("[daemon] metrics-dir"))
+            .collect();
+        assert_eq!(metrics.len(), 1, "{metrics:?}");
+        assert!(metrics[0].contains("textfile"), "{metrics:?}");
+        std::fs::write(d.path().join("textfile"), "").unwrap();
+        let p = problems("metrics-dir = \"textfile\"").join("\n");
+        assert!(
+            p.contains("[daemon] metrics-dir") && p.contains("is not a directory"),
+            "{p}"
+        );
+        std::fs::remove_file(d.path().join("textfile")).unwrap();
+        std::fs::create_dir(d.path().join("textfile")).unwrap();
+        let p = problems("metrics-dir = \"textfile\"");
+        assert!(!p.iter().any(|p| p.contains("metrics-dir")), "{p:?}");
+        // A one-shot localize writes no metrics.
+        let f = check(&cfg_in(d.path(), "metrics-dir = \"nope\""), Scope::Localize);
+        assert!(
+            !f.problems.iter().any(|p| p.contains("metrics-dir")),
+            "{f:?}"
+        );
     }
 }

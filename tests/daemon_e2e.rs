@@ -7,6 +7,8 @@
 //! (bad config, missing tile, silent GPS, absent camera) each run a fresh daemon against a good
 //! stored pose and check the status names the stage and the pose file is untouched.
 
+mod common;
+
 use infraloc::posefile::{read_pose, PoseFile};
 use serde_json::Value;
 use serialport::{SerialPort, TTYPort};
@@ -460,6 +462,178 @@ fn boot_serve_relocalize_status_reload_stop() {
     assert!(log.contains("control: Status from pid"), "{log}");
     assert!(!w.path().join("run/control.sock").exists());
     drop(gps);
+}
+
+/// The series (name and labels) of OpenMetrics text, without their values.
+fn series(text: &str) -> Vec<String> {
+    text.lines()
+        .filter(|l| !l.starts_with('#'))
+        .filter_map(|l| l.rsplit_once(' ').map(|(s, _)| s.to_string()))
+        .collect()
+}
+
+fn sample(text: &str, series: &str) -> Option<f64> {
+    text.lines()
+        .find_map(|l| l.strip_prefix(series)?.strip_prefix(' ')?.parse().ok())
+}
+
+/// The metrics file from the running service (docs/fleet.md), with a broken tile in the cache that
+/// the localization skips and reports in status (issue 19), and the served pose's σ in the
+/// technician's status.
+#[test]
+fn metrics_file_and_skipped_tiles_from_the_running_service() {
+    let cache = tempfile::tempdir().unwrap();
+    for e in std::fs::read_dir(scene().join("tiles")).unwrap() {
+        let e = e.unwrap();
+        std::os::unix::fs::symlink(e.path(), cache.path().join(e.file_name())).unwrap();
+    }
+    // Sorted before the good tile: a truncated manifest.
+    std::fs::create_dir(cache.path().join("aaa-broken")).unwrap();
+    std::fs::write(
+        cache.path().join("aaa-broken/tile.toml"),
+        "format = \"infraloc.tile.v1\"\nid = ",
+    )
+    .unwrap();
+    let (w, cfg) = workdir(|t| {
+        set(t, "map", "tiles", cache.path().display().to_string());
+        set(t, "daemon", "metrics-dir", "textfile");
+    });
+    let textfile = w.path().join("textfile");
+    std::fs::create_dir(&textfile).unwrap();
+    let prom = textfile.join("infraloc.prom");
+    // A temp file of a write a kill -9 interrupted: removed at start.
+    let stale = textfile.join(".infraloc.prom.tmp.2147483646.3");
+    std::fs::write(&stale, "# HELP infraloc_build_info half").unwrap();
+    let mut d = Daemon::start(&cfg);
+    d.wait_notify("READY=1", LOCALIZE_TIMEOUT);
+    assert!(!stale.exists(), "the stale temp file is still there");
+
+    // The file, as node_exporter reads it.
+    let prom_text = std::fs::read_to_string(&prom).unwrap();
+    if let Err(e) = common::promtool_check(&prom_text) {
+        panic!("{e}\n{prom_text}");
+    }
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata(&prom).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o644, "node_exporter's user must read it");
+    assert_eq!(
+        sample(&prom_text, "infraloc_state{state=\"ok\"}"),
+        Some(1.0),
+        "{prom_text}"
+    );
+    assert_eq!(
+        sample(&prom_text, "infraloc_pose_served"),
+        Some(1.0),
+        "{prom_text}"
+    );
+    assert_eq!(
+        sample(&prom_text, "infraloc_last_run_skipped_tiles"),
+        Some(1.0),
+        "{prom_text}"
+    );
+    assert_eq!(
+        sample(&prom_text, "infraloc_consecutive_failures"),
+        Some(0.0),
+        "{prom_text}"
+    );
+    let age = sample(&prom_text, "infraloc_pose_age_seconds").expect("pose age");
+    assert!((0.0..600.0).contains(&age), "{prom_text}");
+    for axis in ["x", "y", "z"] {
+        let s = sample(
+            &prom_text,
+            &format!("infraloc_pose_sigma_meters{{axis=\"{axis}\"}}"),
+        )
+        .unwrap_or_else(|| panic!("no σ {axis}: {prom_text}"));
+        assert!(s > 0.0 && s < 0.05, "σ {axis} = {s}");
+    }
+    // The pipeline's own stages (the pose file's `stages`).
+    for stage in ["prior", "pnp", "mi"] {
+        let series = format!("infraloc_last_run_stage_duration_seconds{{stage=\"{stage}\"}}");
+        assert!(
+            sample(&prom_text, &series).is_some_and(|s| s >= 0.0),
+            "{series}: {prom_text}"
+        );
+    }
+
+    // status: the skipped tile (typed in the JSON, a line for people) and the σ.
+    let (v, _) = status(&cfg);
+    let skipped = v["last_result"]["skipped_tiles"]
+        .as_array()
+        .expect("skipped_tiles");
+    assert_eq!(skipped.len(), 1, "{v}");
+    assert!(
+        skipped[0]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("aaa-broken/tile.toml"),
+        "{v}"
+    );
+    assert!(
+        v["served"]["sigma"]["x"].as_f64().is_some_and(|x| x > 0.0),
+        "{v}"
+    );
+    let out = cli(&cfg, &["status"]);
+    let human = text(&out.stdout);
+    assert!(human.contains("uncertainty    σ x "), "{human}");
+    assert!(
+        human.contains("skipped tile") && human.contains("aaa-broken/tile.toml"),
+        "{human}"
+    );
+
+    // `status --format openmetrics` prints the same series from the same function.
+    let out = cli(&cfg, &["status", "--format", "openmetrics"]);
+    assert_eq!(out.status.code(), Some(0), "{}", text(&out.stderr));
+    let printed = text(&out.stdout);
+    if let Err(e) = common::promtool_check(&printed) {
+        panic!("{e}\n{printed}");
+    }
+    let now = std::fs::read_to_string(&prom).unwrap();
+    assert_eq!(series(&printed), series(&now));
+
+    // Rewritten on the watchdog cadence (1 s here: every 0.5 s) while nothing happens.
+    let up = |t: &str| sample(t, "infraloc_uptime_seconds").unwrap();
+    let first = up(&now);
+    let start = Instant::now();
+    while up(&std::fs::read_to_string(&prom).unwrap()) == first {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "metrics not rewritten"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+
+    // A reload whose config names a missing file is refused (the same checks as at start), and
+    // the metrics say so at once.
+    let good = std::fs::read_to_string(&cfg).unwrap();
+    let missing = w.path().join("nope.yaml").display().to_string();
+    let cam = scene().join("camera.yaml").display().to_string();
+    std::fs::write(&cfg, good.replace(&cam, &missing)).unwrap();
+    d.signal("-HUP");
+    let v = poll_status(&cfg, |v| !v["reload_error"].is_null());
+    let e = v["reload_error"].as_str().unwrap();
+    assert!(
+        e.contains("[camera] intrinsics-file") && e.contains("nope.yaml"),
+        "{e}"
+    );
+    let start = Instant::now();
+    while sample(
+        &std::fs::read_to_string(&prom).unwrap(),
+        "infraloc_config_reload_failed",
+    ) != Some(1.0)
+    {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "reload failure not in the metrics"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    std::fs::write(&cfg, good).unwrap();
+    d.signal("-HUP");
+    poll_status(&cfg, |v| v["reload_error"].is_null());
+    d.stop();
+    // The last file stays for node_exporter (its mtime shows the service stopped).
+    let last = std::fs::read_to_string(&prom).unwrap();
+    assert!(last.ends_with("# EOF\n"), "{last}");
 }
 
 /// A good pose from an earlier run: the truth itself, as the pipeline would write it.

@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use yaml_rust2::{Yaml, YamlLoader};
 
 /// Separator between a camchain path and the camera to pick from it: `camchain.yaml#cam1`.
-pub const CAMERA_SELECTOR: char = '#';
+pub(crate) const CAMERA_SELECTOR: char = '#';
 
 /// Read and parse an intrinsics file. For a Kalibr camchain, `path#camN` selects camera `camN`
 /// (default: the first camera in the file); the suffix is only split off when `path` itself does
@@ -35,7 +35,11 @@ pub fn parse_camera(text: &str, origin: &Path) -> Result<Camera> {
 
 /// Like [`parse_camera`], selecting a named camera (`cam1`) of a Kalibr camchain. Naming a camera
 /// in a single-camera format is an error.
-pub fn parse_camera_named(text: &str, origin: &Path, camera: Option<&str>) -> Result<Camera> {
+pub(crate) fn parse_camera_named(
+    text: &str,
+    origin: &Path,
+    camera: Option<&str>,
+) -> Result<Camera> {
     let ctx = Ctx { origin };
     if is_kitti_calib(text) {
         return Err(ctx.err(
@@ -888,7 +892,7 @@ const KITTI_EXTRINSIC_KEYS: [&str; 2] = ["R0_rect", "Tr_velo_to_cam"];
 
 /// Whether `text` is a KITTI object-benchmark calibration (`calib/NNNNNN.txt`): `key: numbers`
 /// lines with a projection `P0:`..`P3:` and `R0_rect:` or `Tr_velo_to_cam:`.
-pub fn is_kitti_calib(text: &str) -> bool {
+pub(crate) fn is_kitti_calib(text: &str) -> bool {
     let keys: Vec<&str> = text
         .lines()
         .filter_map(|l| l.trim_start_matches('\u{feff}').split_once(':'))

@@ -10,11 +10,11 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 
 /// Horizontal error the demo accepts, metres (the refinement's 99th-percentile goal).
-pub const MAX_HORIZONTAL_M: f64 = 0.10;
+pub(crate) const MAX_HORIZONTAL_M: f64 = 0.10;
 /// Height error the demo accepts, metres.
-pub const MAX_HEIGHT_M: f64 = 0.10;
+pub(crate) const MAX_HEIGHT_M: f64 = 0.10;
 /// Yaw error the demo accepts, degrees.
-pub const MAX_YAW_DEG: f64 = 0.2;
+pub(crate) const MAX_YAW_DEG: f64 = 0.2;
 
 /// The thresholds as `infraloc demo --help` states them (README "Start here" repeats them).
 pub(crate) fn thresholds_help() -> String {
@@ -64,7 +64,7 @@ pub struct Args {
 }
 
 /// Run the demo.
-pub fn run(a: Args) -> Result<()> {
+pub(super) fn run(a: Args) -> Result<()> {
     let tmp;
     let dir = match &a.keep {
         Some(d) => {

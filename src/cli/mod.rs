@@ -12,6 +12,7 @@ mod progress;
 mod project;
 mod rectify;
 mod refine;
+mod selftest;
 mod simulate;
 mod study;
 mod tech;
@@ -70,13 +71,17 @@ pub enum Command {
     /// watchdog (run by infraloc.service).
     Daemon(tech::DaemonArgs),
     /// The service's state, served pose, last run and schedules (exit 3 degraded, 4 failed).
-    Status(tech::Target),
+    Status(tech::StatusArgs),
     /// Ask the service to localize now (`--wait`: show progress and the result).
     Relocalize(tech::RelocalizeArgs),
     /// Print the pose the service serves (contracts §4).
     Pose(tech::Target),
     /// Save the LiDAR-over-image overlay of the service's latest run as PNG.
     Overlay(tech::OverlayArgs),
+    /// Check the MI kernel's SIMD copy against the reference loop on this CPU (run by CI on the
+    /// aarch64 binary under qemu).
+    #[command(hide = true)]
+    SelfTest(selftest::Args),
 }
 
 /// Run the CLI with the process arguments; returns the exit code.
@@ -124,6 +129,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Relocalize(a) => tech::relocalize(a),
         Command::Pose(t) => tech::pose(t),
         Command::Overlay(a) => tech::overlay(a),
+        Command::SelfTest(a) => selftest::run(a),
     }
 }
 
@@ -158,4 +164,4 @@ pub(crate) fn parse_size(s: &str) -> Result<(u32, u32), Error> {
 }
 
 /// Default config path of the installed service.
-pub const DEFAULT_CONFIG: &str = "/etc/infraloc/infraloc.toml";
+pub(crate) const DEFAULT_CONFIG: &str = "/etc/infraloc/infraloc.toml";

@@ -5,15 +5,16 @@ use crate::config::{Config, DEFAULT_SOCKET};
 use crate::control::{Client, Request};
 use crate::daemon::status::{DriftOutcome, Progress, RunOutcome, RunResult, State, Status};
 use crate::error::{Error, Result};
+use crate::localize::quality::Sigma;
 use serde_json::Value;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 /// Exit code of `status` when the service is degraded (serving an older pose).
-pub const EXIT_DEGRADED: i32 = 3;
+pub(crate) const EXIT_DEGRADED: i32 = 3;
 /// Exit code of `status` when no pose is served and the last attempt failed.
-pub const EXIT_FAILED: i32 = 4;
+pub(crate) const EXIT_FAILED: i32 = 4;
 /// How long a technician command keeps retrying a `busy` answer.
 const BUSY_RETRY: Duration = Duration::from_secs(3);
 /// How long a non-waiting request may take.
@@ -85,6 +86,28 @@ impl Target {
     }
 }
 
+/// How `status` prints the service's status.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum StatusFormat {
+    /// The summary line, then the details (the default).
+    Human,
+    /// The daemon's JSON answer (as `--json`).
+    Json,
+    /// OpenMetrics text, the same the service writes into `[daemon] metrics-dir`.
+    Openmetrics,
+}
+
+/// Arguments of `status`.
+#[derive(Debug, clap::Args)]
+pub struct StatusArgs {
+    /// Output format (`--json` is short for `--format json`).
+    #[arg(long, value_enum, default_value = "human")]
+    pub format: StatusFormat,
+    /// Where the daemon is.
+    #[command(flatten)]
+    pub target: Target,
+}
+
 /// Arguments of `relocalize`.
 #[derive(Debug, clap::Args)]
 pub struct RelocalizeArgs {
@@ -111,7 +134,7 @@ pub struct OverlayArgs {
 }
 
 /// Run the service.
-pub fn daemon(a: DaemonArgs) -> Result<()> {
+pub(crate) fn daemon(a: DaemonArgs) -> Result<()> {
     crate::daemon::run(&a.config)
 }
 
@@ -125,7 +148,8 @@ fn failed(v: &Value) -> Error {
 }
 
 /// `status`: returns the exit code (0 ok/starting, 3 degraded, 4 failed).
-pub fn status(t: Target) -> Result<i32> {
+pub(crate) fn status(a: StatusArgs) -> Result<i32> {
+    let t = a.target;
     let (v, _) = t.call(Request::Status {})?;
     if v["ok"] != true {
         return Err(failed(&v));
@@ -136,10 +160,14 @@ pub fn status(t: Target) -> Result<i32> {
             format!("the daemon's status does not parse: {e}"),
         )
     })?;
-    if t.json {
-        println!("{v}");
-    } else {
-        print!("{}", human_status(&s));
+    let format = if t.json { StatusFormat::Json } else { a.format };
+    match format {
+        StatusFormat::Json => println!("{v}"),
+        StatusFormat::Human => print!("{}", human_status(&s)),
+        StatusFormat::Openmetrics => print!(
+            "{}",
+            crate::daemon::metrics::render(&s, crate::daemon::metrics::now_unix())
+        ),
     }
     Ok(match s.state {
         State::Degraded => EXIT_DEGRADED,
@@ -159,7 +187,7 @@ fn fmt_secs(s: f64) -> String {
 }
 
 /// The status as a technician reads it: the summary line first, then the details.
-pub fn human_status(v: &Status) -> String {
+pub(crate) fn human_status(v: &Status) -> String {
     let mut o = String::new();
     let line = |o: &mut String, k: &str, val: String| o.push_str(&format!("  {k:<14} {val}\n"));
     o.push_str(&format!("{}\n", v.summary));
@@ -176,6 +204,7 @@ pub fn human_status(v: &Status) -> String {
             format!("{:.3} {:.3} {:.3} m", c[0], c[1], c[2]),
         );
         line(&mut o, "yaw", format!("{:.3}°", p.yaw_pitch_roll_deg[0]));
+        line(&mut o, "uncertainty", sigma_line(p.sigma.as_ref()));
         line(&mut o, "computed", p.timestamp_utc.clone());
     } else {
         line(&mut o, "pose", "none served".into());
@@ -208,6 +237,11 @@ pub fn human_status(v: &Status) -> String {
             RunOutcome::Failed { error, .. } => format!("FAILED: {error}"),
         };
         line(&mut o, "last run", format!("{} {what}", r.finished_utc));
+        if let RunOutcome::Localized { skipped_tiles, .. } = &r.outcome {
+            for t in skipped_tiles {
+                line(&mut o, "skipped tile", t.reason.clone());
+            }
+        }
     }
     if let Some(d) = &v.last_drift_check {
         let what = match &d.outcome {
@@ -254,8 +288,13 @@ pub fn human_status(v: &Status) -> String {
     o
 }
 
+/// A pose's σ as a technician reads it (cm and degrees), or that the pose has none.
+fn sigma_line(s: Option<&Sigma>) -> String {
+    s.map_or_else(|| "σ unavailable".to_string(), Sigma::describe)
+}
+
 /// `relocalize [--wait] [--force]`.
-pub fn relocalize(a: RelocalizeArgs) -> Result<()> {
+pub(crate) fn relocalize(a: RelocalizeArgs) -> Result<()> {
     let req = Request::Relocalize {
         wait: a.wait,
         force: a.force,
@@ -310,6 +349,7 @@ pub fn relocalize(a: RelocalizeArgs) -> Result<()> {
                 camera_center: c,
                 yaw_pitch_roll_deg,
                 score,
+                sigma,
                 ..
             } = &r.outcome
             else {
@@ -320,13 +360,14 @@ pub fn relocalize(a: RelocalizeArgs) -> Result<()> {
                 ));
             };
             println!(
-                "localized in {:.1} s: centre ({:.3}, {:.3}, {:.3}), yaw {:.3}°, score {:.4}; {}",
+                "localized in {:.1} s: centre ({:.3}, {:.3}, {:.3}), yaw {:.3}°, score {:.4}, {}; {}",
                 r.seconds,
                 c[0],
                 c[1],
                 c[2],
                 yaw_pitch_roll_deg[0],
                 score.unwrap_or(f64::NAN),
+                sigma_line(sigma.as_ref()),
                 if *served {
                     format!("served ({decision})")
                 } else {
@@ -341,7 +382,7 @@ pub fn relocalize(a: RelocalizeArgs) -> Result<()> {
 }
 
 /// `pose`: the served pose document.
-pub fn pose(t: Target) -> Result<()> {
+pub(crate) fn pose(t: Target) -> Result<()> {
     let (v, _) = t.call(Request::GetPose {})?;
     if v["ok"] != true {
         return Err(failed(&v));
@@ -354,7 +395,7 @@ pub fn pose(t: Target) -> Result<()> {
 }
 
 /// `overlay --out PNG`.
-pub fn overlay(a: OverlayArgs) -> Result<()> {
+pub(crate) fn overlay(a: OverlayArgs) -> Result<()> {
     let (v, png) = a.target.call(Request::DumpOverlay {})?;
     if v["ok"] != true {
         return Err(failed(&v));
@@ -373,7 +414,7 @@ pub fn overlay(a: OverlayArgs) -> Result<()> {
 }
 
 /// `validate --running`: ask the daemon to validate its config file as a reload would.
-pub fn validate_running(socket: Option<&Path>, config: &Path, json: bool) -> Result<()> {
+pub(crate) fn validate_running(socket: Option<&Path>, config: &Path, json: bool) -> Result<()> {
     let t = Target {
         socket: socket.map(Path::to_path_buf),
         config: config.to_path_buf(),
@@ -402,4 +443,80 @@ pub fn validate_running(socket: Option<&Path>, config: &Path, json: bool) -> Res
         println!("config OK");
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::daemon::status::{Served, StageTime};
+    use crate::map::cache::SkippedTile;
+
+    fn status(sigma: Option<Sigma>) -> Status {
+        Status {
+            state: State::Ok,
+            summary: "ok: serving pose".into(),
+            pid: 7,
+            version: "0.1.0".into(),
+            config: "/etc/infraloc/infraloc.toml".into(),
+            uptime_s: 90.0,
+            served: Some(Served {
+                file: "/var/lib/infraloc/pose.json".into(),
+                timestamp_utc: "2026-01-02T03:04:05Z".into(),
+                tile_id: "t1".into(),
+                crs: "EPSG:32632".into(),
+                camera_center: [1.0, 2.0, 3.0],
+                yaw_pitch_roll_deg: [10.0, -80.0, 0.0],
+                score: Some(0.1),
+                sigma,
+            }),
+            running: None,
+            last_result: Some(RunResult {
+                finished_utc: "2026-01-02T03:04:05Z".into(),
+                seconds: 20.0,
+                outcome: RunOutcome::Localized {
+                    served: true,
+                    decision: "first pose".into(),
+                    camera_center: [1.0, 2.0, 3.0],
+                    yaw_pitch_roll_deg: [10.0, -80.0, 0.0],
+                    score: Some(0.1),
+                    sigma,
+                    stages: vec![StageTime {
+                        name: "mi".into(),
+                        seconds: 4.0,
+                    }],
+                    skipped_tiles: vec![SkippedTile {
+                        dir: "/c/aaa".into(),
+                        reason: "tile: /c/aaa/tile.toml: truncated".into(),
+                    }],
+                },
+            }),
+            last_drift_check: None,
+            failures_in_a_row: 0,
+            next_localize_in_s: None,
+            next_drift_check_in_s: None,
+            reload_error: None,
+        }
+    }
+
+    #[test]
+    fn human_status_shows_sigma_in_cm_and_degrees_and_the_skipped_tiles() {
+        let s = human_status(&status(Some(Sigma {
+            x: 0.012,
+            y: 0.034,
+            z: 0.005,
+            yaw: 0.042,
+            pitch: None,
+            roll: None,
+        })));
+        assert!(
+            s.contains("σ x 1.2 cm, y 3.4 cm, z 0.5 cm, yaw 0.042°"),
+            "{s}"
+        );
+        assert!(
+            s.contains("skipped tile   tile: /c/aaa/tile.toml: truncated"),
+            "{s}"
+        );
+        let s = human_status(&status(None));
+        assert!(s.contains("uncertainty    σ unavailable"), "{s}");
+    }
 }

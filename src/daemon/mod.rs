@@ -9,6 +9,7 @@
 //! config on SIGHUP (a bad file is reported and the running config kept) and ends cleanly on
 //! SIGTERM. Every decision is one log line and is visible in `infraloc status`.
 
+pub mod metrics;
 pub mod notify;
 mod policy;
 pub mod status;
@@ -18,22 +19,23 @@ use crate::config::Config;
 use crate::control::{self, Reply, Request};
 use crate::error::{Error, Result};
 use crate::localize::pipeline::{mi_points, Params};
-use crate::localize::quality::QualityConfig;
-use crate::localize::refine::refine;
-use crate::localize::search::{AxisRange, SearchConfig, SearchSpec};
+use crate::localize::quality::{assess, QualityConfig};
+use crate::localize::search::{
+    search, AxisRange, Evaluator, SearchConfig, SearchSpec, View, MAX_LEVEL,
+};
 use crate::map::cache::load_tile;
 use crate::posefile::{format_utc, PoseFile};
 use crate::stage::StageName;
 use crate::store::{Decision, PoseStore};
 use notify::{Level, Logger};
-pub use policy::CROSS_CHECK_NMI_SLACK;
 use policy::{Action, CrossCheck, Policy, Requested, Timing};
 use serde_json::{json, Value};
+pub use status::State;
+pub use status::Status;
 use status::{
     DriftCheck, DriftOutcome, DriftSearch, DriftVerdict, JobKind, Optimum, Progress, RunOutcome,
     RunResult, Running, Served, StageTime,
 };
-pub use status::{State, Status};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{channel, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -41,8 +43,11 @@ use std::time::{Duration, Instant};
 
 /// Longest the main loop sleeps between looks at its timers.
 const TICK: Duration = Duration::from_millis(500);
+/// How often the metrics file is rewritten when nothing happens and systemd asked for no
+/// watchdog (with a watchdog, it is rewritten with every ping).
+const METRICS_PERIOD: Duration = Duration::from_secs(60);
 /// How long a technician's `relocalize --wait` may wait between two progress messages.
-pub const WAIT_TIMEOUT: Duration = Duration::from_secs(30 * 60);
+pub(crate) const WAIT_TIMEOUT: Duration = Duration::from_secs(30 * 60);
 /// The drift check's search box around the served pose: wide enough to see a knocked camera
 /// (the thresholds are 0.1 m / 0.3° by default), narrow enough to cost a fraction of a
 /// localization.
@@ -80,7 +85,7 @@ enum Answer {
     /// A stage started.
     Progress(StageName),
     /// The run's result.
-    Done(RunResult),
+    Done(Box<RunResult>),
     /// No result will come (the daemon is stopping).
     Refused(String),
 }
@@ -136,11 +141,13 @@ pub fn run(config_path: &Path) -> Result<()> {
     }
     // Temp files of writes a kill -9 interrupted are removed before anything is written.
     let history = cfg.output.pose.with_file_name(crate::store::HISTORY_FILE);
+    let metrics_file = cfg.daemon.metrics_dir.as_deref().map(metrics::file_in);
     for target in [
         Some(&cfg.output.pose),
         Some(&history),
         cfg.output.report.as_ref(),
         cfg.output.overlay.as_ref(),
+        metrics_file.as_ref(),
     ]
     .into_iter()
     .flatten()
@@ -234,6 +241,7 @@ pub fn run(config_path: &Path) -> Result<()> {
         job_started: Instant::now(),
         waiters: Vec::new(),
         started,
+        metrics_error: None,
     };
     if d.served.is_some() {
         // The stored pose is served already: the service is useful from this moment.
@@ -377,6 +385,8 @@ struct Daemon {
     /// Technicians waiting for the running (or next) localization.
     waiters: Vec<Sender<Answer>>,
     started: Instant,
+    /// The last metrics write error logged (the same one is not logged again every minute).
+    metrics_error: Option<String>,
 }
 
 impl Daemon {
@@ -386,6 +396,9 @@ impl Daemon {
         if watchdog.is_some() {
             notify::notify("WATCHDOG=1");
         }
+        let metrics_period = watchdog.map_or(METRICS_PERIOD, |w| w / 2);
+        let mut last_metrics = Instant::now();
+        self.write_metrics();
         loop {
             // The watchdog is fed from this loop, so a wedged loop is what systemd restarts.
             if let Some(w) = watchdog {
@@ -394,9 +407,20 @@ impl Daemon {
                     last_ping = Instant::now();
                 }
             }
+            // The metrics file's age (node_exporter's node_textfile_mtime_seconds) tells a
+            // wedged or stopped service from a quiet one.
+            if last_metrics.elapsed() >= metrics_period {
+                self.write_metrics();
+                last_metrics = Instant::now();
+            }
             self.run_timers();
             self.refresh_status();
-            match rx.recv_timeout(TICK) {
+            let event = rx.recv_timeout(TICK);
+            if event.is_ok() {
+                // Every event changes what the status says: the metrics follow at once.
+                last_metrics = Instant::now();
+            }
+            match event {
                 Ok(Event::Terminate) => {
                     self.log.log(Level::Info, "SIGTERM: stopping");
                     for w in self.waiters.drain(..) {
@@ -429,8 +453,40 @@ impl Daemon {
                 }
                 Ok(Event::LocalizeDone(r)) => self.localize_done(*r),
                 Ok(Event::DriftDone(r)) => self.drift_done(r),
-                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Timeout) => continue,
                 Err(RecvTimeoutError::Disconnected) => return Ok(()),
+            }
+            self.write_metrics();
+        }
+    }
+
+    /// Rewrite the metrics file (`[daemon] metrics-dir`), if configured. A failure is logged
+    /// (once per distinct error) and never stops the service.
+    fn write_metrics(&mut self) {
+        let Some(dir) = self.cfg.daemon.metrics_dir.clone() else {
+            return;
+        };
+        self.refresh_status();
+        let s = self.lock_status().clone();
+        match metrics::write(&dir, &s) {
+            Ok(()) => {
+                if self.metrics_error.take().is_some() {
+                    self.log.log(
+                        Level::Info,
+                        &format!(
+                            "metrics: {} written again",
+                            metrics::file_in(&dir).display()
+                        ),
+                    );
+                }
+            }
+            Err(e) => {
+                let e = format!("[daemon] metrics-dir: {e}");
+                if self.metrics_error.as_deref() != Some(e.as_str()) {
+                    self.log
+                        .log(Level::Warning, &format!("metrics not written: {e}"));
+                    self.metrics_error = Some(e);
+                }
             }
         }
     }
@@ -568,6 +624,8 @@ impl Daemon {
                         camera_center: c,
                         yaw_pitch_roll_deg: run.pose_file.yaw_pitch_roll_deg,
                         score: status::score(&run.pose_file),
+                        sigma: run.pose_file.sigma(),
+                        skipped_tiles: run.skipped_tiles.clone(),
                         stages: run
                             .outcome
                             .stages
@@ -629,7 +687,7 @@ impl Daemon {
             }
         };
         for w in self.waiters.drain(..) {
-            let _ = w.send(Answer::Done(answer.clone()));
+            let _ = w.send(Answer::Done(Box::new(answer.clone())));
         }
         self.lock_status().running = None;
         self.update_state();
@@ -819,10 +877,36 @@ pub fn drift_check(cfg: &Config, config_path: &Path, served: &PoseFile) -> Resul
     drift_search(&camera, &image, &tile, &served.pose(), cfg)
 }
 
+/// The drift check keeps every `DRIFT_THIN`-th LiDAR cell along both map axes (a 0.2 m grid
+/// from the 0.1 m tiles, a quarter of the points): its thresholds (0.1 m, 0.3°) are five times the
+/// search step, so it needs the peak's place, not the full set's precision, and it runs on the
+/// node's schedule for its whole life (issue 18: ≤ 0.5 CPU-s; docs/benchmarks.md "Drift check").
+pub const DRIFT_THIN: i64 = 2;
+
+/// The camera's validity mask, computed once per camera for the process (the drift check runs on
+/// a schedule with the same camera; the mask depends on nothing else).
+fn cached_mask(camera: &crate::camera::Camera) -> Arc<Vec<u8>> {
+    use crate::camera::CameraModel;
+    static CACHE: Mutex<Option<(crate::camera::Camera, Arc<Vec<u8>>)>> = Mutex::new(None);
+    let mut c = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+    match &*c {
+        Some((cam, mask)) if cam == camera => mask.clone(),
+        _ => {
+            let mask = Arc::new(camera.valid_mask());
+            *c = Some((camera.clone(), mask.clone()));
+            mask
+        }
+    }
+}
+
 /// A narrow MI search ([`DRIFT_SPEC`]) around `pose` on `image`. The camera counts as moved when
 /// the optimum is `drift-threshold-m` or more away horizontally, `drift-threshold-deg` or more in
 /// yaw, or there is no acceptable MI peak in the box at all. The answer also carries the
 /// optimum's pose and NMI.
+///
+/// The search and its quality gate are those of a localization's MI stage, on the thinned point
+/// set ([`DRIFT_THIN`]) and without the jackknife uncertainty: the verdict asks where the peak is
+/// and whether it is clear, not how precise the served pose is.
 pub fn drift_search(
     camera: &crate::camera::Camera,
     image: &image::GrayImage,
@@ -830,33 +914,45 @@ pub fn drift_search(
     pose: &crate::pose::CamFromMap,
     cfg: &Config,
 ) -> Result<DriftSearch> {
-    let points = mi_points(tile, pose, &Params::default());
-    let search = SearchConfig {
+    let g = tile.reflectivity.grid;
+    let on_grid = |v: f64| (v.round() as i64).rem_euclid(DRIFT_THIN) == 0;
+    let points: Vec<_> = mi_points(tile, pose, &Params::default())
+        .into_iter()
+        .filter(|p| {
+            let (c, r) = g.to_pixel(p.x, p.y);
+            on_grid(c) && on_grid(r)
+        })
+        .collect();
+    let search_cfg = SearchConfig {
         spec: DRIFT_SPEC,
         ..SearchConfig::default()
     };
-    let r = refine(
-        camera,
-        image.as_raw(),
-        &points,
-        pose,
-        &search,
-        &QualityConfig::default(),
-    )?;
+    let mask = cached_mask(camera);
+    let views = [View {
+        gray: image.as_raw(),
+        mask: &mask,
+        points: &points,
+    }];
+    let ev = Evaluator::pooled(camera, &views, pose, &search_cfg, MAX_LEVEL)?;
+    let res = search(&ev, &search_cfg);
+    let quality = assess(&ev, &res, &QualityConfig::default());
+    if !res.pose.translation.iter().all(|v| v.is_finite()) {
+        return Err(Error::stage("mi", "refined pose is not finite"));
+    }
     let verdict = drift_verdict(
-        &r.offsets,
-        r.quality.accepted,
-        r.quality.reason.as_deref(),
+        &res.offsets,
+        quality.accepted,
+        quality.reason.as_deref(),
         cfg.daemon.drift_threshold_m,
         cfg.daemon.drift_threshold_deg,
     );
-    let (y, p, ro) = r.pose.yaw_pitch_roll();
+    let (y, p, ro) = res.pose.yaw_pitch_roll();
     Ok(DriftSearch {
         verdict,
         optimum: Optimum {
-            camera_center: <[f64; 3]>::from(r.pose.center().coords),
+            camera_center: <[f64; 3]>::from(res.pose.center().coords),
             yaw_pitch_roll_deg: [y.to_degrees(), p.to_degrees(), ro.to_degrees()],
-            nmi: r.quality.nmi,
+            nmi: quality.nmi,
         },
     })
 }
@@ -891,7 +987,7 @@ fn cross_check(run: &Run, served: &PoseFile, cfg: &Config) -> Option<CrossCheck>
 }
 
 /// Judge a drift search's offsets (x, y, z m; yaw deg; …) and gate verdict against the thresholds.
-pub fn drift_verdict(
+pub(crate) fn drift_verdict(
     offsets: &[f64; 6],
     gate_accepted: bool,
     gate_reason: Option<&str>,

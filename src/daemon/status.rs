@@ -6,6 +6,8 @@
 //! keys with the same value types (`null` where a value is absent), so scripts reading
 //! `infraloc status --json` keep working.
 
+use crate::localize::quality::Sigma;
+use crate::map::cache::SkippedTile;
 use crate::posefile::PoseFile;
 use crate::stage::StageName;
 use serde::{Deserialize, Serialize};
@@ -87,6 +89,10 @@ pub struct Served {
     pub yaw_pitch_roll_deg: [f64; 3],
     /// The pose store's comparison score (the MI optimum's NMI), when the file has one.
     pub score: Option<f64>,
+    /// The pose's marginal σ per axis (the file's `quality.sigma`); `None` for a file without
+    /// one (written by an older version, or a hand-made initial pose).
+    #[serde(default)]
+    pub sigma: Option<Sigma>,
 }
 
 impl Served {
@@ -100,6 +106,7 @@ impl Served {
             camera_center: p.camera_center,
             yaw_pitch_roll_deg: p.yaw_pitch_roll_deg,
             score: score(p),
+            sigma: p.sigma(),
         }
     }
 }
@@ -145,7 +152,7 @@ pub struct Running {
 
 /// A progress message to a waiting technician: `{"progress": STAGE}`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Progress {
+pub(crate) struct Progress {
     /// The stage that started.
     pub progress: StageName,
 }
@@ -188,8 +195,13 @@ pub enum RunOutcome {
         yaw_pitch_roll_deg: [f64; 3],
         /// The pose's comparison score, if it has one.
         score: Option<f64>,
+        /// The pose's marginal σ per axis, when it was estimated.
+        sigma: Option<Sigma>,
         /// The pipeline's stages and their wall times.
         stages: Vec<StageTime>,
+        /// Tiles of the cache that could not be read and were passed over (a good tile
+        /// covered the position).
+        skipped_tiles: Vec<SkippedTile>,
     },
     /// No pose: the error, and when the next try is.
     Failed {
@@ -241,7 +253,11 @@ struct RunResultWire {
     )]
     score: Option<Option<f64>>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    sigma: Option<Sigma>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     stages: Option<Vec<StageTime>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    skipped_tiles: Option<Vec<SkippedTile>>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     error: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -279,7 +295,9 @@ impl From<RunResult> for RunResultWire {
             camera_center: None,
             yaw_pitch_roll_deg: None,
             score: None,
+            sigma: None,
             stages: None,
+            skipped_tiles: None,
             error: None,
             retry_in_s: None,
         };
@@ -290,14 +308,18 @@ impl From<RunResult> for RunResultWire {
                 camera_center,
                 yaw_pitch_roll_deg,
                 score,
+                sigma,
                 stages,
+                skipped_tiles,
             } => {
                 w.served = served;
                 w.decision = Some(decision);
                 w.camera_center = Some(camera_center);
                 w.yaw_pitch_roll_deg = Some(yaw_pitch_roll_deg);
                 w.score = Some(score);
+                w.sigma = sigma;
                 w.stages = Some(stages);
+                w.skipped_tiles = Some(skipped_tiles);
             }
             RunOutcome::Failed { error, retry_in_s } => {
                 w.error = Some(error);
@@ -327,7 +349,10 @@ impl TryFrom<RunResultWire> for RunResult {
                     .yaw_pitch_roll_deg
                     .ok_or_else(|| missing("yaw_pitch_roll_deg"))?,
                 score: w.score.ok_or_else(|| missing("score"))?,
+                sigma: w.sigma,
                 stages: w.stages.clone().ok_or_else(|| missing("stages"))?,
+                // A daemon from before the key skipped nothing it could report.
+                skipped_tiles: w.skipped_tiles.clone().unwrap_or_default(),
             }
         } else {
             RunOutcome::Failed {
@@ -409,7 +434,78 @@ pub enum DriftOutcome {
 
 impl DriftCheck {
     /// Whether the check found the camera moved and no re-localization has answered it yet.
-    pub fn unresolved_move(&self) -> bool {
+    pub(crate) fn unresolved_move(&self) -> bool {
         matches!(&self.outcome, DriftOutcome::Ran(s) if s.verdict.moved) && self.resolved.is_none()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn localized(sigma: Option<Sigma>, skipped: Vec<SkippedTile>) -> RunResult {
+        RunResult {
+            finished_utc: "2026-01-02T03:04:05Z".into(),
+            seconds: 12.5,
+            outcome: RunOutcome::Localized {
+                served: true,
+                decision: "first pose".into(),
+                camera_center: [1.0, 2.0, 3.0],
+                yaw_pitch_roll_deg: [10.0, -80.0, 0.5],
+                score: Some(0.12),
+                sigma,
+                stages: vec![StageTime {
+                    name: "mi".into(),
+                    seconds: 4.0,
+                }],
+                skipped_tiles: skipped,
+            },
+        }
+    }
+
+    #[test]
+    fn a_run_result_keeps_sigma_and_skipped_tiles_over_the_wire() {
+        let sigma = Sigma {
+            x: 0.012,
+            y: 0.02,
+            z: 0.005,
+            yaw: 0.04,
+            pitch: None,
+            roll: Some(0.3),
+        };
+        let skipped = vec![SkippedTile {
+            dir: "/var/cache/tiles/aaa".into(),
+            reason: "tile: /var/cache/tiles/aaa/tile.toml: truncated".into(),
+        }];
+        let r = localized(Some(sigma), skipped.clone());
+        let v = serde_json::to_value(&r).unwrap();
+        assert_eq!(v["sigma"]["x"], 0.012);
+        assert_eq!(v["skipped_tiles"][0]["dir"], "/var/cache/tiles/aaa");
+        let back: RunResult = serde_json::from_value(v).unwrap();
+        assert_eq!(back, r);
+        // A pose without σ and a daemon that predates `skipped_tiles` still parse.
+        let mut v = serde_json::to_value(localized(None, vec![])).unwrap();
+        assert!(v.get("sigma").is_none(), "{v}");
+        v.as_object_mut().unwrap().remove("skipped_tiles");
+        let back: RunResult = serde_json::from_value(v).unwrap();
+        assert_eq!(back, localized(None, vec![]));
+    }
+
+    #[test]
+    fn served_reads_sigma_from_the_pose_files_quality_block() {
+        let pose = crate::pose::CamFromMap::from_rows(
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            [0.0, 0.0, 0.0],
+        );
+        let mut p = PoseFile::new(&pose, crate::map::Crs::Local, "t", "2026".into());
+        assert_eq!(Served::of(Path::new("p.json"), &p).sigma, None);
+        p.quality = serde_json::json!({"score": 0.1,
+            "sigma": {"x": 0.01, "y": 0.02, "z": 0.03, "yaw": 0.1}});
+        let s = Served::of(Path::new("p.json"), &p).sigma.unwrap();
+        assert_eq!((s.x, s.y, s.z, s.yaw), (0.01, 0.02, 0.03, 0.1));
+        assert_eq!((s.pitch, s.roll), (None, None));
+        // A malformed block is "no σ", not an error.
+        p.quality = serde_json::json!({"sigma": {"x": "wide"}});
+        assert_eq!(Served::of(Path::new("p.json"), &p).sigma, None);
     }
 }

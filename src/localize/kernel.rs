@@ -194,14 +194,14 @@ impl BinnedImage {
 
     /// Index of the sentinel element.
     #[inline]
-    pub fn sentinel(&self) -> usize {
+    pub(crate) fn sentinel(&self) -> usize {
         self.width * self.height
     }
 }
 
 /// One level of a gray image pyramid with its validity mask.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct GrayLevel {
+pub(crate) struct GrayLevel {
     /// Width (px).
     pub width: usize,
     /// Height (px).
@@ -215,7 +215,7 @@ pub struct GrayLevel {
 impl GrayLevel {
     /// Halve the resolution: each output pixel is the rounded mean of its valid 2×2 children and is
     /// valid if any child is (so a point valid at level 0 stays valid at coarse levels).
-    pub fn downsample(&self) -> GrayLevel {
+    pub(crate) fn downsample(&self) -> GrayLevel {
         let (w, h) = (self.width.div_ceil(2), self.height.div_ceil(2));
         let mut gray = vec![0u8; w * h];
         let mut mask = vec![0u8; w * h];
@@ -366,8 +366,11 @@ fn project_chunk_equidistant(
 }
 
 /// Project a chunk of points with `cam` into pixel indices of `img` (sentinel when not visible).
+/// `NEON`: the slot of an explicit aarch64 NEON copy of the projection (none yet: aarch64 runs
+/// the compiler's vectorisation of the plain loop; docs/benchmarks.md "aarch64"); `false` is the
+/// plain reference loop.
 #[inline(always)]
-fn project_chunk(
+fn project_chunk<const NEON: bool>(
     xs: &[f32],
     ys: &[f32],
     zs: &[f32],
@@ -391,6 +394,28 @@ fn project_chunk(
             xs, ys, zs, pose, k, d, theta_max, img.width, img.height, s, out,
         ),
     }
+}
+
+/// [`project_chunk`] of the points `a..b` of `pts` into `out` (length `b − a`).
+#[inline(always)]
+fn project_range<const NEON: bool>(
+    pts: &PreparedPoints,
+    a: usize,
+    b: usize,
+    pose: &PoseF32,
+    cam: &FastCamera,
+    img: &BinnedImage,
+    out: &mut [u32],
+) {
+    project_chunk::<NEON>(
+        &pts.x[a..b],
+        &pts.y[a..b],
+        &pts.z[a..b],
+        pose,
+        cam,
+        img,
+        out,
+    );
 }
 
 /// Scratch memory of the kernel (reuse it across poses; one per thread).
@@ -431,7 +456,7 @@ pub fn accumulate(
         return;
     }
     // The target's baseline features (SSE2 on x86-64).
-    accumulate_impl(pts, pose, cam, img, hist, scratch);
+    accumulate_impl::<true>(pts, pose, cam, img, hist, scratch);
 }
 
 /// [`accumulate`] compiled for AVX2 + FMA.
@@ -448,7 +473,21 @@ unsafe fn accumulate_avx2(
     hist: &mut JointHist,
     scratch: &mut Scratch,
 ) {
-    accumulate_impl(pts, pose, cam, img, hist, scratch);
+    accumulate_impl::<true>(pts, pose, cam, img, hist, scratch);
+}
+
+/// [`accumulate`] without hand-picked SIMD: the plain loop for the target's baseline features
+/// (SSE2 on x86-64; on aarch64 whatever NEON code the compiler makes of it). The reference the fast copies must equal bit for bit (tests, `infraloc
+/// self-test`).
+pub fn accumulate_reference(
+    pts: &PreparedPoints,
+    pose: &PoseF32,
+    cam: &FastCamera,
+    img: &BinnedImage,
+    hist: &mut JointHist,
+    scratch: &mut Scratch,
+) {
+    accumulate_impl::<false>(pts, pose, cam, img, hist, scratch);
 }
 
 /// Whether this CPU runs the AVX2 + FMA copies of the kernel (the detection is cached by std).
@@ -460,7 +499,7 @@ fn has_avx2_fma() -> bool {
 /// The kernel's body, inlined into each feature-specific copy (and into [`accumulate`] itself for
 /// the baseline features).
 #[inline(always)]
-fn accumulate_impl(
+fn accumulate_impl<const NEON: bool>(
     pts: &PreparedPoints,
     pose: &PoseF32,
     cam: &FastCamera,
@@ -479,15 +518,7 @@ fn accumulate_impl(
     while start < n {
         let end = (start + CHUNK).min(n);
         let len = end - start;
-        project_chunk(
-            &pts.x[start..end],
-            &pts.y[start..end],
-            &pts.z[start..end],
-            pose,
-            cam,
-            img,
-            &mut idx[..len],
-        );
+        project_range::<NEON>(pts, start, end, pose, cam, img, &mut idx[..len]);
         let bins = &pts.bin[start..end];
         let mut quads = idx[..len].chunks_exact(SUB_HISTS);
         let mut bquads = bins.chunks_exact(SUB_HISTS);
@@ -525,7 +556,7 @@ pub fn visible(
         unsafe { visible_avx2(pts, pose, cam, img, invalid, out) };
         return;
     }
-    visible_impl(pts, pose, cam, img, invalid, out);
+    visible_impl::<true>(pts, pose, cam, img, invalid, out);
 }
 
 /// [`visible`] compiled for AVX2 + FMA.
@@ -542,12 +573,12 @@ unsafe fn visible_avx2(
     invalid: u8,
     out: &mut [bool],
 ) {
-    visible_impl(pts, pose, cam, img, invalid, out);
+    visible_impl::<true>(pts, pose, cam, img, invalid, out);
 }
 
 /// The body of [`visible`].
 #[inline(always)]
-fn visible_impl(
+fn visible_impl<const NEON: bool>(
     pts: &PreparedPoints,
     pose: &PoseF32,
     cam: &FastCamera,
@@ -561,20 +592,250 @@ fn visible_impl(
     while start < n {
         let end = (start + CHUNK).min(n);
         let len = end - start;
-        project_chunk(
-            &pts.x[start..end],
-            &pts.y[start..end],
-            &pts.z[start..end],
-            pose,
-            cam,
-            img,
-            &mut idx[..len],
-        );
+        project_range::<NEON>(pts, start, end, pose, cam, img, &mut idx[..len]);
         for (o, &i) in out[start..end].iter_mut().zip(&idx[..len]) {
             *o = img.data[i as usize] != invalid;
         }
         start = end;
     }
+}
+
+/// Visibility from *every* pose of `poses`: `keep[i]` is AND-ed with "point `first + i` lands on
+/// a valid pixel of `img`" for each pose (so a point stays `true` only when all poses see it).
+///
+/// The same test as [`visible`], pose by pose, but chunk-major: each chunk of points is projected
+/// with all the poses while it sits in L1, and the poses of a small box project it into one small
+/// image area, so the image reads hit the cache too; a chunk whose points are all out stops early.
+/// AND is order-free, so the flags equal those of [`visible`] AND-ed over the poses.
+pub fn visible_from_all(
+    pts: &PreparedPoints,
+    first: usize,
+    poses: &[PoseF32],
+    cam: &FastCamera,
+    img: &BinnedImage,
+    invalid: u8,
+    keep: &mut [bool],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2_fma() {
+        // SAFETY: the CPU supports the features the function is compiled for (checked above).
+        unsafe { visible_from_all_avx2(pts, first, poses, cam, img, invalid, keep) };
+        return;
+    }
+    visible_from_all_impl::<true>(pts, first, poses, cam, img, invalid, keep);
+}
+
+/// [`visible_from_all`] compiled for AVX2 + FMA.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn visible_from_all_avx2(
+    pts: &PreparedPoints,
+    first: usize,
+    poses: &[PoseF32],
+    cam: &FastCamera,
+    img: &BinnedImage,
+    invalid: u8,
+    keep: &mut [bool],
+) {
+    visible_from_all_impl::<true>(pts, first, poses, cam, img, invalid, keep);
+}
+
+/// The body of [`visible_from_all`].
+#[inline(always)]
+fn visible_from_all_impl<const NEON: bool>(
+    pts: &PreparedPoints,
+    first: usize,
+    poses: &[PoseF32],
+    cam: &FastCamera,
+    img: &BinnedImage,
+    invalid: u8,
+    keep: &mut [bool],
+) {
+    let mut idx = [0u32; CHUNK];
+    let n = pts.len().saturating_sub(first).min(keep.len());
+    let mut start = 0;
+    while start < n {
+        let end = (start + CHUNK).min(n);
+        let len = end - start;
+        let (a, b) = (first + start, first + end);
+        let k = &mut keep[start..end];
+        for pose in poses {
+            project_range::<NEON>(pts, a, b, pose, cam, img, &mut idx[..len]);
+            let mut any = false;
+            for (o, &i) in k.iter_mut().zip(&idx[..len]) {
+                *o &= img.data[i as usize] != invalid;
+                any |= *o;
+            }
+            if !any {
+                break;
+            }
+        }
+        start = end;
+    }
+}
+
+/// Which copy of the projection [`accumulate`] runs on this CPU: `aarch64` (the compiler's NEON
+/// vectorisation of the plain loop), `avx2+fma` (x86-64 with both, detected at run time) or
+/// `baseline`.
+pub fn kernel_path() -> &'static str {
+    #[cfg(target_arch = "aarch64")]
+    return "aarch64";
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2_fma() {
+        return "avx2+fma";
+    }
+    #[allow(unreachable_code)]
+    "baseline"
+}
+
+/// A `5mp`-preset-like Mei camera (2448×2048, the simulator's intrinsics, 185°) for the self-test
+/// and the instruction-count workload.
+fn test_camera_mei() -> Camera {
+    Camera::Mei(crate::camera::Mei {
+        width: 2448,
+        height: 2048,
+        fx: 1196.8,
+        fy: 1197.2,
+        cx: 1219.8,
+        cy: 1022.1,
+        skew: 0.0,
+        xi: 1.2,
+        k1: -0.2696,
+        k2: 0.0933,
+        p1: -4.0e-5,
+        p2: 1.4e-4,
+        fov_deg: Some(185.0),
+    })
+}
+
+/// The scene of [`self_test`] and [`workload`]: ground points on a 40 m disc around (10, 20) at a
+/// 0.25 m spacing (every 7th lifted above the camera, so rays past the 92.5° limit and behind
+/// it are exercised), their pre-binned image, and the camera 6 m up.
+fn test_scene(cam: &Camera) -> (PreparedPoints, BinnedImage, [f64; 3]) {
+    use super::mi::{bin_lut, Binning};
+    let tex = super::synth::Texture::new(9);
+    let mut pts = super::synth::ground_points(&tex, (10.0, 20.0), 40.0, 0.25, 0.0, 3.0, 1);
+    for p in pts.iter_mut().step_by(7) {
+        p.z = 6.5;
+    }
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
+    let mask = cam.valid_mask();
+    let gray: Vec<u8> = (0..w * h).map(|i| ((i * 7919) % 251) as u8).collect();
+    let lut = bin_lut(Binning::Uniform, 32, &[0; 256]);
+    let origin = [10.3, 19.8, 6.0];
+    (
+        PreparedPoints::new(&pts, origin, &lut),
+        BinnedImage::new(w, h, &gray, &mask, &lut, 32),
+        origin,
+    )
+}
+
+/// Pose `j` of the self-test and workload: the camera 6 m above (10, 20), yaw, tilt and position
+/// varied with `j`.
+fn test_pose(j: usize, origin: [f64; 3]) -> PoseF32 {
+    let t = j as f64;
+    let c = Point3::new(
+        10.0 + 0.37 * (t * 0.7).sin(),
+        20.0 - 0.29 * (t * 1.3).cos(),
+        6.0 + 0.1 * (t * 0.5).sin(),
+    );
+    let pose = CamFromMap::from_center_ypr(
+        &c,
+        0.11 * t,
+        0.03 * (t * 0.9).sin(),
+        -0.04 * (t * 1.1).cos(),
+    );
+    PoseF32::new(&pose, origin)
+}
+
+/// What [`self_test`] compared.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SelfTest {
+    /// [`kernel_path`].
+    pub path: &'static str,
+    /// Points per pose.
+    pub points: usize,
+    /// Poses compared.
+    pub poses: usize,
+}
+
+/// Check, on this CPU, that the dispatched kernel ([`accumulate`], [`visible`],
+/// [`visible_from_all`]: NEON on aarch64, AVX2 + FMA where x86-64 has it) gives bit-identical
+/// histograms and visibility to the plain reference loop ([`accumulate_reference`]) on a `5mp`
+/// Mei camera, `poses` poses. `Err` names the first pose that differs. Run by the unit tests and
+/// by `infraloc self-test` (which CI runs on the aarch64 binary under qemu).
+pub fn self_test(poses: usize) -> std::result::Result<SelfTest, String> {
+    let cam = test_camera_mei();
+    let (pts, img, origin) = test_scene(&cam);
+    let fc = FastCamera::new(&cam, 0);
+    let (mut s1, mut s2) = (Scratch::default(), Scratch::default());
+    let (mut v1, mut v2) = (vec![false; pts.len()], vec![false; pts.len()]);
+    let mut all = vec![true; pts.len()];
+    let ps: Vec<PoseF32> = (0..poses).map(|j| test_pose(j, origin)).collect();
+    let (mut seen, mut lost) = (0u64, 0u64);
+    for (j, p) in ps.iter().enumerate() {
+        let (mut a, mut b) = (JointHist::new(32, 32), JointHist::new(32, 32));
+        accumulate(&pts, p, &fc, &img, &mut a, &mut s1);
+        accumulate_reference(&pts, p, &fc, &img, &mut b, &mut s2);
+        if a != b {
+            return Err(format!(
+                "pose {j}: {} histogram differs from the reference",
+                kernel_path()
+            ));
+        }
+        visible(&pts, p, &fc, &img, 32, &mut v1);
+        visible_impl::<false>(&pts, p, &fc, &img, 32, &mut v2);
+        if v1 != v2 {
+            return Err(format!(
+                "pose {j}: {} visibility differs from the reference",
+                kernel_path()
+            ));
+        }
+        all.iter_mut().zip(&v2).for_each(|(k, &v)| *k &= v);
+        seen += a.valid_count();
+        lost += a.invalid_count();
+    }
+    let mut got = vec![true; pts.len()];
+    visible_from_all(&pts, 0, &ps, &fc, &img, 32, &mut got);
+    if got != all {
+        return Err("all-poses visibility differs from the reference".into());
+    }
+    // The scene must exercise both outcomes, or the comparison proves little.
+    if seen == 0 || lost == 0 {
+        return Err(format!(
+            "degenerate scene: {seen} valid, {lost} invalid samples"
+        ));
+    }
+    Ok(SelfTest {
+        path: kernel_path(),
+        points: pts.len(),
+        poses,
+    })
+}
+
+/// The instruction-count workload (docs/benchmarks.md "aarch64"): `poses` evaluations of the
+/// self-test's scene, single-threaded, with the dispatched kernel or (`reference`) the plain loop.
+/// Returns the number of points and a checksum of the histograms (so nothing is optimised away).
+pub fn workload(poses: usize, reference: bool) -> (usize, u64) {
+    let cam = test_camera_mei();
+    let (pts, img, origin) = test_scene(&cam);
+    let fc = FastCamera::new(&cam, 0);
+    let mut scratch = Scratch::default();
+    let mut sum = 0u64;
+    for j in 0..poses {
+        let mut h = JointHist::new(32, 32);
+        let p = test_pose(j, origin);
+        if reference {
+            accumulate_reference(&pts, &p, &fc, &img, &mut h, &mut scratch);
+        } else {
+            accumulate(&pts, &p, &fc, &img, &mut h, &mut scratch);
+        }
+        sum = sum.wrapping_mul(31).wrapping_add(h.valid_count());
+    }
+    (pts.len(), sum)
 }
 
 /// Reference kernel (the benchmark baseline): f64 through [`CameraModel::project_visible`],
@@ -654,7 +915,7 @@ mod tests {
         };
         let fast = hist_of(accumulate);
         // The dispatched copy (AVX2 where available) and the baseline copy agree to the bit.
-        let generic = hist_of(accumulate_impl);
+        let generic = hist_of(accumulate_reference);
         assert_eq!(fast, generic);
         let mut slow = JointHist::new(16, 16);
         accumulate_scalar(&pts, &pose, &cam, &gray, &mask, &lut, &lut, &mut slow);
@@ -688,6 +949,39 @@ mod tests {
             vis.iter().filter(|&&v| v).count() as u64,
             fast.valid_count()
         );
+        // All-poses visibility (the fixed set's test) = `visible` AND-ed pose by pose, whatever
+        // the block split, in both copies.
+        let fc = FastCamera::new(&cam, 0);
+        let poses: Vec<PoseF32> = (0..7)
+            .map(|j| {
+                let d = j as f64 - 3.0;
+                let c = Point3::new(10.0 + 0.3 * d, 20.0 - 0.2 * d, 5.0 + 0.1 * d);
+                PoseF32::new(
+                    &CamFromMap::from_center_ypr(&c, 0.7 + 0.01 * d, 0.02, -0.03 - 0.02 * d),
+                    origin,
+                )
+            })
+            .collect();
+        let mut want = vec![true; prepared.len()];
+        for p in &poses {
+            visible(&prepared, p, &fc, &img, 16, &mut vis);
+            want.iter_mut().zip(&vis).for_each(|(w, &v)| *w &= v);
+        }
+        assert!(want.iter().any(|&v| v) && want.iter().any(|&v| !v));
+        for block in [prepared.len(), 1000, 300] {
+            let mut got = vec![true; prepared.len()];
+            let mut generic = vec![true; prepared.len()];
+            for (b, (g, q)) in got
+                .chunks_mut(block)
+                .zip(generic.chunks_mut(block))
+                .enumerate()
+            {
+                visible_from_all(&prepared, b * block, &poses, &fc, &img, 16, g);
+                visible_from_all_impl::<false>(&prepared, b * block, &poses, &fc, &img, 16, q);
+            }
+            assert_eq!(got, want, "block {block}");
+            assert_eq!(generic, want, "block {block}");
+        }
     }
 
     #[test]
@@ -726,6 +1020,13 @@ mod tests {
             fov_deg: Some(185.0),
             cache: Default::default(),
         }));
+    }
+
+    #[test]
+    fn self_test_passes_on_this_cpu() {
+        let r = self_test(6).unwrap();
+        assert_eq!(r.path, kernel_path());
+        assert!(r.points > 50_000);
     }
 
     #[test]

@@ -24,7 +24,7 @@ pub mod pnp;
 pub mod points;
 pub mod points_io;
 pub mod polish;
-pub mod poly;
+pub(crate) mod poly;
 pub mod quality;
 pub mod refine;
 pub mod search;

@@ -60,7 +60,7 @@ pub struct Params {
 /// halved (`small` 1–12: 2.6 → 1.2 cm horizontal, 1.8 → 0.8 cm height). The price: a wrong focal
 /// length or principal point is amplified in the far field, so with `hard`'s deliberately wrong
 /// intrinsics the medians rise by ≈ 1 cm.
-pub const MI_MAX_OFF_NADIR_DEG: f64 = 78.0;
+pub(crate) const MI_MAX_OFF_NADIR_DEG: f64 = 78.0;
 
 impl Default for Params {
     fn default() -> Self {

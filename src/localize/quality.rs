@@ -255,7 +255,7 @@ impl Sigma {
 /// checks accepted is refused when the objective has no peak over all free axes together, when
 /// the covariance is not finite, or when an axis's σ exceeds its limit. The reason names the axis,
 /// its σ and the limit's key.
-pub fn apply_uncertainty(q: &mut Quality, u: Uncertainty, cfg: &QualityConfig) {
+pub(crate) fn apply_uncertainty(q: &mut Quality, u: Uncertainty, cfg: &QualityConfig) {
     let sigma = Sigma::of(&u);
     if q.accepted {
         let limits = [

@@ -89,7 +89,7 @@ pub fn refine(
 /// [`refine`] with the camera's validity mask ([`CameraModel::valid_mask`]) computed by the
 /// caller: callers that refine one camera many times (the pipeline's search + polish, a study's
 /// trials) compute it once — on a 5 MP frame it costs about as much as a small search.
-pub fn refine_masked(
+pub(crate) fn refine_masked(
     cam: &Camera,
     gray: &[u8],
     mask: &[u8],
@@ -266,7 +266,7 @@ impl PolishedSearch {
 
 /// The name of what follows the grid search, for reports and pose files: `6-dof` (a polish that
 /// moves the tilt), `4-dof` (one that holds it) or `none`.
-pub fn finish_name(finish: Option<&PolishedSearch>) -> &'static str {
+pub(crate) fn finish_name(finish: Option<&PolishedSearch>) -> &'static str {
     match finish {
         None => "none",
         Some(p) if p.polish.is_free(4) || p.polish.is_free(5) => "6-dof",
@@ -275,18 +275,18 @@ pub fn finish_name(finish: Option<&PolishedSearch>) -> &'static str {
 }
 
 /// Polish rounds per search at most (default of [`PolishedSearch::polish_rounds`]).
-pub const POLISH_ROUNDS: usize = 3;
+pub(crate) const POLISH_ROUNDS: usize = 3;
 /// Searches at most (default of [`PolishedSearch::search_rounds`]). A round only starts when the
 /// previous polish moved (or the gate refused an optimum on the box's edge), so the limit only
 /// bites on a polish that is still walking along a ridge; with 3, `5mp` seed 3's last polish moved roll by 2° after its search and the gate judged
 /// that stale search (refused a 1 cm / 0.04° pose); the 4th search confirms it. No other seed of
 /// `small` 1–100 and `5mp` 1–20 reaches a 4th round.
-pub const SEARCH_ROUNDS: usize = 4;
+pub(crate) const SEARCH_ROUNDS: usize = 4;
 /// A polish that moved the search's optimum by more than this (metres, in its x, y, z parameters)
 /// triggers another search.
-pub const RESEARCH_MOVE_M: f64 = 0.05;
+pub(crate) const RESEARCH_MOVE_M: f64 = 0.05;
 /// … or by more than this on any angle (degrees).
-pub const RESEARCH_MOVE_DEG: f64 = 0.5;
+pub(crate) const RESEARCH_MOVE_DEG: f64 = 0.5;
 
 /// One search of [`refine_polished`] and the polishes after it.
 #[derive(Debug, Clone, Serialize)]
@@ -397,7 +397,7 @@ pub fn refine_polished(
 
 /// The polishes' offsets added up (m, m, m, deg, deg, deg): how far the polishes after one search
 /// moved its optimum.
-pub fn summed_offsets(records: &[super::polish::PolishRecord]) -> [f64; 6] {
+pub(crate) fn summed_offsets(records: &[super::polish::PolishRecord]) -> [f64; 6] {
     let mut total = [0.0f64; 6];
     for r in records {
         for (t, v) in total.iter_mut().zip(r.offsets) {

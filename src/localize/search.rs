@@ -29,7 +29,9 @@
 // Axis-indexed loops over parallel fixed-size arrays ([_; 6]) read clearer with the index.
 #![allow(clippy::needless_range_loop)]
 
-use super::kernel::{accumulate, visible, BinnedImage, FastCamera, GrayLevel, PoseF32, Scratch};
+use super::kernel::{
+    accumulate, visible, visible_from_all, BinnedImage, FastCamera, GrayLevel, PoseF32, Scratch,
+};
 use super::mi::{bin_lut, mutual_information, JointHist, MiConfig, MiValue};
 use super::points::{validate, GroundPoint, PreparedPoints};
 use crate::camera::{Camera, CameraModel};
@@ -41,17 +43,17 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 
 /// Axis names in grid order.
-pub const AXES: [&str; 6] = ["x", "y", "z", "yaw", "pitch", "roll"];
+pub(crate) const AXES: [&str; 6] = ["x", "y", "z", "yaw", "pitch", "roll"];
 /// Largest accepted half range for x and y (m): beyond this the prior is not a refinement start.
-pub const MAX_HALF_XY: f64 = 50.0;
+pub(crate) const MAX_HALF_XY: f64 = 50.0;
 /// Largest accepted half range for z (m).
-pub const MAX_HALF_Z: f64 = 20.0;
+pub(crate) const MAX_HALF_Z: f64 = 20.0;
 /// Largest accepted half range for yaw (deg).
-pub const MAX_HALF_YAW: f64 = 180.0;
+pub(crate) const MAX_HALF_YAW: f64 = 180.0;
 /// Largest accepted half range for pitch and roll (deg).
-pub const MAX_HALF_TILT: f64 = 20.0;
+pub(crate) const MAX_HALF_TILT: f64 = 20.0;
 /// Largest accepted number of grid cells (the exhaustive grid's size).
-pub const MAX_CELLS: u64 = 1 << 40;
+pub(crate) const MAX_CELLS: u64 = 1 << 40;
 /// Deepest coarse level (step 2^6 = 64 finest cells).
 pub const MAX_LEVEL: u32 = 6;
 
@@ -268,7 +270,7 @@ pub struct Grid {
 }
 
 /// Integer cell offsets from the centre, per axis.
-pub type Cell = [i64; 6];
+pub(crate) type Cell = [i64; 6];
 
 impl Grid {
     /// Cells along axis i.
@@ -333,7 +335,11 @@ const MIN_PIVOT_AXIS_Z: f64 = 0.3;
 /// [`pose_at`] with the pitch/roll pivot `pivot` metres below the camera on its optical axis
 /// (see [`SearchSpec::tilt_pivot_m`]): after the tilt the centre moves horizontally so that the
 /// optical axis meets the pivot's height at the same point as before; the centre's height is kept.
-pub fn pose_at_pivot(init: &CamFromMap, offsets: &[f64; 6], pivot: Option<f64>) -> CamFromMap {
+pub(crate) fn pose_at_pivot(
+    init: &CamFromMap,
+    offsets: &[f64; 6],
+    pivot: Option<f64>,
+) -> CamFromMap {
     let dc = Vector3::new(offsets[0], offsets[1], offsets[2]);
     let moved = init.perturbed(&dc, offsets[3].to_radians());
     if offsets[4] == 0.0 && offsets[5] == 0.0 {
@@ -440,7 +446,7 @@ pub struct View<'a> {
 
 /// Jackknife groups of an evaluator's level-0 points ([`Evaluator::folds`]).
 #[derive(Debug, Clone)]
-pub struct Folds {
+pub(crate) struct Folds {
     parts: Vec<Vec<PreparedPoints>>,
     k: usize,
 }
@@ -619,7 +625,7 @@ impl Evaluator {
     }
 
     /// Points used at a level.
-    pub fn points_at(&self, level: u32) -> usize {
+    pub(crate) fn points_at(&self, level: u32) -> usize {
         self.levels[level as usize]
             .parts
             .iter()
@@ -656,7 +662,12 @@ impl Evaluator {
     /// MI and NMI at continuous offsets from the initial pose (not restricted to the grid's
     /// cells), on the fixed point set at `level`; for local continuous polishing after the grid
     /// search ([`super::polish`]).
-    pub fn value_at(&self, level: u32, offsets: &[f64; 6], scratch: &mut Scratch) -> MiValue {
+    pub(crate) fn value_at(
+        &self,
+        level: u32,
+        offsets: &[f64; 6],
+        scratch: &mut Scratch,
+    ) -> MiValue {
         let pose = pose_at_pivot(&self.init, offsets, self.grid.pivot);
         mutual_information(&self.histogram_at(level, &pose, scratch), self.mi.parzen)
     }
@@ -664,7 +675,7 @@ impl Evaluator {
     /// The level-0 point sets cut into `k` jackknife groups: each view's fixed set, in Morton
     /// order, in `k` contiguous runs (compact patches of ground); group j is run j of every view.
     /// Indexed `[view][group]`.
-    pub fn folds(&self, k: usize) -> Folds {
+    pub(crate) fn folds(&self, k: usize) -> Folds {
         let k = k.max(1);
         Folds {
             parts: self.levels[0]
@@ -683,7 +694,7 @@ impl Evaluator {
 
     /// Level-0 joint histograms of the pose at `offsets`, one per group of `folds`; their sum is
     /// the histogram [`Evaluator::value_at`] scores.
-    pub fn fold_histograms(
+    pub(crate) fn fold_histograms(
         &self,
         folds: &Folds,
         offsets: &[f64; 6],
@@ -722,7 +733,7 @@ impl Evaluator {
     /// Score cells (by number) at a level in parallel, in tiles of consecutive cells (one scratch
     /// per tile), order kept. A score is a pure function of (level, cell), so neither the tiling
     /// nor the thread count can change a result.
-    pub fn score_cells(&self, level: u32, idxs: &[u64]) -> Vec<Scored> {
+    pub(crate) fn score_cells(&self, level: u32, idxs: &[u64]) -> Vec<Scored> {
         // Up to 64 cells a tile, but at least ~4 tiles per thread so that the small batches of the
         // descent and the climb (tens to hundreds of cells) still keep every thread busy.
         let tile = (idxs.len() / (4 * rayon::current_num_threads()).max(1)).clamp(1, 64);
@@ -806,32 +817,24 @@ fn prepare_view(
     let keep = if cfg.fixed_point_set {
         let eroded = erode(mask, w, h, cfg.visibility_margin_px);
         let img_e = BinnedImage::new(w, h, gray, &eroded, &lut_gray, invalid);
-        // The 3^d lattice poses in parallel, each thread AND-ing into its own flags, then
-        // the threads' flags AND-ed: AND is associative and commutative, so the set does not
-        // depend on how rayon splits the work.
-        let n = raw.len();
-        box_lattice(grid)
-            .par_iter()
-            .fold(
-                || (vec![true; n], vec![false; n]),
-                |(mut keep, mut vis), cell| {
-                    let p = PoseF32::new(
-                        &pose_at_pivot(init, &grid.offsets(cell), grid.pivot),
-                        origin,
-                    );
-                    visible(&raw, &p, &cam0, &img_e, invalid, &mut vis);
-                    keep.iter_mut().zip(&vis).for_each(|(k, &v)| *k &= v);
-                    (keep, vis)
-                },
-            )
-            .map(|(keep, _)| keep)
-            .reduce(
-                || vec![true; n],
-                |mut a, b| {
-                    a.iter_mut().zip(&b).for_each(|(x, &y)| *x &= y);
-                    a
-                },
-            )
+        // A point is kept when every pose of the 3^d lattice sees it. Blocks of points in
+        // parallel, each tested against all the poses at once (`visible_from_all`): the flags do
+        // not depend on how the work is split, since each point's flag is its own AND.
+        let poses: Vec<PoseF32> = box_lattice(grid)
+            .iter()
+            .map(|cell| {
+                PoseF32::new(
+                    &pose_at_pivot(init, &grid.offsets(cell), grid.pivot),
+                    origin,
+                )
+            })
+            .collect();
+        const BLOCK: usize = 2048;
+        let mut keep = vec![true; raw.len()];
+        keep.par_chunks_mut(BLOCK).enumerate().for_each(|(b, k)| {
+            visible_from_all(&raw, b * BLOCK, &poses, &cam0, &img_e, invalid, k)
+        });
+        keep
     } else {
         let mut vis = vec![false; raw.len()];
         let p = PoseF32::new(init, origin);

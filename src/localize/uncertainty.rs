@@ -83,7 +83,7 @@ pub struct Uncertainty {
 
 impl Uncertainty {
     /// σ of a named axis, if it was estimated.
-    pub fn sigma_of(&self, axis: &str) -> Option<f64> {
+    pub(crate) fn sigma_of(&self, axis: &str) -> Option<f64> {
         self.axes
             .iter()
             .position(|a| a == axis)

@@ -6,12 +6,12 @@
 //! physics ([`appearance`]): that is the modality gap every accuracy number is measured across.
 //! See `docs/simulator.md`.
 
-pub mod appearance;
+pub(crate) mod appearance;
 pub mod gps;
 pub mod layers;
 pub mod noise;
 pub mod render;
-pub mod solids;
+pub(crate) mod solids;
 pub mod truth;
 pub mod world;
 
@@ -31,15 +31,15 @@ use std::f64::consts::{PI, TAU};
 use world::World;
 
 /// Map CRS of simulated scenes: WGS84 / UTM 17N (Michigan, where the seed paper's data is from).
-pub const SIM_EPSG: u32 = 32617;
+pub(crate) const SIM_EPSG: u32 = 32617;
 /// Nominal site: UTM 17N coordinates near Ann Arbor, MI (42.28 N, 83.74 W).
 const SITE_UTM: [f64; 2] = [274_069.0, 4_684_501.0];
 /// The site is moved by up to this much per seed, metres.
 const SITE_JITTER: f64 = 3000.0;
 /// LiDAR tile side, metres.
-pub const TILE_SIZE_M: f64 = 120.0;
+pub(crate) const TILE_SIZE_M: f64 = 120.0;
 /// Map resolution, metres per pixel.
-pub const MAP_RES: f64 = 0.1;
+pub(crate) const MAP_RES: f64 = 0.1;
 /// Satellite tile margin beyond the LiDAR tile on each side, metres.
 const SAT_MARGIN_M: f64 = 1.0;
 /// Geoid separation reported by the receiver (EGM96 near Ann Arbor), metres.
@@ -654,7 +654,7 @@ impl Scene {
 
     /// A side-by-side picture: satellite | reflectivity | height | fisheye frame 0, each panel
     /// `panel` pixels high. The three map panels show the same central square of the tile.
-    pub fn montage(&self, panel: u32) -> image::RgbImage {
+    pub(crate) fn montage(&self, panel: u32) -> image::RgbImage {
         use image::imageops::{resize, FilterType};
         let sat = &self.tile.satellite;
         let satimg =

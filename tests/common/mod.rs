@@ -1,6 +1,6 @@
 //! Shared helpers of the integration tests: where the real GNSS logs are, gpsd's `.chk`, and a
 //! simulated scene.
-#![allow(dead_code)]
+#![allow(dead_code, unreachable_pub)]
 
 use std::path::{Path, PathBuf};
 
@@ -117,4 +117,46 @@ pub fn skip(test: &str, why: &str) {
 pub fn skip_unless_ci(test: &str, why: &str) {
     assert!(!under_ci(), "{test}: {why} (required under CI)");
     skip(test, why);
+}
+
+/// Check OpenMetrics/Prometheus text with Prometheus's own parser and linter (`promtool check
+/// metrics`, Debian package `prometheus`, installed by `.ci/setup`). `Err` with promtool's
+/// complaint if it refuses the text. Without promtool the test fails under CI and otherwise
+/// says on stderr that the parser check was skipped ([`skip_unless_ci`], `Ok(false)`).
+pub fn promtool_check(text: &str) -> Result<bool, String> {
+    use std::io::Write;
+    use std::process::{Command, Stdio};
+    let child = Command::new("promtool")
+        .args(["check", "metrics"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn();
+    let mut child = match child {
+        Ok(c) => c,
+        Err(e) => {
+            skip_unless_ci(
+                "the Prometheus parser check (promtool check metrics)",
+                &format!("promtool not found ({e}); `bash .ci/setup` unpacks it"),
+            );
+            return Ok(false);
+        }
+    };
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(text.as_bytes())
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    if out.status.success() {
+        Ok(true)
+    } else {
+        Err(format!(
+            "promtool check metrics refused the text ({}): {}{}",
+            out.status,
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        ))
+    }
 }

@@ -1,0 +1,42 @@
+//! `infraloc self-test [--poses N] [--workload N [--reference]]` (hidden): checks that the MI
+//! kernel's SIMD copy on this CPU (NEON on aarch64, AVX2 + FMA on x86-64) is bit-identical to the
+//! plain reference loop. CI runs it on the aarch64 binary under qemu-user (`cross/build.sh
+//! --check`). `--workload` instead evaluates N poses of the same scene on one thread, for the
+//! instruction counts in docs/benchmarks.md.
+
+use crate::error::{Error, Result};
+use crate::localize::kernel;
+
+/// Arguments of `self-test`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Poses compared.
+    #[arg(long, default_value_t = 12)]
+    pub poses: usize,
+    /// Evaluate this many poses (no comparison) and print the points and a checksum.
+    #[arg(long)]
+    pub workload: Option<usize>,
+    /// With --workload: the plain reference loop instead of the dispatched copy.
+    #[arg(long, requires = "workload")]
+    pub reference: bool,
+}
+
+/// Run the check (or the workload); a difference is an error naming the pose.
+pub(crate) fn run(a: Args) -> Result<()> {
+    if let Some(n) = a.workload {
+        let (points, sum) = kernel::workload(n, a.reference);
+        let path = if a.reference {
+            "reference"
+        } else {
+            kernel::kernel_path()
+        };
+        println!("workload: {n} poses × {points} points, {path}, checksum {sum}");
+        return Ok(());
+    }
+    let r = kernel::self_test(a.poses).map_err(|m| Error::stage("self-test", m))?;
+    println!(
+        "self-test OK: MI kernel ({}) bit-identical to the reference loop, {} poses × {} points",
+        r.path, r.poses, r.points
+    );
+    Ok(())
+}
