@@ -99,6 +99,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         &res.pose,
         &search_cfg,
         &PolishParams::four_dof(),
+        None,
         &UncertaintyConfig {
             folds: qcfg.jackknife_folds,
         },

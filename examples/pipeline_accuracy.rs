@@ -24,7 +24,7 @@ use infraloc::config::{Config, GpsSourceKind};
 use infraloc::localize::frame::{Frame, MapLayers};
 use infraloc::localize::init::SearchArea;
 use infraloc::localize::pipeline::{self, Params, PnpDetail, PriorDetail, StageDetail};
-use infraloc::localize::pnp::{refine_lm, Correspondence};
+use infraloc::localize::truth_eval;
 use infraloc::pose::CamFromMap;
 use infraloc::sim::{self, Difficulty, Lens, Preset, Settings};
 use infraloc::stage::StageName;
@@ -163,6 +163,12 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
 
     let t1 = Instant::now();
     let camera = parse_camera(&cam_text, &cam_yaml)?;
+    // The given intrinsics' stated uncertainty reaches the covariance, as camera.yaml's does.
+    let mut params = params.clone();
+    if !o.true_intrinsics {
+        params.quality.intrinsics_sigma = scene.camera_sigma;
+    }
+    let params = &params;
     let (w, h) = scene.frame_size();
     let frames: Vec<image::GrayImage> = scene
         .frames
@@ -237,23 +243,31 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
             if let Err(e) = pipeline::quality_gate(&out) {
                 rec["failure"] = json!(e.to_string());
             }
-            // The floor: the 6-DoF least-squares fit of the truth's control points under the
+            // The oracle: the 6-DoF least-squares fit of the truth's control points under the
             // given (in `hard`, wrong) intrinsics — the best pose these intrinsics allow.
             let stages = out.stages.clone();
             let truth = infraloc::sim::truth::parse_truth(&truth_text, &truth_path)?;
-            let floor = control_point_fit(&camera, &truth);
+            let floor = truth_eval::oracle_pose(&camera, &truth);
             rec["errors"] = pipeline::truth_errors(&truth_text, &truth_path, &camera, &stages)?;
+            // Every control point's ground error, for figures pooled over all scenes.
+            let hits = |p: &CamFromMap| -> Vec<[f64; 2]> {
+                truth_eval::ground_hits(&camera, &truth, p)
+                    .iter()
+                    .map(|h| [h.range_m, h.error_m])
+                    .collect()
+            };
+            rec["ground_hits"]["mi"] = json!(hits(&out.pose));
             if let Some(f) = &floor {
-                rec["errors"]["floor"] = pipeline::pose_errors(&truth, &camera, f);
+                rec["ground_hits"]["oracle"] = json!(hits(f));
             }
-            // The MI objective at each stage's pose and at the floor, on one point set: whether
-            // a miss is the search's (the floor scores higher) or the objective's (it doesn't).
+            // The MI objective at each stage's pose and at the oracle, on one point set: whether
+            // a miss is the search's (the oracle scores higher) or the objective's (it doesn't).
             let pts = pipeline::mi_points(&tile, &out.pose, params);
             let mask = infraloc::camera::CameraModel::valid_mask(&camera);
             let named = stages
                 .iter()
                 .filter_map(|st| Some((st.name.name(), st.pose?)))
-                .chain(floor.map(|f| ("floor", f)));
+                .chain(floor.map(|f| ("oracle", f)));
             for (name, pose) in named {
                 {
                     let pose = &pose;
@@ -400,7 +414,7 @@ fn final_within(r: &Value) -> bool {
 fn summary(recs: &[Value]) -> Value {
     let n = recs.len();
     let mut s = json!({ "seeds": n });
-    for stage in ["prior", "pnp", "mi", "floor"] {
+    for stage in ["prior", "pnp", "mi", "oracle"] {
         for key in [
             "horizontal_m",
             "height_m",
@@ -424,6 +438,9 @@ fn summary(recs: &[Value]) -> Value {
             s["seconds"][key] = json!({ "median": m, "p95": p, "max": x });
         }
     }
+    s["vs_oracle"] = vs_oracle(recs);
+    s["ground"] = pooled_ground(recs);
+    s["coverage"] = coverage(recs);
     let count = |p: &dyn Fn(&Value) -> bool| recs.iter().filter(|r| p(r)).count();
     s["init_in_basin"] = json!(count(&in_basin));
     s["final_within"] = json!(count(&final_within));
@@ -440,7 +457,7 @@ fn print_summary(s: &Value) {
         "\n{:<6} {:<22} {:>10} {:>10} {:>10} {:>5}",
         "stage", "error", "median", "p95", "max", "n"
     );
-    for stage in ["prior", "pnp", "mi", "floor"] {
+    for stage in ["prior", "pnp", "mi", "oracle"] {
         for key in [
             "horizontal_m",
             "height_m",
@@ -487,9 +504,122 @@ fn print_summary(s: &Value) {
         "final within {WITHIN_M} m horizontal and height, {WITHIN_DEG}° yaw, gate passed: {}",
         pct("final_within")
     );
+    let g = |v: &Value, k: &str| v[k].as_f64().unwrap_or(f64::NAN);
+    let vo = &s["vs_oracle"];
+    println!(
+        "mi vs oracle, median/p95: horizontal {:.2}/{:.2} cm, height {:.2}/{:.2} cm, yaw {:.4}/{:.4}°",
+        100.0 * g(&vo["horizontal_m"], "median"),
+        100.0 * g(&vo["horizontal_m"], "p95"),
+        100.0 * g(&vo["height_m"], "median"),
+        100.0 * g(&vo["height_m"], "p95"),
+        g(&vo["yaw_deg"], "median"),
+        g(&vo["yaw_deg"], "p95"),
+    );
+    for who in ["mi", "oracle"] {
+        let gr = &s["ground"][who];
+        let band = |i: usize| {
+            let b = &gr["bands"][i]["error"];
+            format!("{:.2}/{:.2}", 100.0 * g(b, "median"), 100.0 * g(b, "p95"))
+        };
+        println!(
+            "ground error {who:<6} median/p95 cm: all {:.2}/{:.2} (n {}), 0–10 m {}, 10–20 m {}, 20–30 m {}",
+            100.0 * g(&gr["all"], "median"),
+            100.0 * g(&gr["all"], "p95"),
+            gr["all"]["n"],
+            band(0),
+            band(1),
+            band(2)
+        );
+    }
+    for set in ["all", "accepted"] {
+        for against in ["truth", "oracle"] {
+            let c = &s["coverage"][set][against];
+            let n = c["n"].as_u64().unwrap_or(0).max(1) as f64;
+            let p = |k: &str| 100.0 * c[k].as_u64().unwrap_or(0) as f64 / n;
+            println!(
+                "3σ coverage ({set} results with σ, n {}) vs {against}: x {:.1} %, y {:.1} %, z {:.1} %, yaw {:.1} %, every axis {:.1} %",
+                c["n"], p("x"), p("y"), p("z"), p("yaw"), p("every_axis")
+            );
+        }
+    }
     for fl in s["failures"].as_array().into_iter().flatten() {
         println!("failure seed {}: {}", fl["seed"], fl["reason"]);
     }
+}
+
+/// The final pose against the oracle, over the seeds that have both: median and p95 of the
+/// horizontal, height and yaw offsets (issue 15's first figure).
+fn vs_oracle(recs: &[Value]) -> Value {
+    let mut out = json!({});
+    for key in ["horizontal_m", "height_m", "yaw_deg"] {
+        let xs: Vec<f64> = recs
+            .iter()
+            .filter_map(|r| r["errors"]["mi"]["vs_oracle"][key].as_f64())
+            .collect();
+        out[key] = json!(truth_eval::median_p95(&xs));
+    }
+    out
+}
+
+/// Ground error pooled over every control point of every scene, for the final pose and the
+/// oracle, overall and per distance band (issue 15's second figure).
+fn pooled_ground(recs: &[Value]) -> Value {
+    let mut out = json!({});
+    for who in ["mi", "oracle"] {
+        let hits: Vec<truth_eval::GroundHit> = recs
+            .iter()
+            .filter_map(|r| r["ground_hits"][who].as_array())
+            .flatten()
+            .filter_map(|h| {
+                Some(truth_eval::GroundHit {
+                    range_m: h[0].as_f64()?,
+                    error_m: h[1].as_f64()?,
+                })
+            })
+            .collect();
+        out[who] = json!(truth_eval::ground_error(&hits));
+    }
+    out
+}
+
+/// How often the true error lies within 3σ of the reported marginal σ, per axis and on all four
+/// at once: against the truth, and against the oracle (the reference when the given intrinsics
+/// are wrong on purpose), over every result that carries a σ and over the accepted ones.
+fn coverage(recs: &[Value]) -> Value {
+    let mut out = json!({});
+    for (set, accepted_only) in [("all", false), ("accepted", true)] {
+        for (against, path) in [
+            ("truth", &["signed"][..]),
+            ("oracle", &["vs_oracle", "signed"][..]),
+        ] {
+            let mut n = 0usize;
+            let mut hit = [0usize; 5];
+            for r in recs {
+                if accepted_only && r.get("failure").is_some() {
+                    continue;
+                }
+                let sigma: Option<infraloc::localize::quality::Sigma> =
+                    serde_json::from_value(r["mi_quality"]["sigma"].clone()).ok();
+                let mut e = &r["errors"]["mi"];
+                for k in path {
+                    e = &e[*k];
+                }
+                let err: Option<truth_eval::SignedError> = serde_json::from_value(e.clone()).ok();
+                let (Some(sigma), Some(err)) = (sigma, err) else {
+                    continue;
+                };
+                n += 1;
+                let w = err.within(&sigma, 3.0, [0.0; 4]);
+                for (i, ok) in w.iter().enumerate() {
+                    hit[i] += usize::from(*ok);
+                }
+                hit[4] += usize::from(w.iter().all(|&b| b));
+            }
+            out[set][against] = json!({ "n": n, "x": hit[0], "y": hit[1], "z": hit[2],
+                "yaw": hit[3], "every_axis": hit[4] });
+        }
+    }
+    out
 }
 
 /// The search's objective (NMI by default) at `pose`, on the points visible from a 1-cell box.
@@ -524,22 +654,6 @@ fn objective_at(
     let ev = Evaluator::new(camera, gray, mask, pts, pose, &cfg, 0).ok()?;
     let centre = ev.grid().index(&[0; 6]);
     Some(ev.score(0, centre, &mut Default::default()).score)
-}
-
-/// LM fit of truth.json's control points (map point ↔ true pixel) from the true pose.
-fn control_point_fit(
-    camera: &infraloc::camera::Camera,
-    truth: &infraloc::sim::truth::Truth,
-) -> Option<CamFromMap> {
-    let corr: Vec<Correspondence> = truth
-        .control_points
-        .iter()
-        .map(|c| Correspondence {
-            pixel: nalgebra::Point2::new(c.pixel[0], c.pixel[1]),
-            world: nalgebra::Point3::new(c.map[0], c.map[1], c.map[2]),
-        })
-        .collect();
-    (corr.len() >= 6).then(|| refine_lm(camera, &truth.pose, &corr, 50))
 }
 
 fn main() {

@@ -45,7 +45,7 @@ pub struct Overrides {
 
 /// Where [`Run::write_outputs`] writes; each `None` falls back to the config's `[output]`.
 #[derive(Debug, Clone, Default)]
-pub struct Outputs {
+pub(crate) struct Outputs {
     /// Pose file instead of `[output] pose`.
     pub pose: Option<PathBuf>,
     /// Report JSON instead of `[output] report`.
@@ -57,7 +57,7 @@ pub struct Outputs {
 impl Outputs {
     /// The files this run writes, each with what named it (the flag when given, else the
     /// config key): pose, then report and overlay when set.
-    pub fn resolve(&self, cfg: &Config) -> Vec<(&'static str, PathBuf)> {
+    pub(crate) fn resolve(&self, cfg: &Config) -> Vec<(&'static str, PathBuf)> {
         let pick = |flag: &'static str,
                     key: &'static str,
                     o: &Option<PathBuf>,
@@ -92,7 +92,7 @@ impl Outputs {
     /// fail to write): not a directory, its directory exists and is writable. Every problem is
     /// reported, each naming the flag or key and the user's path: exit 78 when a config key is
     /// at fault, else 1. Temp files that killed runs left beside the outputs are removed.
-    pub fn check(&self, cfg: &Config, cfg_path: &Path) -> Result<()> {
+    pub(crate) fn check(&self, cfg: &Config, cfg_path: &Path) -> Result<()> {
         let mut found = crate::preflight::Findings::default();
         let mut from_config = false;
         for (name, path) in self.resolve(cfg) {
@@ -112,7 +112,7 @@ impl Outputs {
 }
 
 /// Everything a localization run produced (used by `localize`, `demo` and the service).
-pub struct Run {
+pub(crate) struct Run {
     /// Pipeline outcome.
     pub outcome: Outcome,
     /// Tile used.
@@ -247,7 +247,7 @@ pub fn camera_and_frame(
 /// applied, writing nothing: the caller decides where the pose goes (`localize` writes it, the
 /// service offers it to its pose store). `progress` is told each stage as it starts: `capture`,
 /// `prior`, `tile`, `pnp`, `mi`.
-pub fn run(
+pub(crate) fn run(
     cfg: &Config,
     cfg_path: &Path,
     ov: &Overrides,
@@ -261,9 +261,17 @@ pub fn run(
     let ((lat, lon, sigma), prior_desc) = prior(ov, cfg)?;
     progress(StageName::Tile);
     let tiles = ov.tiles.clone().unwrap_or_else(|| cfg.map.tiles.clone());
+    // The camera file's stated intrinsics uncertainty goes into the pose's covariance.
+    let intrinsics_sigma = match (&ov.camera, &cfg.camera.intrinsics_file) {
+        (Some(p), _) | (None, Some(p)) => crate::camera::import::load_intrinsics_sigma(p)?,
+        (None, None) => None,
+    };
     let params = Params {
         matcher,
-        quality: cfg.quality,
+        quality: crate::localize::quality::QualityConfig {
+            intrinsics_sigma,
+            ..cfg.quality
+        },
         ..Params::default()
     };
     // The covering tile's LiDAR layers must hold data around the prior: a damaged layer is a
@@ -364,7 +372,7 @@ impl Run {
     /// The technician's picture: the tile's LiDAR points over the median frame, projected at the
     /// PnP pose (left panel, "before") and at the final pose (right panel, "after"), as PNG
     /// bytes ([`crate::viz::before_after`]).
-    pub fn overlay_png(&self) -> Result<Vec<u8>> {
+    pub(crate) fn overlay_png(&self) -> Result<Vec<u8>> {
         let c = self.outcome.pose.center();
         let pts = crate::map::ground_points(&self.tile, (c.x, c.y), self.mi_radius_m);
         crate::viz::before_after_png(
@@ -380,7 +388,7 @@ impl Run {
     /// else where `cfg`'s `[output]` says (the report and overlay only when one of them names a
     /// path). The pose comes last, so an error (a non-zero exit) means the pose file is
     /// untouched; check the paths first with [`Outputs::check`].
-    pub fn write_outputs(&self, cfg: &Config, out: &Outputs) -> Result<()> {
+    pub(crate) fn write_outputs(&self, cfg: &Config, out: &Outputs) -> Result<()> {
         self.write_side_outputs(
             out.report.as_ref().or(cfg.output.report.as_ref()),
             out.overlay.as_ref().or(cfg.output.overlay.as_ref()),
@@ -390,7 +398,7 @@ impl Run {
     }
 
     /// Write the report JSON and the overlay PNG where asked (each atomically).
-    pub fn write_side_outputs(
+    pub(crate) fn write_side_outputs(
         &self,
         report: Option<&PathBuf>,
         overlay: Option<&PathBuf>,

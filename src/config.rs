@@ -108,7 +108,7 @@ impl FrameSourceKind {
     }
 
     /// Pixel formats (`pixel-format`) this source kind can convert to gray.
-    pub fn pixel_formats(self) -> &'static [&'static str] {
+    pub(crate) fn pixel_formats(self) -> &'static [&'static str] {
         match self {
             FrameSourceKind::File => &[],
             FrameSourceKind::V4l2 => &["GREY", "Y16", "YUYV", "MJPG"],
@@ -328,56 +328,56 @@ impl Default for DaemonConfig {
 }
 
 /// Control socket of the installed service.
-pub const DEFAULT_SOCKET: &str = "/run/infraloc/control.sock";
+pub(crate) const DEFAULT_SOCKET: &str = "/run/infraloc/control.sock";
 
 /// Upper bounds of the numeric keys: beyond them a value is a typo or a unit mistake, and some
 /// (retries, back-offs, timeouts) would make a run wait for days without a word. Documented in
 /// `config/infraloc.toml` and docs/technician.md.
 pub mod limits {
     /// `[camera] frame-count`.
-    pub const FRAME_COUNT: u64 = 100;
+    pub(crate) const FRAME_COUNT: u64 = 100;
     /// `[camera] frame-interval-ms` (one minute).
-    pub const FRAME_INTERVAL_MS: u64 = 60_000;
+    pub(crate) const FRAME_INTERVAL_MS: u64 = 60_000;
     /// `[camera] settle-frames`.
-    pub const SETTLE_FRAMES: u64 = 1_000;
+    pub(crate) const SETTLE_FRAMES: u64 = 1_000;
     /// `[camera] timeout-ms` (one minute).
-    pub const TIMEOUT_MS: u64 = 60_000;
+    pub(crate) const TIMEOUT_MS: u64 = 60_000;
     /// `[camera] retry-attempts`.
-    pub const RETRY_ATTEMPTS: u64 = 20;
+    pub(crate) const RETRY_ATTEMPTS: u64 = 20;
     /// `[camera] retry-backoff-ms`: the doubling back-off is capped at 30 s anyway.
-    pub const RETRY_BACKOFF_MS: u64 = 30_000;
+    pub(crate) const RETRY_BACKOFF_MS: u64 = 30_000;
     /// `[camera] exposure-us` (ten seconds).
-    pub const EXPOSURE_US: f64 = 10_000_000.0;
+    pub(crate) const EXPOSURE_US: f64 = 10_000_000.0;
     /// `[gps] window-s`: the prior keeps at most 10 000 fixes, 1000 s at 10 Hz.
-    pub const GPS_WINDOW_S: f64 = 1_000.0;
+    pub(crate) const GPS_WINDOW_S: f64 = 1_000.0;
     /// `[gps] timeout-s` (one hour).
-    pub const GPS_TIMEOUT_S: f64 = 3_600.0;
+    pub(crate) const GPS_TIMEOUT_S: f64 = 3_600.0;
     /// `[gps] fallback-sigma-m`.
-    pub const SIGMA_M: f64 = 1_000.0;
+    pub(crate) const SIGMA_M: f64 = 1_000.0;
     /// `[gps] max-hdop`.
     pub const HDOP: f64 = 100.0;
     /// `[gps] min-fixes`: no more than the prior keeps.
-    pub const MIN_FIXES: u64 = 10_000;
+    pub(crate) const MIN_FIXES: u64 = 10_000;
     /// `[gps] reconnect-max-s` (one hour).
-    pub const RECONNECT_S: f64 = 3_600.0;
+    pub(crate) const RECONNECT_S: f64 = 3_600.0;
     /// `[gps] baud`.
-    pub const BAUD: u64 = 4_000_000;
+    pub(crate) const BAUD: u64 = 4_000_000;
     /// `[map] search-margin-m`.
-    pub const MARGIN_M: f64 = 10_000.0;
+    pub(crate) const MARGIN_M: f64 = 10_000.0;
     /// `[daemon] history-len`.
-    pub const HISTORY_LEN: u64 = 10_000;
+    pub(crate) const HISTORY_LEN: u64 = 10_000;
     /// `[daemon] relocalize-interval-h` (one year).
-    pub const RELOCALIZE_INTERVAL_H: f64 = 8_760.0;
+    pub(crate) const RELOCALIZE_INTERVAL_H: f64 = 8_760.0;
     /// `[daemon] drift-check-interval-min` (one week).
-    pub const DRIFT_INTERVAL_MIN: f64 = 10_080.0;
+    pub(crate) const DRIFT_INTERVAL_MIN: f64 = 10_080.0;
     /// `[daemon] retry-initial-s` (one day).
-    pub const RETRY_INITIAL_S: f64 = 86_400.0;
+    pub(crate) const RETRY_INITIAL_S: f64 = 86_400.0;
     /// `[daemon] retry-max-s` (one week).
-    pub const RETRY_MAX_S: f64 = 604_800.0;
+    pub(crate) const RETRY_MAX_S: f64 = 604_800.0;
     /// `[daemon] drift-threshold-m`.
-    pub const DRIFT_M: f64 = 100.0;
+    pub(crate) const DRIFT_M: f64 = 100.0;
     /// `[daemon] drift-threshold-deg`.
-    pub const DRIFT_DEG: f64 = 180.0;
+    pub(crate) const DRIFT_DEG: f64 = 180.0;
 }
 
 /// The lower end of a float key's range.
@@ -480,7 +480,7 @@ impl Config {
     }
 
     /// Make every relative path absolute against `base`.
-    pub fn resolve_paths(&mut self, base: &Path) {
+    pub(crate) fn resolve_paths(&mut self, base: &Path) {
         // An empty path stays empty, so validation can name it instead of it becoming `base`.
         let fix = |p: &mut PathBuf| {
             if p.is_relative() && !p.as_os_str().is_empty() {

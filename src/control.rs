@@ -22,15 +22,15 @@ use std::time::{Duration, Instant};
 /// Largest request the server reads; a longer length prefix closes the connection.
 pub const MAX_REQUEST_BYTES: u32 = 64 * 1024;
 /// Largest response frame a client accepts (an overlay PNG of a 5 MP frame is a few MB).
-pub const MAX_RESPONSE_BYTES: u32 = 256 * 1024 * 1024;
+pub(crate) const MAX_RESPONSE_BYTES: u32 = 256 * 1024 * 1024;
 /// Clients served at once; the next one gets a `busy` answer.
 pub const MAX_CONNECTIONS: usize = 8;
 /// How long a client may take to send its whole request once connected.
-pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(5);
+pub(crate) const REQUEST_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long a write to a client may block (a stuck reader must not pin a server thread).
-pub const WRITE_TIMEOUT: Duration = Duration::from_secs(30);
+pub(crate) const WRITE_TIMEOUT: Duration = Duration::from_secs(30);
 /// Mode of the socket file: the service's user and group (technicians are added to it).
-pub const SOCKET_MODE: u32 = 0o660;
+pub(crate) const SOCKET_MODE: u32 = 0o660;
 
 /// A request from a technician command.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -88,13 +88,13 @@ pub fn read_frame(r: &mut impl Read, cap: u32) -> std::io::Result<Option<Vec<u8>
 }
 
 /// Write one JSON value as a frame.
-pub fn write_json(w: &mut impl Write, v: &Value) -> std::io::Result<()> {
+pub(crate) fn write_json(w: &mut impl Write, v: &Value) -> std::io::Result<()> {
     write_frame(w, v.to_string().as_bytes())
 }
 
 /// Who is on the other end of a Unix socket (SO_PEERCRED).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct PeerCred {
+pub(crate) struct PeerCred {
     /// Process id.
     pub pid: i32,
     /// User id.
@@ -104,7 +104,7 @@ pub struct PeerCred {
 }
 
 /// The peer's credentials, if the kernel tells them.
-pub fn peer_cred(s: &UnixStream) -> Option<PeerCred> {
+pub(crate) fn peer_cred(s: &UnixStream) -> Option<PeerCred> {
     use std::os::fd::AsRawFd;
     let mut cred = libc::ucred {
         pid: 0,
@@ -149,7 +149,7 @@ impl Reply for StreamReply<'_> {
 }
 
 /// Mode of the socket's directory: the service's user (rwx) and group (r-x), nobody else.
-pub const DIR_MODE: u32 = 0o750;
+pub(crate) const DIR_MODE: u32 = 0o750;
 
 /// Bind the control socket: create its directory if missing ([`DIR_MODE`]; under systemd the
 /// RuntimeDirectory exists already), tighten an existing directory of ours that grants more than

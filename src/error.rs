@@ -4,9 +4,9 @@
 use std::path::Path;
 
 /// Exit code for configuration errors (sysexits.h `EX_CONFIG`).
-pub const EXIT_CONFIG: i32 = 78;
+pub(crate) const EXIT_CONFIG: i32 = 78;
 /// Exit code for any other failure.
-pub const EXIT_FAILURE: i32 = 1;
+pub(crate) const EXIT_FAILURE: i32 = 1;
 
 /// Crate-wide error.
 #[derive(Debug, thiserror::Error)]
@@ -61,7 +61,7 @@ pub enum Error {
 
 impl Error {
     /// Process exit code for this error.
-    pub fn exit_code(&self) -> i32 {
+    pub(crate) fn exit_code(&self) -> i32 {
         match self {
             Error::Config { .. } | Error::ConfigList { .. } => EXIT_CONFIG,
             _ => EXIT_FAILURE,
@@ -93,7 +93,7 @@ impl Error {
     }
 
     /// `Ok` without problems, [`Error::Config`] for one, [`Error::ConfigList`] for several.
-    pub fn config_problems(path: impl AsRef<Path>, mut problems: Vec<String>) -> Result<()> {
+    pub(crate) fn config_problems(path: impl AsRef<Path>, mut problems: Vec<String>) -> Result<()> {
         let path = path.as_ref().display().to_string();
         match problems.len() {
             0 => Ok(()),

@@ -16,13 +16,13 @@ use std::thread;
 use std::time::{Duration, Instant};
 
 /// One blocking read waits at most this long, so status and stop requests stay responsive.
-pub const READ_TIMEOUT: Duration = Duration::from_millis(200);
+pub(crate) const READ_TIMEOUT: Duration = Duration::from_millis(200);
 /// First reconnect delay; doubled per failed attempt up to the configured maximum.
-pub const RECONNECT_INITIAL: Duration = Duration::from_millis(250);
+pub(crate) const RECONNECT_INITIAL: Duration = Duration::from_millis(250);
 /// No byte for this long on an open port: the status says "no data".
-pub const NO_DATA_AFTER: Duration = Duration::from_secs(5);
+pub(crate) const NO_DATA_AFTER: Duration = Duration::from_secs(5);
 /// A fix older than this no longer counts as "fix" in the status.
-pub const FIX_STALE_AFTER: Duration = Duration::from_secs(5);
+pub(crate) const FIX_STALE_AFTER: Duration = Duration::from_secs(5);
 /// Read buffer size (a few NMEA lines; the framer copes with any chunking).
 const READ_CHUNK: usize = 256;
 
@@ -90,7 +90,7 @@ fn human_duration(d: Duration) -> String {
 
 /// Where the device is: a fixed path, or a resolver asked again before each (re)connect (e.g.
 /// scanning `/dev/serial/by-id/`).
-pub type Resolver = Box<dyn FnMut() -> String + Send>;
+pub(crate) type Resolver = Box<dyn FnMut() -> String + Send>;
 
 /// The reconnecting serial reader. Drive it with [`SerialReader::poll`] (or [`spawn`] a thread).
 pub struct SerialReader {
@@ -118,7 +118,7 @@ impl SerialReader {
     }
 
     /// A reader that asks `resolve` for the device path before every connection attempt.
-    pub fn with_resolver(settings: SerialSettings, resolve: Resolver) -> Self {
+    pub(crate) fn with_resolver(settings: SerialSettings, resolve: Resolver) -> Self {
         let now = Instant::now();
         SerialReader {
             device: settings.device.clone(),

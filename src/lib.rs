@@ -27,11 +27,11 @@ pub mod map;
 pub mod persist;
 pub mod pose;
 pub mod posefile;
-pub mod preflight;
+pub(crate) mod preflight;
 pub mod scene;
 pub mod sim;
 pub mod stage;
 pub mod store;
-pub mod viz;
+pub(crate) mod viz;
 
 pub use error::{Error, Result};

@@ -13,13 +13,13 @@ fn temp_prefix(name: &std::ffi::OsStr) -> String {
 
 /// Atomically replace `path` with `bytes`. Errors name `path` (the file the caller asked for),
 /// never the temp file, which is removed on failure. The file's mode is 0666 less the umask.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic_mode(path, bytes, None)
 }
 
 /// [`write_atomic`] with the file's mode set to `mode` whatever the umask (the metrics file
 /// must be readable by node_exporter's user while the service's umask is 0027).
-pub fn write_atomic_mode(path: &Path, bytes: &[u8], mode: Option<u32>) -> Result<()> {
+pub(crate) fn write_atomic_mode(path: &Path, bytes: &[u8], mode: Option<u32>) -> Result<()> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),

@@ -42,9 +42,6 @@ impl<To, From> PartialEq for Isometry<To, From> {
 
 /// World(map)→camera pose, the seed's `[ᶜR_W, ᶜt_W]`.
 pub type CamFromMap = Isometry<Cam, Map>;
-/// Camera→map transform (inverse of [`CamFromMap`]).
-pub type MapFromCam = Isometry<Map, Cam>;
-
 /// The fixed rotation from a north-up nadir camera's optical frame to the map frame.
 pub fn nadir() -> Rotation3<f64> {
     Rotation3::from_matrix_unchecked(Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0))
@@ -83,8 +80,9 @@ impl<To, From> Isometry<To, From> {
         Isometry::new(r_inv, -(r_inv * self.translation))
     }
 
+    #[cfg(test)]
     /// Compose: `self ∘ other` maps `Mid`-less chains, `To ← From ← Other`.
-    pub fn compose<Other>(&self, other: &Isometry<From, Other>) -> Isometry<To, Other> {
+    pub(crate) fn compose<Other>(&self, other: &Isometry<From, Other>) -> Isometry<To, Other> {
         Isometry::new(
             self.rotation * other.rotation,
             self.rotation * other.translation + self.translation,
@@ -99,7 +97,7 @@ impl CamFromMap {
     }
 
     /// Build from the camera centre (map frame) and `R_cam_from_map`.
-    pub fn from_center(rotation: Rotation3<f64>, center: &Point3<f64>) -> Self {
+    pub(crate) fn from_center(rotation: Rotation3<f64>, center: &Point3<f64>) -> Self {
         Self::new(rotation, -(rotation * center.coords))
     }
 
@@ -131,13 +129,13 @@ impl CamFromMap {
     }
 
     /// Quaternion of `R_map_from_cam`, in (x, y, z, w) order.
-    pub fn quaternion_map_from_cam_xyzw(&self) -> [f64; 4] {
+    pub(crate) fn quaternion_map_from_cam_xyzw(&self) -> [f64; 4] {
         let q = UnitQuaternion::from_rotation_matrix(&self.rotation.inverse());
         [q.i, q.j, q.k, q.w]
     }
 
     /// Row-major 3×3 rotation `R_cam_from_map`.
-    pub fn rotation_rows(&self) -> [[f64; 3]; 3] {
+    pub(crate) fn rotation_rows(&self) -> [[f64; 3]; 3] {
         let m = self.rotation.matrix();
         [
             [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
@@ -147,7 +145,7 @@ impl CamFromMap {
     }
 
     /// Build from a row-major rotation (re-orthonormalised) and a translation.
-    pub fn from_rows(rows: [[f64; 3]; 3], t: [f64; 3]) -> Self {
+    pub(crate) fn from_rows(rows: [[f64; 3]; 3], t: [f64; 3]) -> Self {
         let m = Matrix3::new(
             rows[0][0], rows[0][1], rows[0][2], rows[1][0], rows[1][1], rows[1][2], rows[2][0],
             rows[2][1], rows[2][2],

@@ -19,9 +19,11 @@ use std::path::{Path, PathBuf};
 
 /// Which run the config is checked for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Scope {
+pub(crate) enum Scope {
     /// A one-shot `localize`: the state directory must exist already (nobody creates it), the
-    /// control socket is not used.
+    /// control socket is not used. (Only the tests check for it: `localize` runs the checks of
+    /// `app`, not this one.)
+    #[cfg(test)]
     Localize,
     /// The service (and `validate`): the state directory may be missing (the service creates
     /// it), the control socket's path must be usable.
@@ -30,26 +32,20 @@ pub enum Scope {
 
 /// What the checks found.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct Findings {
+pub(crate) struct Findings {
     /// Problems that stop the node, one line each naming the key.
     pub problems: Vec<String>,
     /// Things to look at that do not stop it.
     pub warnings: Vec<String>,
 }
 
-impl Findings {
-    /// `Err` (exit 78, every problem) when there are problems, else the warnings.
-    pub fn into_result(self, origin: &Path) -> Result<Vec<String>> {
-        Error::config_problems(origin, self.problems)?;
-        Ok(self.warnings)
-    }
-}
+impl Findings {}
 
 /// The service's validation of the config at `path`: its keys ([`Config::load`]), then what they
 /// name on this machine ([`check`] for the service). The config and its warnings, or every
 /// problem (exit 78). `infraloc validate` runs this, and the service at start, on reload and for
 /// `validate --running`.
-pub fn load_for_service(path: &Path) -> Result<(Config, Vec<String>)> {
+pub(crate) fn load_for_service(path: &Path) -> Result<(Config, Vec<String>)> {
     let (cfg, mut problems) = Config::load_with_problems(path)?;
     let found = check(&cfg, Scope::Service);
     problems.extend(found.problems);
@@ -60,7 +56,7 @@ pub fn load_for_service(path: &Path) -> Result<(Config, Vec<String>)> {
 }
 
 /// The service's state directory: where the pose file lives.
-pub fn state_dir(cfg: &Config) -> Option<&Path> {
+pub(crate) fn state_dir(cfg: &Config) -> Option<&Path> {
     cfg.output
         .pose
         .parent()
@@ -68,7 +64,7 @@ pub fn state_dir(cfg: &Config) -> Option<&Path> {
 }
 
 /// Create the state directory (mode 0750) if it is missing; the created path, if any.
-pub fn create_state_dir(cfg: &Config) -> Result<Option<PathBuf>> {
+pub(crate) fn create_state_dir(cfg: &Config) -> Result<Option<PathBuf>> {
     let Some(dir) = state_dir(cfg) else {
         return Ok(None);
     };
@@ -90,7 +86,7 @@ pub fn create_state_dir(cfg: &Config) -> Result<Option<PathBuf>> {
 
 /// Check everything `cfg` names for a run of kind `scope`. `cfg` has been loaded (its keys
 /// validated, its paths absolute).
-pub fn check(cfg: &Config, scope: Scope) -> Findings {
+pub(crate) fn check(cfg: &Config, scope: Scope) -> Findings {
     // Empty paths are the key validation's problem already; checking them here would only
     // repeat it in other words.
     let mut cfg = cfg.clone();
@@ -182,7 +178,7 @@ fn metrics_dir(d: &Path, f: &mut Findings) {
 /// Check an output file path: not a directory, its directory exists (or, if `may_be_created`,
 /// will be created by the service) and is writable. Used for the config's outputs and for
 /// `localize`'s `--out`, `--report` and `--overlay`.
-pub fn output_path(key: &str, p: &Path, may_be_created: bool, f: &mut Findings) {
+pub(crate) fn output_path(key: &str, p: &Path, may_be_created: bool, f: &mut Findings) {
     if p.is_dir() {
         f.problems.push(format!(
             "{key} {} is a directory; give a file path",

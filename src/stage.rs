@@ -28,7 +28,7 @@ pub enum StageName {
 
 impl StageName {
     /// Every stage, in order.
-    pub const ALL: [StageName; 7] = [
+    pub(crate) const ALL: [StageName; 7] = [
         StageName::Starting,
         StageName::Capture,
         StageName::Prior,

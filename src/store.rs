@@ -13,14 +13,14 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// File name of the served pose.
-pub const POSE_FILE: &str = "pose.json";
+pub(crate) const POSE_FILE: &str = "pose.json";
 /// File name of the history.
-pub const HISTORY_FILE: &str = "history.json";
+pub(crate) const HISTORY_FILE: &str = "history.json";
 /// Results kept in the history by default.
-pub const DEFAULT_HISTORY_LEN: usize = 50;
+pub(crate) const DEFAULT_HISTORY_LEN: usize = 50;
 /// A new result may score this much lower than the served one and still replace it: re-running on
 /// a new frame jitters the score, and a camera that was knocked must be able to re-register.
-pub const SCORE_TOLERANCE: f64 = 0.05;
+pub(crate) const SCORE_TOLERANCE: f64 = 0.05;
 
 /// One history entry.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -162,7 +162,7 @@ impl PoseStore {
     }
 
     /// Record an ok result that the caller decided not to serve (`why`), leaving the served pose.
-    pub fn record_kept(&self, candidate: &PoseFile, why: &str) -> Result<()> {
+    pub(crate) fn record_kept(&self, candidate: &PoseFile, why: &str) -> Result<()> {
         self.append(HistoryEntry {
             timestamp_utc: candidate.timestamp_utc.clone(),
             status: candidate.status.clone(),
@@ -175,7 +175,7 @@ impl PoseStore {
 
     /// Record a run that failed before it produced a pose (`status` is its one-line reason). The
     /// served pose is not touched.
-    pub fn record_failure(&self, timestamp_utc: &str, status: &str) -> Result<()> {
+    pub(crate) fn record_failure(&self, timestamp_utc: &str, status: &str) -> Result<()> {
         self.append(HistoryEntry {
             timestamp_utc: timestamp_utc.to_string(),
             status: status.to_string(),

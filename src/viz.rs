@@ -14,7 +14,7 @@ use image::{GrayImage, Rgb, RgbImage};
 use plotters::prelude::*;
 
 /// Point colour.
-pub const CYAN: [u8; 3] = [0, 255, 255];
+pub(crate) const CYAN: [u8; 3] = [0, 255, 255];
 
 /// The embedded font (DejaVu Sans 2.37, Bitstream Vera licence).
 static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
@@ -34,10 +34,10 @@ pub(crate) fn register_font() -> Result<()> {
 }
 /// Only points at least this bright (percentile of the set's reflectivity) are drawn: the paint,
 /// whose alignment is what the eye checks; drawing every point would hide the image.
-pub const DRAW_PERCENTILE: f64 = 0.96;
+pub(crate) const DRAW_PERCENTILE: f64 = 0.96;
 
 /// The frame in gray with each pose's projections of the brightest ground points drawn on it.
-pub fn overlay(
+pub(crate) fn overlay(
     image: &GrayImage,
     cam: &dyn CameraModel,
     layers: &[(&CamFromMap, [u8; 3])],
@@ -69,12 +69,12 @@ pub fn overlay(
 }
 
 /// Labels of [`before_after`]'s panels, left to right.
-pub const PANEL_LABELS: [&str; 2] = ["before: initial pose", "after: final pose"];
+pub(crate) const PANEL_LABELS: [&str; 2] = ["before: initial pose", "after: final pose"];
 
 /// Two [`overlay`] panels side by side, 2·W × H: left the points at `before` (the initial pose),
 /// right at `after` (the final pose), both cyan, each labelled in its top-left corner. Drawn on
 /// one image the final pose's points hid the initial pose's wherever they overlapped.
-pub fn before_after(
+pub(crate) fn before_after(
     image: &GrayImage,
     cam: &dyn CameraModel,
     before: &CamFromMap,
@@ -116,7 +116,7 @@ pub fn before_after(
 }
 
 /// [`before_after`] encoded as PNG bytes.
-pub fn before_after_png(
+pub(crate) fn before_after_png(
     image: &GrayImage,
     cam: &dyn CameraModel,
     before: &CamFromMap,

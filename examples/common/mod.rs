@@ -1,6 +1,6 @@
 //! Helpers shared by the measuring examples (`drift_cost`, `scaling`; `benches/refine.rs` uses
 //! the camera). Included with `#[path]`, so each user compiles only what it calls.
-#![allow(dead_code)]
+#![allow(dead_code, unreachable_pub)]
 
 use infraloc::camera::{Camera, Mei};
 

@@ -1,9 +1,9 @@
-//! Arbitrary bytes as a LiDAR point file, through each reader (CSV, PCD, LAS): no panic, and
-//! every point a reader accepts has finite coordinates (each reader promises to reject
-//! non-finite ones with an error naming the point).
+//! Arbitrary bytes as a LiDAR point file, through each reader (CSV, PCD, LAS, Velodyne `.bin`):
+//! no panic, and every point a reader accepts has finite coordinates (each reader promises to
+//! reject non-finite ones with an error naming the point).
 #![no_main]
 
-use infraloc::localize::points_io::{parse_csv, parse_las, parse_pcd};
+use infraloc::localize::points_io::{parse_csv, parse_las, parse_pcd, parse_velodyne_bin};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
@@ -11,6 +11,7 @@ fuzz_target!(|data: &[u8]| {
         ("csv", parse_csv(data)),
         ("pcd", parse_pcd(data)),
         ("las", parse_las(data)),
+        ("bin", parse_velodyne_bin(data)),
     ] {
         if let Ok(points) = parsed {
             for p in &points {

@@ -19,7 +19,7 @@ pub(crate) struct Pose {
 
 impl Pose {
     /// The board point in the camera frame.
-    pub fn apply(&self, x: &[f64; 3]) -> Vector3<f64> {
+    pub(crate) fn apply(&self, x: &[f64; 3]) -> Vector3<f64> {
         self.r * Vector3::new(x[0], x[1], x[2]) + self.t
     }
 }
@@ -40,7 +40,7 @@ const PLANARITY_TOL: f64 = 1e-6;
 
 impl Plane {
     /// The frame of a planar point set; `Err` names why there is none.
-    pub fn fit(obj: &[[f64; 3]]) -> Result<Plane, String> {
+    pub(super) fn fit(obj: &[[f64; 3]]) -> Result<Plane, String> {
         let n = obj.len() as f64;
         let pts: Vec<Vector3<f64>> = obj.iter().map(|p| Vector3::new(p[0], p[1], p[2])).collect();
         let o = pts.iter().sum::<Vector3<f64>>() / n;
@@ -82,7 +82,7 @@ impl Plane {
     }
 
     /// The board's normal in board coordinates.
-    pub fn normal(&self) -> Vector3<f64> {
+    pub(crate) fn normal(&self) -> Vector3<f64> {
         self.b.row(2).transpose()
     }
 
@@ -96,7 +96,7 @@ impl Plane {
     }
 
     /// Straight lines of the grid: points sharing one plane coordinate, 4 or more to a line.
-    pub fn lines(&self) -> Vec<Vec<usize>> {
+    pub(super) fn lines(&self) -> Vec<Vec<usize>> {
         let mut out = Vec::new();
         let extent = self
             .q

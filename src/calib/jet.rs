@@ -51,7 +51,7 @@ pub(crate) struct Jet {
 
 impl Jet {
     /// The parameter with index `i` at value `v` (derivative 1 with respect to itself).
-    pub fn var(v: f64, i: usize) -> Self {
+    pub(super) fn var(v: f64, i: usize) -> Self {
         let mut d = [0.0; N];
         d[i] = 1.0;
         Jet { v, d }

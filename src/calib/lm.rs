@@ -14,7 +14,7 @@ pub(crate) struct Obs<'a> {
 
 /// The unknowns.
 #[derive(Debug, Clone)]
-pub(crate) struct State {
+pub(super) struct State {
     pub intr: Vec<f64>,
     pub poses: Vec<Pose>,
 }

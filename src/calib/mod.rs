@@ -20,8 +20,8 @@ mod jet;
 mod lm;
 mod model;
 
-pub use init::InitInfo;
-pub use model::LensModel;
+pub(crate) use init::InitInfo;
+pub(crate) use model::LensModel;
 
 use crate::camera::{Camera, CameraModel};
 use init::{InitView, Plane, Pose};
@@ -30,16 +30,16 @@ use nalgebra::Vector3;
 use serde::Serialize;
 
 /// Fewest views a calibration accepts.
-pub const MIN_VIEWS: usize = 3;
+pub(crate) const MIN_VIEWS: usize = 3;
 /// Fewest corners a view needs (a homography needs 4).
-pub const MIN_CORNERS: usize = 4;
+pub(crate) const MIN_CORNERS: usize = 4;
 /// A view is an outlier when its RMS exceeds this multiple of the median view RMS …
-pub const OUTLIER_FACTOR: f64 = 3.0;
+pub(crate) const OUTLIER_FACTOR: f64 = 3.0;
 /// … and this many pixels.
-pub const OUTLIER_FLOOR_PX: f64 = 0.5;
+pub(crate) const OUTLIER_FLOOR_PX: f64 = 0.5;
 /// Boards tilted less than this from fronto-parallel (degrees) do not constrain the focal length;
 /// if every view is, the calibration is refused.
-pub const MIN_TILT_DEG: f64 = 5.0;
+pub(crate) const MIN_TILT_DEG: f64 = 5.0;
 
 /// Board observations: for each view, board-frame object points (metres, planar) and the pixels
 /// they were detected at.
@@ -380,7 +380,7 @@ fn rms_of(r: &[[f64; 2]]) -> f64 {
 
 /// The calibration as OpenCV FileStorage YAML: the camera (docs/interfaces.md, "Camera intrinsics files"; read back by
 /// [`crate::camera::load_camera`] and by `cv2.FileStorage`) plus `rms`.
-pub fn to_yaml(c: &Calibration) -> String {
+pub(crate) fn to_yaml(c: &Calibration) -> String {
     let mut s = crate::camera::to_opencv_yaml(&c.camera);
     s.push_str(&format!("rms: {:e}\n", c.rms));
     s

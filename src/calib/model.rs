@@ -31,7 +31,7 @@ impl LensModel {
     }
 
     /// Number of intrinsic parameters.
-    pub fn n_params(self) -> usize {
+    pub(crate) fn n_params(self) -> usize {
         self.names().len()
     }
 

@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use yaml_rust2::{Yaml, YamlLoader};
 
 /// Separator between a camchain path and the camera to pick from it: `camchain.yaml#cam1`.
-pub const CAMERA_SELECTOR: char = '#';
+pub(crate) const CAMERA_SELECTOR: char = '#';
 
 /// Read and parse an intrinsics file. For a Kalibr camchain, `path#camN` selects camera `camN`
 /// (default: the first camera in the file); the suffix is only split off when `path` itself does
@@ -35,7 +35,11 @@ pub fn parse_camera(text: &str, origin: &Path) -> Result<Camera> {
 
 /// Like [`parse_camera`], selecting a named camera (`cam1`) of a Kalibr camchain. Naming a camera
 /// in a single-camera format is an error.
-pub fn parse_camera_named(text: &str, origin: &Path, camera: Option<&str>) -> Result<Camera> {
+pub(crate) fn parse_camera_named(
+    text: &str,
+    origin: &Path,
+    camera: Option<&str>,
+) -> Result<Camera> {
     let ctx = Ctx { origin };
     if is_kitti_calib(text) {
         return Err(ctx.err(
@@ -74,6 +78,103 @@ pub fn parse_camera_named(text: &str, origin: &Path, camera: Option<&str>) -> Re
     };
     cam.validate().map_err(|m| ctx.err(m))?;
     Ok(cam)
+}
+
+/// How uncertain a camera file's intrinsics are, 1σ, in the two modes that move a fisheye's
+/// ground mapping most: a common scale of the focal lengths, and the principal point. A
+/// calibration states them (`infraloc calibrate`'s parameter σ; the simulator's `hard` scenes,
+/// whose given intrinsics are wrong on purpose, state the spread they were drawn from); the MI
+/// refinement carries them into the pose's covariance ([`crate::localize::uncertainty`]).
+/// OpenCV FileStorage keys `sigma_focal_rel` and `sigma_principal_point_px`, both optional.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct IntrinsicsSigma {
+    /// σ of the focal lengths' common scale, relative (0.002 = 0.2 %).
+    pub focal_rel: f64,
+    /// σ of each principal-point coordinate, pixels.
+    pub principal_point_px: f64,
+}
+
+impl IntrinsicsSigma {
+    /// The three independent 1σ perturbations of `cam`: focal scale, cx, cy (a mode whose σ is
+    /// 0 is left out).
+    pub fn perturbed(&self, cam: &Camera) -> Vec<Camera> {
+        let mut out = Vec::new();
+        let apply = |f: &dyn Fn(&mut f64, &mut f64, &mut f64, &mut f64)| {
+            let mut c = cam.clone();
+            match &mut c {
+                Camera::Mei(m) => f(&mut m.fx, &mut m.fy, &mut m.cx, &mut m.cy),
+                Camera::Equidistant(e) => {
+                    f(&mut e.fx, &mut e.fy, &mut e.cx, &mut e.cy);
+                    e.cache = Default::default();
+                }
+            }
+            c
+        };
+        if self.focal_rel > 0.0 {
+            let k = 1.0 + self.focal_rel;
+            out.push(apply(&|fx, fy, _, _| {
+                *fx *= k;
+                *fy *= k;
+            }));
+        }
+        if self.principal_point_px > 0.0 {
+            let d = self.principal_point_px;
+            out.push(apply(&|_, _, cx, _| *cx += d));
+            out.push(apply(&|_, _, _, cy| *cy += d));
+        }
+        out
+    }
+
+    /// The FileStorage YAML lines for these σ (appended to [`to_opencv_yaml`]'s output).
+    pub fn yaml_lines(&self) -> String {
+        format!(
+            "sigma_focal_rel: {}\nsigma_principal_point_px: {}\n",
+            real(self.focal_rel),
+            real(self.principal_point_px)
+        )
+    }
+}
+
+/// Read a camera file's stated intrinsics uncertainty ([`parse_intrinsics_sigma`]); `path` as
+/// for [`load_camera`].
+pub fn load_intrinsics_sigma(path: &Path) -> Result<Option<IntrinsicsSigma>> {
+    let (file, _) = split_selector(path);
+    let text = std::fs::read_to_string(&file).map_err(|e| Error::io(&file, e))?;
+    parse_intrinsics_sigma(&text, &file)
+}
+
+/// The intrinsics' stated uncertainty in an OpenCV FileStorage file (YAML or XML), if it states
+/// one (see [`IntrinsicsSigma`]); other formats state none. A key that is present but not a
+/// finite number ≥ 0 (or a focal σ of 50 % or more) is an error naming it.
+pub fn parse_intrinsics_sigma(text: &str, origin: &Path) -> Result<Option<IntrinsicsSigma>> {
+    let ctx = Ctx { origin };
+    let root = match detect(text) {
+        Syntax::Xml => xml_tree(text, &ctx)?,
+        Syntax::Yaml if !is_kitti_calib(text) => yaml_tree(text, &ctx)?,
+        _ => return Ok(None),
+    };
+    let f = opt_num(&root, "sigma_focal_rel", &ctx)?;
+    let c = opt_num(&root, "sigma_principal_point_px", &ctx)?;
+    if f.is_none() && c.is_none() {
+        return Ok(None);
+    }
+    let s = IntrinsicsSigma {
+        focal_rel: f.unwrap_or(0.0),
+        principal_point_px: c.unwrap_or(0.0),
+    };
+    for (key, v, max) in [
+        ("sigma_focal_rel", s.focal_rel, 0.5),
+        (
+            "sigma_principal_point_px",
+            s.principal_point_px,
+            f64::INFINITY,
+        ),
+    ] {
+        if !(v.is_finite() && v >= 0.0 && v < max) {
+            return Err(ctx.err(format!("{key}: {v} is not a finite σ ≥ 0 (and < {max})")));
+        }
+    }
+    Ok(Some(s))
 }
 
 /// Split `file#cam1` into the file and the selector, unless the whole path is an existing file.
@@ -791,7 +892,7 @@ const KITTI_EXTRINSIC_KEYS: [&str; 2] = ["R0_rect", "Tr_velo_to_cam"];
 
 /// Whether `text` is a KITTI object-benchmark calibration (`calib/NNNNNN.txt`): `key: numbers`
 /// lines with a projection `P0:`..`P3:` and `R0_rect:` or `Tr_velo_to_cam:`.
-pub fn is_kitti_calib(text: &str) -> bool {
+pub(crate) fn is_kitti_calib(text: &str) -> bool {
     let keys: Vec<&str> = text
         .lines()
         .filter_map(|l| l.trim_start_matches('\u{feff}').split_once(':'))
@@ -1026,6 +1127,46 @@ mod tests {
     use super::*;
 
     const P: &str = "test.yaml";
+
+    #[test]
+    fn a_stated_intrinsics_sigma_round_trips_and_bad_values_name_the_key() {
+        let cam = Camera::Mei(Mei::pinhole(640, 480, 300.0, 300.0, 320.0, 240.0));
+        let plain = to_opencv_yaml(&cam);
+        assert_eq!(parse_intrinsics_sigma(&plain, Path::new(P)).unwrap(), None);
+        let s = IntrinsicsSigma {
+            focal_rel: 0.002,
+            principal_point_px: 1.5,
+        };
+        let text = format!("{plain}{}", s.yaml_lines());
+        assert_eq!(
+            parse_intrinsics_sigma(&text, Path::new(P)).unwrap(),
+            Some(s)
+        );
+        // The camera itself still parses from the same file.
+        assert_eq!(parse(&text).unwrap(), cam);
+        // Three 1σ modes: the focal scale moves fx and fy together, then cx, then cy.
+        let m = s.perturbed(&cam);
+        assert_eq!(m.len(), 3);
+        let Camera::Mei(f) = &m[0] else {
+            unreachable!()
+        };
+        assert!((f.fx - 300.6).abs() < 1e-9 && (f.fy - 300.6).abs() < 1e-9 && f.cx == 320.0);
+        let Camera::Mei(c) = &m[2] else {
+            unreachable!()
+        };
+        assert!(c.cy == 241.5 && c.cx == 320.0 && c.fx == 300.0);
+        for bad in [
+            "sigma_focal_rel: -0.1\n",
+            "sigma_principal_point_px: .nan\n",
+            "sigma_focal_rel: 0.7\n",
+        ] {
+            let e = parse_intrinsics_sigma(&format!("{plain}{bad}"), Path::new(P))
+                .expect_err(bad)
+                .to_string();
+            let key = bad.split(':').next().unwrap_or_default();
+            assert!(e.contains(P) && e.contains(key), "{bad}: {e}");
+        }
+    }
 
     fn parse(text: &str) -> Result<Camera> {
         parse_camera(text, Path::new(P))

@@ -185,9 +185,9 @@ pub trait CameraModel: Send + Sync + std::fmt::Debug {
 }
 
 /// Block size of [`CameraModel::valid_mask`]'s lattice, pixels.
-pub const MASK_BLOCK: usize = 8;
+pub(crate) const MASK_BLOCK: usize = 8;
 /// Sensors with a side shorter than this (pixels) get the per-pixel mask.
-pub const MASK_MIN_SIDE: usize = 8 * MASK_BLOCK;
+pub(crate) const MASK_MIN_SIDE: usize = 8 * MASK_BLOCK;
 
 /// Any supported camera, as loaded from an intrinsics file. Serialises as the native TOML table
 /// (`model = "mei" | "equidistant"`, then the parameters).

@@ -23,7 +23,7 @@ use rayon::prelude::*;
 
 /// Map value for output pixels whose ray the camera model cannot project. It is far outside any
 /// image, so `cv2.remap` and [`RemapTable`] both treat it as border (value 0).
-pub const INVALID_COORD: f32 = -1.0e5;
+pub(crate) const INVALID_COORD: f32 = -1.0e5;
 
 /// Fractional bits of the remap's fixed-point coordinates (OpenCV `INTER_BITS`).
 const FRAC_BITS: u32 = 5;

@@ -39,7 +39,7 @@ pub struct AravisSettings {
 }
 
 /// Convert one GenICam buffer to gray. `x_padding` is the bytes after each row.
-pub fn genicam_to_gray(
+pub(crate) fn genicam_to_gray(
     format: PixelFormat,
     width: u32,
     height: u32,
@@ -102,7 +102,7 @@ impl AravisSource {
 
     /// From the `[camera]` table (`device`, `pixel-format`, `region`, `exposure-us`,
     /// `gain-db`); an empty `device` means the first camera found.
-    pub fn from_config(c: &CameraConfig) -> Result<AravisSource> {
+    pub(crate) fn from_config(c: &CameraConfig) -> Result<AravisSource> {
         if let Some(f) = &c.pixel_format {
             if !FORMATS.iter().any(|(n, _)| n == f) {
                 return Err(Error::Invalid(format!(

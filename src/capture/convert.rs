@@ -5,13 +5,17 @@
 //! GenICam `Mono16`), packed YUV 4:2:2 (V4L2 `YUYV`), Motion-JPEG (V4L2 `MJPG`) and 8-bit Bayer
 //! mosaics (GenICam `BayerRG8`/`BayerBG8`/`BayerGR8`/`BayerGB8`).
 
+// The conversions serve the feature-gated camera back ends (V4L2: gray, YUYV, MJPEG; Aravis:
+// Mono, Bayer); a build without one of them leaves its formats unused.
+#![cfg_attr(not(all(feature = "v4l", feature = "aravis")), allow(dead_code))]
+
 use image::GrayImage;
 use std::fmt;
 
 /// Why a buffer could not be converted. Short and corrupt frames are transient faults (the next
 /// frame is usually fine); the capture loop retries them.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum ConvertError {
+pub(crate) enum ConvertError {
     /// Fewer bytes than the geometry needs (a truncated transfer).
     Short {
         /// Bytes the geometry needs.
@@ -37,7 +41,7 @@ impl fmt::Display for ConvertError {
 /// Geometry of an uncompressed buffer: `stride` is bytes per row (≥ width × bytes per pixel;
 /// drivers pad rows to alignment).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Geometry {
+pub(crate) struct Geometry {
     /// Pixels per row.
     pub width: u32,
     /// Rows.
@@ -48,7 +52,7 @@ pub struct Geometry {
 
 impl Geometry {
     /// Tightly packed rows of `bytes_per_pixel`.
-    pub fn packed(width: u32, height: u32, bytes_per_pixel: usize) -> Geometry {
+    pub(crate) fn packed(width: u32, height: u32, bytes_per_pixel: usize) -> Geometry {
         Geometry {
             width,
             height,
@@ -57,7 +61,7 @@ impl Geometry {
     }
 
     /// The same geometry with `pad` extra bytes after each row.
-    pub fn padded(self, pad: usize) -> Geometry {
+    pub(crate) fn padded(self, pad: usize) -> Geometry {
         Geometry {
             stride: self.stride + pad,
             ..self
@@ -112,13 +116,13 @@ fn convert_rows(
 }
 
 /// 8-bit gray (V4L2 `GREY`, GenICam `Mono8`): copy, dropping row padding.
-pub fn gray8(g: Geometry, buf: &[u8]) -> Result<GrayImage, ConvertError> {
+pub(crate) fn gray8(g: Geometry, buf: &[u8]) -> Result<GrayImage, ConvertError> {
     convert_rows(g, buf, 1, |src, dst| dst.copy_from_slice(src))
 }
 
 /// 16-bit gray, little-endian (V4L2 `Y16`, GenICam `Mono16`) → the high byte. Both standards
 /// define the full 16-bit range, so the most significant byte is the 8-bit value.
-pub fn gray16le(g: Geometry, buf: &[u8]) -> Result<GrayImage, ConvertError> {
+pub(crate) fn gray16le(g: Geometry, buf: &[u8]) -> Result<GrayImage, ConvertError> {
     convert_rows(g, buf, 2, |src, dst| {
         for (d, px) in dst.iter_mut().zip(src.chunks_exact(2)) {
             *d = px[1];
@@ -128,7 +132,7 @@ pub fn gray16le(g: Geometry, buf: &[u8]) -> Result<GrayImage, ConvertError> {
 
 /// Packed YUV 4:2:2 `Y0 U Y1 V` (V4L2 `YUYV`) → the luma bytes. `width` must be even (a
 /// macropixel holds two pixels); the stride is in bytes (2 per pixel).
-pub fn yuyv(g: Geometry, buf: &[u8]) -> Result<GrayImage, ConvertError> {
+pub(crate) fn yuyv(g: Geometry, buf: &[u8]) -> Result<GrayImage, ConvertError> {
     if g.width % 2 != 0 {
         return Err(ConvertError::Corrupt(format!(
             "YUYV width {} is odd",
@@ -144,7 +148,7 @@ pub fn yuyv(g: Geometry, buf: &[u8]) -> Result<GrayImage, ConvertError> {
 
 /// Motion-JPEG frame → gray (the decoder's luma for colour JPEGs). `expect` is the size the
 /// stream was negotiated at: a frame of another size is corrupt, not silently accepted.
-pub fn mjpeg(buf: &[u8], expect: Option<(u32, u32)>) -> Result<GrayImage, ConvertError> {
+pub(crate) fn mjpeg(buf: &[u8], expect: Option<(u32, u32)>) -> Result<GrayImage, ConvertError> {
     if buf.is_empty() {
         return Err(ConvertError::Short {
             expected: 1,
@@ -172,7 +176,7 @@ pub fn mjpeg(buf: &[u8], expect: Option<(u32, u32)>) -> Result<GrayImage, Conver
 /// Any decoded image → 8-bit gray, the way every path into the pipeline converts: 8-bit gray
 /// as it is, colour as BT.601 luma in OpenCV's fixed point (`cv::cvtColor(…, COLOR_RGB2GRAY)`,
 /// what the camera's YUYV, Bayer and MJPEG paths give), other gray formats scaled to 8 bits.
-pub fn to_gray(img: image::DynamicImage) -> GrayImage {
+pub(crate) fn to_gray(img: image::DynamicImage) -> GrayImage {
     match img {
         image::DynamicImage::ImageLuma8(g) => g,
         other if other.color().has_color() => {
@@ -188,7 +192,7 @@ pub fn to_gray(img: image::DynamicImage) -> GrayImage {
 
 /// Colour filter layout of a Bayer sensor, named by its top-left 2×2 cell read row by row.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum BayerPattern {
+pub(crate) enum BayerPattern {
     /// R G / G B
     Rggb,
     /// B G / G R
@@ -237,7 +241,11 @@ impl BayerPattern {
 /// so there is no half-pixel shift that would bias the calibrated principal point). On a
 /// uniformly coloured surface the result is that colour's exact luma. Border pixels use the
 /// windows that exist. Needs at least 2×2 pixels.
-pub fn bayer8(g: Geometry, buf: &[u8], pattern: BayerPattern) -> Result<GrayImage, ConvertError> {
+pub(crate) fn bayer8(
+    g: Geometry,
+    buf: &[u8],
+    pattern: BayerPattern,
+) -> Result<GrayImage, ConvertError> {
     g.check(buf, 1)?;
     let (w, h) = (g.width as usize, g.height as usize);
     if w < 2 || h < 2 {

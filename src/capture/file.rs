@@ -14,7 +14,7 @@ const IMAGE_EXTENSIONS: [&str; 5] = ["png", "jpg", "jpeg", "tif", "tiff"];
 
 /// Images from a file or directory.
 #[derive(Debug)]
-pub struct FileSource {
+pub(crate) struct FileSource {
     path: PathBuf,
     name: String,
     files: Vec<PathBuf>,
@@ -24,7 +24,7 @@ pub struct FileSource {
 
 impl FileSource {
     /// A source over `path` (an image or a directory); nothing is read until `open`.
-    pub fn new(path: &Path) -> FileSource {
+    pub(crate) fn new(path: &Path) -> FileSource {
         FileSource {
             path: path.to_path_buf(),
             name: path.display().to_string(),
@@ -35,14 +35,14 @@ impl FileSource {
     }
 
     /// The images in replay order (after `open`).
-    pub fn files(&self) -> &[PathBuf] {
+    pub(crate) fn files(&self) -> &[PathBuf] {
         &self.files
     }
 }
 
 /// Read an image file as 8-bit gray ([`super::convert::to_gray`]): the one way a frame, a
 /// scene's frame or a command's `--image` is read from disk. Errors name the file.
-pub fn load_gray(path: &Path) -> crate::Result<image::GrayImage> {
+pub(crate) fn load_gray(path: &Path) -> crate::Result<image::GrayImage> {
     let img = image::open(path)
         .map_err(|e| crate::Error::input(path, format!("cannot read image: {e}")))?;
     Ok(super::convert::to_gray(img))

@@ -17,10 +17,10 @@ mod v4l2;
 
 #[cfg(feature = "aravis")]
 pub use aravis::{AravisSettings, AravisSource};
-pub use file::{load_gray, FileSource};
+pub(crate) use file::{load_gray, FileSource};
 pub use median::temporal_median;
 #[cfg(feature = "v4l")]
-pub use v4l2::{V4l2Format, V4l2Source};
+pub(crate) use v4l2::V4l2Source;
 
 use crate::config::{CameraConfig, FrameSourceKind};
 use crate::error::{Error, Result};
@@ -60,7 +60,7 @@ pub enum Fault {
 
 impl Fault {
     /// Whether another attempt may succeed (cables get replugged, packets get lost).
-    pub fn is_transient(self) -> bool {
+    pub(crate) fn is_transient(self) -> bool {
         !matches!(self, Fault::Unsupported)
     }
 
@@ -103,7 +103,7 @@ impl GrabError {
 
     /// From an OS error: "not found"/"no device" map to [`Fault::Absent`], a timeout to
     /// [`Fault::Timeout`], the rest to [`Fault::Io`].
-    pub fn from_io(e: &std::io::Error) -> Self {
+    pub(crate) fn from_io(e: &std::io::Error) -> Self {
         use std::io::ErrorKind;
         // ENODEV/ENXIO: the node exists but the camera behind it is gone (unplugged USB).
         const ENXIO: i32 = 6;
@@ -205,7 +205,7 @@ pub struct CaptureSettings {
 
 impl CaptureSettings {
     /// The `[camera]` table's capture keys.
-    pub fn from_config(c: &CameraConfig) -> CaptureSettings {
+    pub(crate) fn from_config(c: &CameraConfig) -> CaptureSettings {
         CaptureSettings {
             frame_count: c.frame_count,
             interval: Duration::from_millis(c.frame_interval_ms),
@@ -231,7 +231,7 @@ pub struct Capture {
 
 /// The source named by the config (not yet opened). A source kind compiled out of this build
 /// is an error that says which cargo feature it needs.
-pub fn source_from_config(c: &CameraConfig) -> Result<Box<dyn FrameSource>> {
+pub(crate) fn source_from_config(c: &CameraConfig) -> Result<Box<dyn FrameSource>> {
     match c.source {
         FrameSourceKind::File => {
             let path = c

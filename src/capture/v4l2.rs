@@ -22,7 +22,7 @@ const READY_WITHOUT_WAITING: Duration = Duration::from_millis(2);
 
 /// The V4L2 pixel formats this source converts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum V4l2Format {
+pub(crate) enum V4l2Format {
     /// 8-bit gray.
     Grey,
     /// 16-bit gray, little-endian.
@@ -35,7 +35,7 @@ pub enum V4l2Format {
 
 impl V4l2Format {
     /// All of them, in preference order (uncompressed gray first).
-    pub const ALL: [V4l2Format; 4] = [
+    pub(crate) const ALL: [V4l2Format; 4] = [
         V4l2Format::Grey,
         V4l2Format::Y16,
         V4l2Format::Yuyv,
@@ -43,7 +43,7 @@ impl V4l2Format {
     ];
 
     /// The V4L2 four-character code.
-    pub fn fourcc(self) -> [u8; 4] {
+    pub(crate) fn fourcc(self) -> [u8; 4] {
         match self {
             V4l2Format::Grey => *b"GREY",
             V4l2Format::Y16 => *b"Y16 ",
@@ -53,7 +53,7 @@ impl V4l2Format {
     }
 
     /// From a config name (`GREY`, `Y16`, `YUYV`, `MJPG`) or a driver four-character code.
-    pub fn parse(name: &str) -> Option<V4l2Format> {
+    pub(crate) fn parse(name: &str) -> Option<V4l2Format> {
         V4l2Format::ALL
             .into_iter()
             .find(|f| f.fourcc().trim_ascii_end() == name.trim_end().as_bytes())
@@ -61,7 +61,7 @@ impl V4l2Format {
 
     /// Convert one driver buffer of `width`×`height` with `stride` bytes per row (ignored for
     /// MJPEG) to gray.
-    pub fn to_gray(
+    pub(crate) fn to_gray(
         self,
         width: u32,
         height: u32,
@@ -92,7 +92,7 @@ impl V4l2Format {
 }
 
 /// A V4L2 capture device.
-pub struct V4l2Source {
+pub(crate) struct V4l2Source {
     path: String,
     want_format: Option<V4l2Format>,
     want_size: Option<[u32; 2]>,
@@ -103,7 +103,11 @@ pub struct V4l2Source {
 
 impl V4l2Source {
     /// A source for device `path`, optionally requesting a format and size.
-    pub fn new(path: &str, format: Option<V4l2Format>, size: Option<[u32; 2]>) -> V4l2Source {
+    pub(crate) fn new(
+        path: &str,
+        format: Option<V4l2Format>,
+        size: Option<[u32; 2]>,
+    ) -> V4l2Source {
         V4l2Source {
             path: path.to_string(),
             want_format: format,
@@ -115,7 +119,7 @@ impl V4l2Source {
     }
 
     /// From the `[camera]` table (`device`, `pixel-format`, `resolution`).
-    pub fn from_config(c: &CameraConfig) -> Result<V4l2Source> {
+    pub(crate) fn from_config(c: &CameraConfig) -> Result<V4l2Source> {
         let dev = c
             .device
             .as_deref()

@@ -39,7 +39,7 @@ pub struct Args {
 }
 
 /// Run `calibrate`.
-pub fn run(a: Args) -> Result<()> {
+pub(super) fn run(a: Args) -> Result<()> {
     let text = std::fs::read_to_string(&a.corners).map_err(|e| Error::io(&a.corners, e))?;
     let obs = corners::parse_corners(&text, &a.corners)?;
     let model = match a.model {
@@ -90,7 +90,7 @@ const RESIDUAL_GAIN: f64 = 20.0;
 /// The sensor (scaled to [`COVERAGE_SIDE`]) with each used corner as a dot coloured by view, its
 /// residual ×[`RESIDUAL_GAIN`] as a red line, rejected views' corners as grey crosses, and the
 /// principal point as a cross.
-pub fn coverage(cal: &Calibration, obs: &calib::Observations) -> RgbImage {
+pub(super) fn coverage(cal: &Calibration, obs: &calib::Observations) -> RgbImage {
     let [w, h] = cal.image_size;
     let s = COVERAGE_SIDE as f64 / w.max(h) as f64;
     let (cw, ch) = (

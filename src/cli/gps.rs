@@ -24,7 +24,7 @@ pub struct DecodeArgs {
 }
 
 /// Run a gps subcommand.
-pub fn run(c: Command) -> Result<()> {
+pub(super) fn run(c: Command) -> Result<()> {
     match c {
         Command::Decode(a) => decode(&a.file),
     }

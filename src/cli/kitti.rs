@@ -55,14 +55,14 @@ pub struct ImportArgs {
 }
 
 /// Run a `kitti` subcommand.
-pub fn run(c: Command) -> Result<()> {
+pub(super) fn run(c: Command) -> Result<()> {
     match c {
         Command::Import(a) => import(a),
     }
 }
 
 /// Parse `x=…,y=…,z=…,yaw=…[,pitch=…,roll=…]` into the search's offsets (m, m, m, °, °, °).
-pub fn parse_perturbation(s: &str) -> Result<[f64; 6]> {
+pub(crate) fn parse_perturbation(s: &str) -> Result<[f64; 6]> {
     const KEYS: [&str; 6] = ["x", "y", "z", "yaw", "pitch", "roll"];
     let bad = |m: String| Error::Invalid(format!("--perturb {s:?}: {m}"));
     let mut o = [0.0; 6];

@@ -114,7 +114,7 @@ pub(crate) fn run_and_write(
 }
 
 /// Run `localize`: write the outputs and print a one-line summary.
-pub fn run(a: Args) -> Result<()> {
+pub(super) fn run(a: Args) -> Result<()> {
     let r = run_pipeline(&a)?;
     let (y, p, ro) = r.outcome.pose.yaw_pitch_roll();
     let c = r.outcome.pose.center();

@@ -170,4 +170,4 @@ pub(crate) fn parse_size(s: &str) -> Result<(u32, u32), Error> {
 }
 
 /// Default config path of the installed service.
-pub const DEFAULT_CONFIG: &str = "/etc/infraloc/infraloc.toml";
+pub(crate) const DEFAULT_CONFIG: &str = "/etc/infraloc/infraloc.toml";

@@ -83,7 +83,7 @@ pub struct MiSurfaceArgs {
 }
 
 /// Run a `plot` subcommand.
-pub fn run(c: Command) -> Result<()> {
+pub(super) fn run(c: Command) -> Result<()> {
     match c {
         Command::MiSurface(a) => mi_surface_cmd(a),
     }

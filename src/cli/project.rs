@@ -31,7 +31,7 @@ pub struct Args {
 }
 
 /// Run `project`.
-pub fn run(a: Args) -> Result<()> {
+pub(super) fn run(a: Args) -> Result<()> {
     let cam = load_camera(&a.camera)?;
     // Pose file (docs/interfaces.md, "Pose file") or a simulator truth.json: only the rotation and translation are used.
     let pose = a
@@ -59,7 +59,7 @@ pub fn run(a: Args) -> Result<()> {
 }
 
 /// One output line (without newline): `u,v`, or `,` when the point has no image.
-pub fn format_uv(cam: &dyn CameraModel, p_cam: &Vector3<f64>) -> String {
+pub(crate) fn format_uv(cam: &dyn CameraModel, p_cam: &Vector3<f64>) -> String {
     match cam.project(p_cam) {
         // `{}` on f64 is the shortest representation that parses back to the same value.
         Ok(px) => format!("{},{}", px.x, px.y),
@@ -69,7 +69,7 @@ pub fn format_uv(cam: &dyn CameraModel, p_cam: &Vector3<f64>) -> String {
 
 /// Parse CSV rows `x,y,z[,…]`. The first non-blank line is a header if any of its first three
 /// fields is not a number; blank lines are skipped. Errors name the file and the 1-based line.
-pub fn parse_points(text: &str, origin: &Path) -> Result<Vec<Vector3<f64>>> {
+pub(crate) fn parse_points(text: &str, origin: &Path) -> Result<Vec<Vector3<f64>>> {
     let mut pts = Vec::new();
     let mut first = true;
     for (i, line) in text.lines().enumerate() {

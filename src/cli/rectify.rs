@@ -57,7 +57,7 @@ fn check_rotation(r: &Matrix3<f64>) -> Result<()> {
 }
 
 /// Run `rectify`.
-pub fn run(a: Args) -> Result<()> {
+pub(super) fn run(a: Args) -> Result<()> {
     let [w, h] = parse_list::<2>("--size", &a.size)?;
     let valid_side = |v: f64| (1.0..=MAX_SIDE).contains(&v) && v.fract() == 0.0;
     if !(valid_side(w) && valid_side(h)) {

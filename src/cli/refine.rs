@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 
 /// Default radius (m) of tile ground points around the camera's nadir: at 6 m height that is
 /// 76° off-axis; points further out occupy few pixels and add aliasing more than information.
-pub const DEFAULT_RADIUS_M: f64 = 25.0;
+pub(crate) const DEFAULT_RADIUS_M: f64 = 25.0;
 
 /// Arguments of `refine`.
 #[derive(Debug, clap::Args)]
@@ -131,7 +131,7 @@ fn quality_config(spec: Option<&str>) -> Result<QualityConfig> {
 }
 
 /// Run `refine`.
-pub fn run(a: Args) -> Result<()> {
+pub(super) fn run(a: Args) -> Result<()> {
     let spec: SearchSpec = a.search.parse()?;
     let qcfg = quality_config(a.max_sigma.as_deref())?;
     let mode: Mode = a.mode.parse()?;
@@ -144,6 +144,10 @@ pub fn run(a: Args) -> Result<()> {
         )));
     }
     let cam = load_camera(&a.camera)?;
+    let qcfg = QualityConfig {
+        intrinsics_sigma: crate::camera::import::load_intrinsics_sigma(&a.camera)?,
+        ..qcfg
+    };
     let mut grays = Vec::with_capacity(a.image.len());
     for path in &a.image {
         let (w, h, gray) = load_gray(path)?;

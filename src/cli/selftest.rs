@@ -22,7 +22,7 @@ pub struct Args {
 }
 
 /// Run the check (or the workload); a difference is an error naming the pose.
-pub fn run(a: Args) -> Result<()> {
+pub(crate) fn run(a: Args) -> Result<()> {
     if let Some(n) = a.workload {
         let (points, sum) = kernel::workload(n, a.reference);
         let path = if a.reference {

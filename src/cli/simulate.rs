@@ -85,7 +85,7 @@ impl Args {
 }
 
 /// Run `simulate`.
-pub fn run(a: Args) -> Result<()> {
+pub(super) fn run(a: Args) -> Result<()> {
     let scene = sim::generate(&a.settings())?;
     write_scene(&scene, &a.out)?;
     if let Some(m) = &a.montage {
@@ -109,12 +109,12 @@ fn write(path: &Path, bytes: impl AsRef<[u8]>) -> Result<()> {
 }
 
 /// File name of frame `i`.
-pub fn frame_name(i: usize) -> String {
+pub(crate) fn frame_name(i: usize) -> String {
     format!("{i:03}.png")
 }
 
 /// Write the scene directory (docs/interfaces.md, "Scene directory") into `dir`.
-pub fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
+pub(super) fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
     let frames_dir = dir.join("frames");
     fs::create_dir_all(&frames_dir).map_err(|e| Error::io(&frames_dir, e))?;
     let (w, h) = scene.frame_size();
@@ -125,10 +125,11 @@ pub fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
             .save(&p)
             .map_err(|e| Error::Invalid(format!("{}: {e}", p.display())))?;
     }
-    write(
-        &dir.join("camera.yaml"),
-        crate::camera::import::to_opencv_yaml(&scene.camera_given),
-    )?;
+    let mut cam_yaml = crate::camera::import::to_opencv_yaml(&scene.camera_given);
+    if let Some(s) = &scene.camera_sigma {
+        cam_yaml.push_str(&s.yaml_lines());
+    }
+    write(&dir.join("camera.yaml"), cam_yaml)?;
     write(&dir.join("gps.nmea"), &scene.nmea)?;
     let s = &scene.settings;
     let provenance = Provenance {

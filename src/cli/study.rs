@@ -75,7 +75,7 @@ pub enum Attitude {
 }
 
 /// Run `study`.
-pub fn run(a: Args) -> Result<()> {
+pub(super) fn run(a: Args) -> Result<()> {
     if a.trials == 0 {
         return Err(Error::Invalid("--trials 0: need at least one trial".into()));
     }

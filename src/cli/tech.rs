@@ -12,9 +12,9 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 /// Exit code of `status` when the service is degraded (serving an older pose).
-pub const EXIT_DEGRADED: i32 = 3;
+pub(crate) const EXIT_DEGRADED: i32 = 3;
 /// Exit code of `status` when no pose is served and the last attempt failed.
-pub const EXIT_FAILED: i32 = 4;
+pub(crate) const EXIT_FAILED: i32 = 4;
 /// How long a technician command keeps retrying a `busy` answer.
 const BUSY_RETRY: Duration = Duration::from_secs(3);
 /// How long a non-waiting request may take.
@@ -134,7 +134,7 @@ pub struct OverlayArgs {
 }
 
 /// Run the service.
-pub fn daemon(a: DaemonArgs) -> Result<()> {
+pub(crate) fn daemon(a: DaemonArgs) -> Result<()> {
     crate::daemon::run(&a.config)
 }
 
@@ -148,7 +148,7 @@ fn failed(v: &Value) -> Error {
 }
 
 /// `status`: returns the exit code (0 ok/starting, 3 degraded, 4 failed).
-pub fn status(a: StatusArgs) -> Result<i32> {
+pub(crate) fn status(a: StatusArgs) -> Result<i32> {
     let t = a.target;
     let (v, _) = t.call(Request::Status {})?;
     if v["ok"] != true {
@@ -187,7 +187,7 @@ fn fmt_secs(s: f64) -> String {
 }
 
 /// The status as a technician reads it: the summary line first, then the details.
-pub fn human_status(v: &Status) -> String {
+pub(crate) fn human_status(v: &Status) -> String {
     let mut o = String::new();
     let line = |o: &mut String, k: &str, val: String| o.push_str(&format!("  {k:<14} {val}\n"));
     o.push_str(&format!("{}\n", v.summary));
@@ -294,7 +294,7 @@ fn sigma_line(s: Option<&Sigma>) -> String {
 }
 
 /// `relocalize [--wait] [--force]`.
-pub fn relocalize(a: RelocalizeArgs) -> Result<()> {
+pub(crate) fn relocalize(a: RelocalizeArgs) -> Result<()> {
     let req = Request::Relocalize {
         wait: a.wait,
         force: a.force,
@@ -382,7 +382,7 @@ pub fn relocalize(a: RelocalizeArgs) -> Result<()> {
 }
 
 /// `pose`: the served pose document.
-pub fn pose(t: Target) -> Result<()> {
+pub(crate) fn pose(t: Target) -> Result<()> {
     let (v, _) = t.call(Request::GetPose {})?;
     if v["ok"] != true {
         return Err(failed(&v));
@@ -395,7 +395,7 @@ pub fn pose(t: Target) -> Result<()> {
 }
 
 /// `overlay --out PNG`.
-pub fn overlay(a: OverlayArgs) -> Result<()> {
+pub(crate) fn overlay(a: OverlayArgs) -> Result<()> {
     let (v, png) = a.target.call(Request::DumpOverlay {})?;
     if v["ok"] != true {
         return Err(failed(&v));
@@ -414,7 +414,7 @@ pub fn overlay(a: OverlayArgs) -> Result<()> {
 }
 
 /// `validate --running`: ask the daemon to validate its config file as a reload would.
-pub fn validate_running(socket: Option<&Path>, config: &Path, json: bool) -> Result<()> {
+pub(crate) fn validate_running(socket: Option<&Path>, config: &Path, json: bool) -> Result<()> {
     let t = Target {
         socket: socket.map(Path::to_path_buf),
         config: config.to_path_buf(),

@@ -50,7 +50,7 @@ pub struct ImportArgs {
 }
 
 /// Run a tile subcommand.
-pub fn run(c: Command) -> Result<()> {
+pub(super) fn run(c: Command) -> Result<()> {
     match c {
         Command::Import(a) => import(a),
     }

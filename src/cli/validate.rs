@@ -30,7 +30,7 @@ pub struct Args {
 
 /// Load, validate and check a config; warnings go to stderr, success prints "config OK".
 /// Problems: every one, one line each naming its key, exit 78.
-pub fn run(a: Args) -> Result<()> {
+pub(super) fn run(a: Args) -> Result<()> {
     if a.running {
         return super::tech::validate_running(a.socket.as_deref(), &a.config, a.json);
     }

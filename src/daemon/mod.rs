@@ -28,14 +28,14 @@ use crate::posefile::{format_utc, PoseFile};
 use crate::stage::StageName;
 use crate::store::{Decision, PoseStore};
 use notify::{Level, Logger};
-pub use policy::CROSS_CHECK_NMI_SLACK;
 use policy::{Action, CrossCheck, Policy, Requested, Timing};
 use serde_json::{json, Value};
+pub use status::State;
+pub use status::Status;
 use status::{
     DriftCheck, DriftOutcome, DriftSearch, DriftVerdict, JobKind, Optimum, Progress, RunOutcome,
     RunResult, Running, Served, StageTime,
 };
-pub use status::{State, Status};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{channel, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -47,7 +47,7 @@ const TICK: Duration = Duration::from_millis(500);
 /// watchdog (with a watchdog, it is rewritten with every ping).
 const METRICS_PERIOD: Duration = Duration::from_secs(60);
 /// How long a technician's `relocalize --wait` may wait between two progress messages.
-pub const WAIT_TIMEOUT: Duration = Duration::from_secs(30 * 60);
+pub(crate) const WAIT_TIMEOUT: Duration = Duration::from_secs(30 * 60);
 /// The drift check's search box around the served pose: wide enough to see a knocked camera
 /// (the thresholds are 0.1 m / 0.3° by default), narrow enough to cost a fraction of a
 /// localization.
@@ -987,7 +987,7 @@ fn cross_check(run: &Run, served: &PoseFile, cfg: &Config) -> Option<CrossCheck>
 }
 
 /// Judge a drift search's offsets (x, y, z m; yaw deg; …) and gate verdict against the thresholds.
-pub fn drift_verdict(
+pub(crate) fn drift_verdict(
     offsets: &[f64; 6],
     gate_accepted: bool,
     gate_reason: Option<&str>,

@@ -4,7 +4,7 @@ use std::os::unix::net::UnixDatagram;
 use std::time::Duration;
 
 /// journald's native socket; when it is absent, log lines go to stderr.
-pub const JOURNAL_SOCKET: &str = "/run/systemd/journal/socket";
+pub(crate) const JOURNAL_SOCKET: &str = "/run/systemd/journal/socket";
 
 /// Send a state string (`READY=1`, `STATUS=…`, `WATCHDOG=1`, `STOPPING=1`) to the service
 /// manager named by `$NOTIFY_SOCKET`. Returns `false` when not run by systemd (no variable) or the
@@ -36,7 +36,7 @@ pub fn notify(state: &str) -> bool {
 
 /// The watchdog interval systemd asked for (`$WATCHDOG_USEC`, for this process per
 /// `$WATCHDOG_PID`), if any.
-pub fn watchdog_interval() -> Option<Duration> {
+pub(crate) fn watchdog_interval() -> Option<Duration> {
     if let Some(pid) = std::env::var_os("WATCHDOG_PID") {
         if pid.to_str()?.parse::<u32>().ok()? != std::process::id() {
             return None;
@@ -48,7 +48,7 @@ pub fn watchdog_interval() -> Option<Duration> {
 
 /// Syslog priorities used by [`Logger`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Level {
+pub(crate) enum Level {
     /// LOG_ERR.
     Error = 3,
     /// LOG_WARNING.
@@ -60,13 +60,13 @@ pub enum Level {
 /// One-line logger: journald's native protocol when its socket exists (priorities kept), stderr
 /// otherwise.
 #[derive(Debug)]
-pub struct Logger {
+pub(crate) struct Logger {
     journal: Option<UnixDatagram>,
 }
 
 impl Logger {
     /// Connect to journald if it is there.
-    pub fn new() -> Logger {
+    pub(crate) fn new() -> Logger {
         let journal = std::path::Path::new(JOURNAL_SOCKET)
             .exists()
             .then(|| {
@@ -79,7 +79,7 @@ impl Logger {
     }
 
     /// Log one line (newlines are folded so a record stays one line).
-    pub fn log(&self, level: Level, msg: &str) {
+    pub(crate) fn log(&self, level: Level, msg: &str) {
         let msg = msg.replace('\n', " ");
         if let Some(j) = &self.journal {
             let rec = format!(

@@ -22,7 +22,7 @@ pub(crate) struct Timing {
 
 impl Timing {
     /// The timing of `cfg`.
-    pub fn of(cfg: &crate::config::Config) -> Timing {
+    pub(super) fn of(cfg: &crate::config::Config) -> Timing {
         let d = &cfg.daemon;
         Timing {
             retry_initial_s: d.retry_initial_s,
@@ -87,7 +87,7 @@ pub(crate) fn backoff(t: &Timing, n: u32) -> f64 {
 
 impl Policy {
     /// At boot: the first localization is due at once.
-    pub fn new(now: Instant, serving: bool) -> Policy {
+    pub(super) fn new(now: Instant, serving: bool) -> Policy {
         Policy {
             job: None,
             running_force: false,
@@ -101,7 +101,7 @@ impl Policy {
     }
 
     /// A request for a localization (`force`: serve the result whatever its score).
-    pub fn request(&mut self, force: bool, why: String) -> Requested {
+    pub(super) fn request(&mut self, force: bool, why: String) -> Requested {
         match self.job {
             Some(JobKind::Localize) => {
                 self.running_force |= force;
@@ -118,7 +118,7 @@ impl Policy {
 
     /// What is due at `now` when nothing runs: a queued localization first, then a scheduled
     /// one (boot, periodic, retry), then a drift check. The job counts as started.
-    pub fn due(&mut self, now: Instant) -> Option<Action> {
+    pub(super) fn due(&mut self, now: Instant) -> Option<Action> {
         if self.job.is_some() {
             return None;
         }
@@ -168,13 +168,13 @@ impl Policy {
 
     /// Whether the running localization is forced (its result is then served whatever it
     /// scores, and needs no cross-check).
-    pub fn forced(&self) -> bool {
+    pub(crate) fn forced(&self) -> bool {
         self.running_force
     }
 
     /// The running localization produced a pose (served or not; `serving`: whether a pose is
     /// served now). The periodic localization and drift check count from `now`.
-    pub fn localized(&mut self, now: Instant, serving: bool, t: &Timing) {
+    pub(super) fn localized(&mut self, now: Instant, serving: bool, t: &Timing) {
         self.end_localize();
         self.serving = serving;
         self.failures_in_a_row = 0;
@@ -183,7 +183,7 @@ impl Policy {
     }
 
     /// The running localization failed: returns the wait before the retry, in seconds.
-    pub fn failed(&mut self, now: Instant, t: &Timing) -> f64 {
+    pub(super) fn failed(&mut self, now: Instant, t: &Timing) -> f64 {
         self.end_localize();
         self.failures_in_a_row += 1;
         let wait = backoff(t, self.failures_in_a_row);
@@ -194,7 +194,7 @@ impl Policy {
     /// The drift check ended; `moved`: it found the camera moved, which queues a forced
     /// localization (the served pose is known wrong, so the new result replaces it even if it
     /// scores lower; it still has to pass the quality gate).
-    pub fn drift_checked(&mut self, now: Instant, moved: bool, t: &Timing) {
+    pub(crate) fn drift_checked(&mut self, now: Instant, moved: bool, t: &Timing) {
         self.job = None;
         self.next_drift = self.period(now, t.drift_check_interval_s);
         if moved {
@@ -205,7 +205,7 @@ impl Policy {
 
 /// How much lower the served pose's NMI on the new frames may be than the new result's and still
 /// be preferred by the cross-check (point sets differ slightly between the two poses).
-pub const CROSS_CHECK_NMI_SLACK: f64 = 0.002;
+pub(crate) const CROSS_CHECK_NMI_SLACK: f64 = 0.002;
 
 /// A new result compared with the served pose on the new frames.
 #[derive(Debug, Clone)]

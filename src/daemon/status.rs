@@ -152,7 +152,7 @@ pub struct Running {
 
 /// A progress message to a waiting technician: `{"progress": STAGE}`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Progress {
+pub(crate) struct Progress {
     /// The stage that started.
     pub progress: StageName,
 }
@@ -434,7 +434,7 @@ pub enum DriftOutcome {
 
 impl DriftCheck {
     /// Whether the check found the camera moved and no re-localization has answered it yet.
-    pub fn unresolved_move(&self) -> bool {
+    pub(crate) fn unresolved_move(&self) -> bool {
         matches!(&self.outcome, DriftOutcome::Ran(s) if s.verdict.moved) && self.resolved.is_none()
     }
 }

@@ -13,22 +13,20 @@ use proj4rs::proj::Proj;
 use proj4rs::transform::{transform, Transform, TransformClosure};
 use std::sync::OnceLock;
 
-/// EPSG code of WGS84 geographic coordinates.
-pub const WGS84_EPSG: u32 = 4326;
 /// Base of the EPSG codes of WGS84 / UTM north zones (zone N → 32600 + N).
-pub const UTM_NORTH_BASE: u32 = 32600;
+pub(crate) const UTM_NORTH_BASE: u32 = 32600;
 /// Base of the EPSG codes of WGS84 / UTM south zones (zone N → 32700 + N).
-pub const UTM_SOUTH_BASE: u32 = 32700;
+pub(crate) const UTM_SOUTH_BASE: u32 = 32700;
 /// Number of UTM zones.
-pub const UTM_ZONES: u32 = 60;
+pub(crate) const UTM_ZONES: u32 = 60;
 /// Width of a UTM zone, degrees of longitude.
 const ZONE_WIDTH_DEG: f64 = 6.0;
 
 /// The "supported" part of every unknown-CRS message, so all callers say the same thing.
-pub const SUPPORTED_CRS: &str = "supported: WGS84 UTM 326xx/327xx";
+pub(crate) const SUPPORTED_CRS: &str = "supported: WGS84 UTM 326xx/327xx";
 
 /// UTM zone (1..=60) and hemisphere of a WGS84 UTM EPSG code; `None` for any other code.
-pub fn utm_zone_of(epsg: u32) -> Option<(u32, Hemisphere)> {
+pub(crate) fn utm_zone_of(epsg: u32) -> Option<(u32, Hemisphere)> {
     let zone_in = |base: u32| {
         epsg.checked_sub(base)
             .filter(|z| (1..=UTM_ZONES).contains(z))
@@ -42,7 +40,7 @@ pub fn utm_zone_of(epsg: u32) -> Option<(u32, Hemisphere)> {
 
 /// Hemisphere of a UTM zone (south zones use a 10 000 km false northing).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Hemisphere {
+pub(crate) enum Hemisphere {
     /// EPSG 326zz.
     North,
     /// EPSG 327zz.
@@ -50,7 +48,7 @@ pub enum Hemisphere {
 }
 
 /// Check that `crs` is a CRS this crate can relate to WGS84 (a WGS84 UTM zone).
-pub fn check_crs(crs: Crs) -> Result<(u32, Hemisphere)> {
+pub(crate) fn check_crs(crs: Crs) -> Result<(u32, Hemisphere)> {
     match crs {
         Crs::Epsg(code) => utm_zone_of(code)
             .ok_or_else(|| Error::Invalid(format!("unknown EPSG:{code} ({SUPPORTED_CRS})"))),
@@ -62,7 +60,7 @@ pub fn check_crs(crs: Crs) -> Result<(u32, Hemisphere)> {
 
 /// Standard UTM zone number (1..=60) of a WGS84 position, including the Norway (32V) and Svalbard
 /// (31X–37X) exceptions of the UTM definition. Longitude is wrapped to [−180, 180).
-pub fn utm_zone_for(lat: f64, lon: f64) -> u32 {
+pub(crate) fn utm_zone_for(lat: f64, lon: f64) -> u32 {
     let lon = (lon + 180.0).rem_euclid(360.0) - 180.0;
     let mut zone = (((lon + 180.0) / ZONE_WIDTH_DEG).floor() as u32 + 1).clamp(1, UTM_ZONES);
     // Norway: band V (56°..64°N) zone 32 is widened west to 3°E.
@@ -94,7 +92,7 @@ pub fn utm_epsg_for(lat: f64, lon: f64) -> u32 {
 }
 
 /// Longitude of the central meridian of UTM zone `zone` (1..=60), degrees.
-pub fn central_meridian(zone: u32) -> f64 {
+pub(crate) fn central_meridian(zone: u32) -> f64 {
     -183.0 + ZONE_WIDTH_DEG * f64::from(zone)
 }
 
@@ -103,7 +101,7 @@ const MEAN_EARTH_RADIUS_M: f64 = 6_371_008.8;
 
 /// Great-circle distance between two WGS84 positions on the mean sphere, metres (haversine;
 /// within 0.5 % of the ellipsoidal distance). For coarse "how far away" messages only.
-pub fn great_circle_m(lat1: f64, lon1: f64, lat2: f64, lon2: f64) -> f64 {
+pub(crate) fn great_circle_m(lat1: f64, lon1: f64, lat2: f64, lon2: f64) -> f64 {
     let (p1, p2) = (lat1.to_radians(), lat2.to_radians());
     let dp = p2 - p1;
     let dl = (lon2 - lon1).to_radians();

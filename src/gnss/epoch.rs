@@ -43,7 +43,7 @@ pub struct Fix {
 
 impl Fix {
     /// The sentence this fix came from, e.g. `GPGGA`.
-    pub fn source_sentence(&self) -> &str {
+    pub(crate) fn source_sentence(&self) -> &str {
         std::str::from_utf8(&self.source).unwrap_or("")
     }
 

@@ -7,9 +7,11 @@ pub mod framing;
 pub mod nmea;
 pub mod prior;
 
-pub use epoch::{EpochMerger, Fix, FixRecord};
+pub use epoch::{EpochMerger, Fix};
+
 pub use framing::LineFramer;
-pub use prior::{PriorEstimate, PriorEstimator, PriorOutcome, PriorSettings};
+pub use prior::PriorOutcome;
+pub(crate) use prior::{PriorEstimator, PriorSettings};
 
 /// Counters of a decoding pipeline (framing + parsing + merging), for statuses and summaries.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
@@ -152,7 +154,7 @@ impl Decoder {
     }
 
     /// Drop a partial line (after a reconnect). Epoch state is kept: merging is keyed on time.
-    pub fn reset_line(&mut self) {
+    pub(crate) fn reset_line(&mut self) {
         self.framer.reset();
     }
 }

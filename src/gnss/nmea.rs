@@ -140,7 +140,7 @@ impl Date {
     }
 
     /// The next calendar day.
-    pub fn succ(&self) -> Date {
+    pub(crate) fn succ(&self) -> Date {
         if self.day < days_in_month(self.year, self.month) {
             Date {
                 day: self.day + 1,
@@ -162,7 +162,7 @@ impl Date {
     }
 
     /// The previous calendar day.
-    pub fn pred(&self) -> Date {
+    pub(crate) fn pred(&self) -> Date {
         if self.day > 1 {
             Date {
                 day: self.day - 1,
@@ -207,23 +207,23 @@ fn days_in_month(year: u16, month: u8) -> u8 {
 /// Fix quality in GGA's numbering, which [`crate::gnss::Fix`] uses for every sentence type.
 pub mod quality {
     /// No fix.
-    pub const INVALID: u8 = 0;
+    pub(crate) const INVALID: u8 = 0;
     /// Autonomous GNSS fix.
     pub const GPS: u8 = 1;
     /// Differential (SBAS/DGPS).
     pub const DGPS: u8 = 2;
     /// PPS / precise.
-    pub const PPS: u8 = 3;
+    pub(crate) const PPS: u8 = 3;
     /// RTK, integer ambiguities fixed.
-    pub const RTK_FIXED: u8 = 4;
+    pub(crate) const RTK_FIXED: u8 = 4;
     /// RTK, float ambiguities.
-    pub const RTK_FLOAT: u8 = 5;
+    pub(crate) const RTK_FLOAT: u8 = 5;
     /// Dead reckoning (estimated).
-    pub const ESTIMATED: u8 = 6;
+    pub(crate) const ESTIMATED: u8 = 6;
     /// Manually entered position.
-    pub const MANUAL: u8 = 7;
+    pub(crate) const MANUAL: u8 = 7;
     /// Simulator.
-    pub const SIMULATION: u8 = 8;
+    pub(crate) const SIMULATION: u8 = 8;
 
     /// Map an NMEA 2.3+ mode indicator (RMC/GLL/GNS) to the GGA quality number.
     pub fn from_mode(mode: u8) -> u8 {
@@ -371,8 +371,9 @@ impl Sentence {
         std::str::from_utf8(&self.address[..self.address_len as usize]).unwrap_or("")
     }
 
+    #[cfg(test)]
     /// Talker id (`GP`, `GN`, …; `P` for proprietary sentences).
-    pub fn talker(&self) -> &str {
+    pub(crate) fn talker(&self) -> &str {
         let a = self.address();
         if a.starts_with('P') {
             "P"
@@ -507,7 +508,7 @@ fn split_decimal(f: &[u8]) -> Option<(u64, u64, u32)> {
 
 /// Parse a plain decimal number (`-12.5`, `0.64`, `064.19`) with no allocation. Exact (correctly
 /// rounded) when the digits fit 2^53 and there are ≤ 22 fraction digits, else via `str::parse`.
-pub fn parse_decimal(f: &[u8]) -> Option<f64> {
+pub(crate) fn parse_decimal(f: &[u8]) -> Option<f64> {
     let (neg, body) = match f.first() {
         Some(b'-') => (true, &f[1..]),
         Some(b'+') => (false, &f[1..]),
@@ -879,7 +880,7 @@ pub fn parse(line: &[u8]) -> Result<Sentence, NmeaError> {
 }
 
 /// Append `$<data>*hh` to `out`: the checksum is computed here. `data` excludes `$` and `*`.
-pub fn finish_sentence(out: &mut String, data: &str) {
+pub(crate) fn finish_sentence(out: &mut String, data: &str) {
     use fmt::Write;
     out.push('$');
     out.push_str(data);
@@ -887,7 +888,7 @@ pub fn finish_sentence(out: &mut String, data: &str) {
 }
 
 /// Format degrees as NMEA `(d)ddmm.mmmmmmm,H`, with `decimals` fraction digits of minutes.
-pub fn format_coord(out: &mut String, deg: f64, is_lat: bool, decimals: usize) {
+pub(crate) fn format_coord(out: &mut String, deg: f64, is_lat: bool, decimals: usize) {
     use fmt::Write;
     let hemi = match (is_lat, deg < 0.0) {
         (true, false) => 'N',

@@ -23,12 +23,12 @@ use std::collections::VecDeque;
 const EARTH_RADIUS_M: f64 = 6_371_008.8;
 /// Outlier threshold in robust per-axis standard deviations. For 2-D Gaussian errors the radial
 /// distance is Rayleigh-distributed and P(r > 3.5σ) = exp(−3.5²/2) ≈ 0.2 %.
-pub const OUTLIER_K: f64 = 3.5;
+pub(crate) const OUTLIER_K: f64 = 3.5;
 /// Median of a Rayleigh distribution in units of its per-axis σ: √(2 ln 2).
 const RAYLEIGH_MEDIAN_PER_SIGMA: f64 = 1.177_410_022_515_474_6;
 /// Lower bound of the robust scale, metres: fixes quantised to 1e-4′ (0.18 m) or an RTK cluster
 /// with MAD 0 must not reject their neighbours one quantum away.
-pub const MAD_FLOOR_M: f64 = 0.5;
+pub(crate) const MAD_FLOOR_M: f64 = 0.5;
 /// Fixes kept at most (10 Hz for 1000 s): bounds memory for any window setting.
 const MAX_FIXES: usize = 10_000;
 /// Milliseconds per day, for window ages across midnight when dates are unknown.
@@ -48,7 +48,7 @@ pub fn uere_m(q: u8) -> Option<f64> {
 
 /// Settings of the prior (from `[gps]`).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PriorSettings {
+pub(crate) struct PriorSettings {
     /// Window, seconds of receiver time back from the newest fix.
     pub window_s: f64,
     /// Fixes with a worse HDOP are ignored.
@@ -135,7 +135,7 @@ struct Sample {
 
 /// Accumulates fixes and computes the estimate.
 #[derive(Debug, Clone)]
-pub struct PriorEstimator {
+pub(crate) struct PriorEstimator {
     settings: PriorSettings,
     samples: VecDeque<Sample>,
     ignored: usize,
@@ -153,7 +153,7 @@ fn median(v: &mut [f64]) -> f64 {
 
 impl PriorEstimator {
     /// An empty estimator.
-    pub fn new(settings: PriorSettings) -> Self {
+    pub(crate) fn new(settings: PriorSettings) -> Self {
         PriorEstimator {
             settings,
             samples: VecDeque::new(),
@@ -161,13 +161,14 @@ impl PriorEstimator {
         }
     }
 
+    #[cfg(test)]
     /// Fixes ignored so far for quality, HDOP or missing time.
-    pub fn ignored(&self) -> usize {
+    pub(crate) fn ignored(&self) -> usize {
         self.ignored
     }
 
     /// Offer a fix. Returns whether it was kept.
-    pub fn push(&mut self, f: &Fix) -> bool {
+    pub(crate) fn push(&mut self, f: &Fix) -> bool {
         let (Some(t), Some(uere)) = (f.time, uere_m(f.quality)) else {
             self.ignored += 1;
             return false;
@@ -231,7 +232,7 @@ impl PriorEstimator {
     }
 
     /// The robust weighted estimate, `None` with fewer than `min_fixes` accepted fixes.
-    pub fn estimate(&self) -> Option<PriorEstimate> {
+    pub(crate) fn estimate(&self) -> Option<PriorEstimate> {
         let w = self.window();
         if w.is_empty() {
             return None;
@@ -302,7 +303,11 @@ impl PriorEstimator {
 
     /// The final decision: the GNSS estimate if there is one, else the fallback with a reason.
     /// `why_no_fix` describes the source's state (e.g. "no fix after 120 s on /dev/ttyACM0").
-    pub fn outcome(&self, fallback: Option<([f64; 2], f64)>, why_no_fix: &str) -> PriorOutcome {
+    pub(crate) fn outcome(
+        &self,
+        fallback: Option<([f64; 2], f64)>,
+        why_no_fix: &str,
+    ) -> PriorOutcome {
         if let Some(e) = self.estimate() {
             return PriorOutcome::Gnss(e);
         }

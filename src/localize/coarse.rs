@@ -12,7 +12,7 @@ use super::sweep::{
 };
 use crate::camera::CameraModel;
 use crate::map::Raster;
-use nalgebra::{Point2, Vector3};
+use nalgebra::Vector3;
 use rayon::prelude::*;
 
 /// Settings of the coarse stage.
@@ -80,7 +80,11 @@ impl CoarseParams {
 
 /// The nominal bird's-eye view: the ground as a north-up nadir camera at unit height would see it,
 /// over `|q| ≤ tan(max_off_nadir)`, step `dq`; and the pixels that are seen.
-pub fn nominal_view(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> (GrayF32, Vec<bool>) {
+pub(crate) fn nominal_view(
+    cam: &dyn CameraModel,
+    image: &[u8],
+    p: &CoarseParams,
+) -> (GrayF32, Vec<bool>) {
     let q_max = p.max_off_nadir_deg.to_radians().tan();
     let half = (q_max / p.nominal_dq).ceil() as usize;
     let n = 2 * half + 1;
@@ -130,7 +134,7 @@ pub fn nominal_view(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> (G
 }
 
 /// Orientation-field pyramid of the nominal view.
-pub fn nominal_field(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> NominalField {
+pub(crate) fn nominal_field(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> NominalField {
     let (img, valid) = nominal_view(cam, image, p);
     let mut levels = vec![orientation_field(&img, Some(&valid))];
     // Enough levels to reach the coarsest template step (res / lowest height).
@@ -148,7 +152,7 @@ pub fn nominal_field(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> N
 
 /// Luminance of the satellite layer, area-averaged to `res` m/px over a square of half-size
 /// `half_m` centred on (cx, cy) (map coordinates); outside the layer the field is zero.
-pub fn satellite_gray(
+pub(crate) fn satellite_gray(
     sat: &Raster<[u8; 3]>,
     cx: f64,
     cy: f64,
@@ -234,10 +238,4 @@ pub fn coarse_candidates(
         }
     }
     cands
-}
-
-/// Pixel where a map point offset (east, north, up) from a nadir camera at unit height projects; a
-/// helper for tests and diagnostics.
-pub fn nominal_pixel(cam: &dyn CameraModel, qx: f64, qy: f64) -> Option<Point2<f64>> {
-    cam.project_visible(&Vector3::new(qx, -qy, 1.0)).ok()
 }

@@ -7,29 +7,10 @@ use crate::camera::CameraModel;
 use crate::map::Raster;
 use nalgebra::Vector3;
 
-/// Bilinear sample of a gray u8 image (row-major `w × h`) at pixel-centre coordinates; `None`
-/// outside.
-#[inline]
-pub fn sample_gray(img: &[u8], w: usize, h: usize, x: f64, y: f64) -> Option<f32> {
-    if !(x >= 0.0 && y >= 0.0) {
-        return None;
-    }
-    let (x0, y0) = (x as usize, y as usize);
-    if x0 + 1 >= w || y0 + 1 >= h {
-        return None;
-    }
-    let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
-    let i = y0 * w + x0;
-    let p = |k: usize| img[k] as f32;
-    let top = p(i) * (1.0 - fx) + p(i + 1) * fx;
-    let bot = p(i + w) * (1.0 - fx) + p(i + w + 1) * fx;
-    Some(top * (1.0 - fy) + bot * fy)
-}
-
 /// A 2×2-box mip pyramid of a gray frame, so that resampling the fisheye onto coarse ground cells
 /// averages the pixels a cell covers instead of aliasing (a nadir pixel of a pole camera covers
 /// ~1–2 cm; ground cells here are 5–20 cm).
-pub struct Mip {
+pub(crate) struct Mip {
     levels: Vec<(Vec<f32>, usize, usize)>,
 }
 
@@ -38,7 +19,7 @@ const MIP_LEVELS: usize = 6;
 
 impl Mip {
     /// Build from a row-major gray image.
-    pub fn new(img: &[u8], w: usize, h: usize) -> Self {
+    pub(crate) fn new(img: &[u8], w: usize, h: usize) -> Self {
         let mut levels = vec![(img.iter().map(|&v| v as f32).collect::<Vec<f32>>(), w, h)];
         while levels.len() < MIP_LEVELS {
             let (prev, pw, ph) = &levels[levels.len() - 1];
@@ -61,7 +42,7 @@ impl Mip {
 
     /// Bilinear sample at level-0 pixel coordinates (u, v), at the level whose pixel is about
     /// `footprint` level-0 pixels wide.
-    pub fn sample(&self, u: f64, v: f64, footprint: f64) -> Option<f32> {
+    pub(crate) fn sample(&self, u: f64, v: f64, footprint: f64) -> Option<f32> {
         let l = (footprint.max(1.0).log2().floor() as usize).min(self.levels.len() - 1);
         let s = (1usize << l) as f64;
         let (data, w, h) = &self.levels[l];
@@ -106,12 +87,12 @@ pub fn height_at(hl: &Raster<f32>, x: f64, y: f64) -> Option<f64> {
 }
 
 /// Assumed camera height above ground where the height layer has no data under the camera, m.
-pub const FALLBACK_HEIGHT_M: f64 = 8.0;
+pub(crate) const FALLBACK_HEIGHT_M: f64 = 8.0;
 
 /// The camera centre `c`'s height above the LiDAR ground under it (at least 1 m;
 /// [`FALLBACK_HEIGHT_M`] on no-data) and the radius of the ground disc it sees within
 /// `max_off_nadir_deg` of nadir, capped at `max_radius_m`.
-pub fn ground_disc(
+pub(crate) fn ground_disc(
     heights: &Raster<f32>,
     c: &nalgebra::Point3<f64>,
     max_off_nadir_deg: f64,
@@ -126,7 +107,7 @@ pub fn ground_disc(
 }
 
 /// Focal length near the optical axis in pixels (the image scale of a nadir ray), from the model.
-pub fn focal_px(cam: &dyn CameraModel) -> f64 {
+pub(crate) fn focal_px(cam: &dyn CameraModel) -> f64 {
     const D: f64 = 1e-3;
     match (
         cam.project(&Vector3::new(0.0, 0.0, 1.0)),

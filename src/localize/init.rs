@@ -101,7 +101,7 @@ impl Default for FineParams {
 }
 
 /// Best-screened sweep candidates climbed on the LiDAR MI when no fine stage gave a pose.
-pub const CLIMB_CANDIDATES: usize = 5;
+pub(crate) const CLIMB_CANDIDATES: usize = 5;
 
 /// One matched anchor: where the fisheye sees it, and where the satellite says it is.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -257,7 +257,7 @@ fn best_shift(patch: &Field, search: &Field, ph: i64, sh: i64) -> Option<(f64, f
 
 /// PnP inliers (with ≥ 2/3 of the patch matches agreeing) that end the candidate search early
 /// (the default of [`FineParams::convincing_inliers`]).
-pub const CONVINCING_INLIERS: usize = 30;
+pub(crate) const CONVINCING_INLIERS: usize = 30;
 
 /// Result of [`initialize`].
 #[derive(Debug, Clone)]

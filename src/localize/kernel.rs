@@ -194,14 +194,14 @@ impl BinnedImage {
 
     /// Index of the sentinel element.
     #[inline]
-    pub fn sentinel(&self) -> usize {
+    pub(crate) fn sentinel(&self) -> usize {
         self.width * self.height
     }
 }
 
 /// One level of a gray image pyramid with its validity mask.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct GrayLevel {
+pub(crate) struct GrayLevel {
     /// Width (px).
     pub width: usize,
     /// Height (px).
@@ -215,7 +215,7 @@ pub struct GrayLevel {
 impl GrayLevel {
     /// Halve the resolution: each output pixel is the rounded mean of its valid 2×2 children and is
     /// valid if any child is (so a point valid at level 0 stays valid at coarse levels).
-    pub fn downsample(&self) -> GrayLevel {
+    pub(crate) fn downsample(&self) -> GrayLevel {
         let (w, h) = (self.width.div_ceil(2), self.height.div_ceil(2));
         let mut gray = vec![0u8; w * h];
         let mut mask = vec![0u8; w * h];

@@ -189,7 +189,7 @@ impl Matcher for MatchFile {
 /// A row's map point may lie this far beyond the search radius around the prior, metres: ground
 /// the camera can usefully see (the fine stages' anchors stop at 25 m from the nadir point), with
 /// room to spare; rows farther out belong to another site.
-pub const MAX_GROUND_REACH_M: f64 = 60.0;
+pub(crate) const MAX_GROUND_REACH_M: f64 = 60.0;
 
 /// Initialization with a [`Matcher`]: its correspondences, then PnP + RANSAC on bearings (the
 /// fine stages' PnP settings, a [`MATCHER_THRESHOLD_PX`] threshold) and Levenberg–Marquardt on
@@ -198,7 +198,7 @@ pub const MAX_GROUND_REACH_M: f64 = 60.0;
 /// `hard`'s wrong intrinsics are coarser than a good matcher), and the MI refinement that follows
 /// already converges from a metre. With a verifier the pose's MI with the LiDAR map is reported
 /// as the built-in path does. Errors name the stage and the numbers.
-pub fn initialize_with<R: rand::Rng>(
+pub(crate) fn initialize_with<R: rand::Rng>(
     matcher: &dyn Matcher,
     q: &MatchQuery<'_>,
     fine: &FineParams,
@@ -248,7 +248,7 @@ pub fn initialize_with<R: rand::Rng>(
 
 /// RANSAC inlier threshold for a matcher's correspondences, pixels: a learned matcher's keypoints
 /// are pixel-accurate at best, and a handed-over file may come from a rectified view.
-pub const MATCHER_THRESHOLD_PX: f64 = 4.0;
+pub(crate) const MATCHER_THRESHOLD_PX: f64 = 4.0;
 
 #[cfg(test)]
 mod tests {

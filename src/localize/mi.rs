@@ -12,9 +12,9 @@ use crate::error::{Error, Result};
 use serde::{Deserialize, Serialize};
 
 /// Largest number of gray bins: gray bins are stored as u8 and one value is the invalid marker.
-pub const MAX_GRAY_BINS: usize = 255;
+pub(crate) const MAX_GRAY_BINS: usize = 255;
 /// Largest number of reflectivity bins.
-pub const MAX_REFLECTIVITY_BINS: usize = 256;
+pub(crate) const MAX_REFLECTIVITY_BINS: usize = 256;
 
 /// Which statistic the search maximises.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -207,7 +207,7 @@ impl JointHist {
 
     /// Index of the column that collects points without a valid pixel.
     #[inline]
-    pub fn invalid_col(&self) -> usize {
+    pub(crate) fn invalid_col(&self) -> usize {
         self.cols
     }
 
@@ -217,7 +217,7 @@ impl JointHist {
     }
 
     /// Points that landed on a valid pixel.
-    pub fn valid_count(&self) -> u64 {
+    pub(crate) fn valid_count(&self) -> u64 {
         let s = self.stride();
         (0..self.rows)
             .map(|r| {
@@ -230,7 +230,7 @@ impl JointHist {
     }
 
     /// Points that did not.
-    pub fn invalid_count(&self) -> u64 {
+    pub(crate) fn invalid_count(&self) -> u64 {
         let s = self.stride();
         (0..self.rows)
             .map(|r| self.counts[r * s + self.cols] as u64)

@@ -60,7 +60,7 @@ pub struct Params {
 /// halved (`small` 1–12: 2.6 → 1.2 cm horizontal, 1.8 → 0.8 cm height). The price: a wrong focal
 /// length or principal point is amplified in the far field, so with `hard`'s deliberately wrong
 /// intrinsics the medians rise by ≈ 1 cm.
-pub const MI_MAX_OFF_NADIR_DEG: f64 = 78.0;
+pub(crate) const MI_MAX_OFF_NADIR_DEG: f64 = 78.0;
 
 impl Default for Params {
     fn default() -> Self {
@@ -398,20 +398,40 @@ pub fn localize_ungated(
 
 /// Errors of each stage against a simulator `truth.json` (its text; `origin` names it in errors):
 /// for `prior` the horizontal distance of the GPS prior, for each stage with a pose (`pnp`, `mi`)
-/// [`pose_errors`], and the number of control points. The report of `infraloc localize --truth`
-/// and `examples/pipeline_accuracy.rs` both use this.
+/// [`pose_errors`] plus its signed error (`signed`), its ground error (`ground`) and its offset
+/// from the oracle (`vs_oracle`), the oracle's own errors (`oracle`; see
+/// [`super::truth_eval`]), and the number of control points. The report of
+/// `infraloc localize --truth`, `infraloc demo` and `examples/pipeline_accuracy.rs` use this.
 pub fn truth_errors(
     text: &str,
     origin: &std::path::Path,
     camera: &Camera,
     stages: &[Stage],
 ) -> Result<Value> {
+    use super::truth_eval::{ground_error, ground_hits, oracle_pose, SignedError};
     let truth = crate::sim::truth::parse_truth(text, origin)?;
     let tc = truth.pose.center();
     let mut out = json!({ "control_points": truth.control_points.len() });
+    let oracle = oracle_pose(camera, &truth);
+    if let Some(o) = &oracle {
+        out["oracle"] = pose_errors(&truth, camera, o);
+        out["oracle"]["ground"] = json!(ground_error(&ground_hits(camera, &truth, o)));
+    }
     for s in stages {
         if let Some(p) = &s.pose {
-            out[s.name.name()] = pose_errors(&truth, camera, p);
+            let mut e = pose_errors(&truth, camera, p);
+            e["signed"] = json!(SignedError::between(p, &truth.pose));
+            e["ground"] = json!(ground_error(&ground_hits(camera, &truth, p)));
+            if let Some(o) = &oracle {
+                let d = SignedError::between(p, o);
+                e["vs_oracle"] = json!({
+                    "horizontal_m": d.horizontal_m(),
+                    "height_m": d.z.abs(),
+                    "yaw_deg": d.yaw.abs(),
+                    "signed": d,
+                });
+            }
+            out[s.name.name()] = e;
         } else if let StageDetail::Prior(d) = &s.detail {
             // The prior is a position only: no height, no heading.
             out[s.name.name()] =

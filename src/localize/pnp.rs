@@ -51,19 +51,17 @@ impl Default for PnpParams {
 
 /// Result of [`solve_pnp_ransac`].
 #[derive(Debug, Clone)]
-pub struct PnpResult {
+pub(crate) struct PnpResult {
     /// World→camera pose.
     pub pose: CamFromMap,
     /// Indices of the inlier correspondences.
     pub inliers: Vec<usize>,
     /// RMS reprojection error over the inliers after refinement, pixels.
     pub rms_px: f64,
-    /// RANSAC iterations run.
-    pub iterations: usize,
 }
 
 /// Grunert's P3P: up to four poses mapping the three world points onto the three bearings.
-pub fn p3p(f: [Vector3<f64>; 3], x: [Point3<f64>; 3]) -> Vec<CamFromMap> {
+pub(crate) fn p3p(f: [Vector3<f64>; 3], x: [Point3<f64>; 3]) -> Vec<CamFromMap> {
     let f = f.map(|v| v.normalize());
     let a2 = (x[1] - x[2]).norm_squared();
     let b2 = (x[0] - x[2]).norm_squared();
@@ -136,7 +134,7 @@ fn reproj2(cam: &dyn CameraModel, pose: &CamFromMap, c: &Correspondence) -> Opti
 }
 
 /// RANSAC P3P on bearings + LM refinement. World points are re-centred internally.
-pub fn solve_pnp_ransac<R: Rng>(
+pub(crate) fn solve_pnp_ransac<R: Rng>(
     cam: &dyn CameraModel,
     corr: &[Correspondence],
     params: &PnpParams,
@@ -266,7 +264,6 @@ pub fn solve_pnp_ransac<R: Rng>(
         pose,
         inliers,
         rms_px,
-        iterations: it,
     })
 }
 

@@ -91,7 +91,7 @@ impl PreparedPoints {
 
     /// Every `stride`-th point (stride ≥ 1): along the Morton order this is a spatially uniform
     /// subsample, used at the coarse search levels.
-    pub fn subsample(&self, stride: usize) -> Self {
+    pub(crate) fn subsample(&self, stride: usize) -> Self {
         let s = stride.max(1);
         PreparedPoints {
             x: self.x.iter().step_by(s).copied().collect(),
@@ -113,7 +113,7 @@ impl PreparedPoints {
     }
 
     /// The points whose flag is set.
-    pub fn select(&self, keep: &[bool]) -> Self {
+    pub(crate) fn select(&self, keep: &[bool]) -> Self {
         let mut out = PreparedPoints::default();
         for (i, &k) in keep.iter().enumerate().take(self.len()) {
             if k {

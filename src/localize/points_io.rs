@@ -192,6 +192,11 @@ struct PcdField {
 }
 
 fn pcd_value(b: &[u8], kind: u8, size: usize) -> std::result::Result<f64, String> {
+    // A record slice shorter than the field (a malformed header) is an error, never an index
+    // past the end.
+    let b = b
+        .get(..size)
+        .ok_or_else(|| format!("PCD record too short for a {size}-byte field"))?;
     let v = match (kind, size) {
         (b'F', 4) => f32::from_le_bytes(b[..4].try_into().unwrap_or_default()) as f64,
         (b'F', 8) => f64::from_le_bytes(b[..8].try_into().unwrap_or_default()),
@@ -279,13 +284,23 @@ pub fn parse_pcd(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> 
     if fields.is_empty() {
         return Err("no FIELDS line in the PCD header".into());
     }
-    let mut off = 0;
+    let mut off: usize = 0;
     for (i, f) in fields.iter_mut().enumerate() {
         f.size = *sizes.get(i).unwrap_or(&4);
         f.kind = *types.get(i).unwrap_or(&b'F');
         f.count = *counts.get(i).unwrap_or(&1);
+        if !matches!(f.size, 1 | 2 | 4 | 8) || f.count == 0 {
+            return Err(format!(
+                "PCD field {}: SIZE {} COUNT {} (SIZE 1, 2, 4 or 8 and COUNT ≥ 1 expected)",
+                f.name, f.size, f.count
+            ));
+        }
         f.offset = off;
-        off += f.size * f.count;
+        off = f
+            .size
+            .checked_mul(f.count)
+            .and_then(|b| off.checked_add(b))
+            .ok_or_else(|| format!("PCD field {}: COUNT {} too large", f.name, f.count))?;
     }
     let record = off;
     let find = |n: &str| fields.iter().position(|f| f.name == n);
@@ -298,7 +313,8 @@ pub fn parse_pcd(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> 
         .or_else(|| find("reflectivity"))
         .ok_or("PCD has no field intensity or reflectivity")?;
     let int_kind = fields[ii].kind;
-    let mut xyz = Vec::with_capacity(n);
+    // POINTS is only a claim until the data is read: no allocation beyond what the file can hold.
+    let mut xyz = Vec::with_capacity(n.min(bytes.len() - pos));
     let (mut ri, mut rf) = (Vec::new(), Vec::new());
     match data.as_str() {
         "ascii" => {
@@ -328,12 +344,11 @@ pub fn parse_pcd(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> 
         }
         "binary" => {
             let body = &bytes[pos..];
-            if body.len() < n * record {
+            let need = n.checked_mul(record);
+            if need.is_none_or(|need| body.len() < need) {
                 return Err(format!(
-                    "PCD binary data holds {} bytes, {} points of {record} bytes need {}",
+                    "PCD binary data holds {} bytes, {n} points of {record} bytes need more",
                     body.len(),
-                    n,
-                    n * record
                 ));
             }
             for k in 0..n {
@@ -406,18 +421,18 @@ fn le_f64(b: &[u8], o: usize) -> std::result::Result<f64, String> {
 
 /// LAS public-header offsets (ASPRS LAS 1.2–1.4 specification, table "Public Header Block").
 mod las {
-    pub const VERSION_MAJOR: usize = 24;
-    pub const VERSION_MINOR: usize = 25;
-    pub const OFFSET_TO_POINTS: usize = 96;
-    pub const POINT_FORMAT: usize = 104;
-    pub const RECORD_LENGTH: usize = 105;
-    pub const LEGACY_COUNT: usize = 107;
-    pub const SCALE: usize = 131;
-    pub const OFFSET: usize = 155;
+    pub(crate) const VERSION_MAJOR: usize = 24;
+    pub(crate) const VERSION_MINOR: usize = 25;
+    pub(crate) const OFFSET_TO_POINTS: usize = 96;
+    pub(crate) const POINT_FORMAT: usize = 104;
+    pub(crate) const RECORD_LENGTH: usize = 105;
+    pub(crate) const LEGACY_COUNT: usize = 107;
+    pub(crate) const SCALE: usize = 131;
+    pub(crate) const OFFSET: usize = 155;
     /// LAS 1.4 64-bit point count.
-    pub const COUNT_64: usize = 247;
+    pub(crate) const COUNT_64: usize = 247;
     /// Bytes of X, Y, Z (i32 each) + intensity (u16), common to formats 0–10.
-    pub const MIN_RECORD: usize = 14;
+    pub(crate) const MIN_RECORD: usize = 14;
 }
 
 /// Parse a LAS file.
@@ -471,11 +486,12 @@ pub fn parse_las(b: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> {
     if s.iter().any(|v| !(v.is_finite() && *v != 0.0)) {
         return Err(format!("LAS scale factors {s:?} unusable"));
     }
-    let need = start + n * rec;
-    if b.len() < need {
+    let need = n.checked_mul(rec).and_then(|d| d.checked_add(start));
+    if need.is_none_or(|need| b.len() < need) {
         return Err(format!(
-            "LAS file has {} bytes, its {n} points of {rec} bytes from offset {start} need {need}",
-            b.len()
+            "LAS file has {} bytes, its {n} points of {rec} bytes from offset {start} need {}",
+            b.len(),
+            need.map_or("more than can be addressed".to_string(), |k| k.to_string())
         ));
     }
     let mut xyz = Vec::with_capacity(n);
@@ -492,6 +508,53 @@ pub fn parse_las(b: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Inputs the `point_readers` fuzz target found (docs/fuzzing.md): each is an error, not a
+    /// panic.
+    #[test]
+    fn fuzz_found_inputs_are_errors() {
+        // COUNT of a field unreadable (taken as 0): the binary reader indexed an empty slice.
+        let mut pcd =
+            b"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 2\nTYPE F F F U\n\
+            COUNT 1 1 1 I1W\nDTH 2\nHEIGHT \0\x001NT 1 1 1 1\nW\nPOINTS 2\nDATA binary\n"
+                .to_vec();
+        pcd.extend_from_slice(&[0, 0, 0x80, 0x3f, 0, 0, 0, 0x40, 0, 0, 0x40, 0x40, 0x2c, 1]);
+        pcd.extend_from_slice(&[
+            0, 0, 0x80, 0x40, 0, 0, 0xa0, 0x40, 1, 0, 0xc0, 0x40, 0xff, 0xf,
+        ]);
+        assert!(parse_pcd(&pcd).unwrap_err().contains("COUNT"));
+        // Sizes and counts whose product overflows, and a POINTS count no file can hold.
+        let huge = format!(
+            "FIELDS x y z intensity\nSIZE 8 4 4 4\nCOUNT {} 1 1 1\nPOINTS 1\nDATA binary\n",
+            usize::MAX / 2
+        );
+        assert!(parse_pcd(huge.as_bytes())
+            .unwrap_err()
+            .contains("too large"));
+        let many = format!(
+            "FIELDS x y z intensity\nPOINTS {}\nDATA binary\n0123456789abcdef",
+            usize::MAX / 3
+        );
+        assert!(parse_pcd(many.as_bytes())
+            .unwrap_err()
+            .contains("need more"));
+        let many_ascii = format!(
+            "FIELDS x y z intensity\nPOINTS {}\nDATA ascii\n1 2 3 4\n",
+            usize::MAX
+        );
+        assert!(parse_pcd(many_ascii.as_bytes())
+            .unwrap_err()
+            .contains("declares"));
+        // LAS: a 1.4 64-bit point count whose records overflow the address space.
+        let mut las = las_bytes(0, &[4]);
+        las[25] = 4;
+        las[107..111].copy_from_slice(&0u32.to_le_bytes());
+        las.resize(255, 0);
+        las[247..255].copy_from_slice(&u64::MAX.to_le_bytes());
+        assert!(parse_las(&las)
+            .unwrap_err()
+            .contains("need more than can be addressed"));
+    }
 
     #[test]
     fn csv_any_column_order_and_errors() {

@@ -54,7 +54,7 @@ impl Default for PolishParams {
 impl PolishParams {
     /// Whether parameter `i` moves: a positive initial step and bound. A held one stays at its
     /// start, spans no simplex direction, widens no point-set box and is never "on the edge".
-    pub fn is_free(&self, i: usize) -> bool {
+    pub(crate) fn is_free(&self, i: usize) -> bool {
         self.initial_step[i] > 0.0 && self.bound[i] > 0.0
     }
 
@@ -73,7 +73,7 @@ impl PolishParams {
 
 /// Result of [`nelder_mead`].
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Polished {
+pub(crate) struct Polished {
     /// Best parameters found (offsets from the start).
     pub offsets: [f64; 6],
     /// Objective there.
@@ -87,13 +87,13 @@ pub struct Polished {
 /// Maximise `f` from the origin with Nelder–Mead (standard coefficients: reflection 1,
 /// expansion 2, contraction ½, shrink ½), every vertex clamped to ±`bound`. A held parameter
 /// ([`PolishParams::is_free`] false) stays at its start; the simplex spans the others.
-pub fn nelder_mead(f: &mut dyn FnMut(&[f64; 6]) -> f64, p: &PolishParams) -> Polished {
+pub(crate) fn nelder_mead(f: &mut dyn FnMut(&[f64; 6]) -> f64, p: &PolishParams) -> Polished {
     nelder_mead_from(f, p, [0.0; 6])
 }
 
 /// [`nelder_mead`] from `x0` (clamped to ±`bound`) instead of the origin; `start_value` is the
 /// objective at `x0`.
-pub fn nelder_mead_from(
+pub(crate) fn nelder_mead_from(
     f: &mut dyn FnMut(&[f64; 6]) -> f64,
     p: &PolishParams,
     x0: [f64; 6],
@@ -201,7 +201,7 @@ pub fn nelder_mead_from(
 /// −pitch, +roll, −roll). The starts run in parallel, each on its own objective from `make`
 /// (e.g. with its own scratch buffers); the result does not depend on the thread count.
 /// `start_value` is the objective at the origin, `evaluations` the total.
-pub fn nelder_mead_multi<F, M>(make: M, p: &PolishParams) -> Polished
+pub(crate) fn nelder_mead_multi<F, M>(make: M, p: &PolishParams) -> Polished
 where
     F: FnMut(&[f64; 6]) -> f64,
     M: Fn() -> F + Sync,
@@ -259,8 +259,30 @@ impl PolishRecord {
     /// Whether the polish ended on (within 5 % of) its box's edge on some parameter: the optimum
     /// may lie outside, and a caller may polish again from there.
     /// A held parameter ([`PolishParams::is_free`] false) is never on an edge.
-    pub fn on_edge(&self, p: &PolishParams) -> bool {
+    pub(crate) fn on_edge(&self, p: &PolishParams) -> bool {
         (0..6).any(|i| p.is_free(i) && self.offsets[i].abs() >= 0.95 * p.bound[i])
+    }
+}
+
+/// The search configuration whose fixed point set a local optimisation within `p`'s ±bound box
+/// uses: the points visible from every lattice pose of that box (two cells per side; the grid
+/// only selects the point set). A held axis (bound 0) is not an axis of the box.
+pub fn box_config(search: &SearchConfig, p: &PolishParams, pivot: Option<f64>) -> SearchConfig {
+    let r = |i: usize| AxisRange {
+        half: p.bound[i],
+        step: p.bound[i] / 2.0,
+    };
+    SearchConfig {
+        spec: SearchSpec {
+            x: r(0),
+            y: r(1),
+            z: r(2),
+            yaw: r(3),
+            pitch: p.is_free(4).then(|| r(4)),
+            roll: p.is_free(5).then(|| r(5)),
+            tilt_pivot_m: pivot,
+        },
+        ..*search
     }
 }
 
@@ -278,25 +300,7 @@ pub fn polish_pose(
     search: &SearchConfig,
     p: &PolishParams,
 ) -> Result<(CamFromMap, PolishRecord)> {
-    // The grid only selects the point set; two cells per side.
-    let r = |i: usize| AxisRange {
-        half: p.bound[i],
-        step: p.bound[i] / 2.0,
-    };
-    let cfg = SearchConfig {
-        spec: SearchSpec {
-            x: r(0),
-            y: r(1),
-            z: r(2),
-            yaw: r(3),
-            // A tilt held fixed (bound 0, a 4-DoF polish) is not an axis of the box.
-            pitch: p.is_free(4).then(|| r(4)),
-            roll: p.is_free(5).then(|| r(5)),
-            tilt_pivot_m: pivot,
-        },
-        ..*search
-    };
-    let ev = Evaluator::pooled(camera, views, pose, &cfg, 0)?;
+    let ev = Evaluator::pooled(camera, views, pose, &box_config(search, p, pivot), 0)?;
     let objective = ev.objective();
     let ev = &ev;
     let res = nelder_mead_multi(

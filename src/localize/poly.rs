@@ -4,7 +4,7 @@
 //! the roots of p′ split the line into monotone intervals and each interval holds at most one root.
 
 /// Real roots of `c[0] + c[1]x + … + c[n]xⁿ`, ascending. Leading zeros are dropped.
-pub fn real_roots(c: &[f64]) -> Vec<f64> {
+pub(crate) fn real_roots(c: &[f64]) -> Vec<f64> {
     let mut n = c.len();
     while n > 0 && c[n - 1] == 0.0 {
         n -= 1;

@@ -60,6 +60,10 @@ pub struct QualityConfig {
     pub max_sigma_tilt_deg: f64,
     /// Jackknife groups of the uncertainty estimate ([`super::uncertainty`]).
     pub jackknife_folds: usize,
+    /// The camera file's stated intrinsics uncertainty, carried into the covariance
+    /// ([`super::uncertainty::intrinsics_deltas`]); set from the camera file, not a config key.
+    #[serde(skip)]
+    pub intrinsics_sigma: Option<crate::camera::import::IntrinsicsSigma>,
 }
 
 impl Default for QualityConfig {
@@ -77,6 +81,7 @@ impl Default for QualityConfig {
             max_sigma_yaw_deg: 0.15,
             max_sigma_tilt_deg: 0.5,
             jackknife_folds: 8,
+            intrinsics_sigma: None,
         }
     }
 }
@@ -250,7 +255,7 @@ impl Sigma {
 /// checks accepted is refused when the objective has no peak over all free axes together, when
 /// the covariance is not finite, or when an axis's σ exceeds its limit. The reason names the axis,
 /// its σ and the limit's key.
-pub fn apply_uncertainty(q: &mut Quality, u: Uncertainty, cfg: &QualityConfig) {
+pub(crate) fn apply_uncertainty(q: &mut Quality, u: Uncertainty, cfg: &QualityConfig) {
     let sigma = Sigma::of(&u);
     if q.accepted {
         let limits = [

@@ -89,7 +89,7 @@ pub fn refine(
 /// [`refine`] with the camera's validity mask ([`CameraModel::valid_mask`]) computed by the
 /// caller: callers that refine one camera many times (the pipeline's search + polish, a study's
 /// trials) compute it once — on a 5 MP frame it costs about as much as a small search.
-pub fn refine_masked(
+pub(crate) fn refine_masked(
     cam: &Camera,
     gray: &[u8],
     mask: &[u8],
@@ -99,7 +99,7 @@ pub fn refine_masked(
     qcfg: &QualityConfig,
 ) -> Result<Refinement> {
     let r = search_views(cam, &[View { gray, mask, points }], init, cfg, qcfg)?;
-    with_uncertainty(cam, &[View { gray, mask, points }], r, cfg, qcfg)
+    with_uncertainty(cam, &[View { gray, mask, points }], r, cfg, qcfg, None)
 }
 
 /// The grid search and its quality on pooled views, without the uncertainty estimate.
@@ -133,22 +133,33 @@ fn search_views(
 }
 
 /// Estimate the answer's uncertainty ([`super::uncertainty`]) on the same views and estimator,
-/// over x, y, z and yaw at the answer's tilt, and apply the σ gate. The tilt is held: the
-/// pipeline's 6-DoF polish settles it with its multi-start, and the detection pipeline's ground
-/// error is governed by the position and yaw (docs/refine.md "Uncertainty").
+/// and apply the σ gate. `tilt_pivot`: `None` holds the answer's tilt (a 4-DoF refinement); `Some`
+/// frees pitch and roll about that pivot ([`polish_pose`]'s), for an answer whose tilt the 6-DoF
+/// polish settled, so the position's σ carries the tilt–position valley.
+///
+/// [`polish_pose`]: super::polish::polish_pose
 fn with_uncertainty(
     cam: &Camera,
     views: &[View<'_>],
     mut r: Refinement,
     cfg: &SearchConfig,
     qcfg: &QualityConfig,
+    tilt_pivot: Option<Option<f64>>,
 ) -> Result<Refinement> {
+    let polish = match tilt_pivot {
+        Some(_) => super::polish::PolishParams {
+            bound: JACKKNIFE_BOUND,
+            ..Default::default()
+        },
+        None => super::polish::PolishParams::four_dof(),
+    };
     let u = estimate(
         cam,
         views,
         &r.pose,
         cfg,
-        &super::polish::PolishParams::four_dof(),
+        &polish,
+        tilt_pivot.flatten(),
         &UncertaintyConfig {
             folds: qcfg.jackknife_folds,
         },
@@ -158,8 +169,9 @@ fn with_uncertainty(
     // the search resolves: the variance is floored at (half the finest step)² per axis.
     let mut u = u;
     let axes = cfg.spec.axes();
-    for (i, ax) in axes.iter().enumerate().take(u.sigma.len().min(4)) {
-        let floor = 0.5 * ax.step;
+    for i in 0..u.sigma.len() {
+        // Tilts are not searched on a grid: they share the yaw's resolution.
+        let floor = 0.5 * axes[i.min(3)].step;
         if u.matrix[i][i] < floor * floor {
             u.matrix[i][i] = floor * floor;
             u.sigma[i] = floor;
@@ -168,9 +180,26 @@ fn with_uncertainty(
     r.stats.poses += u.poses as u64;
     r.stats.point_evaluations +=
         (u.poses as u64) * (u.points as u64) * (u.folds as u64 - 1) / u.folds as u64;
-    apply_uncertainty(&mut r.quality, u, qcfg);
+    // The gate judges what this run's data supports (the jackknife). The camera file's stated
+    // intrinsics uncertainty is the calibration's, the same for every run: it goes into the
+    // reported σ and covariance (what the detection pipeline inherits) but refusing every run
+    // for it would leave the node without a pose until someone re-calibrates.
+    apply_uncertainty(&mut r.quality, u.clone(), qcfg);
+    if let Some(s) = &qcfg.intrinsics_sigma {
+        super::uncertainty::add_intrinsics(
+            &mut u,
+            &super::uncertainty::intrinsics_deltas(cam, views, &r.pose, s),
+        );
+        r.quality.sigma = Some(super::quality::Sigma::of(&u));
+        r.quality.covariance = Some(u);
+    }
     Ok(r)
 }
+
+/// Each jackknife group's re-optimisation box when the tilt is free: x, y, z ±15 cm, yaw ±0.5°
+/// (the polish's), pitch and roll ±1° — wide enough for the tilt–position valley of a pose that
+/// the 6-DoF polish settled, narrow enough to keep the far field in the fixed point set.
+const JACKKNIFE_BOUND: [f64; 6] = [0.15, 0.15, 0.15, 0.5, 1.0, 1.0];
 
 /// Settings of [`refine_polished`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -237,7 +266,7 @@ impl PolishedSearch {
 
 /// The name of what follows the grid search, for reports and pose files: `6-dof` (a polish that
 /// moves the tilt), `4-dof` (one that holds it) or `none`.
-pub fn finish_name(finish: Option<&PolishedSearch>) -> &'static str {
+pub(crate) fn finish_name(finish: Option<&PolishedSearch>) -> &'static str {
     match finish {
         None => "none",
         Some(p) if p.polish.is_free(4) || p.polish.is_free(5) => "6-dof",
@@ -246,18 +275,18 @@ pub fn finish_name(finish: Option<&PolishedSearch>) -> &'static str {
 }
 
 /// Polish rounds per search at most (default of [`PolishedSearch::polish_rounds`]).
-pub const POLISH_ROUNDS: usize = 3;
+pub(crate) const POLISH_ROUNDS: usize = 3;
 /// Searches at most (default of [`PolishedSearch::search_rounds`]). A round only starts when the
 /// previous polish moved (or the gate refused an optimum on the box's edge), so the limit only
 /// bites on a polish that is still walking along a ridge; with 3, `5mp` seed 3's last polish moved roll by 2° after its search and the gate judged
 /// that stale search (refused a 1 cm / 0.04° pose); the 4th search confirms it. No other seed of
 /// `small` 1–100 and `5mp` 1–20 reaches a 4th round.
-pub const SEARCH_ROUNDS: usize = 4;
+pub(crate) const SEARCH_ROUNDS: usize = 4;
 /// A polish that moved the search's optimum by more than this (metres, in its x, y, z parameters)
 /// triggers another search.
-pub const RESEARCH_MOVE_M: f64 = 0.05;
+pub(crate) const RESEARCH_MOVE_M: f64 = 0.05;
 /// … or by more than this on any angle (degrees).
-pub const RESEARCH_MOVE_DEG: f64 = 0.5;
+pub(crate) const RESEARCH_MOVE_DEG: f64 = 0.5;
 
 /// One search of [`refine_polished`] and the polishes after it.
 #[derive(Debug, Clone, Serialize)]
@@ -298,7 +327,10 @@ pub fn refine_polished(
 ) -> Result<(Refinement, Vec<Round>)> {
     let Some(p) = p else {
         let r = search_views(cam, views, init, cfg, qcfg)?;
-        return Ok((with_uncertainty(cam, views, r, cfg, qcfg)?, Vec::new()));
+        return Ok((
+            with_uncertainty(cam, views, r, cfg, qcfg, None)?,
+            Vec::new(),
+        ));
     };
     let mut rounds = Vec::new();
     let mut start = *init;
@@ -355,7 +387,9 @@ pub fn refine_polished(
                 r.offsets = crate::pose::offsets_between(init, &r.pose);
                 r.stats.poses = poses;
                 r.stats.point_evaluations = point_evaluations;
-                return Ok((with_uncertainty(cam, views, r, cfg, qcfg)?, rounds));
+                // A finish that moved the tilt has its tilt uncertain too: the jackknife frees it.
+                let tilt = (p.polish.is_free(4) || p.polish.is_free(5)).then(|| pivot(&r.pose));
+                return Ok((with_uncertainty(cam, views, r, cfg, qcfg, tilt)?, rounds));
             }
         }
     }
@@ -363,7 +397,7 @@ pub fn refine_polished(
 
 /// The polishes' offsets added up (m, m, m, deg, deg, deg): how far the polishes after one search
 /// moved its optimum.
-pub fn summed_offsets(records: &[super::polish::PolishRecord]) -> [f64; 6] {
+pub(crate) fn summed_offsets(records: &[super::polish::PolishRecord]) -> [f64; 6] {
     let mut total = [0.0f64; 6];
     for r in records {
         for (t, v) in total.iter_mut().zip(r.offsets) {

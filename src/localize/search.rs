@@ -43,17 +43,17 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 
 /// Axis names in grid order.
-pub const AXES: [&str; 6] = ["x", "y", "z", "yaw", "pitch", "roll"];
+pub(crate) const AXES: [&str; 6] = ["x", "y", "z", "yaw", "pitch", "roll"];
 /// Largest accepted half range for x and y (m): beyond this the prior is not a refinement start.
-pub const MAX_HALF_XY: f64 = 50.0;
+pub(crate) const MAX_HALF_XY: f64 = 50.0;
 /// Largest accepted half range for z (m).
-pub const MAX_HALF_Z: f64 = 20.0;
+pub(crate) const MAX_HALF_Z: f64 = 20.0;
 /// Largest accepted half range for yaw (deg).
-pub const MAX_HALF_YAW: f64 = 180.0;
+pub(crate) const MAX_HALF_YAW: f64 = 180.0;
 /// Largest accepted half range for pitch and roll (deg).
-pub const MAX_HALF_TILT: f64 = 20.0;
+pub(crate) const MAX_HALF_TILT: f64 = 20.0;
 /// Largest accepted number of grid cells (the exhaustive grid's size).
-pub const MAX_CELLS: u64 = 1 << 40;
+pub(crate) const MAX_CELLS: u64 = 1 << 40;
 /// Deepest coarse level (step 2^6 = 64 finest cells).
 pub const MAX_LEVEL: u32 = 6;
 
@@ -270,7 +270,7 @@ pub struct Grid {
 }
 
 /// Integer cell offsets from the centre, per axis.
-pub type Cell = [i64; 6];
+pub(crate) type Cell = [i64; 6];
 
 impl Grid {
     /// Cells along axis i.
@@ -335,7 +335,11 @@ const MIN_PIVOT_AXIS_Z: f64 = 0.3;
 /// [`pose_at`] with the pitch/roll pivot `pivot` metres below the camera on its optical axis
 /// (see [`SearchSpec::tilt_pivot_m`]): after the tilt the centre moves horizontally so that the
 /// optical axis meets the pivot's height at the same point as before; the centre's height is kept.
-pub fn pose_at_pivot(init: &CamFromMap, offsets: &[f64; 6], pivot: Option<f64>) -> CamFromMap {
+pub(crate) fn pose_at_pivot(
+    init: &CamFromMap,
+    offsets: &[f64; 6],
+    pivot: Option<f64>,
+) -> CamFromMap {
     let dc = Vector3::new(offsets[0], offsets[1], offsets[2]);
     let moved = init.perturbed(&dc, offsets[3].to_radians());
     if offsets[4] == 0.0 && offsets[5] == 0.0 {
@@ -442,7 +446,7 @@ pub struct View<'a> {
 
 /// Jackknife groups of an evaluator's level-0 points ([`Evaluator::folds`]).
 #[derive(Debug, Clone)]
-pub struct Folds {
+pub(crate) struct Folds {
     parts: Vec<Vec<PreparedPoints>>,
     k: usize,
 }
@@ -621,7 +625,7 @@ impl Evaluator {
     }
 
     /// Points used at a level.
-    pub fn points_at(&self, level: u32) -> usize {
+    pub(crate) fn points_at(&self, level: u32) -> usize {
         self.levels[level as usize]
             .parts
             .iter()
@@ -658,7 +662,12 @@ impl Evaluator {
     /// MI and NMI at continuous offsets from the initial pose (not restricted to the grid's
     /// cells), on the fixed point set at `level`; for local continuous polishing after the grid
     /// search ([`super::polish`]).
-    pub fn value_at(&self, level: u32, offsets: &[f64; 6], scratch: &mut Scratch) -> MiValue {
+    pub(crate) fn value_at(
+        &self,
+        level: u32,
+        offsets: &[f64; 6],
+        scratch: &mut Scratch,
+    ) -> MiValue {
         let pose = pose_at_pivot(&self.init, offsets, self.grid.pivot);
         mutual_information(&self.histogram_at(level, &pose, scratch), self.mi.parzen)
     }
@@ -666,7 +675,7 @@ impl Evaluator {
     /// The level-0 point sets cut into `k` jackknife groups: each view's fixed set, in Morton
     /// order, in `k` contiguous runs (compact patches of ground); group j is run j of every view.
     /// Indexed `[view][group]`.
-    pub fn folds(&self, k: usize) -> Folds {
+    pub(crate) fn folds(&self, k: usize) -> Folds {
         let k = k.max(1);
         Folds {
             parts: self.levels[0]
@@ -685,7 +694,7 @@ impl Evaluator {
 
     /// Level-0 joint histograms of the pose at `offsets`, one per group of `folds`; their sum is
     /// the histogram [`Evaluator::value_at`] scores.
-    pub fn fold_histograms(
+    pub(crate) fn fold_histograms(
         &self,
         folds: &Folds,
         offsets: &[f64; 6],
@@ -724,7 +733,7 @@ impl Evaluator {
     /// Score cells (by number) at a level in parallel, in tiles of consecutive cells (one scratch
     /// per tile), order kept. A score is a pure function of (level, cell), so neither the tiling
     /// nor the thread count can change a result.
-    pub fn score_cells(&self, level: u32, idxs: &[u64]) -> Vec<Scored> {
+    pub(crate) fn score_cells(&self, level: u32, idxs: &[u64]) -> Vec<Scored> {
         // Up to 64 cells a tile, but at least ~4 tiles per thread so that the small batches of the
         // descent and the climb (tens to hundreds of cells) still keep every thread busy.
         let tile = (idxs.len() / (4 * rayon::current_num_threads()).max(1)).clamp(1, 64);

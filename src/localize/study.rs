@@ -21,15 +21,15 @@ use serde::{Deserialize, Serialize};
 
 /// A trial counts as a success within these bounds (the demo's thresholds, the refinement's
 /// 99th-percentile goal): horizontal error, metres.
-pub const SUCCESS_HORIZONTAL_M: f64 = 0.10;
+pub(crate) const SUCCESS_HORIZONTAL_M: f64 = 0.10;
 /// Success bound on the height error, metres.
-pub const SUCCESS_HEIGHT_M: f64 = 0.10;
+pub(crate) const SUCCESS_HEIGHT_M: f64 = 0.10;
 /// Success bound on the yaw error, degrees.
-pub const SUCCESS_YAW_DEG: f64 = 0.2;
+pub(crate) const SUCCESS_YAW_DEG: f64 = 0.2;
 
 /// Largest perturbation of the initial pose on each axis (uniform in ±value).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Perturbation {
+pub(crate) struct Perturbation {
     /// x and y, metres.
     pub xy_m: f64,
     /// z, metres.
@@ -52,7 +52,7 @@ impl Default for Perturbation {
 
 impl Perturbation {
     /// Reject negative or non-finite bounds, naming the flag.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         for (flag, v) in [
             ("--perturb-xy", self.xy_m),
             ("--perturb-z", self.z_m),
@@ -69,7 +69,7 @@ impl Perturbation {
 
     /// `n` start offsets [dx, dy, dz (m), dyaw (deg)] from `seed`: the same seed gives the same
     /// starts whatever else changes (the RNG is used for nothing else).
-    pub fn starts(&self, n: usize, seed: u64) -> Vec<[f64; 4]> {
+    pub(crate) fn starts(&self, n: usize, seed: u64) -> Vec<[f64; 4]> {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let mut u = |a: f64| {
             if a > 0.0 {
@@ -86,7 +86,7 @@ impl Perturbation {
 
 /// Offsets of `pose` from `truth`: camera centre difference (map frame, m) and yaw difference
 /// wrapped to [−180°, 180°).
-pub fn offsets_from(truth: &CamFromMap, pose: &CamFromMap) -> [f64; 4] {
+pub(crate) fn offsets_from(truth: &CamFromMap, pose: &CamFromMap) -> [f64; 4] {
     let o = crate::pose::offsets_between(truth, pose);
     [o[0], o[1], o[2], o[3]]
 }
@@ -95,7 +95,7 @@ pub fn offsets_from(truth: &CamFromMap, pose: &CamFromMap) -> [f64; 4] {
 /// rule: within `max_off_nadir_deg` of nadir at the camera's height above the ground, at most
 /// `radius_m`).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PointSelection {
+pub(crate) struct PointSelection {
     /// Largest radius, metres.
     pub radius_m: f64,
     /// Largest off-nadir angle, degrees.
@@ -115,7 +115,7 @@ impl Default for PointSelection {
 
 impl PointSelection {
     /// Ground points of `tile` for a camera at `pose`.
-    pub fn points(&self, tile: &Tile, pose: &CamFromMap) -> Vec<crate::map::GroundPoint> {
+    pub(crate) fn points(&self, tile: &Tile, pose: &CamFromMap) -> Vec<crate::map::GroundPoint> {
         let c = pose.center();
         let (_, r) =
             super::ground::ground_disc(&tile.height, &c, self.max_off_nadir_deg, self.radius_m);
@@ -125,7 +125,7 @@ impl PointSelection {
 
 /// One trial of the study.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Trial {
+pub(crate) struct Trial {
     /// Trial number (0-based).
     pub index: usize,
     /// Start offsets from the truth: dx, dy, dz (m, map frame), dyaw (deg).
@@ -154,7 +154,7 @@ pub struct Trial {
 
 /// Median, 95th percentile and maximum of a sample.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Spread {
+pub(crate) struct Spread {
     /// Median.
     pub median: f64,
     /// 95th percentile (nearest rank).
@@ -165,7 +165,7 @@ pub struct Spread {
 
 impl Spread {
     /// Of `v` (NaN for an empty sample; NaNs sort last, so they show up as the maximum).
-    pub fn of(v: &[f64]) -> Spread {
+    pub(crate) fn of(v: &[f64]) -> Spread {
         let mut s = v.to_vec();
         s.sort_by(|a, b| a.total_cmp(b));
         let rank = |q: f64| -> f64 {
@@ -193,7 +193,7 @@ impl Spread {
 
 /// Summary of a study.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Summary {
+pub(crate) struct Summary {
     /// Number of trials.
     pub trials: usize,
     /// Horizontal error, metres (all trials, gate-rejected ones included).
@@ -214,7 +214,7 @@ pub struct Summary {
 
 impl Summary {
     /// Summarise trials.
-    pub fn of(trials: &[Trial]) -> Summary {
+    pub(crate) fn of(trials: &[Trial]) -> Summary {
         let col = |f: fn(&Trial) -> f64| trials.iter().map(f).collect::<Vec<_>>();
         let n = trials.len();
         Summary {
@@ -255,7 +255,7 @@ pub struct Scene<'a> {
 /// refinement: a principal-point error is indistinguishable from a tilt, and the 4-DoF search
 /// cannot tilt, so starting from the true roll/pitch under wrong intrinsics forces the error into
 /// x and y. Errors when fewer than 6 control points are given.
-pub fn attitude_from_control_points(
+pub(crate) fn attitude_from_control_points(
     camera: &Camera,
     truth: &CamFromMap,
     control: &[([f64; 3], [f64; 2])],
@@ -289,7 +289,7 @@ pub fn attitude_from_control_points(
 /// `now` returns seconds from any origin (injected so that this module reads no clock of its
 /// own).
 #[allow(clippy::too_many_arguments)]
-pub fn run_trial(
+pub(crate) fn run_trial(
     scene: &Scene,
     index: usize,
     start: [f64; 4],
@@ -367,7 +367,7 @@ pub struct Surface {
 /// Evaluate MI around `pose` with the search's estimator: the box of `cfg.spec` (its fixed point
 /// set, full resolution), 1-D profiles at the finest step along x, y, z and yaw, the x–y plane
 /// and the yaw–lateral plane every `xy_stride` finest cells (see [`surface_of`]).
-pub fn mi_surface(
+pub(crate) fn mi_surface(
     camera: &Camera,
     gray: &[u8],
     points: &[crate::map::GroundPoint],
@@ -401,7 +401,7 @@ pub fn lateral_direction(pose: &CamFromMap) -> [f64; 2] {
 /// pooled): profiles at the finest step, the x–y plane (z and yaw fixed) and the yaw–lateral
 /// plane (z fixed; lateral along [`lateral_direction`], over the smaller of the x and y half
 /// ranges) every `xy_stride` finest cells.
-pub fn surface_of(ev: &Evaluator, pose: &CamFromMap, xy_stride: i64) -> Result<Surface> {
+pub(crate) fn surface_of(ev: &Evaluator, pose: &CamFromMap, xy_stride: i64) -> Result<Surface> {
     if xy_stride < 1 {
         return Err(Error::Invalid(format!(
             "surface stride {xy_stride}: must be ≥ 1"

@@ -24,7 +24,7 @@ use std::sync::Arc;
 
 /// A single-channel f32 image, row-major.
 #[derive(Debug, Clone, PartialEq)]
-pub struct GrayF32 {
+pub(crate) struct GrayF32 {
     /// Columns.
     pub width: usize,
     /// Rows.
@@ -35,7 +35,7 @@ pub struct GrayF32 {
 
 impl GrayF32 {
     /// A zero image.
-    pub fn new(width: usize, height: usize) -> Self {
+    pub(crate) fn new(width: usize, height: usize) -> Self {
         GrayF32 {
             width,
             height,
@@ -80,7 +80,7 @@ impl Field {
 
     /// Halve the resolution by 2×2 averaging (complex averaging: orientations that disagree
     /// cancel, which is what a coarser view of them should do).
-    pub fn downsample2(&self) -> Field {
+    pub(crate) fn downsample2(&self) -> Field {
         let (w, h) = ((self.width / 2).max(1), (self.height / 2).max(1));
         let mut data = vec![Complex32::new(0.0, 0.0); w * h];
         for y in 0..h {
@@ -107,7 +107,7 @@ impl Field {
 /// Doubled-angle orientation field of an image. `valid` (same size, optional) marks pixels whose
 /// 3×3 neighbourhood is real data; elsewhere the feature is zero so borders of the image circle or
 /// no-data areas create no false edges.
-pub fn orientation_field(img: &GrayF32, valid: Option<&[bool]>) -> Field {
+pub(crate) fn orientation_field(img: &GrayF32, valid: Option<&[bool]>) -> Field {
     let (w, h) = (img.width, img.height);
     let mut data = vec![Complex32::new(0.0, 0.0); w * h];
     let mut mags = Vec::with_capacity(w * h / 4);
@@ -154,7 +154,7 @@ pub fn orientation_field(img: &GrayF32, valid: Option<&[bool]>) -> Field {
 
 /// Square 2-D FFT of side `n` (rows, transpose, rows: spectra are kept transposed, which is fine
 /// because they are only multiplied element-wise and transformed back by the same routine).
-pub struct Fft2 {
+pub(crate) struct Fft2 {
     n: usize,
     fwd: Arc<dyn Fft<f32>>,
     inv: Arc<dyn Fft<f32>>,
@@ -162,7 +162,7 @@ pub struct Fft2 {
 
 impl Fft2 {
     /// Plan transforms of size `n × n`.
-    pub fn new(n: usize) -> Self {
+    pub(crate) fn new(n: usize) -> Self {
         let mut p = FftPlanner::new();
         Fft2 {
             n,
@@ -172,7 +172,7 @@ impl Fft2 {
     }
 
     /// Side length.
-    pub fn size(&self) -> usize {
+    pub(crate) fn size(&self) -> usize {
         self.n
     }
 
@@ -195,14 +195,14 @@ impl Fft2 {
     }
 
     /// Forward transform in place (output transposed). `scratch` is reused between calls.
-    pub fn forward(&self, buf: &mut [Complex32], scratch: &mut Vec<Complex32>) {
+    pub(crate) fn forward(&self, buf: &mut [Complex32], scratch: &mut Vec<Complex32>) {
         self.run(&self.fwd, buf, scratch, self.n, self.n)
     }
 
     /// [`Fft2::forward`] of an image whose rows from `rows` on are all zero (a template in the
     /// corner of its padding): those rows' transforms are zero and are skipped. Bit-identical to
     /// `forward`.
-    pub fn forward_top_rows(
+    pub(crate) fn forward_top_rows(
         &self,
         buf: &mut [Complex32],
         scratch: &mut Vec<Complex32>,
@@ -213,14 +213,14 @@ impl Fft2 {
 
     /// Inverse transform in place of a transposed spectrum (output in image layout, unscaled:
     /// multiply by 1/n² for a true inverse). `scratch` is reused between calls.
-    pub fn inverse(&self, buf: &mut [Complex32], scratch: &mut Vec<Complex32>) {
+    pub(crate) fn inverse(&self, buf: &mut [Complex32], scratch: &mut Vec<Complex32>) {
         self.run(&self.inv, buf, scratch, self.n, self.n)
     }
 
     /// [`Fft2::inverse`] whose output is needed in its first `rows` rows only (the valid shifts
     /// of a correlation): the rest are left as partial sums. Those rows are bit-identical to
     /// `inverse`'s.
-    pub fn inverse_top_rows(
+    pub(crate) fn inverse_top_rows(
         &self,
         buf: &mut [Complex32],
         scratch: &mut Vec<Complex32>,
@@ -231,7 +231,7 @@ impl Fft2 {
 }
 
 /// The smallest n ≥ `size` (and ≥ 1) whose only prime factors are 2, 3 and 5.
-pub fn fft_size(size: usize) -> usize {
+pub(crate) fn fft_size(size: usize) -> usize {
     let smooth = |mut m: usize| {
         for p in [2, 3, 5] {
             while m % p == 0 {
@@ -307,7 +307,7 @@ impl SweepParams {
     /// Ground radius of the sweep's template, metres: one radius for every height (see
     /// [`sweep`]), what the lowest height sees within `q_max`, at most `template_radius_m`. The
     /// satellite field must reach this far beyond the search window.
-    pub fn effective_template_radius_m(&self, q_max: f64) -> f64 {
+    pub(crate) fn effective_template_radius_m(&self, q_max: f64) -> f64 {
         let h_min = self.heights.iter().copied().fold(f64::INFINITY, f64::min);
         (h_min * q_max).min(self.template_radius_m)
     }

@@ -71,13 +71,13 @@ impl Default for VerifyParams {
 }
 
 /// Step halvings of [`MiVerifier::climb`] (1 m → 0.125 m, 4° → 0.5°).
-pub const CLIMB_HALVINGS: usize = 3;
+pub(crate) const CLIMB_HALVINGS: usize = 3;
 /// Evaluation budget of one [`MiVerifier::climb`].
-pub const CLIMB_MAX_EVALUATIONS: usize = 400;
+pub(crate) const CLIMB_MAX_EVALUATIONS: usize = 400;
 /// [`MiVerifier::climb`] stays within this of its start in x and y, metres …
-pub const CLIMB_MAX_XY_M: f64 = 4.0;
+pub(crate) const CLIMB_MAX_XY_M: f64 = 4.0;
 /// … and in yaw, degrees (and at least 1 m above the ground).
-pub const CLIMB_MAX_YAW_DEG: f64 = 20.0;
+pub(crate) const CLIMB_MAX_YAW_DEG: f64 = 20.0;
 
 /// A hypothesis' verification score.
 #[derive(Debug, Clone, Copy, PartialEq)]

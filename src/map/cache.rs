@@ -20,19 +20,19 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 /// Manifest file name inside a tile directory.
-pub const MANIFEST: &str = "tile.toml";
+pub(crate) const MANIFEST: &str = "tile.toml";
 /// Satellite layer file name.
-pub const SATELLITE_FILE: &str = "satellite.tif";
+pub(crate) const SATELLITE_FILE: &str = "satellite.tif";
 /// Reflectivity layer file name.
-pub const REFLECTIVITY_FILE: &str = "reflectivity.tif";
+pub(crate) const REFLECTIVITY_FILE: &str = "reflectivity.tif";
 /// Height layer file name.
-pub const HEIGHT_FILE: &str = "height.tif";
+pub(crate) const HEIGHT_FILE: &str = "height.tif";
 /// Control points file name.
-pub const CONTROL_POINTS_FILE: &str = "control_points.csv";
+pub(crate) const CONTROL_POINTS_FILE: &str = "control_points.csv";
 /// Manifest format tag.
-pub const FORMAT: &str = "infraloc.tile.v1";
+pub(crate) const FORMAT: &str = "infraloc.tile.v1";
 /// Header line of `control_points.csv`.
-pub const CONTROL_POINTS_HEADER: &str = "id,x,y,z";
+pub(crate) const CONTROL_POINTS_HEADER: &str = "id,x,y,z";
 /// How far (degrees of longitude) from a tile zone's central meridian a position is still placed in
 /// that zone's plane for [`find_tile`]: the range `tests/geo_reference.rs` checks against pyproj.
 /// Farther positions get a great-circle distance to the tile centre instead, because transverse
@@ -227,7 +227,11 @@ pub fn write_tile(cache_dir: &Path, tile: &Tile) -> Result<()> {
 /// Everything is written and fsynced in `cache_dir/.tmp-<id>-<pid>/` first, then renamed into place
 /// (a previous tile is first renamed aside and deleted afterwards). A crash therefore leaves only a
 /// hidden temporary directory, which [`find_tile`] ignores and the next write removes.
-pub fn write_tile_with(cache_dir: &Path, tile: &Tile, provenance: &Provenance) -> Result<()> {
+pub(crate) fn write_tile_with(
+    cache_dir: &Path,
+    tile: &Tile,
+    provenance: &Provenance,
+) -> Result<()> {
     let crs = check_tile(tile)?;
     fs::create_dir_all(cache_dir).map_err(|e| Error::io(cache_dir, e))?;
     let pid = std::process::id();
@@ -511,7 +515,7 @@ pub fn load_tile(tile_dir: &Path) -> Result<Tile> {
 }
 
 /// Parse a control points CSV (`id,x,y,z` header, then one point per line). `path` is for errors.
-pub fn parse_control_points(text: &str, path: &Path) -> Result<Vec<ControlPoint>> {
+pub(crate) fn parse_control_points(text: &str, path: &Path) -> Result<Vec<ControlPoint>> {
     let mut lines = text.lines().enumerate();
     let header = lines.next().map(|(_, l)| l.trim()).unwrap_or("");
     let cols: Vec<String> = header
@@ -771,12 +775,17 @@ fn no_cover(
 /// Below this fraction of valid samples in a LiDAR layer around the prior, the tile is refused:
 /// an all-NaN or all-nodata layer would otherwise surface as a PnP or MI failure that points at
 /// the camera.
-pub const MIN_VALID_FRACTION: f64 = 0.10;
+pub(crate) const MIN_VALID_FRACTION: f64 = 0.10;
 
 /// Fraction of valid samples of the reflectivity and height layers within `radius_m` of `(x,
 /// y)`; a layer below [`MIN_VALID_FRACTION`] is an error of the `tile` stage naming the layer's
 /// file. A disc that misses the grid counts as empty.
-pub fn check_layers_near(tile: &Tile, dir: &Path, (x, y): (f64, f64), radius_m: f64) -> Result<()> {
+pub(crate) fn check_layers_near(
+    tile: &Tile,
+    dir: &Path,
+    (x, y): (f64, f64),
+    radius_m: f64,
+) -> Result<()> {
     let g = tile.reflectivity.grid;
     let (c, r) = g.to_pixel(x, y);
     let rp = (radius_m / g.res).ceil().max(1.0);
@@ -828,7 +837,7 @@ pub fn check_layers_near(tile: &Tile, dir: &Path, (x, y): (f64, f64), radius_m: 
 /// that fails to load is skipped (and listed) in favour of the next one that covers the
 /// position. The error, when none is usable, is the first covering tile's (a `tile:` line naming
 /// its file and layer), or [`find_tile`]'s when none covers.
-pub fn load_covering(
+pub(crate) fn load_covering(
     cache_dir: &Path,
     lat: f64,
     lon: f64,

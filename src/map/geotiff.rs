@@ -185,12 +185,12 @@ where
 }
 
 /// Write a u8 gray GeoTIFF (GDAL_NODATA from `r.nodata`).
-pub fn write_gray8(path: &Path, r: &Raster<u8>) -> Result<()> {
+pub(crate) fn write_gray8(path: &Path, r: &Raster<u8>) -> Result<()> {
     write_image::<colortype::Gray8>(path, &r.grid, &r.data, r.nodata.map(f64::from))
 }
 
 /// Write a u8 RGB GeoTIFF (no nodata).
-pub fn write_rgb8(path: &Path, r: &Raster<[u8; 3]>) -> Result<()> {
+pub(crate) fn write_rgb8(path: &Path, r: &Raster<[u8; 3]>) -> Result<()> {
     let flat: Vec<u8> = r.data.iter().flatten().copied().collect();
     write_image::<colortype::RGB8>(path, &r.grid, &flat, None)
 }
@@ -520,7 +520,7 @@ pub fn read_gray8(path: &Path) -> Result<Raster<u8>> {
 }
 
 /// An [`Image`] that must be u8 gray, on `grid`.
-pub fn raster_gray8(img: Image, grid: GeoGrid, path: &Path) -> Result<Raster<u8>> {
+pub(crate) fn raster_gray8(img: Image, grid: GeoGrid, path: &Path) -> Result<Raster<u8>> {
     match img.pixels {
         Pixels::Gray8(data) => Ok(Raster {
             grid,
@@ -540,7 +540,7 @@ pub fn read_rgb8(path: &Path) -> Result<Raster<[u8; 3]>> {
 
 /// An [`Image`] that must be u8 RGB or gray, on `grid`, as RGB. (A u8 nodata, if any, is
 /// dropped: the satellite layer has none.)
-pub fn raster_rgb8(img: Image, grid: GeoGrid, path: &Path) -> Result<Raster<[u8; 3]>> {
+pub(crate) fn raster_rgb8(img: Image, grid: GeoGrid, path: &Path) -> Result<Raster<[u8; 3]>> {
     let data = match img.pixels {
         Pixels::Rgb8(v) => v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
         Pixels::Gray8(v) => v.into_iter().map(|g| [g, g, g]).collect(),
@@ -561,7 +561,7 @@ pub fn read_f32(path: &Path) -> Result<Raster<f32>> {
 }
 
 /// An [`Image`] that must be f32, on `grid`.
-pub fn raster_f32(img: Image, grid: GeoGrid, path: &Path) -> Result<Raster<f32>> {
+pub(crate) fn raster_f32(img: Image, grid: GeoGrid, path: &Path) -> Result<Raster<f32>> {
     let nodata = match img.nodata {
         Some(v) if !v.is_nan() => Some(v as f32),
         _ => None,

@@ -13,7 +13,7 @@ use crate::geo;
 use std::path::{Path, PathBuf};
 
 /// World-file extensions tried beside an image without georeference, in this order.
-pub const WORLD_EXTENSIONS: [&str; 5] = ["pgw", "pngw", "tfw", "tifw", "wld"];
+pub(crate) const WORLD_EXTENSIONS: [&str; 5] = ["pgw", "pngw", "tfw", "tifw", "wld"];
 /// Relative tolerance for "square pixels" in a world file.
 const SQUARE_REL_TOL: f64 = 1e-9;
 /// TIFF magic numbers (little- and big-endian; classic and BigTIFF share the first two bytes).
@@ -21,7 +21,7 @@ const TIFF_MAGIC: [&[u8]; 2] = [b"II", b"MM"];
 
 /// One source raster of a tile and, optionally, its world file.
 #[derive(Debug, Clone, Copy)]
-pub struct Source<'a> {
+pub(crate) struct Source<'a> {
     /// Image file (GeoTIFF, TIFF or PNG).
     pub image: &'a Path,
     /// World file; `None` = use GeoTIFF tags, else look for a sibling world file.
@@ -33,7 +33,7 @@ pub struct Source<'a> {
 /// Lines: A (x pixel size), D (rotation), B (rotation), E (y pixel size, negative), C, F (map
 /// coordinates of the centre of the upper-left pixel). The grid corner is half a pixel out from
 /// (C, F). Rotation terms must be 0 and pixels square.
-pub fn parse_world_file(
+pub(crate) fn parse_world_file(
     text: &str,
     path: &Path,
     crs: Crs,
@@ -93,7 +93,7 @@ pub fn parse_world_file(
 }
 
 /// The world file beside `image`, if any (`name.pgw`, `name.pngw`, `name.tfw`, …).
-pub fn sibling_world_file(image: &Path) -> Option<PathBuf> {
+pub(crate) fn sibling_world_file(image: &Path) -> Option<PathBuf> {
     WORLD_EXTENSIONS
         .iter()
         .map(|ext| image.with_extension(ext))
@@ -162,7 +162,11 @@ fn decode(path: &Path) -> Result<Image> {
 
 /// Read one source raster and its georeference in `crs`. Returns the image, its grid and a
 /// description of where the georeference came from (for provenance).
-pub fn read_source(src: Source<'_>, crs: Crs, flag: &str) -> Result<(Image, GeoGrid, String)> {
+pub(crate) fn read_source(
+    src: Source<'_>,
+    crs: Crs,
+    flag: &str,
+) -> Result<(Image, GeoGrid, String)> {
     let img = decode(src.image)?;
     if let Some(g) = img.grid {
         if let Some(w) = src.world {
@@ -201,7 +205,7 @@ pub fn read_source(src: Source<'_>, crs: Crs, flag: &str) -> Result<(Image, GeoG
 
 /// Build a tile from its sources. `crs` must be a WGS84 UTM EPSG code; every GeoTIFF source must
 /// be in it. Reflectivity and height must share one grid. Returns the tile and its provenance.
-pub fn import_tile(
+pub(crate) fn import_tile(
     id: &str,
     crs: Crs,
     satellite: Source<'_>,

@@ -66,7 +66,7 @@ pub struct GeoGrid {
 impl GeoGrid {
     /// Map coordinates of the centre of pixel (col, row).
     #[inline]
-    pub fn pixel_center(&self, col: usize, row: usize) -> (f64, f64) {
+    pub(crate) fn pixel_center(&self, col: usize, row: usize) -> (f64, f64) {
         (
             self.x0 + (col as f64 + 0.5) * self.res,
             self.y0 - (row as f64 + 0.5) * self.res,
@@ -75,7 +75,7 @@ impl GeoGrid {
 
     /// Continuous pixel coordinates of a map point, pixel centres at integers.
     #[inline]
-    pub fn to_pixel(&self, x: f64, y: f64) -> (f64, f64) {
+    pub fn to_pixel(self, x: f64, y: f64) -> (f64, f64) {
         (
             (x - self.x0) / self.res - 0.5,
             (self.y0 - y) / self.res - 0.5,

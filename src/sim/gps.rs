@@ -163,7 +163,7 @@ fn nmea_angle(deg: f64, lat: bool) -> String {
 
 /// The NMEA log text: per epoch a GGA then an RMC sentence, CRLF line ends. `geoid_sep` is the
 /// geoid separation reported in GGA, metres.
-pub fn nmea_log(fixes: &[Fix], start: &UtcStart, geoid_sep: f64) -> String {
+pub(crate) fn nmea_log(fixes: &[Fix], start: &UtcStart, geoid_sep: f64) -> String {
     let mut out = String::new();
     for f in fixes {
         let t = start.sec_of_day + f.secs;

@@ -12,7 +12,7 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 
 /// Reflectivity no-data value (valid cells are clamped to ≥ 1).
-pub const REFLECTIVITY_NODATA: u8 = 0;
+pub(crate) const REFLECTIVITY_NODATA: u8 = 0;
 /// Multiplicative speckle σ of LiDAR reflectivity.
 const SPECKLE_MUL: f64 = 0.12;
 /// Additive LiDAR reflectivity noise σ.

@@ -6,12 +6,12 @@
 //! physics ([`appearance`]): that is the modality gap every accuracy number is measured across.
 //! See `docs/simulator.md`.
 
-pub mod appearance;
+pub(crate) mod appearance;
 pub mod gps;
 pub mod layers;
 pub mod noise;
 pub mod render;
-pub mod solids;
+pub(crate) mod solids;
 pub mod truth;
 pub mod world;
 
@@ -31,15 +31,15 @@ use std::f64::consts::{PI, TAU};
 use world::World;
 
 /// Map CRS of simulated scenes: WGS84 / UTM 17N (Michigan, where the seed paper's data is from).
-pub const SIM_EPSG: u32 = 32617;
+pub(crate) const SIM_EPSG: u32 = 32617;
 /// Nominal site: UTM 17N coordinates near Ann Arbor, MI (42.28 N, 83.74 W).
 const SITE_UTM: [f64; 2] = [274_069.0, 4_684_501.0];
 /// The site is moved by up to this much per seed, metres.
 const SITE_JITTER: f64 = 3000.0;
 /// LiDAR tile side, metres.
-pub const TILE_SIZE_M: f64 = 120.0;
+pub(crate) const TILE_SIZE_M: f64 = 120.0;
 /// Map resolution, metres per pixel.
-pub const MAP_RES: f64 = 0.1;
+pub(crate) const MAP_RES: f64 = 0.1;
 /// Satellite tile margin beyond the LiDAR tile on each side, metres.
 const SAT_MARGIN_M: f64 = 1.0;
 /// Geoid separation reported by the receiver (EGM96 near Ann Arbor), metres.
@@ -159,6 +159,9 @@ pub struct Scene {
     pub camera_true: Camera,
     /// Intrinsics handed to the localizer (perturbed in `hard`).
     pub camera_given: Camera,
+    /// The given intrinsics' stated uncertainty (`hard`: the spread their errors are drawn
+    /// from, as a calibration report would state it; `easy`: none, they are exact).
+    pub camera_sigma: Option<crate::camera::import::IntrinsicsSigma>,
     /// True pose in the map CRS.
     pub pose: CamFromMap,
     /// Map tile (satellite, reflectivity, height, control points).
@@ -223,11 +226,31 @@ fn true_camera(rng: &mut ChaCha8Rng, preset: Preset, lens: Lens) -> Camera {
 
 /// The intrinsics a slightly wrong calibration would give: focal ±0.15–0.3 %, principal point
 /// ±1–2 px.
+/// `hard`'s focal scale error: ± this range (relative), uniform in magnitude, random sign.
+const HARD_FOCAL_ERROR: (f64, f64) = (0.0015, 0.003);
+/// `hard`'s principal-point error per coordinate: ± this range (px).
+const HARD_PRINCIPAL_POINT_ERROR: (f64, f64) = (1.0, 2.0);
+
+/// Mean square of a magnitude uniform in `[a, b)` with a random sign.
+#[cfg(test)]
+const fn rms_uniform(a: f64, b: f64) -> f64 {
+    // E[x²] = (b³ − a³) / (3 (b − a)); no const sqrt, so the caller's value is checked in a test.
+    (b * b * b - a * a * a) / (3.0 * (b - a))
+}
+
+/// The 1σ `hard` states for its given intrinsics: the RMS of the errors [`perturbed_camera`] draws.
+pub const HARD_INTRINSICS_SIGMA: crate::camera::import::IntrinsicsSigma =
+    crate::camera::import::IntrinsicsSigma {
+        focal_rel: 0.002_291_3,
+        principal_point_px: 1.527_5,
+    };
+
 fn perturbed_camera(rng: &mut ChaCha8Rng, cam: &Camera) -> Camera {
     let sign = |rng: &mut ChaCha8Rng| if rng.random_bool(0.5) { 1.0 } else { -1.0 };
-    let fs = 1.0 + sign(rng) * rng.random_range(0.0015..0.003);
-    let dx = sign(rng) * rng.random_range(1.0..2.0);
-    let dy = sign(rng) * rng.random_range(1.0..2.0);
+    let fs = 1.0 + sign(rng) * rng.random_range(HARD_FOCAL_ERROR.0..HARD_FOCAL_ERROR.1);
+    let (a, b) = HARD_PRINCIPAL_POINT_ERROR;
+    let dx = sign(rng) * rng.random_range(a..b);
+    let dy = sign(rng) * rng.random_range(a..b);
     let mut c = cam.clone();
     match &mut c {
         Camera::Mei(m) => {
@@ -578,6 +601,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         world,
         camera_true,
         camera_given,
+        camera_sigma: hard.then_some(HARD_INTRINSICS_SIGMA),
         pose,
         tile,
         frames,
@@ -630,7 +654,7 @@ impl Scene {
 
     /// A side-by-side picture: satellite | reflectivity | height | fisheye frame 0, each panel
     /// `panel` pixels high. The three map panels show the same central square of the tile.
-    pub fn montage(&self, panel: u32) -> image::RgbImage {
+    pub(crate) fn montage(&self, panel: u32) -> image::RgbImage {
         use image::imageops::{resize, FilterType};
         let sat = &self.tile.satellite;
         let satimg =

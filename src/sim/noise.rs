@@ -7,7 +7,7 @@
 
 /// SplitMix64 finaliser: a fast, well-mixed 64-bit hash.
 #[inline]
-pub fn mix64(mut z: u64) -> u64 {
+pub(crate) fn mix64(mut z: u64) -> u64 {
     z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
@@ -16,7 +16,7 @@ pub fn mix64(mut z: u64) -> u64 {
 
 /// Hash of a seed and two integer coordinates.
 #[inline]
-pub fn hash3(seed: u64, a: i64, b: i64) -> u64 {
+pub(crate) fn hash3(seed: u64, a: i64, b: i64) -> u64 {
     mix64(seed ^ mix64((a as u64).wrapping_mul(0x2545_F491_4F6C_DD1D) ^ mix64(b as u64)))
 }
 
@@ -28,7 +28,7 @@ pub fn unit(h: u64) -> f64 {
 
 /// Standard normal from two hashes (Box–Muller).
 #[inline]
-pub fn gauss(h: u64) -> f64 {
+pub(crate) fn gauss(h: u64) -> f64 {
     let u1 = unit(h).max(1e-300);
     let u2 = unit(mix64(h ^ 0xA5A5_A5A5_5A5A_5A5A));
     (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
@@ -70,7 +70,7 @@ impl Field {
     }
 
     /// Fractal sum of `octaves` octaves (each half the size, half the amplitude), about [−1, 1].
-    pub fn fbm(&self, x: f64, y: f64, octaves: u32) -> f64 {
+    pub(crate) fn fbm(&self, x: f64, y: f64, octaves: u32) -> f64 {
         let (mut sum, mut amp, mut norm) = (0.0, 1.0, 0.0);
         let mut f = *self;
         for o in 0..octaves {
@@ -90,7 +90,7 @@ fn fade(t: f64) -> f64 {
 
 /// Smooth step from 0 at `e0` to 1 at `e1`.
 #[inline]
-pub fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
+pub(crate) fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
     let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
     t * t * (3.0 - 2.0 * t)
 }

@@ -44,7 +44,7 @@ pub struct Light {
 
 impl Light {
     /// Sun from azimuth (clockwise from north) and elevation, degrees.
-    pub fn from_az_el(az_deg: f64, el_deg: f64, sun_irr: f64, ambient: f64) -> Self {
+    pub(crate) fn from_az_el(az_deg: f64, el_deg: f64, sun_irr: f64, ambient: f64) -> Self {
         let (az, el) = (az_deg.to_radians(), el_deg.to_radians());
         Light {
             sun: Vector3::new(az.sin() * el.cos(), az.cos() * el.cos(), el.sin()),
@@ -60,7 +60,7 @@ impl Light {
 /// the hit in `[t_top, t_bot]`. A secant iteration finds it where the ground is smooth; near a curb
 /// (where the ray could meet the step's face first) or if the secant fails, a fine march from
 /// `t_top` followed by bisection finds the *first* crossing.
-pub fn intersect_ground(w: &World, o: &Vector3<f64>, d: &Vector3<f64>) -> Option<f64> {
+pub(crate) fn intersect_ground(w: &World, o: &Vector3<f64>, d: &Vector3<f64>) -> Option<f64> {
     let g0 = o.z - w.base(o.x, o.y);
     let g1 = d.z - w.grad[0] * d.x - w.grad[1] * d.y;
     if g1 >= -1e-12 {
@@ -122,7 +122,7 @@ pub fn intersect_ground(w: &World, o: &Vector3<f64>, d: &Vector3<f64>) -> Option
 }
 
 /// Upward unit normal of the ground at (x, y).
-pub fn ground_normal(w: &World, x: f64, y: f64) -> Vector3<f64> {
+pub(crate) fn ground_normal(w: &World, x: f64, y: f64) -> Vector3<f64> {
     let h = w.height(x, y);
     let hx = (w.height(x + NORMAL_EPS, y) - h) / NORMAL_EPS;
     let hy = (w.height(x, y + NORMAL_EPS) - h) / NORMAL_EPS;
@@ -130,7 +130,7 @@ pub fn ground_normal(w: &World, x: f64, y: f64) -> Vector3<f64> {
 }
 
 /// Fraction of direct sunlight reaching `p` past the solids in `sets` (0 = full shadow).
-pub fn sun_visibility(
+pub(crate) fn sun_visibility(
     sets: &[&[Solid]],
     p: &Vector3<f64>,
     sun: &Vector3<f64>,
@@ -152,7 +152,7 @@ pub fn sun_visibility(
 }
 
 /// Visible-band albedo of a solid at hit point `p` (windows, leaves, glass).
-pub fn solid_albedo(s: &Solid, h: &Hit, p: &Vector3<f64>, leaves: &Field) -> f64 {
+pub(crate) fn solid_albedo(s: &Solid, h: &Hit, p: &Vector3<f64>, leaves: &Field) -> f64 {
     let top = h.normal.z > 0.5;
     match s.kind {
         Kind::Building if !top => {
@@ -176,7 +176,7 @@ pub fn solid_albedo(s: &Solid, h: &Hit, p: &Vector3<f64>, leaves: &Field) -> f64
 
 /// Camera sensor and optics settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Sensor {
+pub(crate) struct Sensor {
     /// Optical blur (Gaussian PSF σ), pixels.
     pub blur_px: f64,
     /// Vignetting: relative fall-off at the edge of the image circle.
@@ -191,7 +191,7 @@ pub struct Sensor {
 
 /// Per-pixel result of the static scene: the part of every frame that does not move.
 #[derive(Debug)]
-pub struct StaticPass {
+pub(crate) struct StaticPass {
     width: usize,
     height: usize,
     /// Map-frame ray direction (NaN outside the image circle).
@@ -216,7 +216,7 @@ pub struct View<'a> {
     /// Appearance fields.
     pub look: &'a Appearance,
     /// Static solids (buildings, trees, parked cars during the frames).
-    pub statics: &'a [Solid],
+    pub(crate) statics: &'a [Solid],
     /// Lighting of the frames.
     pub light: Light,
 }
@@ -227,7 +227,7 @@ fn sky_radiance(d: &Vector3<f64>, light: &Light) -> f64 {
 
 /// Cast every pixel of `cam` at pose `pose` (map frame = the world's local frame) into the static
 /// scene.
-pub fn static_pass(v: &View, cam: &Camera, pose: &CamFromMap) -> StaticPass {
+pub(crate) fn static_pass(v: &View, cam: &Camera, pose: &CamFromMap) -> StaticPass {
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let map_from_cam = pose.inverse();
     let center = pose.center().coords;
@@ -306,7 +306,7 @@ pub fn static_pass(v: &View, cam: &Camera, pose: &CamFromMap) -> StaticPass {
 }
 
 /// Principal point of a camera.
-pub fn principal_point(cam: &Camera) -> (f64, f64) {
+pub(crate) fn principal_point(cam: &Camera) -> (f64, f64) {
     match cam {
         Camera::Mei(m) => (m.cx, m.cy),
         Camera::Equidistant(m) => (m.cx, m.cy),
@@ -314,7 +314,7 @@ pub fn principal_point(cam: &Camera) -> (f64, f64) {
 }
 
 /// Pixel radius of the image circle's edge (along +x from the principal point).
-pub fn edge_radius(cam: &Camera) -> f64 {
+pub(crate) fn edge_radius(cam: &Camera) -> f64 {
     let th = cam.max_theta();
     cam.project(&Vector3::new(th.sin(), 0.0, th.cos()))
         .map(|p| (p.x - principal_point(cam).0).abs())
@@ -323,7 +323,7 @@ pub fn edge_radius(cam: &Camera) -> f64 {
 
 impl StaticPass {
     /// Exposure scale that puts the bright end of the static ground (98th percentile) at 0.85.
-    pub fn auto_exposure(&self) -> f64 {
+    pub(crate) fn auto_exposure(&self) -> f64 {
         let mut v: Vec<f32> = (0..self.t.len())
             .filter(|&i| self.t[i].is_finite())
             .map(|i| self.amb[i] + self.sun[i])
@@ -338,7 +338,7 @@ impl StaticPass {
 
     /// Render one frame with the moving `dynamic` solids: 8-bit gray, row-major.
     #[allow(clippy::too_many_arguments)]
-    pub fn frame(
+    pub(crate) fn frame(
         &self,
         v: &View,
         dynamic: &[Solid],
@@ -411,7 +411,7 @@ impl StaticPass {
 }
 
 /// Separable Gaussian blur of a row-major plane (σ in pixels; ≤ 0 does nothing).
-pub fn gaussian_blur(plane: &mut [f32], w: usize, h: usize, sigma: f64) {
+pub(crate) fn gaussian_blur(plane: &mut [f32], w: usize, h: usize, sigma: f64) {
     if sigma <= 0.0 {
         return;
     }

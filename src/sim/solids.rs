@@ -86,7 +86,7 @@ pub struct Solid {
 
 /// A ray hit.
 #[derive(Debug, Clone, Copy)]
-pub struct Hit {
+pub(crate) struct Hit {
     /// Ray parameter (distance for unit rays).
     pub t: f64,
     /// Outward unit normal.
@@ -138,7 +138,7 @@ impl Solid {
     }
 
     /// Horizontal centre of the solid.
-    pub fn center_xy(&self) -> (f64, f64) {
+    pub(crate) fn center_xy(&self) -> (f64, f64) {
         (self.bound_c.x, self.bound_c.y)
     }
 
@@ -152,7 +152,7 @@ impl Solid {
 
     /// First intersection of the ray `o + t·d` (d unit) with `t_min < t < t_max`.
     #[inline]
-    pub fn intersect(
+    pub(crate) fn intersect(
         &self,
         o: &Vector3<f64>,
         d: &Vector3<f64>,
@@ -279,7 +279,7 @@ impl Solid {
 
 /// Nearest hit among `solids`: (index, hit).
 #[inline]
-pub fn nearest(
+pub(crate) fn nearest(
     solids: &[Solid],
     o: &Vector3<f64>,
     d: &Vector3<f64>,

@@ -208,3 +208,17 @@ fn nmea_log_decodes_cleanly_with_the_receiver_decoder() {
         (s.start.year, s.start.month, s.start.day)
     );
 }
+
+#[test]
+fn hard_states_the_rms_of_the_intrinsics_errors_it_draws() {
+    let (f, c) = (HARD_FOCAL_ERROR, HARD_PRINCIPAL_POINT_ERROR);
+    let s = HARD_INTRINSICS_SIGMA;
+    assert!(
+        (s.focal_rel - rms_uniform(f.0, f.1).sqrt()).abs() < 1e-6,
+        "{s:?}"
+    );
+    assert!(
+        (s.principal_point_px - rms_uniform(c.0, c.1).sqrt()).abs() < 1e-3,
+        "{s:?}"
+    );
+}

@@ -39,7 +39,7 @@ pub fn parse_truth(text: &str, origin: &Path) -> Result<Truth> {
 }
 
 /// Read and parse a truth.json file.
-pub fn read_truth(path: &Path) -> Result<Truth> {
+pub(crate) fn read_truth(path: &Path) -> Result<Truth> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     parse_truth(&text, path)
 }

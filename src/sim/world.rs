@@ -45,9 +45,9 @@ const STOP_BAR_SETBACK: f64 = 1.2;
 /// Lane lines before the stop bar are solid for this long, metres.
 const SOLID_LANE_RUN: f64 = 20.0;
 /// Curb top width, metres.
-pub const CURB_W: f64 = 0.15;
+pub(crate) const CURB_W: f64 = 0.15;
 /// Horizontal run of the curb face (a steep ramp, so normals stay finite), metres.
-pub const CURB_RAMP: f64 = 0.02;
+pub(crate) const CURB_RAMP: f64 = 0.02;
 /// Distance from the curb over which the road rises to its crown, metres.
 const CROWN_RUN: f64 = 3.5;
 /// Cross slope of sidewalks and lawns away from the road (2 %).
@@ -56,9 +56,9 @@ const SIDE_SLOPE: f64 = 0.015;
 const SIDE_SLOPE_RUN: f64 = 8.0;
 /// Ground detail bounds relative to the sloped base plane (see [`World::height`]), metres. The ray
 /// caster relies on these to bracket the ground.
-pub const DETAIL_MIN: f64 = -0.05;
+pub(crate) const DETAIL_MIN: f64 = -0.05;
 /// Upper detail bound.
-pub const DETAIL_MAX: f64 = 0.45;
+pub(crate) const DETAIL_MAX: f64 = 0.45;
 
 /// Ground material.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -440,7 +440,7 @@ pub fn vehicle(rng: &mut impl RngCore, x: f64, y: f64, z: f64, yaw: f64) -> Vec<
 }
 
 /// A pedestrian (cylinder) at (x, y, ground z).
-pub fn pedestrian(rng: &mut impl RngCore, x: f64, y: f64, z: f64) -> Solid {
+pub(crate) fn pedestrian(rng: &mut impl RngCore, x: f64, y: f64, z: f64) -> Solid {
     let g = rng.random_range(0.05..0.5);
     Solid::new(
         Shape::Cylinder {
@@ -843,7 +843,7 @@ impl World {
     }
 
     /// Remove trees whose crown would hang around the camera (poles are placed clear of them).
-    pub fn clear_around(&mut self, x: f64, y: f64, radius: f64) {
+    pub(crate) fn clear_around(&mut self, x: f64, y: f64, radius: f64) {
         let near: Vec<(f64, f64)> = self
             .statics
             .iter()
@@ -867,7 +867,7 @@ impl World {
 
     /// Signed distance from the curb (negative on the road) and the corner index.
     #[inline]
-    pub fn curb_distance(&self, x: f64, y: f64) -> (f64, usize) {
+    pub(crate) fn curb_distance(&self, x: f64, y: f64) -> (f64, usize) {
         let k = self.approaches.len();
         let theta = y.atan2(x).rem_euclid(TAU);
         // Sector i spans [angle_i, angle_{i+1}); the last wraps round.
@@ -1005,7 +1005,7 @@ impl World {
     }
 
     /// All control-point candidates: (id, local x, local y). Their z is [`World::height`].
-    pub fn control_candidates(&self) -> Vec<(String, f64, f64)> {
+    pub(crate) fn control_candidates(&self) -> Vec<(String, f64, f64)> {
         let mut out = Vec::new();
         for a in &self.approaches {
             for m in &a.marks {

@@ -1,6 +1,6 @@
 //! Shared helpers of the integration tests: where the real GNSS logs are, gpsd's `.chk`, and a
 //! simulated scene.
-#![allow(dead_code)]
+#![allow(dead_code, unreachable_pub)]
 
 use std::path::{Path, PathBuf};
 
