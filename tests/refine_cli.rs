@@ -487,6 +487,39 @@ fn refine_cli_pools_pairs_and_refuses_bad_pools() {
             "{axis}: {err} vs σ {sigma}"
         );
     }
+    // The written pose, covariance and all, is what `plot mi-surface --pose` reads: it draws the
+    // surface through it on the same pairs, with the covariance's ellipse.
+    let plot = Command::new(env!("CARGO_BIN_EXE_infraloc"))
+        .args(["plot", "mi-surface", "--camera", &s("camera.yaml")])
+        .args(["--image", &s("frame.png"), "--points", &s("points.csv")])
+        .args(["--image", &s("dark.png"), "--points", &s("points2.csv")])
+        .args(["--pose", &out_pose.display().to_string()])
+        .args([
+            "--search",
+            "x=0.16:0.02,y=0.16:0.02,z=0.1:0.02,yaw=0.6:0.05",
+        ])
+        .args(["--out", &s("surface.png")])
+        .output()
+        .unwrap();
+    assert!(
+        plot.status.success(),
+        "plot on the written pose: {}",
+        String::from_utf8_lossy(&plot.stderr)
+    );
+    assert!(image::open(d.join("surface.png")).is_ok());
+    // Unequal pairs: one line naming both counts, no picture.
+    let plot = Command::new(env!("CARGO_BIN_EXE_infraloc"))
+        .args(["plot", "mi-surface", "--camera", &s("camera.yaml")])
+        .args(["--image", &s("frame.png"), "--image", &s("dark.png")])
+        .args(["--points", &s("points.csv")])
+        .args(["--pose", &out_pose.display().to_string()])
+        .args(["--out", &s("unequal.png")])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&plot.stderr);
+    assert!(!plot.status.success() && err.lines().count() == 1, "{err}");
+    assert!(err.contains("got 2 and 1"), "{err}");
+    assert!(!d.join("unequal.png").exists());
     std::fs::remove_file(&out_pose).unwrap();
 
     // Unequal counts of --image and --points: refused before anything is read.

@@ -10,8 +10,8 @@ use crate::error::{Error, Result};
 use crate::localize::points_io::read_points;
 use crate::localize::search::{SearchConfig, SearchSpec};
 use crate::localize::study::{
-    mi_surface, offsets_from, Perturbation, PointSelection, Summary, Surface, Trial,
-    SUCCESS_HEIGHT_M, SUCCESS_HORIZONTAL_M, SUCCESS_YAW_DEG,
+    mi_surface, mi_surface_pooled, offsets_from, Perturbation, PointSelection, Summary, Surface,
+    Trial, SUCCESS_HEIGHT_M, SUCCESS_HORIZONTAL_M, SUCCESS_YAW_DEG,
 };
 use crate::posefile::read_pose;
 use crate::scene::{load_scene, SceneFiles};
@@ -42,7 +42,8 @@ pub struct MiSurfaceArgs {
     /// Real inputs: camera intrinsics (any format `refine --camera` reads).
     #[arg(long, requires = "image")]
     pub camera: Option<PathBuf>,
-    /// Real inputs: the image (converted to gray), paired with --points.
+    /// Real inputs: the image (converted to gray), paired with --points; repeat both (in the
+    /// same order) to pool several pairs that share the pose, as `refine` does.
     #[arg(long)]
     pub image: Vec<PathBuf>,
     /// Real inputs: point file (CSV, PCD, LAS, Velodyne .bin), all points used as given.
@@ -90,8 +91,9 @@ pub(super) fn run(c: Command) -> Result<()> {
 }
 
 /// The marginal covariance of x, y and yaw (m, m, deg) a pose file's `quality.covariance`
-/// carries (docs/interfaces.md, "Pose file"): a matrix over [x, y, z, yaw(, pitch, roll)], or an object with that
-/// `covariance` matrix and the `axes` it is ordered by. `None` when the file has none.
+/// carries (docs/interfaces.md, "Pose file"): a matrix over [x, y, z, yaw(, pitch, roll)], or the
+/// object refine and the service write, with that `matrix` and the `axes` it is ordered by.
+/// `None` when the file has none.
 pub(crate) fn pose_covariance(
     doc: &serde_json::Value,
 ) -> std::result::Result<Option<[[f64; 3]; 3]>, String> {
@@ -103,8 +105,7 @@ pub(crate) fn pose_covariance(
     }
     let (matrix, axes) = match c {
         serde_json::Value::Object(o) => (
-            o.get("covariance")
-                .ok_or("quality.covariance: no \"covariance\" matrix")?,
+            o.get("matrix").ok_or("quality.covariance: no \"matrix\"")?,
             o.get("axes").and_then(|a| a.as_array()).map(|a| {
                 a.iter()
                     .map(|n| n.as_str().unwrap_or("").to_string())
@@ -274,24 +275,45 @@ fn mi_surface_cmd(a: MiSurfaceArgs) -> Result<()> {
         let cam = crate::camera::load_camera(camera)?;
         let (read, cov) = read_doc(pose_path)?;
         let pose = read.pose;
-        if a.image.len() != 1 || a.points.len() > 1 {
+        // Pairs as `refine` takes them: each --image with the --points in the same place, or
+        // every --image with the one --tiles' points.
+        if a.image.is_empty() || (a.tiles.is_none() && a.points.len() != a.image.len()) {
             return Err(Error::Invalid(format!(
-                "plot mi-surface: one --image and one --points (or --tiles) for now, got {} and {}",
+                "plot mi-surface: --image and --points pair up in order (or several --image with one --tiles): got {} and {}",
                 a.image.len(),
                 a.points.len()
             )));
         }
-        let points = match (&a.tiles, a.points.first()) {
-            (Some(dir), _) => tile_points(dir, pose_path, read.crs, &pose.center(), a.radius)?,
-            (None, Some(p)) => read_points(p)?,
-            (None, None) => {
-                return Err(Error::Invalid(
-                    "plot mi-surface: give --points FILE or --tiles DIR with --camera".into(),
-                ))
-            }
+        let point_sets = match &a.tiles {
+            Some(dir) => vec![tile_points(
+                dir,
+                pose_path,
+                read.crs,
+                &pose.center(),
+                a.radius,
+            )?],
+            None => a
+                .points
+                .iter()
+                .map(|p| read_points(p))
+                .collect::<Result<Vec<_>>>()?,
         };
-        let gray = load_gray(&a.image[0], &cam)?;
-        let surf = mi_surface(&cam, &gray, &points, &pose, &cfg, a.xy_stride)?;
+        let grays = a
+            .image
+            .iter()
+            .map(|i| load_gray(i, &cam))
+            .collect::<Result<Vec<_>>>()?;
+        let pairs: Vec<(&[u8], &[crate::map::GroundPoint])> = grays
+            .iter()
+            .enumerate()
+            .map(|(i, g)| {
+                (
+                    g.as_slice(),
+                    point_sets[i.min(point_sets.len() - 1)].as_slice(),
+                )
+            })
+            .collect();
+        let surf = mi_surface_pooled(&cam, &pairs, &pose, &cfg, a.xy_stride)?;
         (surf, pose, cov, (out, reference))
     };
     let (out, reference) = out;
@@ -942,7 +964,7 @@ mod tests {
         // An object names its axes: here in another order, with pitch and roll.
         let object = json!({ "quality": { "covariance": {
             "axes": ["yaw", "x", "y", "z", "pitch", "roll"],
-            "covariance": [
+            "matrix": [
                 [0.25, 0.003, -0.02, 0.0, 0.0, 0.0],
                 [0.003, 0.01, 0.002, 0.0, 0.0, 0.0],
                 [-0.02, 0.002, 0.04, 0.0, 0.0, 0.0],

@@ -380,6 +380,28 @@ pub(crate) fn mi_surface(
     surface_of(&ev, pose, xy_stride)
 }
 
+/// [`mi_surface`] on several image/point-set pairs that share the pose, pooled into one joint
+/// histogram per pose as `refine` pools them.
+pub(crate) fn mi_surface_pooled(
+    camera: &Camera,
+    pairs: &[(&[u8], &[crate::map::GroundPoint])],
+    pose: &CamFromMap,
+    cfg: &SearchConfig,
+    xy_stride: i64,
+) -> Result<Surface> {
+    let mask = crate::camera::CameraModel::valid_mask(camera);
+    let views: Vec<super::search::View> = pairs
+        .iter()
+        .map(|(gray, points)| super::search::View {
+            gray,
+            mask: &mask,
+            points,
+        })
+        .collect();
+    let ev = Evaluator::pooled(camera, &views, pose, cfg, 0)?;
+    surface_of(&ev, pose, xy_stride)
+}
+
 /// The horizontal unit vector (map x, y) to the *left* of the camera's view: perpendicular to
 /// the horizontal part of the optical axis, or, for a camera looking (nearly) straight down, of
 /// the image's up direction. The yaw–lateral plane moves the camera along it.
