@@ -102,6 +102,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         None,
         &UncertaintyConfig {
             folds: qcfg.jackknife_folds,
+            ..Default::default()
         },
     )?;
     let c5 = cpu_s();

@@ -221,7 +221,11 @@ pub struct Sigma {
 impl Sigma {
     /// From an estimate (axes it did not estimate are 0 for x..yaw, absent for the tilts).
     pub fn of(u: &Uncertainty) -> Self {
-        let g = |a: &str| u.sigma_of(a);
+        Self::by_axis(|a| u.sigma_of(a))
+    }
+
+    /// From a σ per axis name (x..yaw 0 where absent, the tilts absent).
+    fn by_axis(g: impl Fn(&str) -> Option<f64>) -> Self {
         Sigma {
             x: g("x").unwrap_or(0.0),
             y: g("y").unwrap_or(0.0),
@@ -230,6 +234,15 @@ impl Sigma {
             pitch: g("pitch"),
             roll: g("roll"),
         }
+    }
+
+    /// The σ the gate judges ([`Uncertainty::gate_sigma`]); the reported σ when the estimate
+    /// has none.
+    pub fn judged(u: &Uncertainty) -> Self {
+        if u.gate_sigma.len() != u.axes.len() {
+            return Self::of(u);
+        }
+        Self::by_axis(|a| u.axes.iter().position(|x| x == a).map(|i| u.gate_sigma[i]))
     }
 
     /// One line for people: centimetres and degrees.
@@ -256,7 +269,8 @@ impl Sigma {
 /// the covariance is not finite, or when an axis's σ exceeds its limit. The reason names the axis,
 /// its σ and the limit's key.
 pub(crate) fn apply_uncertainty(q: &mut Quality, u: Uncertainty, cfg: &QualityConfig) {
-    let sigma = Sigma::of(&u);
+    let reported = Sigma::of(&u);
+    let sigma = Sigma::judged(&u);
     if q.accepted {
         let limits = [
             ("x", sigma.x, cfg.max_sigma_xy_m, "max-sigma-xy-m"),
@@ -276,7 +290,31 @@ pub(crate) fn apply_uncertainty(q: &mut Quality, u: Uncertainty, cfg: &QualityCo
                 "max-sigma-tilt-deg",
             ),
         ];
-        let reason = if !u.peak {
+        let open = u
+            .region
+            .as_ref()
+            .and_then(|r| Some((r.open.clone()?, r.open_reach.clone()?, r.z)));
+        let reason = if let Some((ray, reach, z)) = open {
+            // The σ each axis of the ray has at least: its reach over 2z.
+            let bounds: Vec<String> = reach
+                .iter()
+                .zip(&u.axes)
+                .filter(|(v, _)| **v != 0.0)
+                .map(|(v, axis)| {
+                    let s = v.abs() / (2.0 * z);
+                    if axis == "x" || axis == "y" || axis == "z" {
+                        format!("σ {axis} ≥ {:.1} cm", 100.0 * s)
+                    } else {
+                        format!("σ {axis} ≥ {s:.2}°")
+                    }
+                })
+                .collect();
+            Some(format!(
+                "no peak: along {ray} the MI cannot tell the answer from a pose {} away within its noise (a flat valley): {}, unbounded",
+                describe_offset(&reach, &u.axes),
+                bounds.join(", ")
+            ))
+        } else if !u.peak {
             Some(
                 "no peak: without one patch of the points the MI optimum walks to the edge of its ±15 cm / ±0.5° box (a flat valley); σ is unbounded"
                     .to_string(),
@@ -304,8 +342,24 @@ pub(crate) fn apply_uncertainty(q: &mut Quality, u: Uncertainty, cfg: &QualityCo
             q.reason = Some(r);
         }
     }
-    q.sigma = Some(sigma);
+    q.sigma = Some(reported);
     q.covariance = Some(u);
+}
+
+/// An offset as "30 cm, 0.90°" (its non-zero components, lengths in cm, angles in degrees).
+fn describe_offset(v: &[f64], axes: &[String]) -> String {
+    v.iter()
+        .zip(axes)
+        .filter(|(v, _)| **v != 0.0)
+        .map(|(v, axis)| {
+            if axis == "x" || axis == "y" || axis == "z" {
+                format!("{:.0} cm", 100.0 * v.abs())
+            } else {
+                format!("{:.2}°", v.abs())
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// The lowest objective on the straight path between two cells (level 0, continuous offsets),

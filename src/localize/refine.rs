@@ -153,7 +153,7 @@ fn with_uncertainty(
         },
         None => super::polish::PolishParams::four_dof(),
     };
-    let u = estimate(
+    let mut u = estimate(
         cam,
         views,
         &r.pose,
@@ -162,21 +162,14 @@ fn with_uncertainty(
         tilt_pivot.flatten(),
         &UncertaintyConfig {
             folds: qcfg.jackknife_folds,
+            region_bound: UncertaintyConfig::region_bound_for(
+                qcfg.max_sigma_xy_m,
+                qcfg.max_sigma_z_m,
+                qcfg.max_sigma_yaw_deg,
+                qcfg.max_sigma_tilt_deg,
+            ),
         },
     )?;
-    // The objective is rugged at the pixel scale (nearest-pixel sampling), and every group's
-    // re-optimisation starts at the answer, so they can share one local bump and spread less than
-    // the search resolves: the variance is floored at (half the finest step)² per axis.
-    let mut u = u;
-    let axes = cfg.spec.axes();
-    for i in 0..u.sigma.len() {
-        // Tilts are not searched on a grid: they share the yaw's resolution.
-        let floor = 0.5 * axes[i.min(3)].step;
-        if u.matrix[i][i] < floor * floor {
-            u.matrix[i][i] = floor * floor;
-            u.sigma[i] = floor;
-        }
-    }
     r.stats.poses += u.poses as u64;
     r.stats.point_evaluations +=
         (u.poses as u64) * (u.points as u64) * (u.folds as u64 - 1) / u.folds as u64;

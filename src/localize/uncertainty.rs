@@ -43,11 +43,31 @@ use serde::{Deserialize, Serialize};
 pub struct UncertaintyConfig {
     /// Jackknife groups (contiguous patches of each view's points).
     pub folds: usize,
+    /// How far the [`Region`]'s rays reach from the answer per axis (x, y, z in m, then yaw,
+    /// pitch, roll in degrees), at least the re-optimisation box. A ray that reaches this far
+    /// without the data telling the pose apart leaves σ unbounded, so it must lie beyond 2·z·σ
+    /// for the largest σ the gate accepts: the default is 6× the default [`QualityConfig`]
+    /// limits (2·[`REGION_Z`] with a margin of 1.5).
+    ///
+    /// [`QualityConfig`]: super::quality::QualityConfig
+    pub region_bound: [f64; 6],
 }
 
 impl Default for UncertaintyConfig {
     fn default() -> Self {
-        UncertaintyConfig { folds: 8 }
+        UncertaintyConfig {
+            folds: 8,
+            region_bound: [0.3, 0.3, 0.3, 0.9, 3.0, 3.0],
+        }
+    }
+}
+
+impl UncertaintyConfig {
+    /// The region's reach for σ limits (x/y and z in m, yaw and tilt in degrees), as
+    /// [`UncertaintyConfig::region_bound`] explains.
+    pub fn region_bound_for(xy: f64, z: f64, yaw: f64, tilt: f64) -> [f64; 6] {
+        let f = 2.0 * REGION_Z * 1.5;
+        [f * xy, f * xy, f * z, f * yaw, f * tilt, f * tilt]
     }
 }
 
@@ -77,8 +97,21 @@ pub struct Uncertainty {
     pub intrinsics: Vec<Vec<f64>>,
     /// Points in the re-optimisation box's fixed set, all views.
     pub points: usize,
-    /// Poses scored (every group's re-optimisation).
+    /// Poses scored (every group's re-optimisation and the region's probes).
     pub poses: usize,
+    /// The jackknife's own covariance (floored at half the finest step per axis), before the
+    /// region widens it.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub jackknife: Vec<Vec<f64>>,
+    /// The region the data cannot tell from the answer ([`Region`]); `matrix` is the larger of the
+    /// two in every direction.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub region: Option<Region>,
+    /// The σ the gate judges (same axes): the larger of the jackknife's estimate and the
+    /// region's, without the Student-t widening that makes the reported `sigma`'s 3σ bounds
+    /// cover, and without the intrinsics' part.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub gate_sigma: Vec<f64>,
 }
 
 impl Uncertainty {
@@ -117,6 +150,7 @@ pub fn estimate(
         ..*polish
     };
     let tilt = p.is_free(4) || p.is_free(5);
+    let tilt_pivot = pivot;
     let ev = Evaluator::pooled(cam, views, pose, &box_config(search, &p, pivot), 0)?;
     let k = ucfg.folds.max(2);
     let folds = ev.folds(k);
@@ -183,15 +217,54 @@ pub fn estimate(
                     .sum::<f64>();
         }
     }
-    // A group that walked to its box's edge found no peak within reach: the spread is at least
-    // that far, and the answer unbounded in truth.
-    let peak = !ends.iter().any(|e| e.2);
+    // The objective is rugged at the pixel scale (nearest-pixel sampling), and every group's
+    // re-optimisation starts at the answer, so they can share one local bump and spread less than
+    // the search resolves: the variance is floored at (half the finest step)² per axis.
+    let unit = step_units(search, d);
+    for (a, row) in matrix.iter_mut().enumerate() {
+        row[a] = row[a].max((0.5 * unit[a]).powi(2));
+    }
+    let jackknife = matrix.clone();
+    // The jackknife's variance has K − 1 degrees of freedom: a 3σ bound from it covers what 3
+    // true σ do only when widened to the Student-t quantile (×1.51 for 8 groups). The reported
+    // covariance is widened so; the gate judges the estimate itself (`gate_sigma`).
+    let widen = (student_t_3sigma(k - 1) / 3.0).powi(2);
+    let mut matrix: Vec<Vec<f64>> = jackknife
+        .iter()
+        .map(|r| r.iter().map(|v| v * widen).collect())
+        .collect();
+    let mut judged = jackknife.clone();
+    // The groups' re-optimisations can also all stay on the answer's cusp while the data cannot
+    // tell it from poses far along a valley: the region they cannot tell apart bounds that.
+    let mut rp = p;
+    for i in 0..6 {
+        if rp.is_free(i) {
+            rp.bound[i] = rp.bound[i].max(ucfg.region_bound[i]);
+        }
+    }
+    // Its own fixed point set: the points every pose of its wider box sees.
+    let rev = Evaluator::pooled(cam, views, pose, &box_config(search, &rp, tilt_pivot), 0)?;
+    // Its standard errors from more, smaller patches than the re-optimisations: every probe
+    // scores every patch in one pass, so more patches cost nothing, and the standard error has
+    // REGION_FOLDS − 1 degrees of freedom instead of K − 1 (with 7, its own noise opened the
+    // region along one of the rays on a quarter of the simulated scenes).
+    let rfolds = rev.folds(REGION_FOLDS.max(k));
+    let reg = region(&rev, &rfolds, objective, parzen, &rp, &unit, d);
+    if let Some(b) = &reg.matrix {
+        matrix = loewner_max(&matrix, b);
+        judged = loewner_max(&judged, b);
+    }
+    // A group that walked to its box's edge found no peak within reach, and a region that reaches
+    // the edge has none either: the spread is at least that far, and the answer unbounded in truth.
+    let peak = !ends.iter().any(|e| e.2) && reg.open.is_none();
     if !peak {
-        for (a, row) in matrix.iter_mut().enumerate() {
-            row[a] = f64::INFINITY;
+        for a in 0..d {
+            matrix[a][a] = f64::INFINITY;
+            judged[a][a] = f64::INFINITY;
         }
     }
     let sigma = (0..d).map(|a| matrix[a][a].max(0.0).sqrt()).collect();
+    let gate_sigma = (0..d).map(|a| judged[a][a].max(0.0).sqrt()).collect();
     Ok(Uncertainty {
         axes: AXES[..d].iter().map(|a| a.to_string()).collect(),
         units: ["m", "m", "m", "deg", "deg", "deg"][..d]
@@ -205,8 +278,299 @@ pub fn estimate(
         folds: k,
         intrinsics: Vec::new(),
         points: ev.n_points,
-        poses: ends.iter().map(|e| e.1).sum(),
+        poses: ends.iter().map(|e| e.1).sum::<usize>() + reg.poses,
+        jackknife,
+        region: Some(reg),
+        gate_sigma,
     })
+}
+
+/// The Student-t quantile with `dof` degrees of freedom at the normal's 3σ probability
+/// (0.99865, one-sided), by the Cornish–Fisher expansion (within 0.5 % of the exact quantile from
+/// 5 degrees of freedom up; 4.53 at 7).
+pub fn student_t_3sigma(dof: usize) -> f64 {
+    let (z, v) = (3.0f64, dof.max(1) as f64);
+    let (z3, z5, z7, z9) = (z.powi(3), z.powi(5), z.powi(7), z.powi(9));
+    z + (z3 + z) / (4.0 * v)
+        + (5.0 * z5 + 16.0 * z3 + 3.0 * z) / (96.0 * v * v)
+        + (3.0 * z7 + 19.0 * z5 + 17.0 * z3 - 15.0 * z) / (384.0 * v.powi(3))
+        + (79.0 * z9 + 776.0 * z7 + 1482.0 * z5 - 1920.0 * z3 - 945.0 * z) / (92160.0 * v.powi(4))
+}
+
+/// z of the contrast test that bounds [`Region`]: a probe is told apart from the answer when the
+/// answer's objective exceeds the probe's by more than `REGION_Z` jackknife standard errors of
+/// that difference.
+pub const REGION_Z: f64 = 2.0;
+
+/// Patches for the region's standard errors.
+pub const REGION_FOLDS: usize = 32;
+
+/// Probe radii along each ray, in units of the search's finest step per axis; the last probe of a
+/// ray is at the polish box's edge.
+const REGION_RADII: [f64; 12] = [
+    1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0,
+];
+
+/// The poses the data cannot tell apart from the answer, probed along rays from it.
+///
+/// A pose is *indistinguishable* when the objective's drop from the answer to it, D, is within
+/// [`REGION_Z`] jackknife standard errors of D (the same delete-a-group scheme: D on each
+/// leave-one-out histogram pair). This is the test-inversion confidence region; it needs no
+/// smoothness of the objective, so a pixel-scale cusp at the answer cannot hide a flat valley
+/// behind it. For a locally quadratic objective (Hessian H) whose gradient's noise has covariance
+/// J, the boundary along a direction u lies at 2·z·√(uᵀJu)/(uᵀHu), and where J ∝ H that boundary
+/// is the ellipsoid δᵀ Σ⁻¹ δ = (2z)² of the sandwich covariance Σ = H⁻¹JH⁻¹. So the boundary
+/// points, fitted with an ellipsoid, give a covariance in the same units as the jackknife's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Region {
+    /// The test's z ([`REGION_Z`]).
+    pub z: f64,
+    /// Each ray's boundary: the offsets from the answer (x, y, z in m, then degrees) where the
+    /// drop first exceeds z standard errors (interpolated between probes); `None` where the ray
+    /// reached its box edge without that.
+    pub boundary: Vec<Option<Vec<f64>>>,
+    /// Covariance of the ellipsoid fitted through the boundary, scaled by 1/(2z)² (same axes and
+    /// units as [`Uncertainty::matrix`]); `None` when the region is open or no ellipsoid fits.
+    pub matrix: Option<Vec<Vec<f64>>>,
+    /// The first open ray, as a direction like "+x-yaw": the data cannot tell the answer from
+    /// the box's edge that way.
+    pub open: Option<String>,
+    /// How far that ray reached (offsets from the answer, x, y, z in m, then degrees): the σ of
+    /// each axis it moves is at least its reach over 2z.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub open_reach: Option<Vec<f64>>,
+    /// Poses scored.
+    pub poses: usize,
+}
+
+/// Each free axis' unit for the region's rays and the σ floor: the search's finest step (tilts
+/// are not searched on a grid and share the yaw's).
+fn step_units(search: &SearchConfig, d: usize) -> Vec<f64> {
+    let axes = search.spec.axes();
+    (0..d).map(|i| axes[i.min(3)].step).collect()
+}
+
+/// The rays: every free axis both ways, and every pair of free axes in all four sign
+/// combinations, in step units.
+fn rays(d: usize) -> Vec<Vec<f64>> {
+    let mut out = Vec::new();
+    for i in 0..d {
+        for s in [1.0, -1.0] {
+            let mut u = vec![0.0; d];
+            u[i] = s;
+            out.push(u);
+        }
+    }
+    for i in 0..d {
+        for j in i + 1..d {
+            for (si, sj) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)] {
+                let mut u = vec![0.0; d];
+                u[i] = si;
+                u[j] = sj;
+                out.push(u);
+            }
+        }
+    }
+    out
+}
+
+/// How far a ray reaches, in step units: where its first component reaches its box bound.
+fn ray_reach(u: &[f64], p: &PolishParams, unit: &[f64]) -> f64 {
+    (0..u.len())
+        .filter(|&i| u[i] != 0.0)
+        .map(|i| p.bound[i] / unit[i])
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// A ray's name, e.g. "+x-yaw".
+fn ray_name(u: &[f64]) -> String {
+    u.iter()
+        .zip(AXES)
+        .filter(|(v, _)| **v != 0.0)
+        .map(|(v, a)| format!("{}{a}", if *v > 0.0 { '+' } else { '-' }))
+        .collect()
+}
+
+/// The objective's drop from the answer to `at` on all points, and its jackknife standard error
+/// (the drop on each leave-one-group-out histogram pair). `base` holds the answer's per-group
+/// histograms.
+fn contrast(
+    ev: &Evaluator,
+    folds: &super::search::Folds,
+    objective: super::mi::Objective,
+    parzen: bool,
+    base: &[JointHist],
+    at: &[f64; 6],
+    scratch: &mut Scratch,
+) -> (f64, f64) {
+    let hists = ev.fold_histograms(folds, at, scratch);
+    let value = |hs: &[JointHist], left_out: Option<usize>| {
+        let mut h = JointHist::new(hs[0].rows, hs[0].cols);
+        for (j, hk) in hs.iter().enumerate() {
+            if Some(j) != left_out {
+                h.counts
+                    .iter_mut()
+                    .zip(&hk.counts)
+                    .for_each(|(a, b)| *a += b);
+            }
+        }
+        mutual_information(&h, parzen).get(objective)
+    };
+    let k = hists.len();
+    let drop = value(base, None) - value(&hists, None);
+    let loo: Vec<f64> = (0..k)
+        .map(|j| value(base, Some(j)) - value(&hists, Some(j)))
+        .collect();
+    let mean = loo.iter().sum::<f64>() / k as f64;
+    let var = (k as f64 - 1.0) / k as f64 * loo.iter().map(|v| (v - mean).powi(2)).sum::<f64>();
+    (drop, var.sqrt())
+}
+
+/// Probe the [`Region`] around the evaluator's base pose over the first `d` axes.
+fn region(
+    ev: &Evaluator,
+    folds: &super::search::Folds,
+    objective: super::mi::Objective,
+    parzen: bool,
+    p: &PolishParams,
+    unit: &[f64],
+    d: usize,
+) -> Region {
+    let base = ev.fold_histograms(folds, &[0.0; 6], &mut Scratch::default());
+    let rays = rays(d);
+    let ends: Vec<(Option<Vec<f64>>, usize)> = rays
+        .par_iter()
+        .map(|u| {
+            let mut scratch = Scratch::default();
+            let t_max = ray_reach(u, p, unit);
+            let radii = REGION_RADII
+                .iter()
+                .copied()
+                .filter(|&t| t < t_max)
+                .chain(std::iter::once(t_max));
+            let (mut t0, mut r0, mut n) = (0.0, 0.0, 0);
+            for t in radii {
+                let mut at = [0.0; 6];
+                for i in 0..d {
+                    at[i] = t * u[i] * unit[i];
+                }
+                let (drop, se) = contrast(ev, folds, objective, parzen, &base, &at, &mut scratch);
+                n += 1;
+                let r = if se > 0.0 {
+                    drop / (REGION_Z * se)
+                } else if drop > 0.0 {
+                    f64::INFINITY
+                } else {
+                    0.0
+                };
+                if r >= 1.0 {
+                    let tb = if r.is_finite() {
+                        t0 + (1.0 - r0) / (r - r0) * (t - t0)
+                    } else {
+                        t
+                    };
+                    return (Some((0..d).map(|i| tb * u[i] * unit[i]).collect()), n);
+                }
+                (t0, r0) = (t, r);
+            }
+            (None, n)
+        })
+        .collect();
+    let poses = ends.iter().map(|e| e.1).sum();
+    let first_open = rays.iter().zip(&ends).find(|(_, e)| e.0.is_none());
+    let open = first_open.map(|(u, _)| ray_name(u));
+    let open_reach = first_open.map(|(u, _)| {
+        let t = ray_reach(u, p, unit);
+        (0..d).map(|i| t * u[i] * unit[i]).collect::<Vec<f64>>()
+    });
+    let boundary: Vec<Option<Vec<f64>>> = ends.into_iter().map(|e| e.0).collect();
+    let matrix = if open.is_none() {
+        let pts: Vec<Vec<f64>> = boundary
+            .iter()
+            .flatten()
+            .map(|b| (0..d).map(|i| b[i] / unit[i]).collect())
+            .collect();
+        fit_ellipsoid(&pts, d).map(|m| {
+            // Back from step units to the axes' own (m, deg).
+            let s = 1.0 / (2.0 * REGION_Z).powi(2);
+            (0..d)
+                .map(|a| (0..d).map(|b| s * m[a][b] * unit[a] * unit[b]).collect())
+                .collect()
+        })
+    } else {
+        None
+    };
+    Region {
+        z: REGION_Z,
+        boundary,
+        matrix,
+        open,
+        open_reach,
+        poses,
+    }
+}
+
+/// The inverse of the symmetric positive-definite M whose quadric bᵀMb = 1 passes closest (least
+/// squares) through the points; `None` when the fit is not positive definite (the points do not
+/// enclose the origin like an ellipsoid).
+fn fit_ellipsoid(pts: &[Vec<f64>], d: usize) -> Option<Vec<Vec<f64>>> {
+    let pairs: Vec<(usize, usize)> = (0..d).flat_map(|a| (a..d).map(move |b| (a, b))).collect();
+    if pts.len() < pairs.len() {
+        return None;
+    }
+    let a = nalgebra::DMatrix::from_fn(pts.len(), pairs.len(), |r, c| {
+        let (i, j) = pairs[c];
+        let f = if i == j { 1.0 } else { 2.0 };
+        f * pts[r][i] * pts[r][j]
+    });
+    let rhs = nalgebra::DVector::from_element(pts.len(), 1.0);
+    let m_vec = a.svd(true, true).solve(&rhs, 1e-12).ok()?;
+    let mut m = nalgebra::DMatrix::zeros(d, d);
+    for (c, &(i, j)) in pairs.iter().enumerate() {
+        m[(i, j)] = m_vec[c];
+        m[(j, i)] = m_vec[c];
+    }
+    let eig = m.symmetric_eigen();
+    let max = eig.eigenvalues.iter().fold(0.0f64, |a, &b| a.max(b));
+    if !(max > 0.0) || eig.eigenvalues.iter().any(|&l| l <= 1e-9 * max) {
+        return None;
+    }
+    let inv = &eig.eigenvectors
+        * nalgebra::DMatrix::from_diagonal(&eig.eigenvalues.map(|l| 1.0 / l))
+        * eig.eigenvectors.transpose();
+    Some(
+        (0..d)
+            .map(|i| (0..d).map(|j| inv[(i, j)]).collect())
+            .collect(),
+    )
+}
+
+/// The smallest-in-every-direction covariance that contains both `a` and `b` (C ⪰ A and C ⪰ B):
+/// with A = LLᵀ and L⁻¹BL⁻ᵀ = VΛVᵀ, C = L·V·max(1, Λ)·Vᵀ·Lᵀ. Each direction keeps the larger of
+/// the two variances instead of their sum, which would count the estimator noise twice.
+fn loewner_max(a: &[Vec<f64>], b: &[Vec<f64>]) -> Vec<Vec<f64>> {
+    let d = a.len();
+    let am = nalgebra::DMatrix::from_fn(d, d, |i, j| a[i][j]);
+    let bm = nalgebra::DMatrix::from_fn(d, d, |i, j| b[i][j]);
+    // A tiny ridge keeps the Cholesky alive when the floored jackknife is singular.
+    let ridge = 1e-12 * (0..d).map(|i| am[(i, i)]).fold(0.0f64, f64::max);
+    let Some(chol) = (am.clone() + nalgebra::DMatrix::identity(d, d) * ridge).cholesky() else {
+        return b.to_vec();
+    };
+    let l = chol.l();
+    let Some(l_inv) = l.clone().try_inverse() else {
+        return b.to_vec();
+    };
+    let inner = &l_inv * &bm * l_inv.transpose();
+    let inner = (&inner + inner.transpose()) * 0.5;
+    let eig = inner.symmetric_eigen();
+    let grown = &eig.eigenvectors
+        * nalgebra::DMatrix::from_diagonal(&eig.eigenvalues.map(|v| v.max(1.0)))
+        * eig.eigenvectors.transpose();
+    let c = &l * grown * l.transpose();
+    (0..d)
+        .map(|i| (0..d).map(|j| 0.5 * (c[(i, j)] + c[(j, i)])).collect())
+        .collect()
 }
 
 /// Most points the intrinsics propagation fits the pose to (every view's fixed set thinned
@@ -333,12 +697,98 @@ mod tests {
             intrinsics: Vec::new(),
             points: points.len(),
             poses: 0,
+            jackknife: Vec::new(),
+            region: None,
+            gate_sigma: Vec::new(),
         };
         add_intrinsics(&mut u, &d);
         assert!(
             (u.sigma[2] - (1e-4 + d.iter().map(|e| e[2] * e[2]).sum::<f64>()).sqrt()).abs() < 1e-12
         );
         assert_eq!(u.intrinsics.len(), 3);
+    }
+
+    #[test]
+    fn student_t_quantile_at_three_sigma() {
+        // The 0.99865 quantiles by numerical integration of the t density: 5 dof 5.507, 7 dof
+        // 4.530, 31 dof 3.261; ∞: 3.
+        for (dof, want) in [(5, 5.507), (7, 4.530), (31, 3.261)] {
+            let got = student_t_3sigma(dof);
+            assert!((got / want - 1.0).abs() < 0.005, "{dof}: {got} vs {want}");
+        }
+        assert!((student_t_3sigma(100_000) - 3.0).abs() < 1e-3);
+        assert!(student_t_3sigma(5) > student_t_3sigma(6));
+    }
+
+    #[test]
+    fn an_ellipsoid_through_its_rays_gives_back_its_covariance() {
+        // Boundary points of δᵀ M δ = 1 along every ray of `rays(3)`: the fit recovers M⁻¹.
+        let m = nalgebra::Matrix3::new(4.0, 1.0, 0.0, 1.0, 2.0, 0.5, 0.0, 0.5, 1.0);
+        let pts: Vec<Vec<f64>> = rays(3)
+            .iter()
+            .map(|u| {
+                let v = nalgebra::Vector3::new(u[0], u[1], u[2]);
+                let t = 1.0 / (v.transpose() * m * v)[0].sqrt();
+                (0..3).map(|i| t * u[i]).collect()
+            })
+            .collect();
+        let inv = m.try_inverse().unwrap();
+        let got = fit_ellipsoid(&pts, 3).unwrap();
+        for i in 0..3 {
+            for j in 0..3 {
+                assert!((got[i][j] - inv[(i, j)]).abs() < 1e-9, "{got:?}");
+            }
+        }
+        // Points that do not enclose the origin (a slab: one direction unbounded) fit no
+        // ellipsoid.
+        let slab: Vec<Vec<f64>> = rays(2)
+            .iter()
+            .map(|u| vec![u[0] * if u[1] == 0.0 { 1.0 } else { 1e6 }, u[1] * 1e6])
+            .collect();
+        assert!(fit_ellipsoid(&slab, 2).is_none());
+    }
+
+    #[test]
+    fn the_larger_covariance_contains_both() {
+        let a = vec![vec![4.0, 0.0], vec![0.0, 1.0]];
+        let b = vec![vec![1.0, 0.0], vec![0.0, 9.0]];
+        let c = loewner_max(&a, &b);
+        // Axis-aligned: the larger variance per axis, no cross term.
+        assert!((c[0][0] - 4.0).abs() < 1e-9 && (c[1][1] - 9.0).abs() < 1e-9);
+        assert!(c[0][1].abs() < 1e-9);
+        // One inside the other: the larger one itself.
+        let small = vec![vec![1.0, 0.2], vec![0.2, 0.5]];
+        let big = vec![vec![5.0, 1.0], vec![1.0, 3.0]];
+        let c = loewner_max(&small, &big);
+        for i in 0..2 {
+            for j in 0..2 {
+                assert!((c[i][j] - big[i][j]).abs() < 1e-9, "{c:?}");
+            }
+        }
+        // Correlated: C − A and C − B are positive semidefinite.
+        let a = vec![vec![2.0, 1.5], vec![1.5, 2.0]];
+        let b = vec![vec![2.0, -1.5], vec![-1.5, 2.0]];
+        let c = loewner_max(&a, &b);
+        for other in [&a, &b] {
+            let d = nalgebra::Matrix2::new(
+                c[0][0] - other[0][0],
+                c[0][1] - other[0][1],
+                c[1][0] - other[1][0],
+                c[1][1] - other[1][1],
+            );
+            assert!(
+                d.symmetric_eigenvalues().iter().all(|&l| l > -1e-9),
+                "{c:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn rays_cover_every_axis_and_pair() {
+        let r = rays(4);
+        assert_eq!(r.len(), 8 + 6 * 4);
+        assert_eq!(ray_name(&r[0]), "+x");
+        assert!(r.iter().any(|u| ray_name(u) == "-y+yaw"));
     }
 
     #[test]
