@@ -171,8 +171,15 @@ fn with_uncertainty(
         },
     )?;
     r.stats.poses += u.poses as u64;
+    // The groups' re-optimisations score (K − 1)/K of the jackknife's set per pose, the region's
+    // probes all of its own set.
+    let (region_poses, region_points) = u
+        .region
+        .as_ref()
+        .map_or((0, 0), |g| (g.poses as u64, g.points as u64));
     r.stats.point_evaluations +=
-        (u.poses as u64) * (u.points as u64) * (u.folds as u64 - 1) / u.folds as u64;
+        (u.poses as u64 - region_poses) * (u.points as u64) * (u.folds as u64 - 1) / u.folds as u64
+            + region_poses * region_points;
     // The gate judges what this run's data supports (the jackknife). The camera file's stated
     // intrinsics uncertainty is the calibration's, the same for every run: it goes into the
     // reported σ and covariance (what the detection pipeline inherits) but refusing every run

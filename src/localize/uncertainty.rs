@@ -341,6 +341,9 @@ pub struct Region {
     pub open_reach: Option<Vec<f64>>,
     /// Poses scored.
     pub poses: usize,
+    /// Points in the region's fixed set, all views.
+    #[serde(default)]
+    pub points: usize,
 }
 
 /// Each free axis' unit for the region's rays and the σ floor: the search's finest step (tilts
@@ -507,6 +510,7 @@ fn region(
         open,
         open_reach,
         poses,
+        points: ev.n_points,
     }
 }
 
