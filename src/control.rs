@@ -472,13 +472,12 @@ fn refuse(stream: &mut UnixStream, max: usize) {
 
 /// Serve connections on `listener` until the process ends, one thread per client, at most
 /// `limits.max_connections` at once; beyond that an idle client is evicted, or the newcomer is
-/// read by an overflow reader that answers `status` and tells everything else `busy`. `log`
-/// receives one line per client and per protocol fault. A panicking handler answers an internal
-/// error and gives its slot back.
+/// read by an overflow reader that answers `status` and tells everything else `busy`. One
+/// `tracing` record (INFO) per client and per protocol fault. A panicking handler answers an
+/// internal error and gives its slot back.
 pub fn serve(
     listener: UnixListener,
     handler: Arc<Handler>,
-    log: Arc<dyn Fn(&str) + Send + Sync>,
     limits: Limits,
 ) -> std::thread::JoinHandle<()> {
     let slots = Arc::new(Slots::default());
@@ -489,32 +488,30 @@ pub fn serve(
                 let mut stream = match conn {
                     Ok(s) => s,
                     Err(e) => {
-                        log(&format!("control: accept failed: {e}"));
+                        tracing::info!("control: accept failed: {e}");
                         std::thread::sleep(Duration::from_millis(100));
                         continue;
                     }
                 };
                 let max = limits.max_connections;
-                let (h, l) = (handler.clone(), log.clone());
+                let h = handler.clone();
                 let spawned = match slots.admit(&stream, &limits) {
                     Admit::Slot(guard, evicted) => {
                         if let Some(e) = evicted {
-                            log(&format!("control: every slot taken; closed {e}"));
+                            tracing::info!("control: every slot taken; closed {e}");
                         }
                         std::thread::Builder::new()
                             .name("control-client".into())
                             .spawn(move || {
                                 let _guard = &guard;
-                                serve_one(&mut stream, h.as_ref(), l.as_ref(), &limits, || {
-                                    guard.serving()
-                                });
+                                serve_one(&mut stream, h.as_ref(), &limits, || guard.serving());
                             })
                     }
                     Admit::Overflow(guard) => std::thread::Builder::new()
                         .name("control-overflow".into())
                         .spawn(move || {
                             let _guard = guard;
-                            serve_overflow(&mut stream, h.as_ref(), l.as_ref(), &limits);
+                            serve_overflow(&mut stream, h.as_ref(), &limits);
                         }),
                     Admit::Busy => {
                         refuse(&mut stream, max);
@@ -522,7 +519,7 @@ pub fn serve(
                     }
                 };
                 if spawned.is_err() {
-                    log("control: cannot start a client thread");
+                    tracing::info!("control: cannot start a client thread");
                 }
             }
         })
@@ -553,13 +550,7 @@ fn handle(handler: &Handler, req: Request, reply: &mut dyn Reply) -> (Value, Opt
     )
 }
 
-fn serve_one(
-    stream: &mut UnixStream,
-    handler: &Handler,
-    log: &(dyn Fn(&str) + Send + Sync),
-    limits: &Limits,
-    serving: impl FnOnce(),
-) {
+fn serve_one(stream: &mut UnixStream, handler: &Handler, limits: &Limits, serving: impl FnOnce()) {
     let who = peer(stream);
     let _ = stream.set_write_timeout(Some(WRITE_TIMEOUT));
     let req = match read_request(stream, limits.request_timeout) {
@@ -571,7 +562,7 @@ fn serve_one(
     let req = match req {
         Ok(r) => r,
         Err(e) => {
-            log(&format!("control: bad request from {who}: {e}"));
+            tracing::info!("control: bad request from {who}: {e}");
             let _ = write_json(
                 stream,
                 &json!({"ok": false, "error": format!("bad request: {e}")}),
@@ -579,7 +570,7 @@ fn serve_one(
             return;
         }
     };
-    log(&format!("control: {req:?} from {who}"));
+    tracing::info!("control: {req:?} from {who}");
     let (answer, payload) = handle(handler, req, &mut StreamReply(stream));
     if write_json(stream, &answer).is_ok() {
         if let Some(p) = payload {
@@ -590,21 +581,16 @@ fn serve_one(
 
 /// A client beyond the limit: read its request (so that our answer, not a broken pipe, reaches
 /// it), answer `status`, tell anything else `busy`.
-fn serve_overflow(
-    stream: &mut UnixStream,
-    handler: &Handler,
-    log: &(dyn Fn(&str) + Send + Sync),
-    limits: &Limits,
-) {
+fn serve_overflow(stream: &mut UnixStream, handler: &Handler, limits: &Limits) {
     let _ = stream.set_write_timeout(Some(limits.overflow_timeout));
     let req = read_request(stream, limits.overflow_timeout);
     let answer = match req {
         Ok(Some(b)) => match serde_json::from_slice::<Request>(&b) {
             Ok(Request::Status {}) => {
-                log(&format!(
+                tracing::info!(
                     "control: Status from {} (every slot taken: answered on the overflow reader)",
                     peer(stream)
-                ));
+                );
                 let mut sink = NoProgress;
                 handle(handler, Request::Status {}, &mut sink).0
             }
@@ -831,7 +817,7 @@ mod tests {
             Request::DumpOverlay {} => (json!({"ok": true}), Some(vec![1, 2, 3])),
             _ => (json!({"ok": true, "state": "ok"}), None),
         });
-        serve(l, handler, Arc::new(|_| {}), Limits::default());
+        serve(l, handler, Limits::default());
         let mut c = Client::connect(&path).unwrap();
         let (v, _) = c
             .call(&Request::Status {}, Duration::from_secs(5), |_| {})

@@ -42,7 +42,7 @@ fn server(limits: Limits) -> Server {
         Request::GetPose {} => panic!("handler bug"),
         _ => (json!({"ok": true, "state": "ok"}), None),
     });
-    control::serve(listener, handler, Arc::new(|_| {}), limits);
+    control::serve(listener, handler, limits);
     Server {
         _dir: dir,
         path,

@@ -9,6 +9,7 @@
 //! config on SIGHUP (a bad file is reported and the running config kept) and ends cleanly on
 //! SIGTERM. Every decision is one log line and is visible in `infraloc status`.
 
+mod logging;
 pub mod metrics;
 pub mod notify;
 mod policy;
@@ -27,7 +28,6 @@ use crate::map::cache::load_tile;
 use crate::posefile::{format_utc, PoseFile};
 use crate::stage::StageName;
 use crate::store::{Decision, PoseStore};
-use notify::{Level, Logger};
 use policy::{Action, CrossCheck, Policy, Requested, Timing};
 use serde_json::{json, Value};
 pub use status::State;
@@ -120,17 +120,15 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 pub fn run(config_path: &Path) -> Result<()> {
     // The same validation as `infraloc validate`: every problem, exit 78, before anything runs.
     let (cfg, warnings) = crate::preflight::load_for_service(config_path)?;
-    let log = Arc::new(Logger::new());
+    // The one place the service chooses where its records (and the library's) go.
+    logging::init();
     for w in warnings {
-        log.log(Level::Warning, &format!("config: {w}"));
+        tracing::warn!("config: {w}");
     }
     // The state directory is ours to create (systemd's StateDirectory= does it for the unit; a
     // hand-started service must not lose its first run to a missing directory).
     match crate::preflight::create_state_dir(&cfg) {
-        Ok(Some(d)) => log.log(
-            Level::Info,
-            &format!("created the state directory {} (0750)", d.display()),
-        ),
+        Ok(Some(d)) => tracing::info!("created the state directory {} (0750)", d.display()),
         Ok(None) => {}
         Err(e) => {
             return Err(Error::config(
@@ -153,10 +151,7 @@ pub fn run(config_path: &Path) -> Result<()> {
     .flatten()
     {
         for f in crate::persist::remove_stale_temps(target) {
-            log.log(
-                Level::Info,
-                &format!("removed {} (left by an interrupted write)", f.display()),
-            );
+            tracing::info!("removed {} (left by an interrupted write)", f.display());
         }
     }
     let store = PoseStore::at(&cfg.output.pose, cfg.daemon.history_len);
@@ -180,12 +175,10 @@ pub fn run(config_path: &Path) -> Result<()> {
     let mut served: Option<PoseFile> = None;
     match store.current() {
         Ok(Some(p)) => {
-            log.log(
-                Level::Info,
-                &format!(
-                    "serving stored pose from {} (tile {})",
-                    p.timestamp_utc, p.tile_id
-                ),
+            tracing::info!(
+                "serving stored pose from {} (tile {})",
+                p.timestamp_utc,
+                p.tile_id
             );
             status.served = Some(Served::of(&store.pose_path(), &p));
             status.state = State::Ok;
@@ -195,11 +188,8 @@ pub fn run(config_path: &Path) -> Result<()> {
             );
             served = Some(p);
         }
-        Ok(None) => log.log(Level::Info, "no stored pose yet"),
-        Err(e) => log.log(
-            Level::Warning,
-            &format!("stored pose unusable, not served: {e}"),
-        ),
+        Ok(None) => tracing::info!("no stored pose yet"),
+        Err(e) => tracing::warn!("stored pose unusable, not served: {e}"),
     }
     let shared = Arc::new(Shared {
         status: Mutex::new(status),
@@ -209,31 +199,21 @@ pub fn run(config_path: &Path) -> Result<()> {
     let (listener, note) = control::bind(&cfg.daemon.socket)
         .map_err(|e| Error::config(config_path, format!("[daemon] socket: {e}")))?;
     if let Some(n) = note {
-        log.log(Level::Warning, &n);
+        tracing::warn!("{n}");
     }
     start_signals(tx.clone())?;
     let handler = make_handler(shared.clone(), store.clone(), tx.clone(), config_path);
-    let l2 = log.clone();
-    control::serve(
-        listener,
-        handler,
-        Arc::new(move |m| l2.log(Level::Info, m)),
-        control::Limits::default(),
-    );
-    log.log(
-        Level::Info,
-        &format!(
-            "control socket {} (mode {:o})",
-            cfg.daemon.socket.display(),
-            control::SOCKET_MODE
-        ),
+    control::serve(listener, handler, control::Limits::default());
+    tracing::info!(
+        "control socket {} (mode {:o})",
+        cfg.daemon.socket.display(),
+        control::SOCKET_MODE
     );
     let mut d = Daemon {
         cfg,
         config_path: config_path.to_path_buf(),
         store,
         shared,
-        log,
         tx,
         policy: Policy::new(Instant::now(), served.is_some()),
         served,
@@ -250,7 +230,7 @@ pub fn run(config_path: &Path) -> Result<()> {
     let result = d.main_loop(rx);
     notify::notify("STOPPING=1");
     let _ = std::fs::remove_file(&d.cfg.daemon.socket);
-    d.log.log(Level::Info, "stopped");
+    tracing::info!("stopped");
     result
 }
 
@@ -375,7 +355,6 @@ struct Daemon {
     config_path: PathBuf,
     store: PoseStore,
     shared: Arc<Shared>,
-    log: Arc<Logger>,
     tx: Sender<Event>,
     served: Option<PoseFile>,
     ready_sent: bool,
@@ -422,7 +401,7 @@ impl Daemon {
             }
             match event {
                 Ok(Event::Terminate) => {
-                    self.log.log(Level::Info, "SIGTERM: stopping");
+                    tracing::info!("SIGTERM: stopping");
                     for w in self.waiters.drain(..) {
                         let _ = w.send(Answer::Refused("the daemon is stopping".into()));
                     }
@@ -471,20 +450,16 @@ impl Daemon {
         match metrics::write(&dir, &s) {
             Ok(()) => {
                 if self.metrics_error.take().is_some() {
-                    self.log.log(
-                        Level::Info,
-                        &format!(
-                            "metrics: {} written again",
-                            metrics::file_in(&dir).display()
-                        ),
+                    tracing::info!(
+                        "metrics: {} written again",
+                        metrics::file_in(&dir).display()
                     );
                 }
             }
             Err(e) => {
                 let e = format!("[daemon] metrics-dir: {e}");
                 if self.metrics_error.as_deref() != Some(e.as_str()) {
-                    self.log
-                        .log(Level::Warning, &format!("metrics not written: {e}"));
+                    tracing::warn!("metrics not written: {e}");
                     self.metrics_error = Some(e);
                 }
             }
@@ -522,10 +497,7 @@ impl Daemon {
     }
 
     fn start_localize(&mut self, force: bool, why: &str) {
-        self.log.log(
-            Level::Info,
-            &format!("localizing ({why}{})", if force { ", forced" } else { "" }),
-        );
+        tracing::info!("localizing ({why}{})", if force { ", forced" } else { "" });
         self.job_started = Instant::now();
         self.lock_status().running = Some(Running {
             job: JobKind::Localize,
@@ -588,17 +560,12 @@ impl Daemon {
                     Decision::Kept(w) => (false, w.clone()),
                 };
                 let c = run.pose_file.camera_center;
-                self.log.log(
-                    Level::Info,
-                    &format!(
-                        "localized in {seconds:.1} s: centre ({:.3}, {:.3}, {:.3}), score {:.4}; {} ({why})",
+                tracing::info!(served = accepted, "localized in {seconds:.1} s: centre ({:.3}, {:.3}, {:.3}), score {:.4}; {} ({why})",
                         c[0],
                         c[1],
                         c[2],
                         run.outcome.refinement.quality.nmi,
-                        if accepted { "served" } else { "not served" }
-                    ),
-                );
+                        if accepted { "served" } else { "not served" });
                 if accepted {
                     self.served = Some(run.pose_file.clone());
                     // A pose served after the drift alarm answers it.
@@ -611,8 +578,7 @@ impl Daemon {
                         self.cfg.output.report.as_ref(),
                         self.cfg.output.overlay.as_ref(),
                     ) {
-                        self.log
-                            .log(Level::Warning, &format!("report/overlay not written: {e}"));
+                        tracing::warn!("report/overlay not written: {e}");
                     }
                 }
                 let result = RunResult {
@@ -638,8 +604,7 @@ impl Daemon {
                     },
                 };
                 for t in &run.skipped_tiles {
-                    self.log
-                        .log(Level::Warning, &format!("tile cache: skipped {}", t.reason));
+                    tracing::warn!("tile cache: skipped {}", t.reason);
                 }
                 *lock(&self.shared.last_run) = Some(Arc::new(run));
                 self.policy.localized(
@@ -659,20 +624,17 @@ impl Daemon {
                 let wait = self.policy.failed(Instant::now(), &Timing::of(&self.cfg));
                 let n = self.policy.failures_in_a_row;
                 self.lock_status().failures_in_a_row = n;
-                self.log.log(
-                    Level::Error,
-                    &format!(
-                        "localization failed ({n} in a row): {msg}; {}; retry in {wait:.0} s",
-                        if self.served.is_some() {
-                            "last good pose kept"
-                        } else {
-                            "no pose served"
-                        }
-                    ),
+                tracing::error!(
+                    failures_in_a_row = n,
+                    "localization failed ({n} in a row): {msg}; {}; retry in {wait:.0} s",
+                    if self.served.is_some() {
+                        "last good pose kept"
+                    } else {
+                        "no pose served"
+                    }
                 );
                 if let Err(e) = self.store.record_failure(&finished, &msg) {
-                    self.log
-                        .log(Level::Warning, &format!("history not written: {e}"));
+                    tracing::warn!("history not written: {e}");
                 }
                 let result = RunResult {
                     finished_utc: finished,
@@ -699,7 +661,7 @@ impl Daemon {
             // The policy starts a drift check only while a pose is served.
             return;
         };
-        self.log.log(Level::Info, "drift check");
+        tracing::info!("drift check");
         self.job_started = Instant::now();
         self.lock_status().running = Some(Running {
             job: JobKind::DriftCheck,
@@ -732,28 +694,22 @@ impl Daemon {
             Ok(d) => {
                 let v = &d.verdict;
                 if v.moved {
-                    self.log.log(
-                        Level::Warning,
-                        &format!(
-                            "drift check: camera moved ({}); re-localizing",
-                            // As the JSON value was printed: the reason in quotes.
-                            serde_json::to_string(&v.reason).unwrap_or_default()
-                        ),
+                    tracing::warn!(
+                        "drift check: camera moved ({}); re-localizing",
+                        // As the JSON value was printed: the reason in quotes.
+                        serde_json::to_string(&v.reason).unwrap_or_default()
                     );
                 } else {
-                    self.log.log(
-                        Level::Info,
-                        &format!(
-                            "drift check: ok (shift {:.3} m, yaw {:.3}°)",
-                            v.shift_m, v.yaw_deg
-                        ),
+                    tracing::info!(
+                        "drift check: ok (shift {:.3} m, yaw {:.3}°)",
+                        v.shift_m,
+                        v.yaw_deg
                     );
                 }
                 DriftOutcome::Ran(d)
             }
             Err(e) => {
-                self.log
-                    .log(Level::Warning, &format!("drift check could not run: {e}"));
+                tracing::warn!("drift check could not run: {e}");
                 DriftOutcome::NotRun {
                     moved: (),
                     error: e.to_string(),
@@ -776,19 +732,16 @@ impl Daemon {
         match load_config(&self.config_path) {
             Ok((c, warnings)) => {
                 for w in warnings {
-                    self.log
-                        .log(Level::Warning, &format!("reload: config: {w}"));
+                    tracing::warn!("reload: config: {w}");
                 }
                 if c.daemon.socket != self.cfg.daemon.socket {
-                    self.log.log(
-                        Level::Warning,
-                        "reload: [daemon] socket changed; it takes effect at the next restart",
+                    tracing::warn!(
+                        "reload: [daemon] socket changed; it takes effect at the next restart"
                     );
                 }
                 if c.output.pose != self.cfg.output.pose {
-                    self.log.log(
-                        Level::Warning,
-                        "reload: [output] pose changed; it takes effect at the next restart",
+                    tracing::warn!(
+                        "reload: [output] pose changed; it takes effect at the next restart"
                     );
                 }
                 let mut c = c;
@@ -796,13 +749,10 @@ impl Daemon {
                 c.output.pose = self.cfg.output.pose.clone();
                 self.cfg = c;
                 self.lock_status().reload_error = None;
-                self.log.log(Level::Info, "SIGHUP: config reloaded");
+                tracing::info!("SIGHUP: config reloaded");
             }
             Err(e) => {
-                self.log.log(
-                    Level::Error,
-                    &format!("SIGHUP: config not reloaded, the running one stays: {e}"),
-                );
+                tracing::error!("SIGHUP: config not reloaded, the running one stays: {e}");
                 self.lock_status().reload_error = Some(e.to_string());
             }
         }

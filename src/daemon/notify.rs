@@ -1,10 +1,8 @@
-//! systemd integration without libsystemd: `sd_notify` datagrams and journald's native protocol.
+//! systemd integration without libsystemd: `sd_notify` datagrams and the watchdog interval.
+//! (Log records reach journald through `tracing-journald`, installed by `super::logging`.)
 
 use std::os::unix::net::UnixDatagram;
 use std::time::Duration;
-
-/// journald's native socket; when it is absent, log lines go to stderr.
-pub(crate) const JOURNAL_SOCKET: &str = "/run/systemd/journal/socket";
 
 /// Send a state string (`READY=1`, `STATUS=…`, `WATCHDOG=1`, `STOPPING=1`) to the service
 /// manager named by `$NOTIFY_SOCKET`. Returns `false` when not run by systemd (no variable) or the
@@ -44,65 +42,6 @@ pub(crate) fn watchdog_interval() -> Option<Duration> {
     }
     let us: u64 = std::env::var("WATCHDOG_USEC").ok()?.parse().ok()?;
     (us > 0).then(|| Duration::from_micros(us))
-}
-
-/// Syslog priorities used by [`Logger`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Level {
-    /// LOG_ERR.
-    Error = 3,
-    /// LOG_WARNING.
-    Warning = 4,
-    /// LOG_INFO.
-    Info = 6,
-}
-
-/// One-line logger: journald's native protocol when its socket exists (priorities kept), stderr
-/// otherwise.
-#[derive(Debug)]
-pub(crate) struct Logger {
-    journal: Option<UnixDatagram>,
-}
-
-impl Logger {
-    /// Connect to journald if it is there.
-    pub(crate) fn new() -> Logger {
-        let journal = std::path::Path::new(JOURNAL_SOCKET)
-            .exists()
-            .then(|| {
-                let s = UnixDatagram::unbound().ok()?;
-                s.connect(JOURNAL_SOCKET).ok()?;
-                Some(s)
-            })
-            .flatten();
-        Logger { journal }
-    }
-
-    /// Log one line (newlines are folded so a record stays one line).
-    pub(crate) fn log(&self, level: Level, msg: &str) {
-        let msg = msg.replace('\n', " ");
-        if let Some(j) = &self.journal {
-            let rec = format!(
-                "PRIORITY={}\nSYSLOG_IDENTIFIER=infraloc\nMESSAGE={msg}\n",
-                level as u8
-            );
-            if j.send(rec.as_bytes()).is_ok() {
-                return;
-            }
-        }
-        let tag = match level {
-            Level::Error => "error",
-            Level::Warning => "warning",
-            Level::Info => "info",
-        };
-        eprintln!("infraloc[{}] {tag}: {msg}", std::process::id());
-    }
-}
-
-impl Default for Logger {
-    fn default() -> Self {
-        Logger::new()
-    }
 }
 
 #[cfg(test)]

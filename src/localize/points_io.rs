@@ -23,6 +23,10 @@
 //! scale matters little; what matters is that it is monotonic and the same for every point.
 //!
 //! Non-finite coordinates are rejected (one-line error naming the file and point).
+//!
+//! The LAS reader is ours rather than the `las` crate's: it reads the same coordinates,
+//! rejects unusable scale factors, and says what a truncated file is missing
+//! (docs/architecture.md, "Kept crates and own code", has the comparison).
 
 use super::points::{validate, GroundPoint};
 use crate::error::{Error, Result};
