@@ -12,7 +12,7 @@
 //! - the histogram is u32 counts in four interleaved copies (breaking the store→load dependency of
 //!   consecutive equal bins), 32×33×4×4 B = 17 KiB, so it stays in L1;
 //! - on x86-64 a copy compiled for AVX2 + FMA is chosen at run time (8 lanes instead of SSE2's 4),
-//!   bit-identical to the baseline copy.
+//!   on aarch64 the Mei projection is an explicit NEON copy; both bit-identical to the plain loop.
 //!
 //! [`accumulate_scalar`] is the straightforward f64 version through [`CameraModel`], kept as the
 //! reference the fast kernel is tested against and as the benchmark's baseline.
@@ -292,6 +292,138 @@ fn project_chunk_mei(
     }
 }
 
+/// [`project_chunk_mei`] with explicit NEON intrinsics, four points per step (aarch64).
+///
+/// Why by hand: the compiler's vectorisation of the plain loop is the fallback it chooses; this
+/// copy fixes the instruction sequence so it can be counted and compared
+/// (docs/benchmarks.md "aarch64"). It must stay bit-identical to the scalar loop, so every lane
+/// performs the scalar loop's IEEE operations in the same order and association: separate
+/// `vmulq`/`vaddq` (a fused `vfmaq` rounds once and would change results), a correctly rounded
+/// `vsqrtq` and `vdivq` (no reciprocal estimates), the truncating `vcvtq_s32_f32` (what the
+/// in-range `to_int_unchecked` of [`pixel_index`] is), wrapping u32 index arithmetic as in the
+/// scalar code, and `vbslq` for the scalar `if`s. Lanes past the last multiple of four go through
+/// the scalar loop.
+#[cfg(target_arch = "aarch64")]
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn project_chunk_mei_neon(
+    xs: &[f32],
+    ys: &[f32],
+    zs: &[f32],
+    p: &PoseF32,
+    k: [f32; 5],
+    xi: f32,
+    d: [f32; 4],
+    zmin: f32,
+    r2max: f32,
+    w: usize,
+    h: usize,
+    sentinel: u32,
+    out: &mut [u32],
+) {
+    use core::arch::aarch64::*;
+    let n_all = out.len().min(xs.len()).min(ys.len()).min(zs.len());
+    let body = n_all - n_all % 4;
+    let r = p.r;
+    let (wf, hf) = (w.min(MAX_SIDE) as f32, h.min(MAX_SIDE) as f32);
+    // The scalar loop's `2.0 * d[2]` and `2.0 * d[3]` are the left-most products of their terms,
+    // so hoisting them out of the loop keeps the order (and doubling is exact anyway).
+    let (d2x2, d3x2) = (2.0 * d[2], 2.0 * d[3]);
+    let mut i = 0;
+    while i < body {
+        // SAFETY: NEON is part of the aarch64-unknown-linux-gnu baseline, so the intrinsics run on
+        // every CPU this code is compiled for. The loads read xs/ys/zs[i..i + 4] and the store
+        // writes out[i..i + 4]: in bounds because i + 4 <= body <= the length of each slice.
+        unsafe {
+            let v = |a: f32| vdupq_n_f32(a);
+            let (x, y, z) = (
+                vld1q_f32(xs.as_ptr().add(i)),
+                vld1q_f32(ys.as_ptr().add(i)),
+                vld1q_f32(zs.as_ptr().add(i)),
+            );
+            // r[0]·x + r[1]·y + r[2]·z + t, left to right as in the scalar expression.
+            let row = |a: f32, b: f32, c: f32, t: f32| {
+                vaddq_f32(
+                    vaddq_f32(
+                        vaddq_f32(vmulq_f32(v(a), x), vmulq_f32(v(b), y)),
+                        vmulq_f32(v(c), z),
+                    ),
+                    v(t),
+                )
+            };
+            let cx = row(r[0], r[1], r[2], p.t[0]);
+            let cy = row(r[3], r[4], r[5], p.t[1]);
+            let cz = row(r[6], r[7], r[8], p.t[2]);
+            let n = vsqrtq_f32(vaddq_f32(
+                vaddq_f32(vmulq_f32(cx, cx), vmulq_f32(cy, cy)),
+                vmulq_f32(cz, cz),
+            ));
+            let f = vdivq_f32(v(1.0), vaddq_f32(cz, vmulq_f32(v(xi), n)));
+            let (xu, yu) = (vmulq_f32(cx, f), vmulq_f32(cy, f));
+            let r2 = vaddq_f32(vmulq_f32(xu, xu), vmulq_f32(yu, yu));
+            let radial = vaddq_f32(
+                vaddq_f32(v(1.0), vmulq_f32(v(d[0]), r2)),
+                vmulq_f32(vmulq_f32(v(d[1]), r2), r2),
+            );
+            let two = v(2.0);
+            let xd = vaddq_f32(
+                vaddq_f32(vmulq_f32(xu, radial), vmulq_f32(vmulq_f32(v(d2x2), xu), yu)),
+                vmulq_f32(v(d[3]), vaddq_f32(r2, vmulq_f32(vmulq_f32(two, xu), xu))),
+            );
+            let yd = vaddq_f32(
+                vaddq_f32(
+                    vmulq_f32(yu, radial),
+                    vmulq_f32(v(d[2]), vaddq_f32(r2, vmulq_f32(vmulq_f32(two, yu), yu))),
+                ),
+                vmulq_f32(vmulq_f32(v(d3x2), xu), yu),
+            );
+            let u = vaddq_f32(
+                vaddq_f32(
+                    vaddq_f32(vmulq_f32(v(k[0]), xd), vmulq_f32(v(k[2]), yd)),
+                    v(k[3]),
+                ),
+                v(0.5),
+            );
+            let vv = vaddq_f32(vaddq_f32(vmulq_f32(v(k[1]), yd), v(k[4])), v(0.5));
+            // IEEE comparisons are false for NaN, as the scalar `>`, `<`, `>=` are.
+            let zero = v(0.0);
+            let ok = vandq_u32(
+                vandq_u32(
+                    vandq_u32(
+                        vcgtq_f32(cz, vmulq_f32(v(zmin), n)),
+                        vcltq_f32(r2, v(r2max)),
+                    ),
+                    vandq_u32(vcgeq_f32(u, zero), vcltq_f32(u, v(wf))),
+                ),
+                vandq_u32(vcgeq_f32(vv, zero), vcltq_f32(vv, v(hf))),
+            );
+            // pixel_index: not-ok lanes become 0 before the conversion, so every converted value
+            // is in [0, 2^24) and the truncation equals the scalar's.
+            let ui = vreinterpretq_u32_s32(vcvtq_s32_f32(vbslq_f32(ok, u, zero)));
+            let vi = vreinterpretq_u32_s32(vcvtq_s32_f32(vbslq_f32(ok, vv, zero)));
+            let idx = vaddq_u32(vmulq_u32(vi, vdupq_n_u32(w as u32)), ui);
+            let res = vbslq_u32(ok, idx, vdupq_n_u32(sentinel));
+            vst1q_u32(out.as_mut_ptr().add(i), res);
+        }
+        i += 4;
+    }
+    project_chunk_mei(
+        &xs[body..n_all],
+        &ys[body..n_all],
+        &zs[body..n_all],
+        p,
+        k,
+        xi,
+        d,
+        zmin,
+        r2max,
+        w,
+        h,
+        sentinel,
+        &mut out[body..n_all],
+    );
+}
+
 /// Pixel index of the (½-shifted) position (u, v), or `sentinel` when `!ok`. `ok` must imply
 /// 0 ≤ u < w and 0 ≤ v < h (the callers' range tests), so the truncating conversions are in range.
 #[inline(always)]
@@ -366,9 +498,9 @@ fn project_chunk_equidistant(
 }
 
 /// Project a chunk of points with `cam` into pixel indices of `img` (sentinel when not visible).
-/// `NEON`: the slot of an explicit aarch64 NEON copy of the projection (none yet: aarch64 runs
-/// the compiler's vectorisation of the plain loop; docs/benchmarks.md "aarch64"); `false` is the
-/// plain reference loop.
+/// `NEON`: on aarch64 the Mei projection runs the explicit NEON copy
+/// ([`project_chunk_mei_neon`]; the equidistant model keeps the plain loop); elsewhere, and with
+/// `false` (the reference), the plain loop, which the compiler vectorises for the target.
 #[inline(always)]
 fn project_chunk<const NEON: bool>(
     xs: &[f32],
@@ -387,9 +519,18 @@ fn project_chunk<const NEON: bool>(
             d,
             zmin,
             r2max,
-        } => project_chunk_mei(
-            xs, ys, zs, pose, k, xi, d, zmin, r2max, img.width, img.height, s, out,
-        ),
+        } => {
+            #[cfg(target_arch = "aarch64")]
+            if NEON {
+                project_chunk_mei_neon(
+                    xs, ys, zs, pose, k, xi, d, zmin, r2max, img.width, img.height, s, out,
+                );
+                return;
+            }
+            project_chunk_mei(
+                xs, ys, zs, pose, k, xi, d, zmin, r2max, img.width, img.height, s, out,
+            )
+        }
         FastCamera::Equidistant { k, d, theta_max } => project_chunk_equidistant(
             xs, ys, zs, pose, k, d, theta_max, img.width, img.height, s, out,
         ),
@@ -440,7 +581,8 @@ impl Default for Scratch {
 /// On x86-64 CPUs with AVX2 and FMA (detected at run time) a copy of the kernel compiled for them
 /// runs (8-wide projection instead of SSE2's 4-wide). Both copies perform the same IEEE operations
 /// in the same order — Rust never contracts `a·b + c` into an FMA on its own — so the histogram is
-/// bit-identical whichever runs (tested).
+/// bit-identical whichever runs (tested). On aarch64 the Mei projection is the explicit NEON copy
+/// ([`project_chunk_mei_neon`]), bit-identical too (`infraloc self-test` under qemu in CI).
 pub fn accumulate(
     pts: &PreparedPoints,
     pose: &PoseF32,
@@ -455,7 +597,7 @@ pub fn accumulate(
         unsafe { accumulate_avx2(pts, pose, cam, img, hist, scratch) };
         return;
     }
-    // The target's baseline features (SSE2 on x86-64).
+    // The target's baseline features (SSE2 on x86-64; NEON on aarch64, with the explicit copy).
     accumulate_impl::<true>(pts, pose, cam, img, hist, scratch);
 }
 
@@ -477,8 +619,8 @@ unsafe fn accumulate_avx2(
 }
 
 /// [`accumulate`] without hand-picked SIMD: the plain loop for the target's baseline features
-/// (SSE2 on x86-64; on aarch64 whatever NEON code the compiler makes of it). The reference the fast copies must equal bit for bit (tests, `infraloc
-/// self-test`).
+/// (SSE2 on x86-64; on aarch64 whatever NEON code the compiler makes of it). The reference the
+/// fast copies must equal bit for bit (tests, `infraloc self-test`).
 pub fn accumulate_reference(
     pts: &PreparedPoints,
     pose: &PoseF32,
@@ -677,12 +819,12 @@ fn visible_from_all_impl<const NEON: bool>(
     }
 }
 
-/// Which copy of the projection [`accumulate`] runs on this CPU: `aarch64` (the compiler's NEON
-/// vectorisation of the plain loop), `avx2+fma` (x86-64 with both, detected at run time) or
+/// Which copy of the projection [`accumulate`] runs on this CPU: `neon` (aarch64: the explicit
+/// NEON copy of the Mei projection), `avx2+fma` (x86-64 with both, detected at run time) or
 /// `baseline`.
 pub fn kernel_path() -> &'static str {
     #[cfg(target_arch = "aarch64")]
-    return "aarch64";
+    return "neon";
     #[cfg(target_arch = "x86_64")]
     if has_avx2_fma() {
         return "avx2+fma";
