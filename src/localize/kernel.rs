@@ -294,14 +294,14 @@ fn project_chunk_mei(
 
 /// [`project_chunk_mei`] with explicit NEON intrinsics, four points per step (aarch64).
 ///
-/// Why by hand: the compiler's vectorisation of the plain loop is the fallback it chooses; this
-/// copy fixes the instruction sequence so it can be counted and compared
-/// (docs/benchmarks.md "aarch64"). It must stay bit-identical to the scalar loop, so every lane
+/// Why by hand: it keeps the loop's constants in registers where the compiler's vectorisation of
+/// the plain loop reloads some of them every iteration (fewer instructions per point,
+/// docs/benchmarks.md "aarch64"). It must stay bit-identical to the scalar loop, so every lane
 /// performs the scalar loop's IEEE operations in the same order and association: separate
-/// `vmulq`/`vaddq` (a fused `vfmaq` rounds once and would change results), a correctly rounded
-/// `vsqrtq` and `vdivq` (no reciprocal estimates), the truncating `vcvtq_s32_f32` (what the
-/// in-range `to_int_unchecked` of [`pixel_index`] is), wrapping u32 index arithmetic as in the
-/// scalar code, and `vbslq` for the scalar `if`s. Lanes past the last multiple of four go through
+/// `vmulq`(`_laneq`)/`vaddq` (a fused `vfmaq` rounds once and would change results), a correctly
+/// rounded `vsqrtq` and `vdivq` (no reciprocal estimates), the truncating `vcvtq_s32_f32` (what
+/// the in-range `to_int_unchecked` of [`pixel_index`] is), wrapping u32 index arithmetic as in
+/// the scalar code, and `vbslq` for the scalar `if`. Lanes past the last multiple of four go through
 /// the scalar loop.
 #[cfg(target_arch = "aarch64")]
 #[inline(always)]
@@ -329,11 +329,37 @@ fn project_chunk_mei_neon(
     // The scalar loop's `2.0 * d[2]` and `2.0 * d[3]` are the left-most products of their terms,
     // so hoisting them out of the loop keeps the order (and doubling is exact anyway).
     let (d2x2, d3x2) = (2.0 * d[2], 2.0 * d[3]);
+    // The multipliers packed four to a register and used by lane (`fmul` by element, the same
+    // single rounding as a plain `fmul`): one broadcast register per constant would need more than
+    // NEON's 32, and the compiler spilled and shuffled them inside the loop: 110 instructions per
+    // four points against 96 for its own vectorisation of the plain loop; packed, 89
+    // (docs/benchmarks.md "aarch64"). Addends and comparison bounds stay broadcast: `fadd` and
+    // `fcm*` have no by-element form.
+    let (m0, m1, m2, m3, m4) = (
+        [r[0], r[1], r[2], r[3]],
+        [r[4], r[5], r[6], r[7]],
+        [r[8], xi, d[0], d[1]],
+        [d2x2, d[2], d[3], d3x2],
+        [k[0], k[1], k[2], zmin],
+    );
+    // SAFETY: NEON is part of the aarch64-unknown-linux-gnu baseline, so the intrinsics run on every
+    // CPU this code is compiled for; each load reads four f32 of a local [f32; 4].
+    // black_box hides the lanes' values from the optimiser, which otherwise sees through the
+    // packing, turns every by-lane multiply back into a broadcast of its scalar, and spills again.
+    let (m0, m1, m2, m3, m4) = core::hint::black_box((m0, m1, m2, m3, m4));
+    let (m0, m1, m2, m3, m4) = unsafe {
+        (
+            vld1q_f32(m0.as_ptr()),
+            vld1q_f32(m1.as_ptr()),
+            vld1q_f32(m2.as_ptr()),
+            vld1q_f32(m3.as_ptr()),
+            vld1q_f32(m4.as_ptr()),
+        )
+    };
     let mut i = 0;
     while i < body {
-        // SAFETY: NEON is part of the aarch64-unknown-linux-gnu baseline, so the intrinsics run on
-        // every CPU this code is compiled for. The loads read xs/ys/zs[i..i + 4] and the store
-        // writes out[i..i + 4]: in bounds because i + 4 <= body <= the length of each slice.
+        // SAFETY: NEON is baseline on this target (above). The loads read xs/ys/zs[i..i + 4] and
+        // the store writes out[i..i + 4]: in bounds because i + 4 <= body <= each slice's length.
         unsafe {
             let v = |a: f32| vdupq_n_f32(a);
             let (x, y, z) = (
@@ -342,65 +368,84 @@ fn project_chunk_mei_neon(
                 vld1q_f32(zs.as_ptr().add(i)),
             );
             // r[0]·x + r[1]·y + r[2]·z + t, left to right as in the scalar expression.
-            let row = |a: f32, b: f32, c: f32, t: f32| {
+            let cx = vaddq_f32(
                 vaddq_f32(
-                    vaddq_f32(
-                        vaddq_f32(vmulq_f32(v(a), x), vmulq_f32(v(b), y)),
-                        vmulq_f32(v(c), z),
-                    ),
-                    v(t),
-                )
-            };
-            let cx = row(r[0], r[1], r[2], p.t[0]);
-            let cy = row(r[3], r[4], r[5], p.t[1]);
-            let cz = row(r[6], r[7], r[8], p.t[2]);
+                    vaddq_f32(vmulq_laneq_f32::<0>(x, m0), vmulq_laneq_f32::<1>(y, m0)),
+                    vmulq_laneq_f32::<2>(z, m0),
+                ),
+                v(p.t[0]),
+            );
+            let cy = vaddq_f32(
+                vaddq_f32(
+                    vaddq_f32(vmulq_laneq_f32::<3>(x, m0), vmulq_laneq_f32::<0>(y, m1)),
+                    vmulq_laneq_f32::<1>(z, m1),
+                ),
+                v(p.t[1]),
+            );
+            let cz = vaddq_f32(
+                vaddq_f32(
+                    vaddq_f32(vmulq_laneq_f32::<2>(x, m1), vmulq_laneq_f32::<3>(y, m1)),
+                    vmulq_laneq_f32::<0>(z, m2),
+                ),
+                v(p.t[2]),
+            );
             let n = vsqrtq_f32(vaddq_f32(
                 vaddq_f32(vmulq_f32(cx, cx), vmulq_f32(cy, cy)),
                 vmulq_f32(cz, cz),
             ));
-            let f = vdivq_f32(v(1.0), vaddq_f32(cz, vmulq_f32(v(xi), n)));
+            // 1 / (cz + ξ·n): a true division, never the reciprocal estimate.
+            let f = vdivq_f32(v(1.0), vaddq_f32(cz, vmulq_laneq_f32::<1>(n, m2)));
             let (xu, yu) = (vmulq_f32(cx, f), vmulq_f32(cy, f));
             let r2 = vaddq_f32(vmulq_f32(xu, xu), vmulq_f32(yu, yu));
+            // 1 + d0·r2 + (d1·r2)·r2
             let radial = vaddq_f32(
-                vaddq_f32(v(1.0), vmulq_f32(v(d[0]), r2)),
-                vmulq_f32(vmulq_f32(v(d[1]), r2), r2),
+                vaddq_f32(v(1.0), vmulq_laneq_f32::<2>(r2, m2)),
+                vmulq_f32(vmulq_laneq_f32::<3>(r2, m2), r2),
             );
             let two = v(2.0);
+            // xu·radial + ((2·d2)·xu)·yu + d3·(r2 + (2·xu)·xu)
             let xd = vaddq_f32(
-                vaddq_f32(vmulq_f32(xu, radial), vmulq_f32(vmulq_f32(v(d2x2), xu), yu)),
-                vmulq_f32(v(d[3]), vaddq_f32(r2, vmulq_f32(vmulq_f32(two, xu), xu))),
+                vaddq_f32(
+                    vmulq_f32(xu, radial),
+                    vmulq_f32(vmulq_laneq_f32::<0>(xu, m3), yu),
+                ),
+                vmulq_laneq_f32::<2>(vaddq_f32(r2, vmulq_f32(vmulq_f32(two, xu), xu)), m3),
             );
+            // yu·radial + d2·(r2 + (2·yu)·yu) + ((2·d3)·xu)·yu
             let yd = vaddq_f32(
                 vaddq_f32(
                     vmulq_f32(yu, radial),
-                    vmulq_f32(v(d[2]), vaddq_f32(r2, vmulq_f32(vmulq_f32(two, yu), yu))),
+                    vmulq_laneq_f32::<1>(vaddq_f32(r2, vmulq_f32(vmulq_f32(two, yu), yu)), m3),
                 ),
-                vmulq_f32(vmulq_f32(v(d3x2), xu), yu),
+                vmulq_f32(vmulq_laneq_f32::<3>(xu, m3), yu),
             );
+            // k0·xd + k2·yd + k3 + ½ and k1·yd + k4 + ½
             let u = vaddq_f32(
                 vaddq_f32(
-                    vaddq_f32(vmulq_f32(v(k[0]), xd), vmulq_f32(v(k[2]), yd)),
+                    vaddq_f32(vmulq_laneq_f32::<0>(xd, m4), vmulq_laneq_f32::<2>(yd, m4)),
                     v(k[3]),
                 ),
                 v(0.5),
             );
-            let vv = vaddq_f32(vaddq_f32(vmulq_f32(v(k[1]), yd), v(k[4])), v(0.5));
+            let vv = vaddq_f32(vaddq_f32(vmulq_laneq_f32::<1>(yd, m4), v(k[4])), v(0.5));
             // IEEE comparisons are false for NaN, as the scalar `>`, `<`, `>=` are.
             let zero = v(0.0);
             let ok = vandq_u32(
                 vandq_u32(
                     vandq_u32(
-                        vcgtq_f32(cz, vmulq_f32(v(zmin), n)),
+                        vcgtq_f32(cz, vmulq_laneq_f32::<3>(n, m4)),
                         vcltq_f32(r2, v(r2max)),
                     ),
                     vandq_u32(vcgeq_f32(u, zero), vcltq_f32(u, v(wf))),
                 ),
                 vandq_u32(vcgeq_f32(vv, zero), vcltq_f32(vv, v(hf))),
             );
-            // pixel_index: not-ok lanes become 0 before the conversion, so every converted value
-            // is in [0, 2^24) and the truncation equals the scalar's.
-            let ui = vreinterpretq_u32_s32(vcvtq_s32_f32(vbslq_f32(ok, u, zero)));
-            let vi = vreinterpretq_u32_s32(vcvtq_s32_f32(vbslq_f32(ok, vv, zero)));
+            // pixel_index: on ok lanes u, v are in [0, 2^24), where `fcvtzs` truncates exactly
+            // as the scalar conversion does. Unlike the scalar `to_int_unchecked`, `fcvtzs` is
+            // defined for every input (it saturates, NaN gives 0), so the not-ok lanes need no
+            // clamping first: whatever they compute, the select below replaces it by `sentinel`.
+            let ui = vreinterpretq_u32_s32(vcvtq_s32_f32(u));
+            let vi = vreinterpretq_u32_s32(vcvtq_s32_f32(vv));
             let idx = vaddq_u32(vmulq_u32(vi, vdupq_n_u32(w as u32)), ui);
             let res = vbslq_u32(ok, idx, vdupq_n_u32(sentinel));
             vst1q_u32(out.as_mut_ptr().add(i), res);
