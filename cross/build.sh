@@ -3,8 +3,10 @@
 #   cross/build.sh            build target/aarch64-unknown-linux-gnu/release/infraloc (features: v4l,
 #                             the node's camera; the default build has no capture backend)
 #   cross/build.sh --demo     … and run `infraloc demo --preset small` under qemu
-#   cross/build.sh --check    … and localize a host-simulated scene under qemu: the aarch64 pose must
-#                             equal the host binary's and be within the demo's thresholds (CI runs this)
+#   cross/build.sh --check    … and run `infraloc self-test` under qemu (the NEON MI kernel must be
+#                             bit-identical to the reference loop), then localize a host-simulated
+#                             scene under qemu: the aarch64 pose must equal the host binary's and be
+#                             within the demo's thresholds (CI runs this)
 #   cross/build.sh --test     … and run the tests under qemu (baud-rate tests skip: qemu-user lacks TCGETS2)
 # Env: INFRALOC_HOST_BIN = an already built host binary for --check (else `cargo build --release`).
 # Needs: gcc-aarch64-linux-gnu libc6-dev-arm64-cross qemu-user (Debian), see docs/install.md.
@@ -26,8 +28,14 @@ t0=$SECONDS
 echo "cross/build.sh: aarch64 build took $((SECONDS - t0)) s"
 file "$BIN" 2>/dev/null || true
 
-# --check: simulate with the host binary (the reference scene), localize with both binaries.
+# --check: the NEON kernel against the reference loop, then simulate with the host binary (the
+# reference scene) and localize with both binaries.
 check() {
+  # The explicit NEON copy is only exercised on aarch64, so this is where CI proves it bit-identical
+  # (a difference exits non-zero and names the pose).
+  local t=$SECONDS
+  "${QEMU[@]}" "$BIN" self-test
+  echo "cross/build.sh: self-test under qemu took $((SECONDS - t)) s"
   local host_bin="${INFRALOC_HOST_BIN:-}"
   if [ -z "$host_bin" ]; then
     cargo build --release
@@ -40,7 +48,7 @@ check() {
   "$host_bin" simulate --out "$work/scene" --seed 1 --preset small --difficulty hard >/dev/null
   local args=(localize --config "$work/scene/infraloc.toml" --truth "$work/scene/truth.json")
   "$host_bin" "${args[@]}" --out "$work/host.json" --report "$work/host-report.json" >/dev/null
-  local t=$SECONDS
+  t=$SECONDS
   "${QEMU[@]}" "$BIN" "${args[@]}" --out "$work/arm.json" --report "$work/arm-report.json"
   echo "cross/build.sh: aarch64 localize under qemu took $((SECONDS - t)) s"
   python3 - "$work" <<'EOF'

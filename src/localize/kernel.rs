@@ -12,7 +12,7 @@
 //! - the histogram is u32 counts in four interleaved copies (breaking the store→load dependency of
 //!   consecutive equal bins), 32×33×4×4 B = 17 KiB, so it stays in L1;
 //! - on x86-64 a copy compiled for AVX2 + FMA is chosen at run time (8 lanes instead of SSE2's 4),
-//!   bit-identical to the baseline copy.
+//!   on aarch64 the Mei projection is an explicit NEON copy; both bit-identical to the plain loop.
 //!
 //! [`accumulate_scalar`] is the straightforward f64 version through [`CameraModel`], kept as the
 //! reference the fast kernel is tested against and as the benchmark's baseline.
@@ -292,6 +292,183 @@ fn project_chunk_mei(
     }
 }
 
+/// [`project_chunk_mei`] with explicit NEON intrinsics, four points per step (aarch64).
+///
+/// Why by hand: it keeps the loop's constants in registers where the compiler's vectorisation of
+/// the plain loop reloads some of them every iteration (fewer instructions per point,
+/// docs/benchmarks.md "aarch64"). It must stay bit-identical to the scalar loop, so every lane
+/// performs the scalar loop's IEEE operations in the same order and association: separate
+/// `vmulq`(`_laneq`)/`vaddq` (a fused `vfmaq` rounds once and would change results), a correctly
+/// rounded `vsqrtq` and `vdivq` (no reciprocal estimates), the truncating `vcvtq_s32_f32` (what
+/// the in-range `to_int_unchecked` of [`pixel_index`] is), wrapping u32 index arithmetic as in
+/// the scalar code, and `vbslq` for the scalar `if`. Lanes past the last multiple of four go through
+/// the scalar loop.
+#[cfg(target_arch = "aarch64")]
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn project_chunk_mei_neon(
+    xs: &[f32],
+    ys: &[f32],
+    zs: &[f32],
+    p: &PoseF32,
+    k: [f32; 5],
+    xi: f32,
+    d: [f32; 4],
+    zmin: f32,
+    r2max: f32,
+    w: usize,
+    h: usize,
+    sentinel: u32,
+    out: &mut [u32],
+) {
+    use core::arch::aarch64::*;
+    let n_all = out.len().min(xs.len()).min(ys.len()).min(zs.len());
+    let body = n_all - n_all % 4;
+    let r = p.r;
+    let (wf, hf) = (w.min(MAX_SIDE) as f32, h.min(MAX_SIDE) as f32);
+    // The scalar loop's `2.0 * d[2]` and `2.0 * d[3]` are the left-most products of their terms,
+    // so hoisting them out of the loop keeps the order (and doubling is exact anyway).
+    let (d2x2, d3x2) = (2.0 * d[2], 2.0 * d[3]);
+    // The multipliers packed four to a register and used by lane (`fmul` by element, the same
+    // single rounding as a plain `fmul`): one broadcast register per constant would need more than
+    // NEON's 32, and the compiler spilled and shuffled them inside the loop: 110 instructions per
+    // four points against 96 for its own vectorisation of the plain loop; packed, 89
+    // (docs/benchmarks.md "aarch64"). Addends and comparison bounds stay broadcast: `fadd` and
+    // `fcm*` have no by-element form.
+    let (m0, m1, m2, m3, m4) = (
+        [r[0], r[1], r[2], r[3]],
+        [r[4], r[5], r[6], r[7]],
+        [r[8], xi, d[0], d[1]],
+        [d2x2, d[2], d[3], d3x2],
+        [k[0], k[1], k[2], zmin],
+    );
+    // SAFETY: NEON is part of the aarch64-unknown-linux-gnu baseline, so the intrinsics run on every
+    // CPU this code is compiled for; each load reads four f32 of a local [f32; 4].
+    // black_box hides the lanes' values from the optimiser, which otherwise sees through the
+    // packing, turns every by-lane multiply back into a broadcast of its scalar, and spills again.
+    let (m0, m1, m2, m3, m4) = core::hint::black_box((m0, m1, m2, m3, m4));
+    let (m0, m1, m2, m3, m4) = unsafe {
+        (
+            vld1q_f32(m0.as_ptr()),
+            vld1q_f32(m1.as_ptr()),
+            vld1q_f32(m2.as_ptr()),
+            vld1q_f32(m3.as_ptr()),
+            vld1q_f32(m4.as_ptr()),
+        )
+    };
+    let mut i = 0;
+    while i < body {
+        // SAFETY: NEON is baseline on this target (above). The loads read xs/ys/zs[i..i + 4] and
+        // the store writes out[i..i + 4]: in bounds because i + 4 <= body <= each slice's length.
+        unsafe {
+            let v = |a: f32| vdupq_n_f32(a);
+            let (x, y, z) = (
+                vld1q_f32(xs.as_ptr().add(i)),
+                vld1q_f32(ys.as_ptr().add(i)),
+                vld1q_f32(zs.as_ptr().add(i)),
+            );
+            // r[0]·x + r[1]·y + r[2]·z + t, left to right as in the scalar expression.
+            let cx = vaddq_f32(
+                vaddq_f32(
+                    vaddq_f32(vmulq_laneq_f32::<0>(x, m0), vmulq_laneq_f32::<1>(y, m0)),
+                    vmulq_laneq_f32::<2>(z, m0),
+                ),
+                v(p.t[0]),
+            );
+            let cy = vaddq_f32(
+                vaddq_f32(
+                    vaddq_f32(vmulq_laneq_f32::<3>(x, m0), vmulq_laneq_f32::<0>(y, m1)),
+                    vmulq_laneq_f32::<1>(z, m1),
+                ),
+                v(p.t[1]),
+            );
+            let cz = vaddq_f32(
+                vaddq_f32(
+                    vaddq_f32(vmulq_laneq_f32::<2>(x, m1), vmulq_laneq_f32::<3>(y, m1)),
+                    vmulq_laneq_f32::<0>(z, m2),
+                ),
+                v(p.t[2]),
+            );
+            let n = vsqrtq_f32(vaddq_f32(
+                vaddq_f32(vmulq_f32(cx, cx), vmulq_f32(cy, cy)),
+                vmulq_f32(cz, cz),
+            ));
+            // 1 / (cz + ξ·n): a true division, never the reciprocal estimate.
+            let f = vdivq_f32(v(1.0), vaddq_f32(cz, vmulq_laneq_f32::<1>(n, m2)));
+            let (xu, yu) = (vmulq_f32(cx, f), vmulq_f32(cy, f));
+            let r2 = vaddq_f32(vmulq_f32(xu, xu), vmulq_f32(yu, yu));
+            // 1 + d0·r2 + (d1·r2)·r2
+            let radial = vaddq_f32(
+                vaddq_f32(v(1.0), vmulq_laneq_f32::<2>(r2, m2)),
+                vmulq_f32(vmulq_laneq_f32::<3>(r2, m2), r2),
+            );
+            let two = v(2.0);
+            // xu·radial + ((2·d2)·xu)·yu + d3·(r2 + (2·xu)·xu)
+            let xd = vaddq_f32(
+                vaddq_f32(
+                    vmulq_f32(xu, radial),
+                    vmulq_f32(vmulq_laneq_f32::<0>(xu, m3), yu),
+                ),
+                vmulq_laneq_f32::<2>(vaddq_f32(r2, vmulq_f32(vmulq_f32(two, xu), xu)), m3),
+            );
+            // yu·radial + d2·(r2 + (2·yu)·yu) + ((2·d3)·xu)·yu
+            let yd = vaddq_f32(
+                vaddq_f32(
+                    vmulq_f32(yu, radial),
+                    vmulq_laneq_f32::<1>(vaddq_f32(r2, vmulq_f32(vmulq_f32(two, yu), yu)), m3),
+                ),
+                vmulq_f32(vmulq_laneq_f32::<3>(xu, m3), yu),
+            );
+            // k0·xd + k2·yd + k3 + ½ and k1·yd + k4 + ½
+            let u = vaddq_f32(
+                vaddq_f32(
+                    vaddq_f32(vmulq_laneq_f32::<0>(xd, m4), vmulq_laneq_f32::<2>(yd, m4)),
+                    v(k[3]),
+                ),
+                v(0.5),
+            );
+            let vv = vaddq_f32(vaddq_f32(vmulq_laneq_f32::<1>(yd, m4), v(k[4])), v(0.5));
+            // IEEE comparisons are false for NaN, as the scalar `>`, `<`, `>=` are.
+            let zero = v(0.0);
+            let ok = vandq_u32(
+                vandq_u32(
+                    vandq_u32(
+                        vcgtq_f32(cz, vmulq_laneq_f32::<3>(n, m4)),
+                        vcltq_f32(r2, v(r2max)),
+                    ),
+                    vandq_u32(vcgeq_f32(u, zero), vcltq_f32(u, v(wf))),
+                ),
+                vandq_u32(vcgeq_f32(vv, zero), vcltq_f32(vv, v(hf))),
+            );
+            // pixel_index: on ok lanes u, v are in [0, 2^24), where `fcvtzs` truncates exactly
+            // as the scalar conversion does. Unlike the scalar `to_int_unchecked`, `fcvtzs` is
+            // defined for every input (it saturates, NaN gives 0), so the not-ok lanes need no
+            // clamping first: whatever they compute, the select below replaces it by `sentinel`.
+            let ui = vreinterpretq_u32_s32(vcvtq_s32_f32(u));
+            let vi = vreinterpretq_u32_s32(vcvtq_s32_f32(vv));
+            let idx = vaddq_u32(vmulq_u32(vi, vdupq_n_u32(w as u32)), ui);
+            let res = vbslq_u32(ok, idx, vdupq_n_u32(sentinel));
+            vst1q_u32(out.as_mut_ptr().add(i), res);
+        }
+        i += 4;
+    }
+    project_chunk_mei(
+        &xs[body..n_all],
+        &ys[body..n_all],
+        &zs[body..n_all],
+        p,
+        k,
+        xi,
+        d,
+        zmin,
+        r2max,
+        w,
+        h,
+        sentinel,
+        &mut out[body..n_all],
+    );
+}
+
 /// Pixel index of the (½-shifted) position (u, v), or `sentinel` when `!ok`. `ok` must imply
 /// 0 ≤ u < w and 0 ≤ v < h (the callers' range tests), so the truncating conversions are in range.
 #[inline(always)]
@@ -366,9 +543,9 @@ fn project_chunk_equidistant(
 }
 
 /// Project a chunk of points with `cam` into pixel indices of `img` (sentinel when not visible).
-/// `NEON`: the slot of an explicit aarch64 NEON copy of the projection (none yet: aarch64 runs
-/// the compiler's vectorisation of the plain loop; docs/benchmarks.md "aarch64"); `false` is the
-/// plain reference loop.
+/// `NEON`: on aarch64 the Mei projection runs the explicit NEON copy
+/// ([`project_chunk_mei_neon`]; the equidistant model keeps the plain loop); elsewhere, and with
+/// `false` (the reference), the plain loop, which the compiler vectorises for the target.
 #[inline(always)]
 fn project_chunk<const NEON: bool>(
     xs: &[f32],
@@ -387,9 +564,18 @@ fn project_chunk<const NEON: bool>(
             d,
             zmin,
             r2max,
-        } => project_chunk_mei(
-            xs, ys, zs, pose, k, xi, d, zmin, r2max, img.width, img.height, s, out,
-        ),
+        } => {
+            #[cfg(target_arch = "aarch64")]
+            if NEON {
+                project_chunk_mei_neon(
+                    xs, ys, zs, pose, k, xi, d, zmin, r2max, img.width, img.height, s, out,
+                );
+                return;
+            }
+            project_chunk_mei(
+                xs, ys, zs, pose, k, xi, d, zmin, r2max, img.width, img.height, s, out,
+            )
+        }
         FastCamera::Equidistant { k, d, theta_max } => project_chunk_equidistant(
             xs, ys, zs, pose, k, d, theta_max, img.width, img.height, s, out,
         ),
@@ -440,7 +626,8 @@ impl Default for Scratch {
 /// On x86-64 CPUs with AVX2 and FMA (detected at run time) a copy of the kernel compiled for them
 /// runs (8-wide projection instead of SSE2's 4-wide). Both copies perform the same IEEE operations
 /// in the same order — Rust never contracts `a·b + c` into an FMA on its own — so the histogram is
-/// bit-identical whichever runs (tested).
+/// bit-identical whichever runs (tested). On aarch64 the Mei projection is the explicit NEON copy
+/// ([`project_chunk_mei_neon`]), bit-identical too (`infraloc self-test` under qemu in CI).
 pub fn accumulate(
     pts: &PreparedPoints,
     pose: &PoseF32,
@@ -455,7 +642,7 @@ pub fn accumulate(
         unsafe { accumulate_avx2(pts, pose, cam, img, hist, scratch) };
         return;
     }
-    // The target's baseline features (SSE2 on x86-64).
+    // The target's baseline features (SSE2 on x86-64; NEON on aarch64, with the explicit copy).
     accumulate_impl::<true>(pts, pose, cam, img, hist, scratch);
 }
 
@@ -477,8 +664,8 @@ unsafe fn accumulate_avx2(
 }
 
 /// [`accumulate`] without hand-picked SIMD: the plain loop for the target's baseline features
-/// (SSE2 on x86-64; on aarch64 whatever NEON code the compiler makes of it). The reference the fast copies must equal bit for bit (tests, `infraloc
-/// self-test`).
+/// (SSE2 on x86-64; on aarch64 whatever NEON code the compiler makes of it). The reference the
+/// fast copies must equal bit for bit (tests, `infraloc self-test`).
 pub fn accumulate_reference(
     pts: &PreparedPoints,
     pose: &PoseF32,
@@ -677,12 +864,12 @@ fn visible_from_all_impl<const NEON: bool>(
     }
 }
 
-/// Which copy of the projection [`accumulate`] runs on this CPU: `aarch64` (the compiler's NEON
-/// vectorisation of the plain loop), `avx2+fma` (x86-64 with both, detected at run time) or
+/// Which copy of the projection [`accumulate`] runs on this CPU: `neon` (aarch64: the explicit
+/// NEON copy of the Mei projection), `avx2+fma` (x86-64 with both, detected at run time) or
 /// `baseline`.
 pub fn kernel_path() -> &'static str {
     #[cfg(target_arch = "aarch64")]
-    return "aarch64";
+    return "neon";
     #[cfg(target_arch = "x86_64")]
     if has_avx2_fma() {
         return "avx2+fma";
