@@ -300,14 +300,7 @@ pub(crate) fn apply_uncertainty(q: &mut Quality, u: Uncertainty, cfg: &QualityCo
                 .iter()
                 .zip(&u.axes)
                 .filter(|(v, _)| **v != 0.0)
-                .map(|(v, axis)| {
-                    let s = v.abs() / (2.0 * z);
-                    if axis == "x" || axis == "y" || axis == "z" {
-                        format!("σ {axis} ≥ {:.1} cm", 100.0 * s)
-                    } else {
-                        format!("σ {axis} ≥ {s:.2}°")
-                    }
-                })
+                .map(|(v, axis)| format!("σ {axis} ≥ {}", axis_value(axis, v.abs() / (2.0 * z), 1)))
                 .collect();
             Some(format!(
                 "no peak: along {ray} the MI cannot tell the answer from a pose {} away within its noise (a flat valley): {}, unbounded",
@@ -351,15 +344,19 @@ fn describe_offset(v: &[f64], axes: &[String]) -> String {
     v.iter()
         .zip(axes)
         .filter(|(v, _)| **v != 0.0)
-        .map(|(v, axis)| {
-            if axis == "x" || axis == "y" || axis == "z" {
-                format!("{:.0} cm", 100.0 * v.abs())
-            } else {
-                format!("{:.2}°", v.abs())
-            }
-        })
+        .map(|(v, axis)| axis_value(axis, v.abs(), 0))
         .collect::<Vec<_>>()
         .join(", ")
+}
+
+/// A value of `axis` for people: x, y, z (m) in centimetres with `cm_decimals`, angles in degrees
+/// with two decimals.
+fn axis_value(axis: &str, v: f64, cm_decimals: usize) -> String {
+    if axis == "x" || axis == "y" || axis == "z" {
+        format!("{:.*} cm", cm_decimals, 100.0 * v)
+    } else {
+        format!("{v:.2}°")
+    }
 }
 
 /// The lowest objective on the straight path between two cells (level 0, continuous offsets),

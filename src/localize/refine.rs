@@ -162,12 +162,7 @@ fn with_uncertainty(
         tilt_pivot.flatten(),
         &UncertaintyConfig {
             folds: qcfg.jackknife_folds,
-            region_bound: UncertaintyConfig::region_bound_for(
-                qcfg.max_sigma_xy_m,
-                qcfg.max_sigma_z_m,
-                qcfg.max_sigma_yaw_deg,
-                qcfg.max_sigma_tilt_deg,
-            ),
+            region_bound: UncertaintyConfig::region_bound_for(qcfg),
         },
     )?;
     r.stats.poses += u.poses as u64;

@@ -61,16 +61,17 @@ impl Default for UncertaintyConfig {
     fn default() -> Self {
         UncertaintyConfig {
             folds: 8,
-            region_bound: [0.3, 0.3, 0.3, 0.9, 3.0, 3.0],
+            region_bound: Self::region_bound_for(&super::quality::QualityConfig::default()),
         }
     }
 }
 
 impl UncertaintyConfig {
-    /// The region's reach for σ limits (x/y and z in m, yaw and tilt in degrees), as
-    /// [`UncertaintyConfig::region_bound`] explains.
-    pub fn region_bound_for(xy: f64, z: f64, yaw: f64, tilt: f64) -> [f64; 6] {
+    /// The region's reach for a gate's σ limits, as [`UncertaintyConfig::region_bound`] explains.
+    pub fn region_bound_for(q: &super::quality::QualityConfig) -> [f64; 6] {
         let f = 2.0 * REGION_Z * 1.5;
+        let (xy, z) = (q.max_sigma_xy_m, q.max_sigma_z_m);
+        let (yaw, tilt) = (q.max_sigma_yaw_deg, q.max_sigma_tilt_deg);
         [f * xy, f * xy, f * z, f * yaw, f * tilt, f * tilt]
     }
 }
@@ -104,7 +105,7 @@ pub struct Uncertainty {
     /// Poses scored (every group's re-optimisation and the region's probes).
     pub poses: usize,
     /// The jackknife's own covariance (floored at half the finest step per axis), before the
-    /// region widens it.
+    /// Student-t widening.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub jackknife: Vec<Vec<f64>>,
     /// The region the data cannot tell from the answer ([`Region`]): when it is open, σ is
@@ -154,14 +155,13 @@ pub fn estimate(
         ..*polish
     };
     let tilt = p.is_free(4) || p.is_free(5);
-    let tilt_pivot = pivot;
     let ev = Evaluator::pooled(cam, views, pose, &box_config(search, &p, pivot), 0)?;
     let k = ucfg.folds.max(2);
     let folds = ev.folds(k);
     let objective = ev.objective();
     let parzen = search.mi.parzen;
     // The tilt pivot the evaluator applies (none for a near-horizontal optical axis).
-    let pivot = ev.grid().pivot;
+    let applied_pivot = ev.grid().pivot;
     let (ev, folds) = (&ev, &folds);
     // Group by group, each polish on the other groups' points (deterministic: no randomness,
     // results collected in group order).
@@ -171,16 +171,7 @@ pub fn estimate(
             let mut scratch = Scratch::default();
             let mut f = |o: &[f64; 6]| {
                 let hists = ev.fold_histograms(folds, o, &mut scratch);
-                let mut h = JointHist::new(hists[0].rows, hists[0].cols);
-                for (j, hk) in hists.iter().enumerate() {
-                    if j != left_out {
-                        h.counts
-                            .iter_mut()
-                            .zip(&hk.counts)
-                            .for_each(|(a, b)| *a += b);
-                    }
-                }
-                mutual_information(&h, parzen).get(objective)
+                value_without(&hists, Some(left_out), objective, parzen)
             };
             let end = nelder_mead(&mut f, &p);
             let on_edge = (0..6).any(|i| p.is_free(i) && end.offsets[i].abs() >= 0.95 * p.bound[i]);
@@ -194,7 +185,7 @@ pub fn estimate(
     let deltas: Vec<[f64; 6]> = ends
         .iter()
         .map(|e| {
-            let q = pose_at_pivot(pose, &e.0, pivot);
+            let q = pose_at_pivot(pose, &e.0, applied_pivot);
             let (c, a) = (q.center(), q.yaw_pitch_roll());
             let da = |x: f64, y: f64| angle_difference(x, y).to_degrees();
             [
@@ -251,7 +242,7 @@ pub fn estimate(
         }
     }
     // Its own fixed point set: the points every pose of its wider box sees.
-    let rev = Evaluator::pooled(cam, views, pose, &box_config(search, &rp, tilt_pivot), 0)?;
+    let rev = Evaluator::pooled(cam, views, pose, &box_config(search, &rp, pivot), 0)?;
     // Its standard errors from more, smaller patches than the re-optimisations: every probe
     // scores every patch in one pass, so more patches cost nothing, and the standard error has
     // REGION_FOLDS − 1 degrees of freedom instead of K − 1 (with 7, its own noise opened the
@@ -398,6 +389,25 @@ fn ray_name(u: &[f64]) -> String {
         .collect()
 }
 
+/// The objective on the sum of the groups' histograms `hists`, without group `left_out`.
+fn value_without(
+    hists: &[JointHist],
+    left_out: Option<usize>,
+    objective: super::mi::Objective,
+    parzen: bool,
+) -> f64 {
+    let mut h = JointHist::new(hists[0].rows, hists[0].cols);
+    for (j, hk) in hists.iter().enumerate() {
+        if Some(j) != left_out {
+            h.counts
+                .iter_mut()
+                .zip(&hk.counts)
+                .for_each(|(a, b)| *a += b);
+        }
+    }
+    mutual_information(&h, parzen).get(objective)
+}
+
 /// The objective's drop from the answer to `at` on all points, and its jackknife standard error
 /// (the drop on each leave-one-group-out histogram pair). `base` holds the answer's per-group
 /// histograms.
@@ -411,18 +421,7 @@ fn contrast(
     scratch: &mut Scratch,
 ) -> (f64, f64) {
     let hists = ev.fold_histograms(folds, at, scratch);
-    let value = |hs: &[JointHist], left_out: Option<usize>| {
-        let mut h = JointHist::new(hs[0].rows, hs[0].cols);
-        for (j, hk) in hs.iter().enumerate() {
-            if Some(j) != left_out {
-                h.counts
-                    .iter_mut()
-                    .zip(&hk.counts)
-                    .for_each(|(a, b)| *a += b);
-            }
-        }
-        mutual_information(&h, parzen).get(objective)
-    };
+    let value = |hs: &[JointHist], left_out| value_without(hs, left_out, objective, parzen);
     let k = hists.len();
     let drop = value(base, None) - value(&hists, None);
     let loo: Vec<f64> = (0..k)
