@@ -74,22 +74,23 @@ pub trait CameraModel: Send + Sync + std::fmt::Debug {
 
     /// Project a camera-frame point only if it is seen: inside the field of view and on the sensor.
     fn project_visible(&self, p_cam: &Vector3<f64>) -> Result<Point2<f64>, Reject> {
-        self.project_visible_within(p_cam, self.max_theta())
+        self.project_visible_within(p_cam, self.max_theta().cos())
     }
 
-    /// [`Self::project_visible`] with the field-of-view limit given (`max_theta` =
-    /// [`Self::max_theta`], which some models derive with a few transcendental calls: a loop over
-    /// many points computes it once and passes it here).
+    /// [`Self::project_visible`] with the field-of-view limit given as its cosine
+    /// (`cos_max_theta` = cos [`Self::max_theta`], which some models derive with a few
+    /// transcendental calls: a loop over many points computes it once and passes it here, and
+    /// comparing the ray's cosine with it spares an `acos` per point).
     fn project_visible_within(
         &self,
         p_cam: &Vector3<f64>,
-        max_theta: f64,
+        cos_max_theta: f64,
     ) -> Result<Point2<f64>, Reject> {
         let n = p_cam.norm();
         if !(n > 0.0) {
             return Err(Reject::Degenerate);
         }
-        if (p_cam.z / n).clamp(-1.0, 1.0).acos() > max_theta {
+        if p_cam.z / n < cos_max_theta {
             return Err(Reject::OutsideFov);
         }
         let px = self.project(p_cam)?;

@@ -138,7 +138,7 @@ pub fn match_anchors(
     let ph = (patch_half / res).round() as i64;
     let sh = (search_half / res).round() as i64;
     let side = (2 * ph + 1) as usize;
-    let max_theta = cam.max_theta();
+    let cos_max_theta = cam.max_theta().cos();
     anchors
         .par_iter()
         .filter_map(|&(ax, ay)| {
@@ -171,7 +171,7 @@ pub fn match_anchors(
                     );
                     let z = height_at(heights, x, y).unwrap_or(az);
                     let pc = pose.transform(&nalgebra::Point3::new(x, y, z)).coords;
-                    if let Ok(px) = cam.project_visible_within(&pc, max_theta) {
+                    if let Ok(px) = cam.project_visible_within(&pc, cos_max_theta) {
                         if let Some(v) = mip.sample(px.x, px.y, fp) {
                             patch.data[r * side + col] = v;
                             valid[r * side + col] = true;

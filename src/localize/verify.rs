@@ -126,11 +126,11 @@ impl<'a> MiVerifier<'a> {
         points: usize,
     ) -> Option<(f64, usize)> {
         let mut pairs: Vec<(u8, u8)> = Vec::with_capacity(pts.len());
-        let max_theta = self.cam.max_theta();
+        let cos_max_theta = self.cam.max_theta().cos();
         for (p, r) in pts {
             let Ok(px) = self
                 .cam
-                .project_visible_within(&pose.transform(p).coords, max_theta)
+                .project_visible_within(&pose.transform(p).coords, cos_max_theta)
             else {
                 continue;
             };
