@@ -281,6 +281,22 @@ pub struct InitResult {
     pub mi: Option<(f64, Option<f64>)>,
 }
 
+impl InitResult {
+    /// A fine stage's PnP pose grown from `candidate` (rank `rank` in the sweep's list).
+    fn from_fine(f: &FineOutcome, candidate: Candidate, rank: usize, mi: Option<f64>) -> Self {
+        InitResult {
+            pose: f.pose,
+            candidate,
+            matches: f.matches,
+            inliers: f.inliers,
+            rms_px: f.rms_px,
+            candidates_tried: 0,
+            candidate_rank: rank,
+            mi: mi.map(|m| (m, None)),
+        }
+    }
+}
+
 /// What the fine stage made of one sweep candidate.
 #[derive(Debug, Clone)]
 pub struct FineOutcome {
@@ -305,6 +321,23 @@ pub fn fine_stage<R: rand::Rng>(
     fine: &FineParams,
     rng: &mut R,
 ) -> std::result::Result<FineOutcome, String> {
+    fine_stage_partial(frame, map, prior_xy, cand, fine, rng).0
+}
+
+/// [`fine_stage`], and on failure the last iteration that did give a PnP pose (`None` when the
+/// first failed or all succeeded): the last resort of [`initialize`] when no candidate's fine
+/// stage gets through all its iterations.
+fn fine_stage_partial<R: rand::Rng>(
+    frame: &Frame<'_>,
+    map: MapLayers<'_>,
+    prior_xy: (f64, f64),
+    cand: &Candidate,
+    fine: &FineParams,
+    rng: &mut R,
+) -> (
+    std::result::Result<FineOutcome, String>,
+    Option<FineOutcome>,
+) {
     let (cam, image): (&dyn CameraModel, _) = (frame.camera(), frame.gray());
     let (sat, heights) = (map.satellite, map.heights);
     let (cx, cy) = (prior_xy.0 + cand.offset[0], prior_xy.1 + cand.offset[1]);
@@ -315,7 +348,8 @@ pub fn fine_stage<R: rand::Rng>(
         0.0,
         0.0,
     );
-    let mut outcome = Err("no fine iterations configured".to_string());
+    let mut outcome: std::result::Result<FineOutcome, String> =
+        Err("no fine iterations configured".to_string());
     for &(ph, sh, res, tol_m) in &fine.iterations {
         let m = match_anchors(cam, image, sat, heights, &pose, (ph, sh, res), fine);
         let corr: Vec<_> = m.iter().map(|a| a.corr).collect();
@@ -335,10 +369,15 @@ pub fn fine_stage<R: rand::Rng>(
                     rms_px: r.rms_px,
                 });
             }
-            Err(e) => return Err(format!("{e} ({} patch matches)", corr.len())),
+            Err(e) => {
+                return (
+                    Err(format!("{e} ({} patch matches)", corr.len())),
+                    outcome.ok(),
+                )
+            }
         }
     }
-    outcome
+    (outcome, None)
 }
 
 /// Full initialization: coarse sweep around the prior, then per candidate local matching + PnP.
@@ -386,30 +425,29 @@ pub fn initialize<R: rand::Rng>(
     let mut best: Option<InitResult> = None;
     let mut last_err = String::new();
     let mut tried = 0;
+    // The last resort, as in `initialize_verified`: the partial fine stage with the most inliers.
+    let mut partial_best: Option<InitResult> = None;
     for (rank, cand) in cands.iter().enumerate() {
         tried = rank + 1;
-        let outcome = match fine_stage(frame, map, prior_xy, cand, fine, rng) {
-            Ok(f) => Some((f.pose, f.matches, f.inliers, f.rms_px)),
+        let (outcome, partial) = fine_stage_partial(frame, map, prior_xy, cand, fine, rng);
+        if let Some(f) = partial {
+            if partial_best.as_ref().is_none_or(|b| f.inliers > b.inliers) {
+                partial_best = Some(InitResult::from_fine(&f, *cand, rank, None));
+            }
+        }
+        let outcome = match outcome {
+            Ok(f) => Some(f),
             Err(e) => {
                 last_err = e;
                 None
             }
         };
-        if let Some((pose, matches, inliers, rms_px)) = outcome {
+        if let Some(f) = outcome {
             let convincing = fine
                 .convincing_inliers
-                .is_some_and(|n| inliers >= n && inliers * 3 >= matches * 2);
-            if best.as_ref().is_none_or(|b| inliers > b.inliers) {
-                best = Some(InitResult {
-                    pose,
-                    candidate: *cand,
-                    matches,
-                    inliers,
-                    rms_px,
-                    candidates_tried: 0,
-                    candidate_rank: rank,
-                    mi: None,
-                });
+                .is_some_and(|n| f.inliers >= n && f.inliers * 3 >= f.matches * 2);
+            if best.as_ref().is_none_or(|b| f.inliers > b.inliers) {
+                best = Some(InitResult::from_fine(&f, *cand, rank, None));
             }
             // The sweep's ranking is only a shortlist; a candidate whose fine stage agrees this
             // well is the answer, and trying the rest would only cost time.
@@ -418,6 +456,7 @@ pub fn initialize<R: rand::Rng>(
             }
         }
     }
+    let mut best = best.or(partial_best);
     if let Some(b) = best.as_mut() {
         b.candidates_tried = tried;
     }
@@ -486,6 +525,8 @@ fn initialize_verified<R: rand::Rng>(
     let mut any_pnp = false;
     let mut last_err = String::new();
     let mut tried = 0;
+    // Fine stages that failed after an earlier iteration gave a PnP pose: (rank, candidate, it).
+    let mut partials: Vec<(usize, Candidate, FineOutcome)> = Vec::new();
     for (pos, &rank) in order.iter().enumerate().take(fine.verify.max_fine.max(1)) {
         tried = pos + 1;
         let cand = &cands[rank];
@@ -493,20 +534,13 @@ fn initialize_verified<R: rand::Rng>(
         // with PnP poses on equal terms; the screening only orders.
         let sweep =
             screened[rank].and_then(|_| verifier.verify(&candidate_pose(heights, prior_xy, cand)));
-        let hyp = match fine_stage(frame, map, prior_xy, cand, fine, rng) {
+        let (outcome, partial) = fine_stage_partial(frame, map, prior_xy, cand, fine, rng);
+        partials.extend(partial.map(|f| (rank, *cand, f)));
+        let hyp = match outcome {
             Ok(f) => {
                 any_pnp = true;
                 let v = verifier.verify(&f.pose);
-                let pnp = InitResult {
-                    pose: f.pose,
-                    candidate: *cand,
-                    matches: f.matches,
-                    inliers: f.inliers,
-                    rms_px: f.rms_px,
-                    candidates_tried: 0,
-                    candidate_rank: rank,
-                    mi: v.map(|v| (v.mi, None)),
-                };
+                let pnp = InitResult::from_fine(&f, *cand, rank, v.map(|v| v.mi));
                 match (v, sweep) {
                     (Some(v), Some(s)) if s.mi > v.mi * (1.0 + fine.verify.sweep_margin) => {
                         Some((s.mi, sweep_result(cand, rank, &s)))
@@ -558,27 +592,25 @@ fn initialize_verified<R: rand::Rng>(
                 offset: [c.x - prior_xy.0, c.y - prior_xy.1],
                 score: cand.score,
             };
-            match fine_stage(frame, map, prior_xy, &climbed, fine, rng) {
+            let (outcome, partial) = fine_stage_partial(frame, map, prior_xy, &climbed, fine, rng);
+            partials.extend(partial.map(|f| (rank, climbed, f)));
+            match outcome {
                 Ok(f) => {
                     any_pnp = true;
-                    if let Some(v) = verifier.verify(&f.pose) {
-                        pool.push((
-                            v.mi,
-                            InitResult {
-                                pose: f.pose,
-                                candidate: climbed,
-                                matches: f.matches,
-                                inliers: f.inliers,
-                                rms_px: f.rms_px,
-                                candidates_tried: 0,
-                                candidate_rank: rank,
-                                mi: Some((v.mi, None)),
-                            },
-                        ));
-                    }
+                    push_verified(&mut pool, verifier, rank, climbed, f);
                 }
                 Err(e) => last_err = e,
             }
+        }
+    }
+    if !any_pnp && !partials.is_empty() {
+        // Last resort: on low poles the finest iterations can run out of patches inside their
+        // windows (fewer than PnP needs) after a coarser one already gave a PnP pose from the
+        // satellite's patches. That pose is still the satellite's confirmation; the LiDAR MI
+        // judges it against the other hypotheses, and the refinement and its gate after it.
+        any_pnp = true;
+        for (rank, cand, f) in partials {
+            push_verified(&mut pool, verifier, rank, cand, f);
         }
     }
     if !any_pnp {
@@ -618,6 +650,20 @@ fn initialize_verified<R: rand::Rng>(
     best.candidates_tried = tried;
     best.mi = Some((mi, others));
     Ok(best)
+}
+
+/// A fine stage's PnP pose into the hypotheses' `pool`, scored by the verifier (left out when it
+/// sees too few LiDAR points to verify).
+fn push_verified(
+    pool: &mut Vec<(f64, InitResult)>,
+    verifier: &MiVerifier,
+    rank: usize,
+    candidate: Candidate,
+    f: FineOutcome,
+) {
+    if let Some(v) = verifier.verify(&f.pose) {
+        pool.push((v.mi, InitResult::from_fine(&f, candidate, rank, Some(v.mi))));
+    }
 }
 
 /// The hypothesis a screened sweep candidate stands for: the verifier's best pose near it, no
