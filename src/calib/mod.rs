@@ -15,6 +15,7 @@
 //! 5. **Uncertainty**: standard deviations σ·√diag((JᵀJ)⁻¹) with σ² = SSR / (2·points − parameters).
 
 pub mod corners;
+pub mod detect;
 mod init;
 mod jet;
 mod lm;
@@ -129,6 +130,17 @@ pub struct Calibration {
     pub views: Vec<ViewResult>,
     /// The outlier rule, in words.
     pub outlier_rule: String,
+    /// Images in which no board was found, and why (`calibrate --images`; empty otherwise).
+    pub not_found: Vec<NotFound>,
+}
+
+/// An image without a usable board.
+#[derive(Debug, Clone, Serialize)]
+pub struct NotFound {
+    /// The image's file name.
+    pub name: String,
+    /// Why no board was taken from it.
+    pub reason: String,
 }
 
 /// Check the observations; the error names the view and point.
@@ -370,6 +382,7 @@ pub fn calibrate(obs: &Observations, model: LensModel) -> Result<Calibration, Ca
         init: init_info,
         views: results,
         outlier_rule: outlier_rule(),
+        not_found: Vec::new(),
     })
 }
 
