@@ -280,7 +280,7 @@ pub fn poses(cam: &Camera, board: &Board, n: usize, seed: u64) -> Vec<BoardPose>
             let az = az0 + k as f64 * 2.399_963 + rng.random_range(-0.3..0.3);
             let dir = Vector3::new(theta.sin() * az.cos(), theta.sin() * az.sin(), theta.cos());
             // Angular size of the board's diagonal.
-            let size = rng.random_range(45f64..75.0).to_radians();
+            let size = rng.random_range(60f64..95.0).to_radians();
             let dist = diag / 2.0 / (size / 2.0).tan();
             // Facing the camera, then tilted about an axis across the line of sight.
             let facing = -dir;
