@@ -186,3 +186,196 @@ fn calibrated_mappings_match_the_true_cameras() {
     }
     assert!(failures.is_empty(), "{failures:?}");
 }
+
+#[test]
+fn simulated_boards_are_deterministic() {
+    let dir = tempfile::tempdir().unwrap();
+    let cam = dir.path().join("true.yaml");
+    std::fs::write(&cam, mei_yaml(1.1)).unwrap();
+    let run = |sub: &str, seed: &str| {
+        let out = dir.path().join(sub);
+        ok(infraloc(&[
+            "simulate",
+            "--checkerboard",
+            "2",
+            "--camera",
+            cam.to_str().unwrap(),
+            "--seed",
+            seed,
+            "--out",
+            out.to_str().unwrap(),
+        ]));
+        [
+            "000.png",
+            "001.png",
+            "checkerboard.json",
+            "corners.yaml",
+            "camera.yaml",
+        ]
+        .iter()
+        .map(|f| std::fs::read(out.join(f)).unwrap())
+        .collect::<Vec<_>>()
+    };
+    let (a, b, c) = (run("a", "7"), run("b", "7"), run("c", "8"));
+    assert_eq!(a, b, "same seed, same bytes");
+    assert_ne!(a[0], c[0], "another seed, another view");
+    // The true corners file is the --corners layout and agrees with checkerboard.json.
+    let truth: serde_json::Value = serde_json::from_slice(&a[2]).unwrap();
+    assert_eq!(truth["pattern"], serde_json::json!([9, 6]));
+    assert_eq!(truth["views"][0]["corners"].as_array().unwrap().len(), 54);
+    let obs = infraloc::calib::corners::parse_corners(
+        std::str::from_utf8(&a[3]).unwrap(),
+        Path::new("corners.yaml"),
+    )
+    .unwrap();
+    assert_eq!((obs.width, obs.height), (W, H));
+}
+
+/// Run `calibrate --images DIR`; asserts one line on stderr, a non-zero exit and no output file.
+fn images_fail(dir: &Path) -> String {
+    let out_path = dir.join("out.yaml");
+    let out = infraloc(&[
+        "calibrate",
+        "--model",
+        "mei",
+        "--images",
+        dir.to_str().unwrap(),
+        "--pattern",
+        "9x6",
+        "--square",
+        "0.04",
+        "--out",
+        out_path.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(!out_path.exists(), "no output on failure");
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    err
+}
+
+#[test]
+fn bad_image_sets_fail_with_one_line_naming_the_directory_and_images() {
+    let tmp = tempfile::tempdir().unwrap();
+    // No board in any image: plain grey frames.
+    let blank = tmp.path().join("blank");
+    std::fs::create_dir(&blank).unwrap();
+    for i in 0..3 {
+        image::GrayImage::from_pixel(W, H, image::Luma([90]))
+            .save(blank.join(format!("{i}.png")))
+            .unwrap();
+    }
+    let err = images_fail(&blank);
+    assert!(
+        err.contains(&format!(
+            "{}: no 9x6 board found in any of 3 image(s) (0.png: ",
+            blank.display()
+        )),
+        "{err}"
+    );
+
+    // Too few views: two boards.
+    let cam = tmp.path().join("true.yaml");
+    std::fs::write(&cam, mei_yaml(1.5)).unwrap();
+    let two = tmp.path().join("two");
+    ok(infraloc(&[
+        "simulate",
+        "--checkerboard",
+        "2",
+        "--camera",
+        cam.to_str().unwrap(),
+        "--out",
+        two.to_str().unwrap(),
+    ]));
+    for f in ["camera.yaml", "corners.yaml", "checkerboard.json"] {
+        std::fs::remove_file(two.join(f)).unwrap();
+    }
+    let err = images_fail(&two);
+    assert!(
+        err.contains(&format!(
+            "{}: a board in 2 image(s), need at least 3",
+            two.display()
+        )),
+        "{err}"
+    );
+
+    // Images of different sizes: named.
+    let mixed = tmp.path().join("mixed");
+    std::fs::create_dir(&mixed).unwrap();
+    for (i, f) in ["000.png", "001.png", "000.png"].iter().enumerate() {
+        std::fs::copy(two.join(f), mixed.join(format!("{i}.png"))).unwrap();
+    }
+    let small = image::imageops::resize(
+        &image::open(two.join("000.png")).unwrap().into_luma8(),
+        W / 2,
+        H / 2,
+        image::imageops::FilterType::Triangle,
+    );
+    small.save(mixed.join("3.png")).unwrap();
+    let err = images_fail(&mixed);
+    assert!(
+        err.contains("3.png: image is 400×300 but 0.png is 800×600"),
+        "{err}"
+    );
+
+    // An empty directory.
+    let empty = tmp.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    let err = images_fail(&empty);
+    assert!(err.contains("empty: no images"), "{err}");
+}
+
+#[test]
+fn fronto_parallel_boards_are_refused_as_degenerate() {
+    let dir = tempfile::tempdir().unwrap();
+    let cam_path = dir.path().join("true.yaml");
+    std::fs::write(&cam_path, mei_yaml(1.5)).unwrap();
+    let cam = load_camera(&cam_path).unwrap();
+    let board: Vec<[f64; 3]> = (0..6)
+        .flat_map(|j| (0..9).map(move |i| [i as f64 * 0.04, j as f64 * 0.04, 0.0]))
+        .collect();
+    // Four boards square to the axis, moved across the image: no tilt, so focal and distance
+    // trade against each other.
+    let views = [(-0.3, -0.2), (0.1, -0.25), (-0.25, 0.05), (0.05, 0.0)]
+        .iter()
+        .enumerate()
+        .map(|(k, (x, y))| infraloc::calib::View {
+            name: format!("view {k}"),
+            object: board.clone(),
+            image: board
+                .iter()
+                .map(|p| {
+                    let q = cam
+                        .project(&nalgebra::Vector3::new(p[0] + x, p[1] + y, 0.6))
+                        .unwrap();
+                    [q.x, q.y]
+                })
+                .collect(),
+        })
+        .collect();
+    let obs = infraloc::calib::Observations {
+        width: W,
+        height: H,
+        views,
+    };
+    let file = dir.path().join("flat.yaml");
+    std::fs::write(&file, infraloc::calib::corners::to_corners_yaml(&obs)).unwrap();
+    let out_path = dir.path().join("out.yaml");
+    let out = infraloc(&[
+        "calibrate",
+        "--model",
+        "mei",
+        "--corners",
+        file.to_str().unwrap(),
+        "--out",
+        out_path.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(!out_path.exists());
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("flat.yaml: degenerate views: all 4 boards are fronto-parallel"),
+        "{err}"
+    );
+}

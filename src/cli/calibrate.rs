@@ -112,7 +112,7 @@ fn detect_dir(
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default()
     };
-    type Outcome = std::result::Result<(u32, u32, detect::Found), String>;
+    type Outcome = (u32, u32, std::result::Result<detect::Found, String>);
     let found: Vec<Result<Outcome>> = files
         .par_iter()
         .map(|p| {
@@ -120,33 +120,33 @@ fn detect_dir(
                 .map_err(|e| Error::input(p, format!("cannot read the image: {e}")))?
                 .into_luma8();
             let (w, h) = img.dimensions();
-            Ok(detect::detect(img.as_raw(), w, h, cols, rows, square).map(|f| (w, h, f)))
+            Ok((w, h, detect::detect(img.as_raw(), w, h, cols, rows, square)))
         })
         .collect();
     let mut size: Option<(u32, u32, &Path)> = None;
     let mut views = Vec::new();
     let mut missing = Vec::new();
     for (p, f) in files.iter().zip(found) {
-        match f? {
-            Ok((w, h, f)) => {
-                match size {
-                    Some((w0, h0, first)) if (w0, h0) != (w, h) => {
-                        return Err(Error::input(
-                            p,
-                            format!(
-                                "image is {w}×{h} but {} is {w0}×{h0}: one camera, one size",
-                                name(first)
-                            ),
-                        ))
-                    }
-                    _ => size = Some((w, h, p)),
-                }
-                views.push(calib::View {
-                    name: name(p),
-                    object: f.object,
-                    image: f.image,
-                });
+        let (w, h, f) = f?;
+        match size {
+            Some((w0, h0, first)) if (w0, h0) != (w, h) => {
+                return Err(Error::input(
+                    p,
+                    format!(
+                        "image is {w}×{h} but {} is {w0}×{h0}: one camera, one size",
+                        name(first)
+                    ),
+                ))
             }
+            Some(_) => {}
+            None => size = Some((w, h, p)),
+        }
+        match f {
+            Ok(f) => views.push(calib::View {
+                name: name(p),
+                object: f.object,
+                image: f.image,
+            }),
             Err(reason) => missing.push(NotFound {
                 name: name(p),
                 reason,
@@ -159,7 +159,8 @@ fn detect_dir(
             .collect::<Vec<_>>()
             .join("; ")
     };
-    let Some((width, height, _)) = size else {
+    let (width, height) = size.map(|(w, h, _)| (w, h)).unwrap_or((0, 0));
+    if views.is_empty() {
         return Err(Error::input(
             dir,
             format!(
@@ -168,7 +169,7 @@ fn detect_dir(
                 list(&missing)
             ),
         ));
-    };
+    }
     if views.len() < calib::MIN_VIEWS {
         return Err(Error::input(
             dir,
