@@ -32,6 +32,21 @@ fn ok(out: Output) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
+/// `infraloc simulate --checkerboard N --camera CAM --seed S --out DIR`.
+fn simulate_boards(cam: &Path, n: &str, seed: &str, out: &Path) {
+    ok(infraloc(&[
+        "simulate",
+        "--checkerboard",
+        n,
+        "--camera",
+        cam.to_str().unwrap(),
+        "--seed",
+        seed,
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+}
+
 /// OpenCV FileStorage YAML of a Mei camera with radius `r90` px at 90° from the axis.
 fn mei_yaml(xi: f64) -> String {
     let gamma = 330.0 * xi;
@@ -107,17 +122,7 @@ fn round_trip(name: &str, model: &str, yaml: &str, seed: &str) -> (f64, f64, f64
     let cam_path = d.join("true.yaml");
     std::fs::write(&cam_path, yaml).unwrap();
     let boards = d.join("boards");
-    ok(infraloc(&[
-        "simulate",
-        "--checkerboard",
-        VIEWS,
-        "--camera",
-        cam_path.to_str().unwrap(),
-        "--seed",
-        seed,
-        "--out",
-        boards.to_str().unwrap(),
-    ]));
+    simulate_boards(&cam_path, VIEWS, seed, &boards);
     let (fit, corners, report) = (d.join("fit.yaml"), d.join("det.yaml"), d.join("rep.json"));
     let stdout = ok(infraloc(&[
         "calibrate",
@@ -194,17 +199,7 @@ fn simulated_boards_are_deterministic() {
     std::fs::write(&cam, mei_yaml(1.1)).unwrap();
     let run = |sub: &str, seed: &str| {
         let out = dir.path().join(sub);
-        ok(infraloc(&[
-            "simulate",
-            "--checkerboard",
-            "2",
-            "--camera",
-            cam.to_str().unwrap(),
-            "--seed",
-            seed,
-            "--out",
-            out.to_str().unwrap(),
-        ]));
+        simulate_boards(&cam, "2", seed, &out);
         [
             "000.png",
             "001.png",
@@ -278,15 +273,7 @@ fn bad_image_sets_fail_with_one_line_naming_the_directory_and_images() {
     let cam = tmp.path().join("true.yaml");
     std::fs::write(&cam, mei_yaml(1.5)).unwrap();
     let two = tmp.path().join("two");
-    ok(infraloc(&[
-        "simulate",
-        "--checkerboard",
-        "2",
-        "--camera",
-        cam.to_str().unwrap(),
-        "--out",
-        two.to_str().unwrap(),
-    ]));
+    simulate_boards(&cam, "2", "1", &two);
     for f in ["camera.yaml", "corners.yaml", "checkerboard.json"] {
         std::fs::remove_file(two.join(f)).unwrap();
     }
