@@ -168,17 +168,32 @@ pub(crate) fn optimise(model: LensModel, s: &mut State, views: &[Obs]) -> Option
     while iterations < MAX_ITER {
         iterations += 1;
         let (a, g) = normal_equations(model, s, views)?;
+        // Jacobi scaling: the unknowns span pixels (focal) to milliradians (poses), and in the
+        // Mei model focal, ξ and k1 are strongly correlated; solving the unit-diagonal system
+        // keeps the Cholesky factor accurate enough to walk that valley to its floor.
+        // (Marquardt's damping λ·diag(A) is λ·I in these units.)
+        let scale: Vec<f64> = (0..a.nrows())
+            .map(|i| 1.0 / a[(i, i)].max(1e-12).sqrt())
+            .collect();
+        let mut scaled = a.clone();
+        for i in 0..a.nrows() {
+            for j in 0..a.ncols() {
+                scaled[(i, j)] *= scale[i] * scale[j];
+            }
+        }
+        let gs = DVector::from_iterator(g.len(), g.iter().zip(&scale).map(|(v, s)| v * s));
         let mut accepted = false;
         while lambda < 1e16 {
-            let mut damped = a.clone();
+            let mut damped = scaled.clone();
             for i in 0..a.nrows() {
-                damped[(i, i)] += lambda * a[(i, i)].max(1e-12);
+                damped[(i, i)] += lambda;
             }
             let Some(ch) = damped.cholesky() else {
                 lambda *= 10.0;
                 continue;
             };
-            let d = -ch.solve(&g);
+            let y = -ch.solve(&gs);
+            let d = DVector::from_iterator(y.len(), y.iter().zip(&scale).map(|(v, s)| v * s));
             let trial = step(model, s, &d);
             match cost(model, &trial, views) {
                 Some(ct) if ct < c => {

@@ -1,10 +1,12 @@
-//! `infraloc calibrate --model mei|equidistant --corners FILE --out CAM.yaml [--report JSON]
-//! [--coverage PNG]` (docs/interfaces.md, "Command line and exit codes"): read the corners, run [`crate::calib`], write the intrinsics
+//! `infraloc calibrate --model mei|equidistant (--images DIR --pattern COLSxROWS --square M |
+//! --corners FILE) --out CAM.yaml [--report JSON] [--coverage PNG]` (docs/interfaces.md, "Command
+//! line and exit codes"): detect or read the corners, run [`crate::calib`], write the intrinsics
 //! (OpenCV FileStorage YAML that `load_camera` reads back), the report and the coverage picture.
 
-use crate::calib::{self, corners, Calibration, LensModel};
+use crate::calib::{self, corners, detect, Calibration, LensModel, NotFound};
 use crate::error::{Error, Result};
 use image::{Rgb, RgbImage};
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
 /// Lens model argument.
@@ -24,8 +26,21 @@ pub struct Args {
     pub model: ModelArg,
     /// Corner detections: OpenCV FileStorage (XML or YAML) with `objectPoints` / `imagePoints`
     /// sequences and `imageSize` (opencv_contrib's omni_calib_data.xml layout).
+    #[arg(long, required_unless_present = "images", conflicts_with = "images")]
+    pub corners: Option<PathBuf>,
+    /// Directory of checkerboard images (PNG, JPEG, TIFF; all the same size), detected here.
+    #[arg(long, requires_all = ["pattern", "square"])]
+    pub images: Option<PathBuf>,
+    /// Inner corners of the board as COLSxROWS (OpenCV's pattern size), e.g. 9x6.
+    #[arg(long, value_parser = parse_pattern)]
+    pub pattern: Option<(usize, usize)>,
+    /// Side of a board square, metres.
     #[arg(long)]
-    pub corners: PathBuf,
+    pub square: Option<f64>,
+    /// With --images: also write the detected corners here, in the --corners layout (so OpenCV,
+    /// or a later run, can use the same detections).
+    #[arg(long, requires = "images")]
+    pub save_corners: Option<PathBuf>,
     /// Output intrinsics (OpenCV FileStorage YAML).
     #[arg(long)]
     pub out: PathBuf,
@@ -38,15 +53,173 @@ pub struct Args {
     pub coverage: Option<PathBuf>,
 }
 
+/// `COLSxROWS` → (cols, rows), each at least 2.
+pub(super) fn parse_pattern(s: &str) -> std::result::Result<(usize, usize), String> {
+    let bad = || format!("{s:?}: expected COLSxROWS inner corners, e.g. 9x6");
+    let (c, r) = s.split_once(['x', 'X', '×']).ok_or_else(bad)?;
+    let (c, r): (usize, usize) = (
+        c.trim().parse().map_err(|_| bad())?,
+        r.trim().parse().map_err(|_| bad())?,
+    );
+    if c < 2 || r < 2 {
+        return Err(bad());
+    }
+    Ok((c, r))
+}
+
+/// Image files of a directory, by name.
+fn image_files(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.extension()
+                .and_then(|x| x.to_str())
+                .map(|x| {
+                    matches!(
+                        x.to_ascii_lowercase().as_str(),
+                        "png" | "jpg" | "jpeg" | "tif" | "tiff" | "pgm" | "bmp"
+                    )
+                })
+                .unwrap_or(false)
+        })
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(Error::input(
+            dir,
+            "no images (.png, .jpg, .tif, .pgm, .bmp)",
+        ));
+    }
+    Ok(files)
+}
+
+/// Detect the board in every image of `dir`: the views found, and the images without a board
+/// and why. Images are decoded and searched in parallel.
+fn detect_dir(
+    dir: &Path,
+    (cols, rows): (usize, usize),
+    square: f64,
+) -> Result<(calib::Observations, Vec<NotFound>)> {
+    if !(square.is_finite() && square > 0.0) {
+        return Err(Error::Invalid(format!(
+            "--square {square}: expected a positive size in metres"
+        )));
+    }
+    let files = image_files(dir)?;
+    let name = |p: &Path| {
+        p.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    type Outcome = (u32, u32, std::result::Result<detect::Found, String>);
+    let found: Vec<Result<Outcome>> = files
+        .par_iter()
+        .map(|p| {
+            let img = image::open(p)
+                .map_err(|e| Error::input(p, format!("cannot read the image: {e}")))?
+                .into_luma8();
+            let (w, h) = img.dimensions();
+            Ok((w, h, detect::detect(img.as_raw(), w, h, cols, rows, square)))
+        })
+        .collect();
+    let mut size: Option<(u32, u32, &Path)> = None;
+    let mut views = Vec::new();
+    let mut missing = Vec::new();
+    for (p, f) in files.iter().zip(found) {
+        let (w, h, f) = f?;
+        match size {
+            Some((w0, h0, first)) if (w0, h0) != (w, h) => {
+                return Err(Error::input(
+                    p,
+                    format!(
+                        "image is {w}×{h} but {} is {w0}×{h0}: one camera, one size",
+                        name(first)
+                    ),
+                ))
+            }
+            Some(_) => {}
+            None => size = Some((w, h, p)),
+        }
+        match f {
+            Ok(f) => views.push(calib::View {
+                name: name(p),
+                object: f.object,
+                image: f.image,
+            }),
+            Err(reason) => missing.push(NotFound {
+                name: name(p),
+                reason,
+            }),
+        }
+    }
+    let list = |m: &[NotFound]| {
+        m.iter()
+            .map(|n| format!("{}: {}", n.name, n.reason))
+            .collect::<Vec<_>>()
+            .join("; ")
+    };
+    let (width, height) = size.map(|(w, h, _)| (w, h)).unwrap_or((0, 0));
+    if views.is_empty() {
+        return Err(Error::input(
+            dir,
+            format!(
+                "no {cols}x{rows} board found in any of {} image(s) ({})",
+                files.len(),
+                list(&missing)
+            ),
+        ));
+    }
+    if views.len() < calib::MIN_VIEWS {
+        return Err(Error::input(
+            dir,
+            format!(
+                "a board in {} image(s), need at least {} (not found: {})",
+                views.len(),
+                calib::MIN_VIEWS,
+                list(&missing)
+            ),
+        ));
+    }
+    Ok((
+        calib::Observations {
+            width,
+            height,
+            views,
+        },
+        missing,
+    ))
+}
+
 /// Run `calibrate`.
 pub(super) fn run(a: Args) -> Result<()> {
-    let text = std::fs::read_to_string(&a.corners).map_err(|e| Error::io(&a.corners, e))?;
-    let obs = corners::parse_corners(&text, &a.corners)?;
+    let (obs, not_found, origin) = match (&a.corners, &a.images) {
+        (Some(c), _) => {
+            let text = std::fs::read_to_string(c).map_err(|e| Error::io(c, e))?;
+            (corners::parse_corners(&text, c)?, Vec::new(), c.clone())
+        }
+        (None, Some(dir)) => {
+            let (pattern, square) = a.pattern.zip(a.square).ok_or_else(|| {
+                Error::Invalid("--images needs --pattern COLSxROWS and --square METRES".into())
+            })?;
+            let (obs, nf) = detect_dir(dir, pattern, square)?;
+            (obs, nf, dir.clone())
+        }
+        (None, None) => {
+            return Err(Error::Invalid(
+                "give --corners FILE or --images DIR --pattern COLSxROWS --square METRES".into(),
+            ))
+        }
+    };
+    if let Some(p) = &a.save_corners {
+        write(p, corners::to_corners_yaml(&obs))?;
+    }
     let model = match a.model {
         ModelArg::Mei => LensModel::Mei,
         ModelArg::Equidistant => LensModel::Equidistant,
     };
-    let cal = calib::calibrate(&obs, model).map_err(|e| Error::input(&a.corners, e.0))?;
+    let mut cal = calib::calibrate(&obs, model).map_err(|e| Error::input(&origin, e.0))?;
+    cal.not_found = not_found;
     write(&a.out, calib::to_yaml(&cal))?;
     if let Some(r) = &a.report {
         let json = serde_json::to_string_pretty(&cal)
@@ -62,6 +235,11 @@ pub(super) fn run(a: Args) -> Result<()> {
         .views
         .iter()
         .filter_map(|v| v.rejected.as_ref().map(|m| format!("{} ({m})", v.name)))
+        .chain(
+            cal.not_found
+                .iter()
+                .map(|n| format!("{} (no board: {})", n.name, n.reason)),
+        )
         .collect();
     println!(
         "calibrate: {} views, {} corners, RMS {:.4} px; wrote {}{}",

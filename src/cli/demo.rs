@@ -85,6 +85,7 @@ pub(super) fn run(a: Args) -> Result<()> {
         lens: LensArg::Mei,
         frames: 5,
         montage: None,
+        board: Default::default(),
     };
     // Simulating takes as long as localizing: the terminal shows it as a stage too.
     let stderr = std::io::stderr();

@@ -60,6 +60,29 @@ pub struct Args {
     /// Also write a side-by-side PNG (satellite | reflectivity | height | fisheye) here.
     #[arg(long)]
     pub montage: Option<PathBuf>,
+    /// Checkerboard views instead of a scene.
+    #[command(flatten)]
+    pub board: BoardArgs,
+}
+
+/// `simulate --checkerboard N` and its options.
+#[derive(Debug, Default, clap::Args)]
+pub struct BoardArgs {
+    /// Instead of a scene, render N fisheye views of a checkerboard (docs/calibrate.md,
+    /// "Simulated boards"): OUT/NNN.png, the true camera.yaml, the true corners.yaml and
+    /// checkerboard.json.
+    #[arg(long, value_name = "N")]
+    pub checkerboard: Option<usize>,
+    /// With --checkerboard: inner corners COLSxROWS [default: 9x6].
+    #[arg(long, requires = "checkerboard", value_parser = super::calibrate::parse_pattern)]
+    pub pattern: Option<(usize, usize)>,
+    /// With --checkerboard: side of a square, metres [default: 0.04].
+    #[arg(long, requires = "checkerboard")]
+    pub square: Option<f64>,
+    /// With --checkerboard: the true camera (any intrinsics file --camera reads) [default: the
+    /// true camera of the scene this seed, preset and lens would give].
+    #[arg(long, requires = "checkerboard")]
+    pub camera: Option<PathBuf>,
 }
 
 impl Args {
@@ -86,6 +109,9 @@ impl Args {
 
 /// Run `simulate`.
 pub(super) fn run(a: Args) -> Result<()> {
+    if let Some(n) = a.board.checkerboard {
+        return checkerboard(&a, n);
+    }
     let scene = sim::generate(&a.settings())?;
     write_scene(&scene, &a.out)?;
     if let Some(m) = &a.montage {
@@ -163,4 +189,83 @@ pub(super) fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
             "# Written by `infraloc simulate`: localizes this scene with no other flags.\n{text}"
         ),
     )
+}
+
+/// `simulate --checkerboard N`: render the views and write them with their truth.
+fn checkerboard(a: &Args, n: usize) -> Result<()> {
+    use crate::sim::checkerboard::{render, Board};
+    let (cols, rows) = a.board.pattern.unwrap_or((9, 6));
+    let square = a.board.square.unwrap_or(0.04);
+    if !(square.is_finite() && square > 0.0) || n == 0 {
+        return Err(Error::Invalid(format!(
+            "--checkerboard {n} --square {square}: need at least one view and a positive square"
+        )));
+    }
+    let cam = match &a.board.camera {
+        Some(p) => crate::camera::load_camera(p)?,
+        None => sim::scene_true_camera(&a.settings()),
+    };
+    let board = Board { cols, rows, square };
+    let views = render(&cam, &board, n, a.seed);
+    fs::create_dir_all(&a.out).map_err(|e| Error::io(&a.out, e))?;
+    let (w, h) = (
+        crate::camera::CameraModel::width(&cam),
+        crate::camera::CameraModel::height(&cam),
+    );
+    let object = board.corners();
+    let mut full = Vec::new();
+    let mut json_views = Vec::new();
+    for (i, v) in views.iter().enumerate() {
+        let p = a.out.join(frame_name(i));
+        image::GrayImage::from_raw(w, h, v.image.clone())
+            .ok_or_else(|| Error::Invalid(format!("{}: image buffer size", p.display())))?
+            .save(&p)
+            .map_err(|e| Error::Invalid(format!("{}: {e}", p.display())))?;
+        let seen = v.corners.iter().filter(|c| c.is_some()).count();
+        if seen == object.len() {
+            full.push(crate::calib::View {
+                name: frame_name(i),
+                object: object.clone(),
+                image: v.corners.iter().flatten().copied().collect(),
+            });
+        }
+        let rv = v.pose.r.scaled_axis();
+        json_views.push(serde_json::json!({
+            "image": frame_name(i),
+            "rvec": [rv.x, rv.y, rv.z],
+            "tvec": [v.pose.t.x, v.pose.t.y, v.pose.t.z],
+            "corners_in_image": seen,
+            "corners": v.corners,
+        }));
+    }
+    write(
+        &a.out.join("camera.yaml"),
+        crate::camera::to_opencv_yaml(&cam),
+    )?;
+    let obs = crate::calib::Observations {
+        width: w,
+        height: h,
+        views: full,
+    };
+    write(
+        &a.out.join("corners.yaml"),
+        crate::calib::corners::to_corners_yaml(&obs),
+    )?;
+    let truth = serde_json::json!({
+        "pattern": [cols, rows],
+        "square": square,
+        "seed": a.seed,
+        "image_size": [w, h],
+        "corner_order": "row by row: corner (i, j) at (i*square, j*square, 0) is entry j*cols + i",
+        "views": json_views,
+    });
+    let text = serde_json::to_string_pretty(&truth)
+        .map_err(|e| Error::Invalid(format!("checkerboard.json: {e}")))?;
+    write(&a.out.join("checkerboard.json"), text + "\n")?;
+    println!(
+        "simulate: wrote {} ({n} views of a {cols}x{rows} board, {} with every corner in the image)",
+        a.out.display(),
+        obs.views.len()
+    );
+    Ok(())
 }

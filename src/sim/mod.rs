@@ -7,6 +7,7 @@
 //! See `docs/simulator.md`.
 
 pub(crate) mod appearance;
+pub mod checkerboard;
 pub mod gps;
 pub mod layers;
 pub mod noise;
@@ -178,6 +179,22 @@ pub struct Scene {
     pub acquisition: Acquisition,
     /// UTC start of the GPS log (also the capture time).
     pub start: gps::UtcStart,
+}
+
+/// The scene's map origin: the nominal site moved by up to [`SITE_JITTER`].
+fn site_origin(rng: &mut ChaCha8Rng) -> [f64; 2] {
+    [
+        (SITE_UTM[0] + rng.random_range(-SITE_JITTER..SITE_JITTER)).round(),
+        (SITE_UTM[1] + rng.random_range(-SITE_JITTER..SITE_JITTER)).round(),
+    ]
+}
+
+/// The true intrinsics [`generate`] gives a scene of these settings (the same draws, without
+/// building the scene): what `simulate --checkerboard` renders boards with.
+pub fn scene_true_camera(settings: &Settings) -> Camera {
+    let mut rng = ChaCha8Rng::seed_from_u64(mix64(settings.seed));
+    site_origin(&mut rng);
+    true_camera(&mut rng, settings.preset, settings.lens)
 }
 
 /// True intrinsics for a preset and lens, with per-unit manufacturing jitter.
@@ -383,10 +400,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
     let mut rng = ChaCha8Rng::seed_from_u64(mix64(settings.seed));
     let mut world = World::generate(mix64(settings.seed ^ 0x5EED));
     let crs = Crs::Epsg(SIM_EPSG);
-    let origin = [
-        (SITE_UTM[0] + rng.random_range(-SITE_JITTER..SITE_JITTER)).round(),
-        (SITE_UTM[1] + rng.random_range(-SITE_JITTER..SITE_JITTER)).round(),
-    ];
+    let origin = site_origin(&mut rng);
 
     // Camera and true pose.
     let camera_true = true_camera(&mut rng, settings.preset, settings.lens);
