@@ -100,14 +100,18 @@ impl PoseFile {
 
     /// The marginal σ per axis of `quality.sigma`, if the file has a well-formed one.
     pub fn sigma(&self) -> Option<Sigma> {
-        #[derive(Deserialize)]
-        struct QualitySigma {
-            #[serde(default)]
-            sigma: Option<Sigma>,
-        }
-        QualitySigma::deserialize(&self.quality)
-            .ok()
-            .and_then(|q| q.sigma)
+        self.quality_figure("sigma")
+    }
+
+    /// The pose store's comparison score, `quality.score`, if the file has a numeric one.
+    pub fn score(&self) -> Option<f64> {
+        self.quality_figure("score")
+    }
+
+    /// The `quality` block's figure `key` as a `T`. Each figure is read on its own, so a
+    /// malformed one (a hand-made file, an older writer) is absent rather than spoiling the rest.
+    fn quality_figure<T: serde::de::DeserializeOwned>(&self, key: &str) -> Option<T> {
+        self.quality.get(key).and_then(|v| T::deserialize(v).ok())
     }
 
     /// Pretty JSON text with a trailing newline.

@@ -56,10 +56,6 @@ pub struct PoseStore {
     history_len: usize,
 }
 
-fn score_of(p: &PoseFile) -> Option<f64> {
-    p.quality.get("score").and_then(|v| v.as_f64())
-}
-
 impl PoseStore {
     /// A store in `dir` (which must exist) keeping `history_len` entries.
     pub fn new(dir: &Path, history_len: usize) -> Self {
@@ -135,7 +131,7 @@ impl PoseStore {
                 Some(cur) if cur.status != "ok" => {
                     Decision::Replaced("served pose was not ok".into())
                 }
-                Some(cur) => match (score_of(candidate), score_of(cur)) {
+                Some(cur) => match (candidate.score(), cur.score()) {
                     (Some(new), Some(old)) if new < old - SCORE_TOLERANCE => Decision::Kept(
                         format!("quality score {new:.3} < served {old:.3} − {SCORE_TOLERANCE}"),
                     ),
@@ -153,7 +149,7 @@ impl PoseStore {
         self.append(HistoryEntry {
             timestamp_utc: candidate.timestamp_utc.clone(),
             status: candidate.status.clone(),
-            score: score_of(candidate),
+            score: candidate.score(),
             camera_center: Some(candidate.camera_center),
             accepted,
             reason,
@@ -166,7 +162,7 @@ impl PoseStore {
         self.append(HistoryEntry {
             timestamp_utc: candidate.timestamp_utc.clone(),
             status: candidate.status.clone(),
-            score: score_of(candidate),
+            score: candidate.score(),
             camera_center: Some(candidate.camera_center),
             accepted: false,
             reason: why.to_string(),

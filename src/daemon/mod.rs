@@ -589,7 +589,7 @@ impl Daemon {
                         decision: why,
                         camera_center: c,
                         yaw_pitch_roll_deg: run.pose_file.yaw_pitch_roll_deg,
-                        score: status::score(&run.pose_file),
+                        score: run.pose_file.score(),
                         sigma: run.pose_file.sigma(),
                         skipped_tiles: run.skipped_tiles.clone(),
                         stages: run

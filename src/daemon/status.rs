@@ -106,15 +106,10 @@ impl Served {
             crs: p.crs.clone(),
             camera_center: p.camera_center,
             yaw_pitch_roll_deg: p.yaw_pitch_roll_deg,
-            score: score(p),
+            score: p.score(),
             sigma: p.sigma(),
         }
     }
-}
-
-/// The pose store's comparison score of `p` (`quality.score`), if it has a numeric one.
-pub fn score(p: &PoseFile) -> Option<f64> {
-    p.quality.get("score").and_then(serde_json::Value::as_f64)
 }
 
 /// A job of the service.
