@@ -106,7 +106,7 @@ pub struct Progress {
 
 /// A final answer that serves the request: `"ok": true` with the fields of `T` beside it.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Accepted<T> {
+pub(crate) struct Accepted<T> {
     ok: bool,
     /// The request's own fields.
     #[serde(flatten)]
@@ -115,14 +115,14 @@ pub struct Accepted<T> {
 
 impl<T> Accepted<T> {
     /// The answer serving `body`.
-    pub fn new(body: T) -> Self {
+    pub(crate) fn new(body: T) -> Self {
         Accepted { ok: true, body }
     }
 }
 
 /// A final answer that does not serve the request: `{"ok": false, "error": WHY}`.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
-pub struct Refusal {
+pub(crate) struct Refusal {
     ok: bool,
     /// Why, one line.
     pub error: String,
@@ -130,7 +130,7 @@ pub struct Refusal {
 
 impl Refusal {
     /// The refusal for `error`.
-    pub fn new(error: impl Into<String>) -> Self {
+    pub(crate) fn new(error: impl Into<String>) -> Self {
         Refusal {
             ok: false,
             error: error.into(),
@@ -743,7 +743,7 @@ impl Answer {
     }
 
     /// The payload frame that followed the answer, if any.
-    pub fn payload(&self) -> Option<&[u8]> {
+    pub(crate) fn payload(&self) -> Option<&[u8]> {
         self.payload.as_deref()
     }
 }

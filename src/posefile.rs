@@ -14,7 +14,7 @@ use serde_json::Value;
 use std::path::Path;
 
 /// Schema identifier of the pose file.
-pub const SCHEMA_V1: &str = "infraloc.pose.v1";
+pub(crate) const SCHEMA_V1: &str = "infraloc.pose.v1";
 
 /// Software block of the pose file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -99,12 +99,12 @@ impl PoseFile {
     }
 
     /// The marginal σ per axis of `quality.sigma`, if the file has a well-formed one.
-    pub fn sigma(&self) -> Option<Sigma> {
+    pub(crate) fn sigma(&self) -> Option<Sigma> {
         self.quality_figure("sigma")
     }
 
     /// The pose store's comparison score, `quality.score`, if the file has a numeric one.
-    pub fn score(&self) -> Option<f64> {
+    pub(crate) fn score(&self) -> Option<f64> {
         self.quality_figure("score")
     }
 
@@ -141,7 +141,7 @@ pub struct ReadPose {
 }
 
 /// Parse pose-like JSON text. `origin` names the source in errors.
-pub fn parse_pose(text: &str, origin: &Path) -> Result<ReadPose> {
+pub(crate) fn parse_pose(text: &str, origin: &Path) -> Result<ReadPose> {
     let m: MinimalPose = serde_json::from_str(text)
         .map_err(|e| Error::input(origin, format!("not a pose file: {e}")))?;
     let finite = m
@@ -189,7 +189,7 @@ pub fn read_pose(path: &Path) -> Result<ReadPose> {
 /// Format seconds since the Unix epoch (+ milliseconds) as `YYYY-MM-DDTHH:MM:SS[.mmm]Z`.
 /// Pure: the caller supplies the clock reading. A time chrono cannot represent (beyond
 /// ±262,000 years) is written as the epoch.
-pub fn format_utc(unix_secs: i64, millis: Option<u32>) -> String {
+pub(crate) fn format_utc(unix_secs: i64, millis: Option<u32>) -> String {
     use chrono::{DateTime, SecondsFormat};
     let nanos = millis.map_or(0, |ms| ms.min(999) * 1_000_000);
     let t = DateTime::from_timestamp(unix_secs, nanos).unwrap_or_default();

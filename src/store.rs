@@ -65,7 +65,7 @@ impl PoseStore {
     /// A store serving `pose` (the configured `[output] pose`), its history in [`HISTORY_FILE`]
     /// in the same directory (which must exist: the rename that publishes a pose cannot cross
     /// directories).
-    pub fn at(pose: &Path, history_len: usize) -> Self {
+    pub(crate) fn at(pose: &Path, history_len: usize) -> Self {
         PoseStore {
             pose: pose.to_path_buf(),
             history: pose.with_file_name(HISTORY_FILE),
@@ -74,7 +74,7 @@ impl PoseStore {
     }
 
     /// Path of the served pose file.
-    pub fn pose_path(&self) -> PathBuf {
+    pub(crate) fn pose_path(&self) -> PathBuf {
         self.pose.clone()
     }
 

@@ -202,7 +202,7 @@ pub enum Camera {
 
 impl Camera {
     /// The model as a trait object.
-    pub fn model(&self) -> &dyn CameraModel {
+    pub(crate) fn model(&self) -> &dyn CameraModel {
         match self {
             Camera::Mei(m) => m,
             Camera::Equidistant(m) => m,
@@ -211,7 +211,7 @@ impl Camera {
 
     /// Check the parameters are usable: positive size and focal lengths, finite coefficients,
     /// ξ ≥ 0, field of view in (0°, 360°]. The message names the offending parameter.
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         let (w, h, named): (u32, u32, Vec<(&str, f64)>) = match self {
             Camera::Mei(m) => (
                 m.width,

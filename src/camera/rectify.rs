@@ -331,18 +331,8 @@ impl RemapTable {
         })
     }
 
-    /// Output width.
-    pub fn width(&self) -> usize {
-        self.width
-    }
-
-    /// Output height.
-    pub fn height(&self) -> usize {
-        self.height
-    }
-
     /// Remap `src` (which must have the size the table was built for) into a new image.
-    pub fn remap(&self, src: &GrayView<'_>) -> Result<Vec<u8>> {
+    pub(crate) fn remap(&self, src: &GrayView<'_>) -> Result<Vec<u8>> {
         let mut out = vec![0u8; self.width * self.height];
         self.remap_into(src, &mut out)?;
         Ok(out)

@@ -6,7 +6,7 @@
 //! injected ([`Clock`]) so spacing and retry back-off are tested without sleeping.
 //! `docs/capture.md` is the operator's view.
 
-pub mod convert;
+pub(crate) mod convert;
 mod file;
 pub mod median;
 
@@ -94,7 +94,7 @@ pub struct GrabError {
 
 impl GrabError {
     /// Shorthand constructor.
-    pub fn new(fault: Fault, detail: impl Into<String>) -> Self {
+    pub(crate) fn new(fault: Fault, detail: impl Into<String>) -> Self {
         GrabError {
             fault,
             detail: detail.into(),

@@ -11,7 +11,7 @@
 
 mod logging;
 pub mod metrics;
-pub mod notify;
+pub(crate) mod notify;
 mod policy;
 pub mod status;
 
@@ -117,7 +117,7 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 
 /// Run the service with the config at `config_path` until SIGTERM. Errors: a bad config
 /// ([`Error::Config`], exit 78) or a control socket that cannot be bound.
-pub fn run(config_path: &Path) -> Result<()> {
+pub(crate) fn run(config_path: &Path) -> Result<()> {
     // The same validation as `infraloc validate`: every problem, exit 78, before anything runs.
     let (cfg, warnings) = crate::preflight::load_for_service(config_path)?;
     // The one place the service chooses where its records (and the library's) go.

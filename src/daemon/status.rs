@@ -30,7 +30,7 @@ pub enum State {
 
 impl State {
     /// Name as printed.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             State::Starting => "starting",
             State::Ok => "ok",
@@ -98,7 +98,7 @@ pub struct Served {
 
 impl Served {
     /// The summary of pose file `p` stored at `path`.
-    pub fn of(path: &Path, p: &PoseFile) -> Served {
+    pub(crate) fn of(path: &Path, p: &PoseFile) -> Served {
         Served {
             file: path.to_path_buf(),
             timestamp_utc: p.timestamp_utc.clone(),
@@ -124,7 +124,7 @@ pub enum JobKind {
 
 impl JobKind {
     /// Name as printed.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             JobKind::Localize => "localize",
             JobKind::DriftCheck => "drift-check",
@@ -148,14 +148,14 @@ pub struct Running {
 
 /// The answer to `get-pose`: the served pose file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PoseAnswer {
+pub(crate) struct PoseAnswer {
     /// The pose file as stored.
     pub pose: PoseFile,
 }
 
 /// The answer to `validate`: the daemon's config file passed, with these warnings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Validated {
+pub(crate) struct Validated {
     /// The config file the daemon read.
     pub config: PathBuf,
     /// What the file's check warns about.
@@ -164,7 +164,7 @@ pub struct Validated {
 
 /// The refusal of `validate`: the daemon's config file and what is wrong with it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ConfigRefusal {
+pub(crate) struct ConfigRefusal {
     /// The config file the daemon read.
     pub config: PathBuf,
     /// The config error, one line.
@@ -173,7 +173,7 @@ pub struct ConfigRefusal {
 
 /// The answer to `dump-overlay`; the PNG follows as a frame of its own.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct OverlayAnswer {
+pub(crate) struct OverlayAnswer {
     /// When the run whose overlay it is computed its pose.
     pub timestamp_utc: String,
     /// The PNG's length.
@@ -182,7 +182,7 @@ pub struct OverlayAnswer {
 
 /// The answer to `relocalize` without `wait`: the run is queued.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Queued {
+pub(crate) struct Queued {
     /// Always true.
     pub queued: bool,
 }
@@ -282,17 +282,17 @@ pub enum RunOutcome {
 
 impl RunResult {
     /// Whether a pose was computed.
-    pub fn ok(&self) -> bool {
+    pub(crate) fn ok(&self) -> bool {
         matches!(self.outcome, RunOutcome::Localized { .. })
     }
 
     /// Whether the result is now the served pose.
-    pub fn served(&self) -> bool {
+    pub(crate) fn served(&self) -> bool {
         matches!(self.outcome, RunOutcome::Localized { served: true, .. })
     }
 
     /// The error, for a failed run.
-    pub fn error(&self) -> Option<&str> {
+    pub(crate) fn error(&self) -> Option<&str> {
         match &self.outcome {
             RunOutcome::Failed { error, .. } => Some(error),
             RunOutcome::Localized { .. } => None,

@@ -66,7 +66,7 @@ impl Default for CoarseParams {
 
 impl CoarseParams {
     /// The geometric sequence of heights swept.
-    pub fn heights(&self) -> Vec<f64> {
+    pub(crate) fn heights(&self) -> Vec<f64> {
         let (lo, hi) = self.height_range_m;
         let mut v = Vec::new();
         let mut h = lo;

@@ -68,7 +68,7 @@ pub struct AxisRange {
 
 impl AxisRange {
     /// Cells on each side of the centre.
-    pub fn m(&self) -> i64 {
+    pub(crate) fn m(&self) -> i64 {
         (self.half / self.step).round() as i64
     }
 }
@@ -164,7 +164,7 @@ impl std::str::FromStr for SearchSpec {
 
 impl SearchSpec {
     /// All six axes (pitch and roll as a single cell when off).
-    pub fn axes(&self) -> [AxisRange; 6] {
+    pub(crate) fn axes(&self) -> [AxisRange; 6] {
         let off = AxisRange {
             half: 0.0,
             step: 1.0,
@@ -180,7 +180,7 @@ impl SearchSpec {
     }
 
     /// Reject zero, negative, non-finite or absurd ranges and steps.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let limits = [
             MAX_HALF_XY,
             MAX_HALF_XY,
@@ -242,7 +242,7 @@ impl SearchSpec {
     }
 
     /// The grid geometry.
-    pub fn grid(&self) -> Grid {
+    pub(crate) fn grid(&self) -> Grid {
         let axes = self.axes();
         let mut m = [0i64; 6];
         let mut step = [0f64; 6];
@@ -274,12 +274,12 @@ pub(crate) type Cell = [i64; 6];
 
 impl Grid {
     /// Cells along axis i.
-    pub fn n(&self, i: usize) -> u64 {
+    pub(crate) fn n(&self, i: usize) -> u64 {
         (2 * self.m[i] + 1) as u64
     }
 
     /// Total number of cells.
-    pub fn cells(&self) -> u64 {
+    pub(crate) fn cells(&self) -> u64 {
         (0..6).fold(1u64, |a, i| a.saturating_mul(self.n(i)))
     }
 
@@ -289,7 +289,7 @@ impl Grid {
     }
 
     /// Cell of a number.
-    pub fn cell(&self, mut idx: u64) -> Cell {
+    pub(crate) fn cell(&self, mut idx: u64) -> Cell {
         let mut c = [0i64; 6];
         for i in (0..6).rev() {
             let n = self.n(i);
@@ -300,12 +300,12 @@ impl Grid {
     }
 
     /// Whether a cell is inside the grid.
-    pub fn contains(&self, c: &Cell) -> bool {
+    pub(crate) fn contains(&self, c: &Cell) -> bool {
         (0..6).all(|i| c[i].abs() <= self.m[i])
     }
 
     /// Physical offsets (m, m, m, deg, deg, deg) of a cell.
-    pub fn offsets(&self, c: &Cell) -> [f64; 6] {
+    pub(crate) fn offsets(&self, c: &Cell) -> [f64; 6] {
         let mut o = [0.0; 6];
         for i in 0..6 {
             o[i] = c[i] as f64 * self.step[i];
@@ -639,7 +639,7 @@ impl Evaluator {
     }
 
     /// The pose of a cell.
-    pub fn pose(&self, cell: &Cell) -> CamFromMap {
+    pub(crate) fn pose(&self, cell: &Cell) -> CamFromMap {
         pose_at_pivot(&self.init, &self.grid.offsets(cell), self.grid.pivot)
     }
 
@@ -715,7 +715,7 @@ impl Evaluator {
     }
 
     /// The objective the search maximises (MI or NMI, per the configuration).
-    pub fn objective(&self) -> super::mi::Objective {
+    pub(crate) fn objective(&self) -> super::mi::Objective {
         self.mi.objective
     }
 
@@ -996,7 +996,7 @@ pub struct SearchResult {
 }
 
 /// Coarsest level whose survey fits in `budget` poses.
-pub fn coarsest_level(g: &Grid, budget: u64) -> u32 {
+pub(crate) fn coarsest_level(g: &Grid, budget: u64) -> u32 {
     let mut l = 0;
     while l < MAX_LEVEL {
         let count: u64 = (0..6).map(|i| g.lattice_axis(i, l).len() as u64).product();

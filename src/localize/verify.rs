@@ -113,7 +113,7 @@ impl<'a> MiVerifier<'a> {
     }
 
     /// The settings.
-    pub fn params(&self) -> &VerifyParams {
+    pub(crate) fn params(&self) -> &VerifyParams {
         &self.p
     }
 
