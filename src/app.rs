@@ -1,9 +1,9 @@
 //! The node's application layer: one localization run, from a validated [`Config`] and typed
 //! [`Overrides`] to a pose document, with no argument parsing and no printing.
 //!
-//! capture (frames + intrinsics) → GPS prior → tile → [`crate::localize::pipeline`] → [`Run`]
+//! capture (frames + intrinsics) → GPS prior → tile → [`crate::localize::pipeline`] → `Run`
 //! (pose file, report, overlay). `infraloc localize` and `infraloc demo` call it and write the
-//! outputs ([`Run::write_outputs`]); the service calls it and offers the pose to its store. The
+//! outputs (`Run::write_outputs`); the service calls it and offers the pose to its store. The
 //! CLI only turns flags into [`Overrides`] and prints; the service never imports the CLI.
 
 use crate::camera::{import::load_camera, Camera, CameraModel};

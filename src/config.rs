@@ -460,7 +460,7 @@ impl Config {
     /// Read a config file, validate it ([`Config::validate`]: every key-level problem, exit 78)
     /// and resolve its relative paths against the file's directory. The one way the program
     /// reads its configuration, so no caller can skip the validation. What the config names on
-    /// this machine (files, devices, directories) is checked by [`crate::preflight`].
+    /// this machine (files, devices, directories) is checked by `crate::preflight`.
     pub fn load(path: &Path) -> Result<Config> {
         let (cfg, problems) = Config::load_with_problems(path)?;
         Error::config_problems(path, problems)?;
@@ -500,7 +500,7 @@ impl Config {
     }
 
     /// Hard errors a parsed config can still have: missing required combinations, values out of
-    /// range or beyond the [`limits`]. Every problem is reported, each naming its `[section] key`
+    /// range or beyond the `limits`. Every problem is reported, each naming its `[section] key`
     /// (one [`Error::Config`] for one problem, [`Error::ConfigList`] for several). Exit 78.
     pub fn validate(&self, origin: &Path) -> Result<()> {
         Error::config_problems(origin, self.problems())

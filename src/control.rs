@@ -200,7 +200,7 @@ pub trait Reply {
 }
 
 /// The daemon's side: answers one request. The returned `A` is the final answer (an object with
-/// `"ok"`, see [`Accepted`] and [`Refusal`]); an optional byte payload follows it as one raw
+/// `"ok"`, see `Accepted` and `Refusal`); an optional byte payload follows it as one raw
 /// frame (the overlay PNG).
 pub type Handler<A> = dyn Fn(Request, &mut dyn Reply) -> (A, Option<Vec<u8>>) + Send + Sync;
 
@@ -215,10 +215,10 @@ impl Reply for StreamReply<'_> {
 /// Mode of the socket's directory: the service's user (rwx) and group (r-x), nobody else.
 pub(crate) const DIR_MODE: u32 = 0o750;
 
-/// Bind the control socket: create its directory if missing ([`DIR_MODE`]; under systemd the
+/// Bind the control socket: create its directory if missing (`DIR_MODE`; under systemd the
 /// RuntimeDirectory exists already), tighten an existing directory of ours that grants more than
-/// [`DIR_MODE`] (refuse one of another user's), remove a stale socket left by a crash (only a
-/// socket, never another kind of file), bind, and set [`SOCKET_MODE`]. Returns the listener and
+/// `DIR_MODE` (refuse one of another user's), remove a stale socket left by a crash (only a
+/// socket, never another kind of file), bind, and set `SOCKET_MODE`. Returns the listener and
 /// a note for the log when the directory's mode was changed.
 pub fn bind(path: &Path) -> Result<(UnixListener, Option<String>)> {
     let mut note = None;
@@ -336,7 +336,7 @@ pub struct Limits {
 }
 
 impl Default for Limits {
-    /// [`MAX_CONNECTIONS`], [`REQUEST_TIMEOUT`], idle eviction after 250 ms, 4 overflow readers
+    /// [`MAX_CONNECTIONS`], `REQUEST_TIMEOUT`, idle eviction after 250 ms, 4 overflow readers
     /// with a 1 s deadline.
     fn default() -> Self {
         Limits {

@@ -34,7 +34,7 @@ impl Default for Software {
 /// The full `infraloc.pose.v1` document.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PoseFile {
-    /// Always [`SCHEMA_V1`].
+    /// Always `SCHEMA_V1`.
     pub schema: String,
     /// `"ok"` for a pose the pipeline may use; other values say why not.
     pub status: String,
@@ -201,7 +201,7 @@ pub(crate) fn format_utc(unix_secs: i64, millis: Option<u32>) -> String {
     t.to_rfc3339_opts(precision, true)
 }
 
-/// Seconds since the Unix epoch of an RFC 3339 timestamp (as [`format_utc`] writes them, or with
+/// Seconds since the Unix epoch of an RFC 3339 timestamp (as `format_utc` writes them, or with
 /// an offset); `None` if it is not one.
 pub fn parse_utc(s: &str) -> Option<f64> {
     let t = chrono::DateTime::parse_from_rfc3339(s).ok()?;

@@ -1,7 +1,7 @@
 //! The pose store (I/O shell): the pose served to the detection pipeline plus a history of the last
 //! results, in the service's state directory.
 //!
-//! `pose.json` is replaced only atomically ([`crate::persist::write_atomic`]) and only by a result
+//! `pose.json` is replaced only atomically (`crate::persist::write_atomic`) and only by a result
 //! that is `status = "ok"` and not worse than the served one (unless forced by the technician), so a
 //! failed re-localization never costs the node its last good pose. Quality is compared through
 //! `quality.score` (higher is better; the pipeline documents what it puts there).
@@ -110,7 +110,7 @@ impl PoseStore {
     }
 
     /// Offer a new result. It replaces the served pose if it is `ok` and not worse than the served
-    /// one by more than [`SCORE_TOLERANCE`], or if `force` is set (technician override; a failed
+    /// one by more than `SCORE_TOLERANCE`, or if `force` is set (technician override; a failed
     /// result is never served even then). The history records it either way.
     pub fn offer(&self, candidate: &PoseFile, force: bool) -> Result<Decision> {
         // An unreadable served pose must not block a good new one: treat it as absent, and say so.

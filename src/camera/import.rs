@@ -7,7 +7,7 @@
 //! [`parse_camera`] is pure (text in, model out); [`load_camera`] is the one-line file-reading
 //! wrapper the shell uses. Every failure is an [`Error::Input`] naming the file and the key.
 //!
-//! The YAML and XML flavours are first turned into one small tree ([`Node`]) so that the OpenCV
+//! The YAML and XML flavours are first turned into one small tree (`Node`) so that the OpenCV
 //! key logic exists once for both syntaxes.
 
 use super::{Camera, Equidistant, Mei};
@@ -1023,7 +1023,7 @@ impl KittiCalib {
     /// `R = R0_rect · R_velo_to_cam`, `t = R0_rect · T_velo_to_cam + K⁻¹ · Pi[:, 3]` (the fourth
     /// column of a rectified projection is `K · b`, `b` the camera's offset from the reference
     /// camera, so `Pi · [x; 1] = K · (x + b)`). `R` is the product as the file gives it, orthonormal
-    /// only to KITTI's printed precision (~1e-7); [`crate::pose::CamFromMap::from_rows`] projects it
+    /// only to KITTI's printed precision (~1e-7); `crate::pose::CamFromMap::from_rows` projects it
     /// onto a rotation.
     pub fn cam_from_velo(
         &self,

@@ -103,14 +103,14 @@ pub trait CameraModel: Send + Sync + std::fmt::Debug {
     /// Validity mask (255 = valid) of the image circle, row-major `width × height`.
     ///
     /// Every pixel is an unprojection (≈ 0.5 s of CPU for 5 MP), so the validity is sampled on a
-    /// lattice of [`MASK_BLOCK`]-pixel blocks first: a block whose lattice corners, and those of
+    /// lattice of `MASK_BLOCK`-pixel blocks first: a block whose lattice corners, and those of
     /// its eight neighbours, all agree is filled with that value; every other block (the image
     /// circle's rim, the sensor's edge) is evaluated pixel by pixel. That equals the per-pixel
     /// mask when the invalid set has no island or sliver narrower than a block between lattice
     /// points (nor a chord that short where the circle grazes the sensor's edge) — true of the
     /// image circle of every model here (a disc, a lens's fold beyond it);
     /// [`CameraModel::valid_mask_exact`] is the per-pixel reference, and what sensors with a side
-    /// under [`MASK_MIN_SIDE`] get. Rows in parallel (rayon).
+    /// under `MASK_MIN_SIDE` get. Rows in parallel (rayon).
     fn valid_mask(&self) -> Vec<u8> {
         use rayon::prelude::*;
         let (w, h) = (self.width() as usize, self.height() as usize);

@@ -2,7 +2,7 @@
 //! burst of frames spaced in time, and their temporal median.
 //!
 //! The pieces a camera cannot be present for are pure and tested on their own: format
-//! conversion ([`convert`]), the median ([`median`]) and the capture loop, whose clock is
+//! conversion (`convert`), the median ([`median`]) and the capture loop, whose clock is
 //! injected ([`Clock`]) so spacing and retry back-off are tested without sleeping.
 //! `docs/capture.md` is the operator's view.
 

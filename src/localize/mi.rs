@@ -1,7 +1,7 @@
 //! The mutual-information estimator (pure): binning, joint histogram → MI / NMI.
 //!
 //! X = reflectivity bin (histogram row), Y = gray bin (column). The joint histogram has one extra
-//! column, [`JointHist::invalid_col`], which collects points that do not land on a valid pixel; it
+//! column, `JointHist::invalid_col`, which collects points that do not land on a valid pixel; it
 //! is excluded from every probability, so a point either counts fully or not at all.
 //!
 //! Defaults (see `docs/refine.md` for the measurements): 32 × 32 bins with histogram-equalised

@@ -4,7 +4,7 @@ use crate::error::{Error, Result};
 use rayon::prelude::*;
 
 /// One LiDAR ground point: map-CRS coordinates (f64 metres) and reflectivity (0–255). The same
-/// type the tile cache's [`crate::map::ground_points`] produces.
+/// type the tile cache's `crate::map::ground_points` produces.
 pub use crate::map::GroundPoint;
 
 /// Check a point set for the refinement: non-empty and all coordinates finite. `what` names the

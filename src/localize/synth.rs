@@ -195,7 +195,7 @@ pub fn lidar_rings(
 }
 
 /// Render the ground plane z = `ground_z` through `cam` at `pose`: 2×2 supersampled texture →
-/// [`Texture::gray`] + noise of `noise` gray levels. Pixels outside the valid image circle are 0;
+/// `Texture::gray` + noise of `noise` gray levels. Pixels outside the valid image circle are 0;
 /// rays above the horizon see a uniform sky (gray 210). Returns (gray, valid mask).
 pub fn render(
     tex: &Texture,

@@ -112,7 +112,7 @@ pub struct Percentiles {
 pub struct GroundError {
     /// All control points, metres.
     pub all: Option<Percentiles>,
-    /// Per band of [`BANDS_M`], metres (`None` for a band without points).
+    /// Per band of `BANDS_M`, metres (`None` for a band without points).
     pub bands: Vec<BandError>,
 }
 
