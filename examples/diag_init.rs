@@ -123,13 +123,8 @@ fn main() {
     .unwrap();
     let pc = r.pose.center();
     let (py, pp, pr) = r.pose.yaw_pitch_roll();
-    println!("init: err ({:.3},{:.3},{:.3}) m yaw {:.2} pitch {:.2} roll {:.2} deg; inliers {}/{} rms {:.1}px cand yaw {:.1} h {:.2}", pc.x-c.x, pc.y-c.y, pc.z-c.z, (py-y).to_degrees(), (pp-p).to_degrees(), (pr-r0(r.pose)).to_degrees()*0.0 + (pr - r_true(&truth)).to_degrees(), r.inliers, r.matches, r.rms_px, r.candidate.yaw.to_degrees(), r.candidate.height);
-}
-fn r0(_p: infraloc::pose::CamFromMap) -> f64 {
-    0.0
+    println!("init: err ({:.3},{:.3},{:.3}) m yaw {:.2} pitch {:.2} roll {:.2} deg; inliers {}/{} rms {:.1}px cand yaw {:.1} h {:.2}", pc.x-c.x, pc.y-c.y, pc.z-c.z, (py-y).to_degrees(), (pp-p).to_degrees(), (pr - r_true(&truth)).to_degrees(), r.inliers, r.matches, r.rms_px, r.candidate.yaw.to_degrees(), r.candidate.height);
 }
 fn r_true(t: &infraloc::pose::CamFromMap) -> f64 {
     t.yaw_pitch_roll().2
 }
-#[allow(dead_code)]
-fn unused() {}

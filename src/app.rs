@@ -1,9 +1,9 @@
 //! The node's application layer: one localization run, from a validated [`Config`] and typed
 //! [`Overrides`] to a pose document, with no argument parsing and no printing.
 //!
-//! capture (frames + intrinsics) → GPS prior → tile → [`crate::localize::pipeline`] → [`Run`]
+//! capture (frames + intrinsics) → GPS prior → tile → [`crate::localize::pipeline`] → `Run`
 //! (pose file, report, overlay). `infraloc localize` and `infraloc demo` call it and write the
-//! outputs ([`Run::write_outputs`]); the service calls it and offers the pose to its store. The
+//! outputs (`Run::write_outputs`); the service calls it and offers the pose to its store. The
 //! CLI only turns flags into [`Overrides`] and prints; the service never imports the CLI.
 
 use crate::camera::{import::load_camera, Camera, CameraModel};
@@ -315,12 +315,13 @@ pub(crate) fn run(
     );
     pf.intrinsics = serde_json::to_value(&camera).unwrap_or(Value::Null);
     let q = &outcome.refinement.quality;
-    let mut quality = serde_json::to_value(q).unwrap_or(json!({}));
-    // The pose store compares results by `score`: the MI optimum's NMI.
-    quality["score"] = json!(q.nmi);
-    quality["pnp_inliers"] = json!(outcome.init.inliers);
-    quality["pnp_rms_px"] = json!(outcome.init.rms_px);
-    pf.quality = quality;
+    let quality = PoseQuality {
+        refinement: q,
+        score: q.nmi,
+        pnp_inliers: outcome.init.inliers,
+        pnp_rms_px: outcome.init.rms_px,
+    };
+    pf.quality = serde_json::to_value(quality).unwrap_or(json!({}));
     pf.stages = outcome.stages.iter().map(|s| s.to_json()).collect();
     pf.stages[0]["source"] = prior_desc.clone();
 
@@ -349,6 +350,20 @@ pub(crate) fn run(
         report,
         skipped_tiles: tref.skipped,
     })
+}
+
+/// The pose file's `quality` block as a localization writes it: the refinement's figures with
+/// the initialization's beside them. Stored through a JSON value, so its keys stay sorted.
+#[derive(serde::Serialize)]
+struct PoseQuality<'a> {
+    #[serde(flatten)]
+    refinement: &'a crate::localize::quality::Quality,
+    /// The pose store compares results by it: the MI optimum's NMI.
+    score: f64,
+    /// The final PnP's inliers.
+    pnp_inliers: usize,
+    /// Its reprojection RMS, px (`null` for a verified sweep pose, whose RMS is NaN).
+    pnp_rms_px: f64,
 }
 
 /// The initialization matcher `[init]` names, its file read: `None` for the built-in one.

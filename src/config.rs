@@ -72,7 +72,7 @@ pub enum FrameSourceKind {
 
 impl FrameSourceKind {
     /// The name used in the config file.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             FrameSourceKind::File => "file",
             FrameSourceKind::V4l2 => "v4l2",
@@ -83,7 +83,7 @@ impl FrameSourceKind {
     /// Whether this build can capture from this kind of source: the camera backends are cargo
     /// features (`v4l`, `aravis`) so that the default build needs no C toolchain or system
     /// library (docs/architecture.md, "Capture backends are cargo features").
-    pub fn compiled_in(self) -> bool {
+    pub(crate) fn compiled_in(self) -> bool {
         match self {
             FrameSourceKind::File => true,
             FrameSourceKind::V4l2 => cfg!(feature = "v4l"),
@@ -93,7 +93,7 @@ impl FrameSourceKind {
 
     /// The one-line problem for a source kind this build lacks: the key, and how to get a build
     /// that has it.
-    pub fn missing_backend_problem(self) -> String {
+    pub(crate) fn missing_backend_problem(self) -> String {
         match self {
             FrameSourceKind::File => String::new(),
             FrameSourceKind::V4l2 => "[camera] source = \"v4l2\": this build has no V4L2 capture; \
@@ -333,7 +333,7 @@ pub(crate) const DEFAULT_SOCKET: &str = "/run/infraloc/control.sock";
 /// Upper bounds of the numeric keys: beyond them a value is a typo or a unit mistake, and some
 /// (retries, back-offs, timeouts) would make a run wait for days without a word. Documented in
 /// `config/infraloc.toml` and docs/technician.md.
-pub mod limits {
+pub(crate) mod limits {
     /// `[camera] frame-count`.
     pub(crate) const FRAME_COUNT: u64 = 100;
     /// `[camera] frame-interval-ms` (one minute).
@@ -355,7 +355,7 @@ pub mod limits {
     /// `[gps] fallback-sigma-m`.
     pub(crate) const SIGMA_M: f64 = 1_000.0;
     /// `[gps] max-hdop`.
-    pub const HDOP: f64 = 100.0;
+    pub(crate) const HDOP: f64 = 100.0;
     /// `[gps] min-fixes`: no more than the prior keeps.
     pub(crate) const MIN_FIXES: u64 = 10_000;
     /// `[gps] reconnect-max-s` (one hour).
@@ -460,7 +460,7 @@ impl Config {
     /// Read a config file, validate it ([`Config::validate`]: every key-level problem, exit 78)
     /// and resolve its relative paths against the file's directory. The one way the program
     /// reads its configuration, so no caller can skip the validation. What the config names on
-    /// this machine (files, devices, directories) is checked by [`crate::preflight`].
+    /// this machine (files, devices, directories) is checked by `crate::preflight`.
     pub fn load(path: &Path) -> Result<Config> {
         let (cfg, problems) = Config::load_with_problems(path)?;
         Error::config_problems(path, problems)?;
@@ -500,14 +500,14 @@ impl Config {
     }
 
     /// Hard errors a parsed config can still have: missing required combinations, values out of
-    /// range or beyond the [`limits`]. Every problem is reported, each naming its `[section] key`
+    /// range or beyond the `limits`. Every problem is reported, each naming its `[section] key`
     /// (one [`Error::Config`] for one problem, [`Error::ConfigList`] for several). Exit 78.
     pub fn validate(&self, origin: &Path) -> Result<()> {
         Error::config_problems(origin, self.problems())
     }
 
     /// The problems [`Config::validate`] reports, one line each, `[section] key …` first.
-    pub fn problems(&self) -> Vec<String> {
+    pub(crate) fn problems(&self) -> Vec<String> {
         let mut p = Problems::default();
         self.camera_problems(&mut p);
         self.gps_problems(&mut p);

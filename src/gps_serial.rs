@@ -45,11 +45,11 @@ pub enum GpsState {
     Connecting,
     /// Was open and got lost (unplugged, I/O error); retrying with back-off.
     Reconnecting,
-    /// Open, but no bytes for [`NO_DATA_AFTER`] (wrong baud? receiver silent?).
+    /// Open, but no bytes for `NO_DATA_AFTER` (wrong baud? receiver silent?).
     NoData,
     /// Sentences arrive but no valid fix recently (no sky view, cold start, antenna fault).
     NoFix,
-    /// A valid fix within [`FIX_STALE_AFTER`].
+    /// A valid fix within `FIX_STALE_AFTER`.
     Fix,
 }
 
@@ -179,8 +179,8 @@ impl SerialReader {
         }
     }
 
-    /// One unit of work: a read (≤ [`READ_TIMEOUT`]) when connected, else a connection attempt
-    /// or a wait of at most [`READ_TIMEOUT`] for the next one. Every fix decoded goes to `on_fix`.
+    /// One unit of work: a read (≤ `READ_TIMEOUT`) when connected, else a connection attempt
+    /// or a wait of at most `READ_TIMEOUT` for the next one. Every fix decoded goes to `on_fix`.
     /// Never fails: problems become the status.
     pub fn poll(&mut self, mut on_fix: impl FnMut(Fix)) {
         let Some(port) = self.port.as_mut() else {
@@ -302,7 +302,7 @@ impl ReaderHandle {
         self.status.lock().ok().map(|s| s.clone())
     }
 
-    /// Stop the thread and wait for it (at most one poll, ≤ [`READ_TIMEOUT`]).
+    /// Stop the thread and wait for it (at most one poll, ≤ `READ_TIMEOUT`).
     pub fn stop(mut self) {
         self.stop.store(true, Ordering::Relaxed);
         if let Some(j) = self.join.take() {

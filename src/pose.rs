@@ -43,13 +43,13 @@ impl<To, From> PartialEq for Isometry<To, From> {
 /// World(map)→camera pose, the seed's `[ᶜR_W, ᶜt_W]`.
 pub type CamFromMap = Isometry<Cam, Map>;
 /// The fixed rotation from a north-up nadir camera's optical frame to the map frame.
-pub fn nadir() -> Rotation3<f64> {
+pub(crate) fn nadir() -> Rotation3<f64> {
     Rotation3::from_matrix_unchecked(Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0))
 }
 
 impl<To, From> Isometry<To, From> {
     /// Build from rotation and translation.
-    pub fn new(rotation: Rotation3<f64>, translation: Vector3<f64>) -> Self {
+    pub(crate) fn new(rotation: Rotation3<f64>, translation: Vector3<f64>) -> Self {
         Isometry {
             rotation,
             translation,
@@ -57,14 +57,9 @@ impl<To, From> Isometry<To, From> {
         }
     }
 
-    /// Identity transform.
-    pub fn identity() -> Self {
-        Self::new(Rotation3::identity(), Vector3::zeros())
-    }
-
     /// Map a point from `From` into `To`.
     #[inline]
-    pub fn transform(&self, p: &Point3<f64>) -> Point3<f64> {
+    pub(crate) fn transform(&self, p: &Point3<f64>) -> Point3<f64> {
         self.rotation * p + self.translation
     }
 
@@ -124,7 +119,7 @@ impl CamFromMap {
     }
 
     /// OpenCV rotation vector (axis·angle) of `R_cam_from_map`.
-    pub fn rvec(&self) -> Vector3<f64> {
+    pub(crate) fn rvec(&self) -> Vector3<f64> {
         self.rotation.scaled_axis()
     }
 

@@ -14,7 +14,7 @@ use serde_json::Value;
 use std::path::Path;
 
 /// Schema identifier of the pose file.
-pub const SCHEMA_V1: &str = "infraloc.pose.v1";
+pub(crate) const SCHEMA_V1: &str = "infraloc.pose.v1";
 
 /// Software block of the pose file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -34,7 +34,7 @@ impl Default for Software {
 /// The full `infraloc.pose.v1` document.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PoseFile {
-    /// Always [`SCHEMA_V1`].
+    /// Always `SCHEMA_V1`.
     pub schema: String,
     /// `"ok"` for a pose the pipeline may use; other values say why not.
     pub status: String,
@@ -99,15 +99,19 @@ impl PoseFile {
     }
 
     /// The marginal σ per axis of `quality.sigma`, if the file has a well-formed one.
-    pub fn sigma(&self) -> Option<Sigma> {
-        #[derive(Deserialize)]
-        struct QualitySigma {
-            #[serde(default)]
-            sigma: Option<Sigma>,
-        }
-        QualitySigma::deserialize(&self.quality)
-            .ok()
-            .and_then(|q| q.sigma)
+    pub(crate) fn sigma(&self) -> Option<Sigma> {
+        self.quality_figure("sigma")
+    }
+
+    /// The pose store's comparison score, `quality.score`, if the file has a numeric one.
+    pub(crate) fn score(&self) -> Option<f64> {
+        self.quality_figure("score")
+    }
+
+    /// The `quality` block's figure `key` as a `T`. Each figure is read on its own, so a
+    /// malformed one (a hand-made file, an older writer) is absent rather than spoiling the rest.
+    fn quality_figure<T: serde::de::DeserializeOwned>(&self, key: &str) -> Option<T> {
+        self.quality.get(key).and_then(|v| T::deserialize(v).ok())
     }
 
     /// Pretty JSON text with a trailing newline.
@@ -137,7 +141,7 @@ pub struct ReadPose {
 }
 
 /// Parse pose-like JSON text. `origin` names the source in errors.
-pub fn parse_pose(text: &str, origin: &Path) -> Result<ReadPose> {
+pub(crate) fn parse_pose(text: &str, origin: &Path) -> Result<ReadPose> {
     let m: MinimalPose = serde_json::from_str(text)
         .map_err(|e| Error::input(origin, format!("not a pose file: {e}")))?;
     let finite = m
@@ -185,7 +189,7 @@ pub fn read_pose(path: &Path) -> Result<ReadPose> {
 /// Format seconds since the Unix epoch (+ milliseconds) as `YYYY-MM-DDTHH:MM:SS[.mmm]Z`.
 /// Pure: the caller supplies the clock reading. A time chrono cannot represent (beyond
 /// ±262,000 years) is written as the epoch.
-pub fn format_utc(unix_secs: i64, millis: Option<u32>) -> String {
+pub(crate) fn format_utc(unix_secs: i64, millis: Option<u32>) -> String {
     use chrono::{DateTime, SecondsFormat};
     let nanos = millis.map_or(0, |ms| ms.min(999) * 1_000_000);
     let t = DateTime::from_timestamp(unix_secs, nanos).unwrap_or_default();
@@ -197,7 +201,7 @@ pub fn format_utc(unix_secs: i64, millis: Option<u32>) -> String {
     t.to_rfc3339_opts(precision, true)
 }
 
-/// Seconds since the Unix epoch of an RFC 3339 timestamp (as [`format_utc`] writes them, or with
+/// Seconds since the Unix epoch of an RFC 3339 timestamp (as `format_utc` writes them, or with
 /// an offset); `None` if it is not one.
 pub fn parse_utc(s: &str) -> Option<f64> {
     let t = chrono::DateTime::parse_from_rfc3339(s).ok()?;

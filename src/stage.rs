@@ -27,17 +27,6 @@ pub enum StageName {
 }
 
 impl StageName {
-    /// Every stage, in order.
-    pub(crate) const ALL: [StageName; 7] = [
-        StageName::Starting,
-        StageName::Capture,
-        StageName::Prior,
-        StageName::Tile,
-        StageName::Pnp,
-        StageName::Mi,
-        StageName::CrossCheck,
-    ];
-
     /// Name as printed and sent.
     pub fn name(self) -> &'static str {
         match self {
@@ -49,11 +38,6 @@ impl StageName {
             StageName::Mi => "mi",
             StageName::CrossCheck => "cross-check",
         }
-    }
-
-    /// The stage named `s`, if it is one.
-    pub fn parse(s: &str) -> Option<StageName> {
-        StageName::ALL.into_iter().find(|st| st.name() == s)
     }
 }
 

@@ -1,7 +1,7 @@
 //! The pose store (I/O shell): the pose served to the detection pipeline plus a history of the last
 //! results, in the service's state directory.
 //!
-//! `pose.json` is replaced only atomically ([`crate::persist::write_atomic`]) and only by a result
+//! `pose.json` is replaced only atomically (`crate::persist::write_atomic`) and only by a result
 //! that is `status = "ok"` and not worse than the served one (unless forced by the technician), so a
 //! failed re-localization never costs the node its last good pose. Quality is compared through
 //! `quality.score` (higher is better; the pipeline documents what it puts there).
@@ -56,10 +56,6 @@ pub struct PoseStore {
     history_len: usize,
 }
 
-fn score_of(p: &PoseFile) -> Option<f64> {
-    p.quality.get("score").and_then(|v| v.as_f64())
-}
-
 impl PoseStore {
     /// A store in `dir` (which must exist) keeping `history_len` entries.
     pub fn new(dir: &Path, history_len: usize) -> Self {
@@ -69,7 +65,7 @@ impl PoseStore {
     /// A store serving `pose` (the configured `[output] pose`), its history in [`HISTORY_FILE`]
     /// in the same directory (which must exist: the rename that publishes a pose cannot cross
     /// directories).
-    pub fn at(pose: &Path, history_len: usize) -> Self {
+    pub(crate) fn at(pose: &Path, history_len: usize) -> Self {
         PoseStore {
             pose: pose.to_path_buf(),
             history: pose.with_file_name(HISTORY_FILE),
@@ -78,7 +74,7 @@ impl PoseStore {
     }
 
     /// Path of the served pose file.
-    pub fn pose_path(&self) -> PathBuf {
+    pub(crate) fn pose_path(&self) -> PathBuf {
         self.pose.clone()
     }
 
@@ -114,7 +110,7 @@ impl PoseStore {
     }
 
     /// Offer a new result. It replaces the served pose if it is `ok` and not worse than the served
-    /// one by more than [`SCORE_TOLERANCE`], or if `force` is set (technician override; a failed
+    /// one by more than `SCORE_TOLERANCE`, or if `force` is set (technician override; a failed
     /// result is never served even then). The history records it either way.
     pub fn offer(&self, candidate: &PoseFile, force: bool) -> Result<Decision> {
         // An unreadable served pose must not block a good new one: treat it as absent, and say so.
@@ -135,7 +131,7 @@ impl PoseStore {
                 Some(cur) if cur.status != "ok" => {
                     Decision::Replaced("served pose was not ok".into())
                 }
-                Some(cur) => match (score_of(candidate), score_of(cur)) {
+                Some(cur) => match (candidate.score(), cur.score()) {
                     (Some(new), Some(old)) if new < old - SCORE_TOLERANCE => Decision::Kept(
                         format!("quality score {new:.3} < served {old:.3} − {SCORE_TOLERANCE}"),
                     ),
@@ -153,7 +149,7 @@ impl PoseStore {
         self.append(HistoryEntry {
             timestamp_utc: candidate.timestamp_utc.clone(),
             status: candidate.status.clone(),
-            score: score_of(candidate),
+            score: candidate.score(),
             camera_center: Some(candidate.camera_center),
             accepted,
             reason,
@@ -166,7 +162,7 @@ impl PoseStore {
         self.append(HistoryEntry {
             timestamp_utc: candidate.timestamp_utc.clone(),
             status: candidate.status.clone(),
-            score: score_of(candidate),
+            score: candidate.score(),
             camera_center: Some(candidate.camera_center),
             accepted: false,
             reason: why.to_string(),

@@ -29,7 +29,7 @@ fn server(limits: Limits) -> Server {
     let hold = Arc::new(AtomicBool::new(false));
     let held = Arc::new(AtomicUsize::new(0));
     let (h2, n2) = (hold.clone(), held.clone());
-    let handler: Arc<Handler> = Arc::new(move |req, _: &mut dyn Reply| match req {
+    let handler: Arc<Handler<Value>> = Arc::new(move |req, _: &mut dyn Reply| match req {
         Request::Validate {} => {
             n2.fetch_add(1, Ordering::SeqCst);
             let start = Instant::now();
@@ -56,7 +56,8 @@ fn status(path: &Path) -> Value {
         .unwrap()
         .call(&Request::Status {}, Duration::from_secs(10), |_| {})
         .unwrap()
-        .0
+        .parse("status")
+        .unwrap()
 }
 
 /// Fill every slot with a client being served (its handler blocks while `hold` is set).
@@ -70,7 +71,8 @@ fn fill_slots(s: &Server) -> Vec<std::thread::JoinHandle<Value>> {
                     .unwrap()
                     .call(&Request::Validate {}, Duration::from_secs(60), |_| {})
                     .unwrap()
-                    .0
+                    .parse("validation")
+                    .unwrap()
             })
         })
         .collect();
@@ -224,13 +226,9 @@ fn busy_load(limits: Limits) {
                         )
                     });
                     match r {
-                        Ok((v, _))
-                            if v["error"].as_str().is_some_and(|e| e.starts_with("busy")) =>
-                        {
-                            busy += 1
-                        }
+                        Ok(a) if a.refusal().is_some_and(|e| e.starts_with("busy")) => busy += 1,
                         Err(e) if e.to_string().contains("Broken pipe") => broken += 1,
-                        Ok((v, _)) => other.push(v.to_string()),
+                        Ok(a) => other.push(a.text().to_string()),
                         Err(e) => other.push(e.to_string()),
                     }
                 }
@@ -269,9 +267,11 @@ fn busy_load(limits: Limits) {
 fn panicking_handlers_answer_and_leak_no_slot() {
     let s = server(Limits::default());
     for _ in 0..3 * MAX_CONNECTIONS {
-        let (v, _) = Client::connect(&s.path)
+        let v: Value = Client::connect(&s.path)
             .unwrap()
             .call(&Request::GetPose {}, Duration::from_secs(10), |_| {})
+            .unwrap()
+            .parse("refusal")
             .unwrap();
         assert_eq!(v["ok"], false);
         assert!(

@@ -1,9 +1,8 @@
 //! A low pole through the binary: `5mp` `hard` seed 99 (a 4.5 m pole). Its fine stages find 20
 //! satellite patch matches at the coarser iterations but fewer than PnP's 12 at the finest, from
-//! every candidate, so initialization used to fail ("10 correspondences < 12 required") although
-//! a coarser iteration had a PnP pose 0.6 m / 3° off — well inside the MI refinement's reach. The
-//! initializer now falls back to that pose when no candidate gets through all its iterations; the
-//! LiDAR MI and the refinement's gate still judge it.
+//! every candidate. The initializer's last resort takes the coarser iteration's PnP pose (0.6 m /
+//! 3° off, well inside the MI refinement's reach), which the LiDAR MI verifies and the
+//! refinement's gate judges: the node must localize, not stop at "< 12 required".
 
 use std::process::Command;
 

@@ -549,8 +549,11 @@ fn predict(
     (n > 0.0).then(|| ([sum[0] / n, sum[1] / n], spacing))
 }
 
-/// Extent of a grid: (columns, rows) of its bounding box.
+/// Extent of a grid: (columns, rows) of its bounding box; (0, 0) when it is empty.
 fn dims(grid: &HashMap<(i32, i32), usize>) -> (usize, usize) {
+    if grid.is_empty() {
+        return (0, 0);
+    }
     let (mut i0, mut i1, mut j0, mut j1) = (i32::MAX, i32::MIN, i32::MAX, i32::MIN);
     for &(i, j) in grid.keys() {
         i0 = i0.min(i);

@@ -351,7 +351,7 @@ pub(crate) fn initial_intrinsics(
 
 /// How the start was found (for the report).
 #[derive(Debug, Clone, serde::Serialize)]
-pub struct InitInfo {
+pub(crate) struct InitInfo {
     /// Median generalised focal over the board lines (Mei & Rives), px.
     pub line_gamma: Option<f64>,
     /// Number of lines that gave a γ.

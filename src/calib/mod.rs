@@ -68,11 +68,11 @@ pub struct View {
 /// A calibration failure, one line naming the view or the reason.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{0}")]
-pub struct CalibError(pub String);
+pub(crate) struct CalibError(pub String);
 
 /// One fitted intrinsic parameter.
 #[derive(Debug, Clone, Serialize)]
-pub struct Param {
+pub(crate) struct Param {
     /// Name (`fx`, `xi`, …).
     pub name: &'static str,
     /// Value.
@@ -83,7 +83,7 @@ pub struct Param {
 
 /// The outcome for one view.
 #[derive(Debug, Clone, Serialize)]
-pub struct ViewResult {
+pub(crate) struct ViewResult {
     /// The view's name.
     pub name: String,
     /// Corners in the view.
@@ -107,7 +107,7 @@ pub struct ViewResult {
 
 /// A finished calibration.
 #[derive(Debug, Clone, Serialize)]
-pub struct Calibration {
+pub(crate) struct Calibration {
     /// The model fitted.
     pub model: LensModel,
     /// The fitted camera.
@@ -144,7 +144,7 @@ pub struct NotFound {
 }
 
 /// Check the observations; the error names the view and point.
-pub fn validate(obs: &Observations) -> Result<(), CalibError> {
+pub(crate) fn validate(obs: &Observations) -> Result<(), CalibError> {
     let err = |m: String| Err(CalibError(m));
     if obs.width == 0 || obs.height == 0 {
         return err(format!("image size {}×{} is empty", obs.width, obs.height));
@@ -192,7 +192,7 @@ fn tilt_deg(pose: &Pose, plane_normal: Vector3<f64>) -> f64 {
 }
 
 /// Calibrate `model` from the observations.
-pub fn calibrate(obs: &Observations, model: LensModel) -> Result<Calibration, CalibError> {
+pub(crate) fn calibrate(obs: &Observations, model: LensModel) -> Result<Calibration, CalibError> {
     validate(obs)?;
     let size = (obs.width, obs.height);
     let mut results: Vec<ViewResult> = obs

@@ -9,7 +9,7 @@ use crate::camera::{Camera, Equidistant, Mei};
 /// The lens model to calibrate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
-pub enum LensModel {
+pub(crate) enum LensModel {
     /// Mei unified model (OpenCV `omnidir`): fx, fy, cx, cy, skew, k1, k2, p1, p2, ξ.
     Mei,
     /// Equidistant fisheye (OpenCV `fisheye`, skew fixed at 0): fx, fy, cx, cy, k1..k4.
@@ -23,7 +23,7 @@ const EQUI_NAMES: [&str; 8] = ["fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"];
 
 impl LensModel {
     /// Parameter names in vector order.
-    pub fn names(self) -> &'static [&'static str] {
+    pub(crate) fn names(self) -> &'static [&'static str] {
         match self {
             LensModel::Mei => &MEI_NAMES,
             LensModel::Equidistant => &EQUI_NAMES,
@@ -88,7 +88,7 @@ impl LensModel {
     }
 
     /// The fitted camera as the crate's model.
-    pub fn camera(self, p: &[f64], width: u32, height: u32) -> Camera {
+    pub(crate) fn camera(self, p: &[f64], width: u32, height: u32) -> Camera {
         match self {
             LensModel::Mei => Camera::Mei(Mei {
                 width,

@@ -7,7 +7,7 @@
 //! [`parse_camera`] is pure (text in, model out); [`load_camera`] is the one-line file-reading
 //! wrapper the shell uses. Every failure is an [`Error::Input`] naming the file and the key.
 //!
-//! The YAML and XML flavours are first turned into one small tree ([`Node`]) so that the OpenCV
+//! The YAML and XML flavours are first turned into one small tree (`Node`) so that the OpenCV
 //! key logic exists once for both syntaxes.
 
 use super::{Camera, Equidistant, Mei};
@@ -97,7 +97,7 @@ pub struct IntrinsicsSigma {
 impl IntrinsicsSigma {
     /// The three independent 1σ perturbations of `cam`: focal scale, cx, cy (a mode whose σ is
     /// 0 is left out).
-    pub fn perturbed(&self, cam: &Camera) -> Vec<Camera> {
+    pub(crate) fn perturbed(&self, cam: &Camera) -> Vec<Camera> {
         let mut out = Vec::new();
         let apply = |f: &dyn Fn(&mut f64, &mut f64, &mut f64, &mut f64)| {
             let mut c = cam.clone();
@@ -126,7 +126,7 @@ impl IntrinsicsSigma {
     }
 
     /// The FileStorage YAML lines for these σ (appended to [`to_opencv_yaml`]'s output).
-    pub fn yaml_lines(&self) -> String {
+    pub(crate) fn yaml_lines(&self) -> String {
         format!(
             "sigma_focal_rel: {}\nsigma_principal_point_px: {}\n",
             real(self.focal_rel),
@@ -137,7 +137,7 @@ impl IntrinsicsSigma {
 
 /// Read a camera file's stated intrinsics uncertainty ([`parse_intrinsics_sigma`]); `path` as
 /// for [`load_camera`].
-pub fn load_intrinsics_sigma(path: &Path) -> Result<Option<IntrinsicsSigma>> {
+pub(crate) fn load_intrinsics_sigma(path: &Path) -> Result<Option<IntrinsicsSigma>> {
     let (file, _) = split_selector(path);
     let text = std::fs::read_to_string(&file).map_err(|e| Error::io(&file, e))?;
     parse_intrinsics_sigma(&text, &file)
@@ -146,7 +146,7 @@ pub fn load_intrinsics_sigma(path: &Path) -> Result<Option<IntrinsicsSigma>> {
 /// The intrinsics' stated uncertainty in an OpenCV FileStorage file (YAML or XML), if it states
 /// one (see [`IntrinsicsSigma`]); other formats state none. A key that is present but not a
 /// finite number ≥ 0 (or a focal σ of 50 % or more) is an error naming it.
-pub fn parse_intrinsics_sigma(text: &str, origin: &Path) -> Result<Option<IntrinsicsSigma>> {
+pub(crate) fn parse_intrinsics_sigma(text: &str, origin: &Path) -> Result<Option<IntrinsicsSigma>> {
     let ctx = Ctx { origin };
     let root = match detect(text) {
         Syntax::Xml => xml_tree(text, &ctx)?,
@@ -971,7 +971,7 @@ pub fn parse_kitti_calib(text: &str, origin: &Path) -> Result<KittiCalib> {
 
 impl KittiCalib {
     /// The projection named `name` (`P2` = the left colour camera).
-    pub fn projection(&self, name: &str) -> std::result::Result<&[f64; 12], String> {
+    pub(crate) fn projection(&self, name: &str) -> std::result::Result<&[f64; 12], String> {
         self.projections
             .iter()
             .find(|(k, _)| k == name)
@@ -1004,7 +1004,7 @@ impl KittiCalib {
 
     /// Rectified camera `name` as a pinhole: Mei with ξ = 0 and no distortion reproduces
     /// `K · x / x_z` exactly. KITTI's file has no image size: the caller gives it (from the image).
-    pub fn camera(
+    pub(crate) fn camera(
         &self,
         name: &str,
         width: u32,
@@ -1023,7 +1023,7 @@ impl KittiCalib {
     /// `R = R0_rect · R_velo_to_cam`, `t = R0_rect · T_velo_to_cam + K⁻¹ · Pi[:, 3]` (the fourth
     /// column of a rectified projection is `K · b`, `b` the camera's offset from the reference
     /// camera, so `Pi · [x; 1] = K · (x + b)`). `R` is the product as the file gives it, orthonormal
-    /// only to KITTI's printed precision (~1e-7); [`crate::pose::CamFromMap::from_rows`] projects it
+    /// only to KITTI's printed precision (~1e-7); `crate::pose::CamFromMap::from_rows` projects it
     /// onto a rotation.
     pub fn cam_from_velo(
         &self,

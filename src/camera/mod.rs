@@ -74,14 +74,14 @@ pub trait CameraModel: Send + Sync + std::fmt::Debug {
 
     /// Project a camera-frame point only if it is seen: inside the field of view and on the sensor.
     fn project_visible(&self, p_cam: &Vector3<f64>) -> Result<Point2<f64>, Reject> {
-        self.project_visible_within(p_cam, self.max_theta().cos())
+        self.project_visible_cos(p_cam, self.max_theta().cos())
     }
 
     /// [`Self::project_visible`] with the field-of-view limit given as its cosine
     /// (`cos_max_theta` = cos [`Self::max_theta`], which some models derive with a few
     /// transcendental calls: a loop over many points computes it once and passes it here, and
     /// comparing the ray's cosine with it spares an `acos` per point).
-    fn project_visible_within(
+    fn project_visible_cos(
         &self,
         p_cam: &Vector3<f64>,
         cos_max_theta: f64,
@@ -104,14 +104,14 @@ pub trait CameraModel: Send + Sync + std::fmt::Debug {
     /// Validity mask (255 = valid) of the image circle, row-major `width × height`.
     ///
     /// Every pixel is an unprojection (≈ 0.5 s of CPU for 5 MP), so the validity is sampled on a
-    /// lattice of [`MASK_BLOCK`]-pixel blocks first: a block whose lattice corners, and those of
+    /// lattice of `MASK_BLOCK`-pixel blocks first: a block whose lattice corners, and those of
     /// its eight neighbours, all agree is filled with that value; every other block (the image
     /// circle's rim, the sensor's edge) is evaluated pixel by pixel. That equals the per-pixel
     /// mask when the invalid set has no island or sliver narrower than a block between lattice
     /// points (nor a chord that short where the circle grazes the sensor's edge) — true of the
     /// image circle of every model here (a disc, a lens's fold beyond it);
     /// [`CameraModel::valid_mask_exact`] is the per-pixel reference, and what sensors with a side
-    /// under [`MASK_MIN_SIDE`] get. Rows in parallel (rayon).
+    /// under `MASK_MIN_SIDE` get. Rows in parallel (rayon).
     fn valid_mask(&self) -> Vec<u8> {
         use rayon::prelude::*;
         let (w, h) = (self.width() as usize, self.height() as usize);
@@ -203,7 +203,7 @@ pub enum Camera {
 
 impl Camera {
     /// The model as a trait object.
-    pub fn model(&self) -> &dyn CameraModel {
+    pub(crate) fn model(&self) -> &dyn CameraModel {
         match self {
             Camera::Mei(m) => m,
             Camera::Equidistant(m) => m,
@@ -212,7 +212,7 @@ impl Camera {
 
     /// Check the parameters are usable: positive size and focal lengths, finite coefficients,
     /// ξ ≥ 0, field of view in (0°, 360°]. The message names the offending parameter.
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         let (w, h, named): (u32, u32, Vec<(&str, f64)>) = match self {
             Camera::Mei(m) => (
                 m.width,

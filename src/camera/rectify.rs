@@ -6,7 +6,7 @@
 //!   which is projected through the camera model. For [`crate::camera::Mei`] this is OpenCV's formula
 //!   exactly: normalise the ray to the unit sphere, divide by `z + ξ`, radtan distortion, then
 //!   `u = fx·xd + s·yd + cx`, `v = fy·yd + cy`. Rays the model rejects (behind the mirror, beyond the
-//!   distortion fold) get [`INVALID_COORD`]; OpenCV writes a meaningless coordinate there instead.
+//!   distortion fold) get `INVALID_COORD`; OpenCV writes a meaningless coordinate there instead.
 //! * **Remap.** [`RemapTable`] quantises a float map the way `cv::remap` does internally (coordinate
 //!   rounded to 1/32 px, 5-bit fractions, weights summing to 1024) so the result equals
 //!   `cv2.remap(…, INTER_LINEAR, BORDER_CONSTANT, 0)`; [`remap_bilinear_f32`] is the plain float
@@ -43,9 +43,9 @@ pub struct RectifyMap {
     pub width: usize,
     /// Output height.
     pub height: usize,
-    /// Source x of each output pixel (pixel centres at integers), or [`INVALID_COORD`].
+    /// Source x of each output pixel (pixel centres at integers), or `INVALID_COORD`.
     pub map_x: Vec<f32>,
-    /// Source y of each output pixel, or [`INVALID_COORD`].
+    /// Source y of each output pixel, or `INVALID_COORD`.
     pub map_y: Vec<f32>,
 }
 
@@ -331,18 +331,8 @@ impl RemapTable {
         })
     }
 
-    /// Output width.
-    pub fn width(&self) -> usize {
-        self.width
-    }
-
-    /// Output height.
-    pub fn height(&self) -> usize {
-        self.height
-    }
-
     /// Remap `src` (which must have the size the table was built for) into a new image.
-    pub fn remap(&self, src: &GrayView<'_>) -> Result<Vec<u8>> {
+    pub(crate) fn remap(&self, src: &GrayView<'_>) -> Result<Vec<u8>> {
         let mut out = vec![0u8; self.width * self.height];
         self.remap_into(src, &mut out)?;
         Ok(out)

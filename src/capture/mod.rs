@@ -2,11 +2,11 @@
 //! burst of frames spaced in time, and their temporal median.
 //!
 //! The pieces a camera cannot be present for are pure and tested on their own: format
-//! conversion ([`convert`]), the median ([`median`]) and the capture loop, whose clock is
+//! conversion (`convert`), the median ([`median`]) and the capture loop, whose clock is
 //! injected ([`Clock`]) so spacing and retry back-off are tested without sleeping.
 //! `docs/capture.md` is the operator's view.
 
-pub mod convert;
+pub(crate) mod convert;
 mod file;
 pub mod median;
 
@@ -94,7 +94,7 @@ pub struct GrabError {
 
 impl GrabError {
     /// Shorthand constructor.
-    pub fn new(fault: Fault, detail: impl Into<String>) -> Self {
+    pub(crate) fn new(fault: Fault, detail: impl Into<String>) -> Self {
         GrabError {
             fault,
             detail: detail.into(),

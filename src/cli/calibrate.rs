@@ -61,7 +61,9 @@ pub(super) fn parse_pattern(s: &str) -> std::result::Result<(usize, usize), Stri
         c.trim().parse().map_err(|_| bad())?,
         r.trim().parse().map_err(|_| bad())?,
     );
-    if c < 2 || r < 2 {
+    // A board of more than 100 000 inner corners is a typing error, and bounding it keeps the
+    // corner counts and the rendered board's allocations far from overflow.
+    if c < 2 || r < 2 || c > 1000 || r > 1000 || c * r > 100_000 {
         return Err(bad());
     }
     Ok((c, r))

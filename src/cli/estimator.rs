@@ -28,7 +28,7 @@ pub struct EstimatorArgs {
 
 impl EstimatorArgs {
     /// The estimator these flags select; a bad value is a one-line error naming its flag.
-    pub fn config(&self) -> Result<MiConfig> {
+    pub(crate) fn config(&self) -> Result<MiConfig> {
         // Strings rather than clap's typed values: clap's own errors are several lines with exit
         // code 2, the refine CLI's convention is one line naming the flag (as --mode, --search).
         let bins: usize = self

@@ -135,7 +135,7 @@ fn command_section(sub: &clap::Command) -> Result<String> {
 }
 
 /// Write both pages under `out` (`man1/`, `man5/`).
-pub fn run(a: Args) -> Result<()> {
+pub(crate) fn run(a: Args) -> Result<()> {
     write(&a.out.join("man1/infraloc.1"), &infraloc_1()?)?;
     write(&a.out.join("man5/infraloc.toml.5"), CONFIG_PAGE)?;
     Ok(())

@@ -114,7 +114,7 @@ fn report(e: &Error) -> i32 {
 }
 
 /// Dispatch a parsed command.
-pub fn run(cli: Cli) -> Result<(), Error> {
+pub(crate) fn run(cli: Cli) -> Result<(), Error> {
     match cli.command {
         Command::Demo(a) => demo::run(a),
         Command::Localize(a) => localize::run(a),

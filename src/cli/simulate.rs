@@ -87,7 +87,7 @@ pub struct BoardArgs {
 
 impl Args {
     /// The generator settings these arguments ask for.
-    pub fn settings(&self) -> Settings {
+    pub(crate) fn settings(&self) -> Settings {
         Settings {
             seed: self.seed,
             preset: match self.preset {

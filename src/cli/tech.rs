@@ -2,11 +2,13 @@
 //! `status`, `relocalize [--wait]`, `pose`, `overlay`, and `validate --running`.
 
 use crate::config::{Config, DEFAULT_SOCKET};
-use crate::control::{Client, Request};
-use crate::daemon::status::{DriftOutcome, Progress, RunOutcome, RunResult, State, Status};
+use crate::control::{Answer, Client, Request};
+use crate::daemon::status::{
+    ConfigRefusal, DriftOutcome, OverlayAnswer, PoseAnswer, Queued, RunOutcome, RunResult, State,
+    Status, Validated,
+};
 use crate::error::{Error, Result};
 use crate::localize::quality::Sigma;
-use serde_json::Value;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -73,13 +75,13 @@ impl Target {
 
     /// One request; a `busy` answer (every slot taken, the request not run) is retried for up to
     /// [`BUSY_RETRY`], then shown as the server's reason.
-    fn call(&self, req: Request) -> Result<(Value, Option<Vec<u8>>)> {
+    fn call(&self, req: Request) -> Result<Answer> {
         let start = std::time::Instant::now();
         loop {
-            let (v, payload) = self.connect()?.call(&req, ANSWER_TIMEOUT, |_| {})?;
-            let busy = v["error"].as_str().is_some_and(|e| e.starts_with("busy"));
+            let a = self.connect()?.call(&req, ANSWER_TIMEOUT, |_| {})?;
+            let busy = a.refusal().is_some_and(|e| e.starts_with("busy"));
             if !busy || start.elapsed() >= BUSY_RETRY {
-                return Ok((v, payload));
+                return Ok(a);
             }
             std::thread::sleep(Duration::from_millis(200));
         }
@@ -138,31 +140,23 @@ pub(crate) fn daemon(a: DaemonArgs) -> Result<()> {
     crate::daemon::run(&a.config)
 }
 
-fn failed(v: &Value) -> Error {
-    Error::Invalid(
-        v["error"]
-            .as_str()
-            .unwrap_or("the daemon refused the request")
-            .to_string(),
-    )
+/// The daemon's answer when it served the request, else its reason as the error.
+fn served(a: &Answer) -> Result<()> {
+    match a.refusal() {
+        None => Ok(()),
+        Some(e) => Err(Error::Invalid(e.to_string())),
+    }
 }
 
 /// `status`: returns the exit code (0 ok/starting, 3 degraded, 4 failed).
 pub(crate) fn status(a: StatusArgs) -> Result<i32> {
     let t = a.target;
-    let (v, _) = t.call(Request::Status {})?;
-    if v["ok"] != true {
-        return Err(failed(&v));
-    }
-    let s: Status = serde_json::from_value(v.clone()).map_err(|e| {
-        Error::input(
-            t.socket(),
-            format!("the daemon's status does not parse: {e}"),
-        )
-    })?;
+    let answer = t.call(Request::Status {})?;
+    served(&answer)?;
+    let s: Status = answer.parse("status")?;
     let format = if t.json { StatusFormat::Json } else { a.format };
     match format {
-        StatusFormat::Json => println!("{v}"),
+        StatusFormat::Json => println!("{}", answer.text()),
         StatusFormat::Human => print!("{}", human_status(&s)),
         StatusFormat::Openmetrics => print!(
             "{}",
@@ -306,13 +300,10 @@ pub(crate) fn relocalize(a: RelocalizeArgs) -> Result<()> {
         ANSWER_TIMEOUT
     };
     let start = std::time::Instant::now();
-    let (v, _) = a.target.connect()?.call(&req, timeout, |p| {
+    let answer = a.target.connect()?.call(&req, timeout, |p| {
         if !a.target.json {
-            let stage = match serde_json::from_value::<Progress>(p.clone()) {
-                Ok(p) => p.progress.name().to_string(),
-                // A newer daemon's stage: shown as it came.
-                Err(_) => p.to_string(),
-            };
+            // A newer daemon's stage is shown as it came.
+            let stage = p.map_or_else(str::to_string, |s| s.name().to_string());
             if tty {
                 eprint!(
                     "\r\x1b[K{:>5.1} s  {stage} …",
@@ -327,22 +318,14 @@ pub(crate) fn relocalize(a: RelocalizeArgs) -> Result<()> {
         eprint!("\r\x1b[K");
     }
     if a.target.json {
-        println!("{v}");
+        println!("{}", answer.text());
     }
-    if v["ok"] != true {
-        return Err(Error::stage(
-            "relocalize",
-            v["error"].as_str().unwrap_or("failed").to_string(),
-        ));
+    if let Some(e) = answer.refusal() {
+        return Err(Error::stage("relocalize", e.to_string()));
     }
     if !a.target.json {
         if a.wait {
-            let r: RunResult = serde_json::from_value(v).map_err(|e| {
-                Error::input(
-                    a.target.socket(),
-                    format!("the daemon's result does not parse: {e}"),
-                )
-            })?;
+            let r: RunResult = answer.parse("result")?;
             let RunOutcome::Localized {
                 served,
                 decision,
@@ -375,6 +358,12 @@ pub(crate) fn relocalize(a: RelocalizeArgs) -> Result<()> {
                 }
             );
         } else {
+            let Queued { queued: true } = answer.parse("answer")? else {
+                return Err(Error::input(
+                    a.target.socket(),
+                    "the daemon's answer does not say the run is queued",
+                ));
+            };
             println!("relocalization queued; `infraloc status` shows its progress");
         }
     }
@@ -383,30 +372,32 @@ pub(crate) fn relocalize(a: RelocalizeArgs) -> Result<()> {
 
 /// `pose`: the served pose document.
 pub(crate) fn pose(t: Target) -> Result<()> {
-    let (v, _) = t.call(Request::GetPose {})?;
-    if v["ok"] != true {
-        return Err(failed(&v));
-    }
+    let answer = t.call(Request::GetPose {})?;
+    served(&answer)?;
+    let p: PoseAnswer = answer.parse("pose")?;
+    // Through a JSON value, so the keys are sorted as the daemon's answer has them.
+    let pose = serde_json::to_value(&p.pose).unwrap_or_default();
     println!(
         "{}",
-        serde_json::to_string_pretty(&v["pose"]).unwrap_or_default()
+        serde_json::to_string_pretty(&pose).unwrap_or_default()
     );
     Ok(())
 }
 
 /// `overlay --out PNG`.
 pub(crate) fn overlay(a: OverlayArgs) -> Result<()> {
-    let (v, png) = a.target.call(Request::DumpOverlay {})?;
-    if v["ok"] != true {
-        return Err(failed(&v));
-    }
-    let png = png.ok_or_else(|| Error::input(a.target.socket(), "answer without the PNG"))?;
-    crate::persist::write_atomic(&a.out, &png)?;
+    let answer = a.target.call(Request::DumpOverlay {})?;
+    served(&answer)?;
+    let o: OverlayAnswer = answer.parse("overlay answer")?;
+    let png = answer
+        .payload()
+        .ok_or_else(|| Error::input(a.target.socket(), "answer without the PNG"))?;
+    crate::persist::write_atomic(&a.out, png)?;
     if !a.target.json {
         println!(
             "{}: overlay of the run at {} ({} bytes)",
             a.out.display(),
-            v["timestamp_utc"].as_str().unwrap_or("?"),
+            o.timestamp_utc,
             png.len()
         );
     }
@@ -420,25 +411,24 @@ pub(crate) fn validate_running(socket: Option<&Path>, config: &Path, json: bool)
         config: config.to_path_buf(),
         json,
     };
-    let (v, _) = t.call(Request::Validate {})?;
+    let answer = t.call(Request::Validate {})?;
     if json {
-        println!("{v}");
+        println!("{}", answer.text());
     }
-    if v["ok"] != true {
-        // The daemon's answer is the config error itself: same exit code as a local validate.
-        let path = v["config"].as_str().unwrap_or("?");
-        let msg = v["error"].as_str().unwrap_or("invalid");
-        let prefix = format!("config {path}: ");
-        return Err(Error::config(
-            path,
-            msg.strip_prefix(&prefix).unwrap_or(msg).to_string(),
-        ));
+    if let Some(e) = answer.refusal() {
+        // A refusal naming the config file is the config error itself (same exit code as a
+        // local validate); one that does not (busy) is the error as it came.
+        let Ok(r) = answer.parse::<ConfigRefusal>("config error") else {
+            return Err(Error::Invalid(e.to_string()));
+        };
+        let prefix = format!("config {}: ", r.config.display());
+        let msg = r.error.strip_prefix(&prefix).unwrap_or(&r.error);
+        return Err(Error::config(&r.config, msg.to_string()));
     }
+    let v: Validated = answer.parse("validation")?;
     if !json {
-        if let Some(ws) = v["warnings"].as_array() {
-            for w in ws {
-                eprintln!("warning: {}", w.as_str().unwrap_or("?"));
-            }
+        for w in &v.warnings {
+            eprintln!("warning: {w}");
         }
         println!("config OK");
     }

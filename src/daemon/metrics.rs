@@ -364,7 +364,7 @@ pub fn render(s: &Status, now_unix: f64) -> String {
 }
 
 /// The clock now, in seconds since the Unix epoch.
-pub fn now_unix() -> f64 {
+pub(crate) fn now_unix() -> f64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_secs_f64())
@@ -372,7 +372,7 @@ pub fn now_unix() -> f64 {
 }
 
 /// Mode of the metrics file: node_exporter runs as another user.
-pub const FILE_MODE: u32 = 0o644;
+pub(crate) const FILE_MODE: u32 = 0o644;
 
 /// Write the metrics of `s` into `dir` atomically (temp file beside it, fsync, rename).
 pub fn write(dir: &Path, s: &Status) -> crate::error::Result<()> {

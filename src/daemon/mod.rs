@@ -11,13 +11,13 @@
 
 mod logging;
 pub mod metrics;
-pub mod notify;
+pub(crate) mod notify;
 mod policy;
 pub mod status;
 
 use crate::app::{camera_and_frame, Overrides, Run};
 use crate::config::Config;
-use crate::control::{self, Reply, Request};
+use crate::control::{self, Accepted, Progress, Refusal, Reply, Request};
 use crate::error::{Error, Result};
 use crate::localize::pipeline::{mi_points, Params};
 use crate::localize::quality::{assess, QualityConfig};
@@ -29,12 +29,12 @@ use crate::posefile::{format_utc, PoseFile};
 use crate::stage::StageName;
 use crate::store::{Decision, PoseStore};
 use policy::{Action, CrossCheck, Policy, Requested, Timing};
-use serde_json::{json, Value};
 pub use status::State;
 pub use status::Status;
 use status::{
-    DriftCheck, DriftOutcome, DriftSearch, DriftVerdict, JobKind, Optimum, Progress, RunOutcome,
-    RunResult, Running, Served, StageTime,
+    ConfigRefusal, DaemonAnswer, DriftCheck, DriftOutcome, DriftSearch, DriftVerdict, JobKind,
+    Optimum, OverlayAnswer, PoseAnswer, Queued, Refused, RunOutcome, RunResult, Running, Served,
+    StageTime, Validated,
 };
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{channel, Receiver, RecvTimeoutError, Sender};
@@ -117,7 +117,7 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 
 /// Run the service with the config at `config_path` until SIGTERM. Errors: a bad config
 /// ([`Error::Config`], exit 78) or a control socket that cannot be bound.
-pub fn run(config_path: &Path) -> Result<()> {
+pub(crate) fn run(config_path: &Path) -> Result<()> {
     // The same validation as `infraloc validate`: every problem, exit 78, before anything runs.
     let (cfg, warnings) = crate::preflight::load_for_service(config_path)?;
     // The one place the service chooses where its records (and the library's) go.
@@ -266,28 +266,36 @@ fn make_handler(
     store: PoseStore,
     tx: Sender<Event>,
     config_path: &Path,
-) -> Arc<control::Handler> {
+) -> Arc<control::Handler<DaemonAnswer>> {
     let config_path = config_path.to_path_buf();
+    let refused = |e: String| (DaemonAnswer::Refused(Refusal::new(e)), None);
     // mpsc::Sender is Sync since Rust 1.72, so the handler can be shared by client threads.
     Arc::new(move |req: Request, reply: &mut dyn Reply| match req {
         Request::Status {} => {
             let s = lock(&shared.status).clone();
-            let mut v = serde_json::to_value(s).unwrap_or(Value::Null);
-            v["ok"] = json!(true);
-            (v, None)
+            (DaemonAnswer::Status(Accepted::new(Box::new(s))), None)
         }
         Request::GetPose {} => match store.current() {
-            Ok(Some(p)) => (json!({"ok": true, "pose": p}), None),
-            Ok(None) => (json!({"ok": false, "error": "no pose served yet"}), None),
-            Err(e) => (json!({"ok": false, "error": e.to_string()}), None),
+            Ok(Some(pose)) => (
+                DaemonAnswer::Pose(Accepted::new(Box::new(PoseAnswer { pose }))),
+                None,
+            ),
+            Ok(None) => refused("no pose served yet".into()),
+            Err(e) => refused(e.to_string()),
         },
         Request::Validate {} => match load_config(&config_path) {
             Ok((_, warnings)) => (
-                json!({"ok": true, "config": config_path, "warnings": warnings}),
+                DaemonAnswer::Validated(Accepted::new(Validated {
+                    config: config_path.clone(),
+                    warnings,
+                })),
                 None,
             ),
             Err(e) => (
-                json!({"ok": false, "config": config_path, "error": e.to_string()}),
+                DaemonAnswer::ConfigRefused(Refused::new(ConfigRefusal {
+                    config: config_path.clone(),
+                    error: e.to_string(),
+                })),
                 None,
             ),
         },
@@ -296,16 +304,15 @@ fn make_handler(
             match run {
                 Some(r) => match r.overlay_png() {
                     Ok(png) => (
-                        json!({"ok": true, "timestamp_utc": r.pose_file.timestamp_utc,
-                               "bytes": png.len()}),
+                        DaemonAnswer::Overlay(Accepted::new(OverlayAnswer {
+                            timestamp_utc: r.pose_file.timestamp_utc.clone(),
+                            bytes: png.len(),
+                        })),
                         Some(png),
                     ),
-                    Err(e) => (json!({"ok": false, "error": e.to_string()}), None),
+                    Err(e) => refused(e.to_string()),
                 },
-                None => (
-                    json!({"ok": false, "error": "no localization has run since the daemon started; run `infraloc relocalize --wait` first"}),
-                    None,
-                ),
+                None => refused("no localization has run since the daemon started; run `infraloc relocalize --wait` first".into()),
             }
         }
         Request::Relocalize { wait, force } => {
@@ -316,33 +323,26 @@ fn make_handler(
                 waiter: wait.then_some(wtx),
             };
             if tx.send(ev).is_err() {
-                return (
-                    json!({"ok": false, "error": "the daemon is stopping"}),
-                    None,
-                );
+                return refused("the daemon is stopping".into());
             }
             if !wait {
-                return (json!({"ok": true, "queued": true}), None);
+                return (
+                    DaemonAnswer::Queued(Accepted::new(Queued { queued: true })),
+                    None,
+                );
             }
             loop {
                 match wrx.recv_timeout(WAIT_TIMEOUT) {
                     Ok(Answer::Progress(stage)) => {
-                        let v = serde_json::to_value(Progress { progress: stage })
-                            .unwrap_or(Value::Null);
-                        if reply.progress(&v).is_err() {
+                        if reply.progress(Progress { progress: stage }).is_err() {
                             // The technician went away; the run goes on.
-                            return (json!({"ok": false, "error": "client gone"}), None);
+                            return refused("client gone".into());
                         }
                     }
-                    Ok(Answer::Done(r)) => {
-                        return (serde_json::to_value(r).unwrap_or(Value::Null), None)
-                    }
-                    Ok(Answer::Refused(e)) => return (json!({"ok": false, "error": e}), None),
+                    Ok(Answer::Done(r)) => return (DaemonAnswer::Result(r), None),
+                    Ok(Answer::Refused(e)) => return refused(e),
                     Err(_) => {
-                        return (
-                            json!({"ok": false, "error": "no answer from the localization within 30 min"}),
-                            None,
-                        )
+                        return refused("no answer from the localization within 30 min".into())
                     }
                 }
             }
@@ -589,7 +589,7 @@ impl Daemon {
                         decision: why,
                         camera_center: c,
                         yaw_pitch_roll_deg: run.pose_file.yaw_pitch_roll_deg,
-                        score: status::score(&run.pose_file),
+                        score: run.pose_file.score(),
                         sigma: run.pose_file.sigma(),
                         skipped_tiles: run.skipped_tiles.clone(),
                         stages: run

@@ -7,7 +7,7 @@ use std::time::Duration;
 /// Send a state string (`READY=1`, `STATUS=…`, `WATCHDOG=1`, `STOPPING=1`) to the service
 /// manager named by `$NOTIFY_SOCKET`. Returns `false` when not run by systemd (no variable) or the
 /// send failed: notification is advisory and never stops the service.
-pub fn notify(state: &str) -> bool {
+pub(crate) fn notify(state: &str) -> bool {
     let Some(path) = std::env::var_os("NOTIFY_SOCKET") else {
         return false;
     };

@@ -6,6 +6,7 @@
 //! keys with the same value types (`null` where a value is absent), so scripts reading
 //! `infraloc status --json` keep working.
 
+use crate::control::{Accepted, Refusal};
 use crate::localize::quality::Sigma;
 use crate::map::cache::SkippedTile;
 use crate::posefile::PoseFile;
@@ -29,7 +30,7 @@ pub enum State {
 
 impl State {
     /// Name as printed.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             State::Starting => "starting",
             State::Ok => "ok",
@@ -97,7 +98,7 @@ pub struct Served {
 
 impl Served {
     /// The summary of pose file `p` stored at `path`.
-    pub fn of(path: &Path, p: &PoseFile) -> Served {
+    pub(crate) fn of(path: &Path, p: &PoseFile) -> Served {
         Served {
             file: path.to_path_buf(),
             timestamp_utc: p.timestamp_utc.clone(),
@@ -105,15 +106,10 @@ impl Served {
             crs: p.crs.clone(),
             camera_center: p.camera_center,
             yaw_pitch_roll_deg: p.yaw_pitch_roll_deg,
-            score: score(p),
+            score: p.score(),
             sigma: p.sigma(),
         }
     }
-}
-
-/// The pose store's comparison score of `p` (`quality.score`), if it has a numeric one.
-pub fn score(p: &PoseFile) -> Option<f64> {
-    p.quality.get("score").and_then(serde_json::Value::as_f64)
 }
 
 /// A job of the service.
@@ -128,7 +124,7 @@ pub enum JobKind {
 
 impl JobKind {
     /// Name as printed.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             JobKind::Localize => "localize",
             JobKind::DriftCheck => "drift-check",
@@ -150,11 +146,83 @@ pub struct Running {
     pub seconds: f64,
 }
 
-/// A progress message to a waiting technician: `{"progress": STAGE}`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub(crate) struct Progress {
-    /// The stage that started.
-    pub progress: StageName,
+/// The answer to `get-pose`: the served pose file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(crate) struct PoseAnswer {
+    /// The pose file as stored.
+    pub pose: PoseFile,
+}
+
+/// The answer to `validate`: the daemon's config file passed, with these warnings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(crate) struct Validated {
+    /// The config file the daemon read.
+    pub config: PathBuf,
+    /// What the file's check warns about.
+    pub warnings: Vec<String>,
+}
+
+/// The refusal of `validate`: the daemon's config file and what is wrong with it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(crate) struct ConfigRefusal {
+    /// The config file the daemon read.
+    pub config: PathBuf,
+    /// The config error, one line.
+    pub error: String,
+}
+
+/// The answer to `dump-overlay`; the PNG follows as a frame of its own.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(crate) struct OverlayAnswer {
+    /// When the run whose overlay it is computed its pose.
+    pub timestamp_utc: String,
+    /// The PNG's length.
+    pub bytes: usize,
+}
+
+/// The answer to `relocalize` without `wait`: the run is queued.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(crate) struct Queued {
+    /// Always true.
+    pub queued: bool,
+}
+
+/// A final answer of the daemon, whichever request it answers. Each serializes to an object with
+/// `"ok"`: the request's answer (or its refusal) as `infraloc` reads it back.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub(crate) enum DaemonAnswer {
+    /// `status`.
+    Status(Accepted<Box<Status>>),
+    /// `get-pose`.
+    Pose(Accepted<Box<PoseAnswer>>),
+    /// `validate`, the file passed.
+    Validated(Accepted<Validated>),
+    /// `validate`, the file did not pass (`"ok": false`).
+    ConfigRefused(Refused<ConfigRefusal>),
+    /// `dump-overlay`.
+    Overlay(Accepted<OverlayAnswer>),
+    /// `relocalize` without `wait`.
+    Queued(Accepted<Queued>),
+    /// `relocalize` with `wait`: the run's result (`"ok"` inside).
+    Result(Box<RunResult>),
+    /// Any request not served.
+    Refused(Refusal),
+}
+
+/// A refusal with fields of its own beside `"ok": false` (its `T` has the `"error"`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub(crate) struct Refused<T> {
+    ok: bool,
+    #[serde(flatten)]
+    body: T,
+}
+
+impl<T> Refused<T> {
+    /// The refusal carrying `body`.
+    pub(crate) fn new(body: T) -> Self {
+        Refused { ok: false, body }
+    }
 }
 
 /// One stage's wall time in a [`RunResult`].
@@ -214,17 +282,17 @@ pub enum RunOutcome {
 
 impl RunResult {
     /// Whether a pose was computed.
-    pub fn ok(&self) -> bool {
+    pub(crate) fn ok(&self) -> bool {
         matches!(self.outcome, RunOutcome::Localized { .. })
     }
 
     /// Whether the result is now the served pose.
-    pub fn served(&self) -> bool {
+    pub(crate) fn served(&self) -> bool {
         matches!(self.outcome, RunOutcome::Localized { served: true, .. })
     }
 
     /// The error, for a failed run.
-    pub fn error(&self) -> Option<&str> {
+    pub(crate) fn error(&self) -> Option<&str> {
         match &self.outcome {
             RunOutcome::Failed { error, .. } => Some(error),
             RunOutcome::Localized { .. } => None,

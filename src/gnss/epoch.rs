@@ -111,7 +111,7 @@ struct Epoch {
 
 /// Counters of what the merger saw.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
-pub struct MergeStats {
+pub(crate) struct MergeStats {
     /// Sentences consumed.
     pub sentences: u64,
     /// Fixes emitted.
@@ -137,7 +137,7 @@ impl EpochMerger {
     }
 
     /// Counters.
-    pub fn stats(&self) -> MergeStats {
+    pub(crate) fn stats(&self) -> MergeStats {
         self.stats
     }
 

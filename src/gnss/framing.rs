@@ -147,7 +147,7 @@ impl LineFramer {
     }
 
     /// Forget a partial line (after a reconnect the stream restarts mid-line).
-    pub fn reset(&mut self) {
+    pub(crate) fn reset(&mut self) {
         self.state = State::Idle;
         self.len = 0;
         self.at_line_start = true;

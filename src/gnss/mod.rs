@@ -2,14 +2,14 @@
 //! Pure: no files, sockets or clocks here; the serial reader lives in the shell
 //! ([`crate::gps_serial`]). See `docs/gnss.md`.
 
-pub mod epoch;
+pub(crate) mod epoch;
 pub mod framing;
 pub mod nmea;
 pub mod prior;
 
 pub use epoch::{EpochMerger, Fix};
 
-pub use framing::LineFramer;
+pub(crate) use framing::LineFramer;
 pub use prior::PriorOutcome;
 pub(crate) use prior::{PriorEstimator, PriorSettings};
 

@@ -209,9 +209,9 @@ pub mod quality {
     /// No fix.
     pub(crate) const INVALID: u8 = 0;
     /// Autonomous GNSS fix.
-    pub const GPS: u8 = 1;
+    pub(crate) const GPS: u8 = 1;
     /// Differential (SBAS/DGPS).
-    pub const DGPS: u8 = 2;
+    pub(crate) const DGPS: u8 = 2;
     /// PPS / precise.
     pub(crate) const PPS: u8 = 3;
     /// RTK, integer ambiguities fixed.
@@ -366,7 +366,7 @@ pub struct Sentence {
 
 impl Sentence {
     /// The address field, e.g. `GPGGA` or `PGRME`.
-    pub fn address(&self) -> &str {
+    pub(crate) fn address(&self) -> &str {
         // The address is checked to be ASCII alphanumeric when parsed.
         std::str::from_utf8(&self.address[..self.address_len as usize]).unwrap_or("")
     }
@@ -421,7 +421,7 @@ impl Sentence {
 }
 
 /// XOR of the bytes between `$` and `*`: the NMEA checksum.
-pub fn checksum(data: &[u8]) -> u8 {
+pub(crate) fn checksum(data: &[u8]) -> u8 {
     data.iter().fold(0u8, |a, &b| a ^ b)
 }
 

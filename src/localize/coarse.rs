@@ -35,7 +35,7 @@ pub struct CoarseParams {
     /// Candidates kept for the fine stage.
     pub top_k: usize,
     /// A second sweep over the heights from this one up (`None`: none), with the larger template
-    /// those heights allow ([`SweepParams::effective_template_radius_m`]); its best
+    /// those heights allow (`SweepParams::effective_template_radius_m`); its best
     /// [`CoarseParams::tall_top_k`] candidates join the list. The main sweep's template is what
     /// the lowest height sees (8.2 m of ground at 3 m and 70°), so that no height is favoured by
     /// a smaller, noisier correlation; on a tall pole that is only the ground within ≈ 40° of
@@ -66,7 +66,7 @@ impl Default for CoarseParams {
 
 impl CoarseParams {
     /// The geometric sequence of heights swept.
-    pub fn heights(&self) -> Vec<f64> {
+    pub(crate) fn heights(&self) -> Vec<f64> {
         let (lo, hi) = self.height_range_m;
         let mut v = Vec::new();
         let mut h = lo;

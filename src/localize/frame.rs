@@ -46,7 +46,7 @@ impl<'a> Frame<'a> {
     }
 
     /// The camera's valid-pixel mask (its image circle), 255 inside, 0 outside.
-    pub fn mask(&self) -> &[u8] {
+    pub(crate) fn mask(&self) -> &[u8] {
         self.mask.get_or_init(|| self.camera.valid_mask())
     }
 }

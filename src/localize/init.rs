@@ -171,7 +171,7 @@ pub fn match_anchors(
                     );
                     let z = height_at(heights, x, y).unwrap_or(az);
                     let pc = pose.transform(&nalgebra::Point3::new(x, y, z)).coords;
-                    if let Ok(px) = cam.project_visible_within(&pc, cos_max_theta) {
+                    if let Ok(px) = cam.project_visible_cos(&pc, cos_max_theta) {
                         if let Some(v) = mip.sample(px.x, px.y, fp) {
                             patch.data[r * side + col] = v;
                             valid[r * side + col] = true;
@@ -325,8 +325,8 @@ pub fn fine_stage<R: rand::Rng>(
 }
 
 /// [`fine_stage`], and on failure the last iteration that did give a PnP pose (`None` when the
-/// first failed or all succeeded): the last resort of [`initialize`] when no candidate's fine
-/// stage gets through all its iterations.
+/// first failed or all succeeded): the last resort of [`initialize`] with a verifier when no
+/// candidate's fine stage gets through all its iterations.
 fn fine_stage_partial<R: rand::Rng>(
     frame: &Frame<'_>,
     map: MapLayers<'_>,
@@ -425,17 +425,9 @@ pub fn initialize<R: rand::Rng>(
     let mut best: Option<InitResult> = None;
     let mut last_err = String::new();
     let mut tried = 0;
-    // The last resort, as in `initialize_verified`: the partial fine stage with the most inliers.
-    let mut partial_best: Option<InitResult> = None;
     for (rank, cand) in cands.iter().enumerate() {
         tried = rank + 1;
-        let (outcome, partial) = fine_stage_partial(frame, map, prior_xy, cand, fine, rng);
-        if let Some(f) = partial {
-            if partial_best.as_ref().is_none_or(|b| f.inliers > b.inliers) {
-                partial_best = Some(InitResult::from_fine(&f, *cand, rank, None));
-            }
-        }
-        let outcome = match outcome {
+        let outcome = match fine_stage(frame, map, prior_xy, cand, fine, rng) {
             Ok(f) => Some(f),
             Err(e) => {
                 last_err = e;
@@ -456,7 +448,6 @@ pub fn initialize<R: rand::Rng>(
             }
         }
     }
-    let mut best = best.or(partial_best);
     if let Some(b) = best.as_mut() {
         b.candidates_tried = tried;
     }
@@ -497,7 +488,9 @@ pub fn candidate_pose(
 /// is the better start for the refinement. At least one fine stage must give a pose: a frame
 /// the satellite matching cannot confirm anywhere is an error, not a guess. When none does, the
 /// [`CLIMB_CANDIDATES`] best-screened candidates get a second chance: climbed on the LiDAR MI
-/// ([`MiVerifier::climb`]), then the fine stage again.
+/// ([`MiVerifier::climb`]), then the fine stage again. When still none gets through all its
+/// iterations, the last resort is the PnP poses of the iterations before the ones that failed
+/// (satellite-confirmed at a coarser tolerance), each scored by the verifier.
 fn initialize_verified<R: rand::Rng>(
     frame: &Frame<'_>,
     map: MapLayers<'_>,
@@ -603,14 +596,14 @@ fn initialize_verified<R: rand::Rng>(
             }
         }
     }
-    if !any_pnp && !partials.is_empty() {
+    if !any_pnp {
         // Last resort: on low poles the finest iterations can run out of patches inside their
         // windows (fewer than PnP needs) after a coarser one already gave a PnP pose from the
         // satellite's patches. That pose is still the satellite's confirmation; the LiDAR MI
         // judges it against the other hypotheses, and the refinement and its gate after it.
-        any_pnp = true;
+        // Only a partial pose the verifier could score counts as a PnP pose.
         for (rank, cand, f) in partials {
-            push_verified(&mut pool, verifier, rank, cand, f);
+            any_pnp |= push_verified(&mut pool, verifier, rank, cand, f);
         }
     }
     if !any_pnp {
@@ -653,17 +646,19 @@ fn initialize_verified<R: rand::Rng>(
 }
 
 /// A fine stage's PnP pose into the hypotheses' `pool`, scored by the verifier (left out when it
-/// sees too few LiDAR points to verify).
+/// sees too few LiDAR points to verify). Whether it went in.
 fn push_verified(
     pool: &mut Vec<(f64, InitResult)>,
     verifier: &MiVerifier,
     rank: usize,
     candidate: Candidate,
     f: FineOutcome,
-) {
-    if let Some(v) = verifier.verify(&f.pose) {
+) -> bool {
+    let v = verifier.verify(&f.pose);
+    if let Some(v) = v {
         pool.push((v.mi, InitResult::from_fine(&f, candidate, rank, Some(v.mi))));
     }
+    v.is_some()
 }
 
 /// The hypothesis a screened sweep candidate stands for: the verifier's best pose near it, no

@@ -666,7 +666,7 @@ unsafe fn accumulate_avx2(
 /// [`accumulate`] without hand-picked SIMD: the plain loop for the target's baseline features
 /// (SSE2 on x86-64; on aarch64 whatever NEON code the compiler makes of it). The reference the
 /// fast copies must equal bit for bit (tests, `infraloc self-test`).
-pub fn accumulate_reference(
+pub(crate) fn accumulate_reference(
     pts: &PreparedPoints,
     pose: &PoseF32,
     cam: &FastCamera,
@@ -729,7 +729,7 @@ fn accumulate_impl<const NEON: bool>(
 /// Visibility of each point from `pose` (lands on a valid pixel of `img`).
 ///
 /// Dispatched like [`accumulate`] (AVX2 + FMA copy where the CPU has them; same results).
-pub fn visible(
+pub(crate) fn visible(
     pts: &PreparedPoints,
     pose: &PoseF32,
     cam: &FastCamera,
@@ -794,7 +794,7 @@ fn visible_impl<const NEON: bool>(
 /// with all the poses while it sits in L1, and the poses of a small box project it into one small
 /// image area, so the image reads hit the cache too; a chunk whose points are all out stops early.
 /// AND is order-free, so the flags equal those of [`visible`] AND-ed over the poses.
-pub fn visible_from_all(
+pub(crate) fn visible_from_all(
     pts: &PreparedPoints,
     first: usize,
     poses: &[PoseF32],
@@ -867,7 +867,7 @@ fn visible_from_all_impl<const NEON: bool>(
 /// Which copy of the projection [`accumulate`] runs on this CPU: `neon` (aarch64: the explicit
 /// NEON copy of the Mei projection), `avx2+fma` (x86-64 with both, detected at run time) or
 /// `baseline`.
-pub fn kernel_path() -> &'static str {
+pub(crate) fn kernel_path() -> &'static str {
     #[cfg(target_arch = "aarch64")]
     return "neon";
     #[cfg(target_arch = "x86_64")]
@@ -940,7 +940,7 @@ fn test_pose(j: usize, origin: [f64; 3]) -> PoseF32 {
 
 /// What [`self_test`] compared.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct SelfTest {
+pub(crate) struct SelfTest {
     /// [`kernel_path`].
     pub path: &'static str,
     /// Points per pose.
@@ -954,7 +954,7 @@ pub struct SelfTest {
 /// histograms and visibility to the plain reference loop ([`accumulate_reference`]) on a `5mp`
 /// Mei camera, `poses` poses. `Err` names the first pose that differs. Run by the unit tests and
 /// by `infraloc self-test` (which CI runs on the aarch64 binary under qemu).
-pub fn self_test(poses: usize) -> std::result::Result<SelfTest, String> {
+pub(crate) fn self_test(poses: usize) -> std::result::Result<SelfTest, String> {
     let cam = test_camera_mei();
     let (pts, img, origin) = test_scene(&cam);
     let fc = FastCamera::new(&cam, 0);
@@ -1006,7 +1006,7 @@ pub fn self_test(poses: usize) -> std::result::Result<SelfTest, String> {
 /// The instruction-count workload (docs/benchmarks.md "aarch64"): `poses` evaluations of the
 /// self-test's scene, single-threaded, with the dispatched kernel or (`reference`) the plain loop.
 /// Returns the number of points and a checksum of the histograms (so nothing is optimised away).
-pub fn workload(poses: usize, reference: bool) -> (usize, u64) {
+pub(crate) fn workload(poses: usize, reference: bool) -> (usize, u64) {
     let cam = test_camera_mei();
     let (pts, img, origin) = test_scene(&cam);
     let fc = FastCamera::new(&cam, 0);

@@ -67,7 +67,7 @@ pub struct MatchRow {
 /// the node's frame, or surveyed marks picked in the image. CSV with a header naming the columns
 /// `u`, `v` (fisheye pixel), `x`, `y` (map CRS) and optionally `z`, in any order.
 ///
-/// PnP needs at least [`super::pnp::PnpParams::min_inliers`] (12) rows that agree: a handful of
+/// PnP needs at least `super::pnp::PnpParams::min_inliers` (12) rows that agree: a handful of
 /// surveyed marks is too few on its own. The file is fixed: after the camera is knocked, its
 /// pixels no longer match and the drift check's re-localization fails until it is remade.
 #[derive(Debug, Clone, PartialEq)]
@@ -150,7 +150,7 @@ impl Matcher for MatchFile {
     }
 
     /// The rows whose pixel lies on the image and whose map point lies within the search radius
-    /// plus [`MAX_GROUND_REACH_M`] of the prior (rows far outside belong to another site); a row
+    /// plus `MAX_GROUND_REACH_M` of the prior (rows far outside belong to another site); a row
     /// without `z` takes the height layer's ground, and is dropped where the layer has no data.
     fn correspondences(&self, q: &MatchQuery<'_>) -> Result<Vec<Correspondence>> {
         let (w, h) = (q.camera.width() as f64, q.camera.height() as f64);

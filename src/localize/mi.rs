@@ -1,7 +1,7 @@
 //! The mutual-information estimator (pure): binning, joint histogram → MI / NMI.
 //!
 //! X = reflectivity bin (histogram row), Y = gray bin (column). The joint histogram has one extra
-//! column, [`JointHist::invalid_col`], which collects points that do not land on a valid pixel; it
+//! column, `JointHist::invalid_col`, which collects points that do not land on a valid pixel; it
 //! is excluded from every probability, so a point either counts fully or not at all.
 //!
 //! Defaults (see `docs/refine.md` for the measurements): 32 × 32 bins with histogram-equalised
@@ -29,7 +29,7 @@ pub enum Objective {
 
 impl Objective {
     /// The name used on the command line and in reports (`mi`, `nmi`).
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Objective::Mi => "mi",
             Objective::Nmi => "nmi",
@@ -71,7 +71,7 @@ pub enum Binning {
 
 impl Binning {
     /// The name used on the command line and in reports (`uniform`, `equalized`).
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Binning::Uniform => "uniform",
             Binning::Equalized => "equalized",
@@ -130,7 +130,7 @@ impl Default for MiConfig {
 
 impl MiConfig {
     /// Check the bin counts.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         if !(2..=MAX_REFLECTIVITY_BINS).contains(&self.bins_reflectivity) {
             return Err(Error::Invalid(format!(
                 "mi: bins-reflectivity {} outside 2..={MAX_REFLECTIVITY_BINS}",
@@ -211,11 +211,6 @@ impl JointHist {
         self.cols
     }
 
-    /// Reset all counts to zero.
-    pub fn clear(&mut self) {
-        self.counts.iter_mut().for_each(|c| *c = 0);
-    }
-
     /// Points that landed on a valid pixel.
     pub(crate) fn valid_count(&self) -> u64 {
         let s = self.stride();
@@ -251,7 +246,7 @@ pub struct MiValue {
 
 impl MiValue {
     /// The statistic named by `o`.
-    pub fn get(&self, o: Objective) -> f64 {
+    pub(crate) fn get(&self, o: Objective) -> f64 {
         match o {
             Objective::Mi => self.mi,
             Objective::Nmi => self.nmi,

@@ -7,7 +7,7 @@
 //! (project + sample + joint histogram, the hot loop), [`search`] (exhaustive and tiled
 //! coarse-to-fine grid search), [`polish`] (a local 6-DoF Nelder–Mead after it), [`quality`] (peak statistics and the gate), [`refine`] (one call).
 //! Initialization: [`coarse`] (the dense orientation [`sweep`] over yaw × height × translation)
-//! then [`init`] (patch matching + [`pnp`], hypotheses judged by [`verify`]); [`ground`] holds the
+//! then [`init`] (patch matching + `pnp`, hypotheses judged by [`verify`]); [`ground`] holds the
 //! ground and image geometry they share. [`matcher`] is the seam where another matcher (a learned
 //! one, or correspondences from a file) replaces the built-in satellite matching. [`points_io`] is the I/O shell that reads CSV / PCD / LAS point files. Design and measurements:
 //! `docs/refine.md`.
@@ -20,7 +20,7 @@ pub mod kernel;
 pub mod matcher;
 pub mod mi;
 pub mod pipeline;
-pub mod pnp;
+pub(crate) mod pnp;
 pub mod points;
 pub mod points_io;
 pub mod polish;
@@ -28,7 +28,7 @@ pub(crate) mod poly;
 pub mod quality;
 pub mod refine;
 pub mod search;
-pub mod study;
+pub(crate) mod study;
 pub mod sweep;
 pub mod synth;
 pub mod truth_eval;

@@ -209,7 +209,7 @@ pub struct MiDetail {
 
 impl Stage {
     /// JSON form: name, seconds, detail, and the pose as centre + yaw/pitch/roll.
-    pub fn to_json(&self) -> Value {
+    pub(crate) fn to_json(&self) -> Value {
         let mut v =
             json!({ "name": self.name.name(), "seconds": self.seconds, "detail": self.detail });
         if let Some(p) = &self.pose {
@@ -248,7 +248,7 @@ pub fn mi_points(tile: &Tile, pose: &CamFromMap, p: &Params) -> Vec<crate::map::
 /// (refinement and gate), for a terminal's status line or the service's status. Errors name the
 /// stage and the numbers; a refinement the quality gate rejects is an error (see
 /// [`quality_gate`]).
-pub fn localize(
+pub(crate) fn localize(
     frame: &Frame<'_>,
     tile: &Tile,
     prior_xy: (f64, f64),
@@ -444,7 +444,11 @@ pub fn truth_errors(
 /// Errors of pose `p` against the truth: horizontal, height, yaw and full-rotation errors and the
 /// mean reprojection error of the truth's control points under `camera` (the seed paper's
 /// accuracy figure; NaN without control points).
-pub fn pose_errors(truth: &crate::sim::truth::Truth, camera: &Camera, p: &CamFromMap) -> Value {
+pub(crate) fn pose_errors(
+    truth: &crate::sim::truth::Truth,
+    camera: &Camera,
+    p: &CamFromMap,
+) -> Value {
     let t = &truth.pose;
     let (c, tc) = (p.center(), t.center());
     let dyaw = crate::pose::angle_difference(p.yaw_pitch_roll().0, t.yaw_pitch_roll().0);

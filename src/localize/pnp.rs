@@ -270,7 +270,7 @@ pub(crate) fn solve_pnp_ransac<R: Rng>(
 /// Levenberg–Marquardt on pixel reprojection error; parameters are a left rotation increment
 /// (axis-angle) and a translation increment. Forward-difference Jacobian: six parameters and
 /// a cheap residual make analytic derivatives per lens model not worth their code.
-pub fn refine_lm(
+pub(crate) fn refine_lm(
     cam: &dyn CameraModel,
     init: &CamFromMap,
     corr: &[Correspondence],

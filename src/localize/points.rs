@@ -4,12 +4,12 @@ use crate::error::{Error, Result};
 use rayon::prelude::*;
 
 /// One LiDAR ground point: map-CRS coordinates (f64 metres) and reflectivity (0–255). The same
-/// type the tile cache's [`crate::map::ground_points`] produces.
+/// type the tile cache's `crate::map::ground_points` produces.
 pub use crate::map::GroundPoint;
 
 /// Check a point set for the refinement: non-empty and all coordinates finite. `what` names the
 /// source (file or tile) in the error.
-pub fn validate(points: &[GroundPoint], what: &str) -> Result<()> {
+pub(crate) fn validate(points: &[GroundPoint], what: &str) -> Result<()> {
     if points.is_empty() {
         return Err(Error::Invalid(format!("{what}: no ground points")));
     }
@@ -43,12 +43,12 @@ pub struct PreparedPoints {
 
 impl PreparedPoints {
     /// Number of points.
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.x.len()
     }
 
     /// Whether there are no points.
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.x.is_empty()
     }
 
@@ -102,7 +102,7 @@ impl PreparedPoints {
     }
 
     /// The points `a..b` (along the Morton order: a compact patch of ground).
-    pub fn range(&self, a: usize, b: usize) -> Self {
+    pub(crate) fn range(&self, a: usize, b: usize) -> Self {
         let (a, b) = (a.min(self.len()), b.min(self.len()));
         PreparedPoints {
             x: self.x[a..b.max(a)].to_vec(),

@@ -267,7 +267,11 @@ impl PolishRecord {
 /// The search configuration whose fixed point set a local optimisation within `p`'s ±bound box
 /// uses: the points visible from every lattice pose of that box (two cells per side; the grid
 /// only selects the point set). A held axis (bound 0) is not an axis of the box.
-pub fn box_config(search: &SearchConfig, p: &PolishParams, pivot: Option<f64>) -> SearchConfig {
+pub(crate) fn box_config(
+    search: &SearchConfig,
+    p: &PolishParams,
+    pivot: Option<f64>,
+) -> SearchConfig {
     let r = |i: usize| AxisRange {
         half: p.bound[i],
         step: p.bound[i] / 2.0,

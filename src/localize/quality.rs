@@ -88,7 +88,7 @@ impl Default for QualityConfig {
 
 impl QualityConfig {
     /// Check the values a config file may set; the message names the key.
-    pub fn validate(&self) -> std::result::Result<(), String> {
+    pub(crate) fn validate(&self) -> std::result::Result<(), String> {
         let positive = [
             ("max-sigma-xy-m", self.max_sigma_xy_m),
             ("max-sigma-z-m", self.max_sigma_z_m),
@@ -220,7 +220,7 @@ pub struct Sigma {
 
 impl Sigma {
     /// From an estimate (axes it did not estimate are 0 for x..yaw, absent for the tilts).
-    pub fn of(u: &Uncertainty) -> Self {
+    pub(crate) fn of(u: &Uncertainty) -> Self {
         Self::by_axis(|a| u.sigma_of(a))
     }
 
@@ -238,7 +238,7 @@ impl Sigma {
 
     /// The σ the gate judges ([`Uncertainty::gate_sigma`]); the reported σ when the estimate
     /// has none.
-    pub fn judged(u: &Uncertainty) -> Self {
+    pub(crate) fn judged(u: &Uncertainty) -> Self {
         if u.gate_sigma.len() != u.axes.len() {
             return Self::of(u);
         }
@@ -246,7 +246,7 @@ impl Sigma {
     }
 
     /// One line for people: centimetres and degrees.
-    pub fn describe(&self) -> String {
+    pub(crate) fn describe(&self) -> String {
         let mut s = format!(
             "σ x {:.1} cm, y {:.1} cm, z {:.1} cm, yaw {:.3}°",
             100.0 * self.x,

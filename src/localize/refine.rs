@@ -209,7 +209,7 @@ pub struct PolishedSearch {
     /// Searches at most, see [`refine_polished`].
     pub search_rounds: usize,
     /// Polish again (within `polish_rounds`) also when a polish moved the pose by more than the
-    /// re-search thresholds ([`RESEARCH_MOVE_M`], [`RESEARCH_MOVE_DEG`]), not only when it ended
+    /// re-search thresholds (`RESEARCH_MOVE_M`, `RESEARCH_MOVE_DEG`), not only when it ended
     /// on its box's edge: each polish's point set is the one its own box sees, so one that moved
     /// far has a new set, and a further polish may move it on (the 4-DoF finish, where no
     /// re-search follows).
@@ -238,7 +238,7 @@ impl PolishedSearch {
     /// 1/distance²) across the image's bottom edge, so the search's fixed set loses it, and its
     /// objective can have two near-equal humps 0.3 m apart along the view.
     /// - A polish that moved more than 5 cm / 0.5° polishes again from its end (at most
-    ///   [`POLISH_ROUNDS`]): the grid's cell can be 20 cm along the view from the peak, more than
+    ///   `POLISH_ROUNDS`): the grid's cell can be 20 cm along the view from the peak, more than
     ///   one ±15 cm box.
     /// - When the polishes moved the pose that far in all, one more search, centred on the
     ///   polished pose, and its polish: the gate then judges the search around the answer, not
@@ -297,7 +297,7 @@ pub struct Round {
 /// pitch, and an initial tilt can be 2–3° off: from there the search trades the tilt for
 /// position, height and yaw, and its quality (the gate's evidence) describes that compromise, not
 /// the peak. So the search runs again, centred on the polished pose, when the polish moved the
-/// pose by more than [`RESEARCH_MOVE_M`] / [`RESEARCH_MOVE_DEG`] (the optimum was found at a stale
+/// pose by more than `RESEARCH_MOVE_M` / `RESEARCH_MOVE_DEG` (the optimum was found at a stale
 /// tilt), or when the gate refused an optimum on the box's edge (the edge may be the tilt trade
 /// rather than a wrong start), at most `p.search_rounds` searches. Each search is centred on the
 /// previous polished pose, so the answer can lie up to `search_rounds` box half-widths from

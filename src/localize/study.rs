@@ -232,7 +232,7 @@ impl Summary {
 
 /// What a study needs: the scene in memory.
 #[derive(Debug, Clone, Copy)]
-pub struct Scene<'a> {
+pub(crate) struct Scene<'a> {
     /// Intrinsics given to the localizer.
     pub camera: &'a Camera,
     /// Gray frame (camera size, row-major): the temporal median, as the pipeline uses.
@@ -343,7 +343,7 @@ pub(crate) fn run_trial(
 
 /// MI along each axis and over x–y around a pose.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Surface {
+pub(crate) struct Surface {
     /// Per enabled axis (x, y, z, yaw): (axis name, offsets, MI values).
     pub profiles: Vec<(String, Vec<f64>, Vec<f64>)>,
     /// x offsets of the 2-D grid, metres.
@@ -405,7 +405,7 @@ pub(crate) fn mi_surface_pooled(
 /// The horizontal unit vector (map x, y) to the *left* of the camera's view: perpendicular to
 /// the horizontal part of the optical axis, or, for a camera looking (nearly) straight down, of
 /// the image's up direction. The yaw–lateral plane moves the camera along it.
-pub fn lateral_direction(pose: &CamFromMap) -> [f64; 2] {
+pub(crate) fn lateral_direction(pose: &CamFromMap) -> [f64; 2] {
     let inv = pose.rotation.inverse();
     let axis = inv * nalgebra::Vector3::z();
     // Below ~17° from the nadir the optical axis' horizontal part is short and unstable; the

@@ -51,7 +51,7 @@ impl GrayF32 {
 
 /// A complex feature field, row-major.
 #[derive(Debug, Clone)]
-pub struct Field {
+pub(crate) struct Field {
     /// Columns.
     pub width: usize,
     /// Rows.
@@ -63,7 +63,7 @@ pub struct Field {
 impl Field {
     /// Bilinear sample at continuous pixel coordinates (centres at integers); zero outside.
     #[inline]
-    pub fn sample(&self, x: f32, y: f32) -> Complex32 {
+    pub(crate) fn sample(&self, x: f32, y: f32) -> Complex32 {
         if !(x >= 0.0 && y >= 0.0) {
             return Complex32::new(0.0, 0.0);
         }
@@ -278,7 +278,7 @@ pub struct Candidate {
 
 /// The nominal bird's-eye field: `B` over normalised offsets, centre at (`c`, `c`), step `dq`.
 #[derive(Debug, Clone)]
-pub struct NominalField {
+pub(crate) struct NominalField {
     /// Field pyramid; level `l` has step `dq·2^l`.
     pub levels: Vec<Field>,
     /// Step of level 0 in normalised units (metres of ground offset per metre of height).
@@ -289,7 +289,7 @@ pub struct NominalField {
 
 /// Search settings of [`sweep`].
 #[derive(Debug, Clone, PartialEq)]
-pub struct SweepParams {
+pub(crate) struct SweepParams {
     /// Yaw step, degrees.
     pub yaw_step_deg: f64,
     /// Heights to try, metres.
@@ -314,7 +314,7 @@ impl SweepParams {
 }
 
 /// Satellite-side data of a sweep: the search field and its spectra.
-pub struct SearchField {
+pub(crate) struct SearchField {
     fft: Fft2,
     spec: Vec<Complex32>,
     energy: Vec<Complex32>,
@@ -326,7 +326,7 @@ pub struct SearchField {
 
 impl SearchField {
     /// Prepare the satellite field (`size × size`, square, centred on the search centre).
-    pub fn new(field: &Field, res: f64) -> Self {
+    pub(crate) fn new(field: &Field, res: f64) -> Self {
         let size = field.width.max(field.height);
         // Valid shifts keep the template inside the field, so no wrap-around needs padding, and
         // any transform size ≥ the field will do: the smallest 2^a·3^b·5^c one (rustfft's fast
@@ -357,7 +357,11 @@ impl SearchField {
 
 /// Dense sweep over yaw × height × translation. The search field must cover the search window plus
 /// the largest template radius on every side; offsets are relative to its centre.
-pub fn sweep(search: &SearchField, nominal: &NominalField, p: &SweepParams) -> Vec<Candidate> {
+pub(crate) fn sweep(
+    search: &SearchField,
+    nominal: &NominalField,
+    p: &SweepParams,
+) -> Vec<Candidate> {
     let n = search.fft.size();
     let res = search.res;
     let n_yaw = (360.0 / p.yaw_step_deg).round().max(1.0) as usize;

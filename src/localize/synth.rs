@@ -74,7 +74,7 @@ impl Texture {
     }
 
     /// Texture value at map (x, y).
-    pub fn value(&self, x: f64, y: f64) -> f64 {
+    pub(crate) fn value(&self, x: f64, y: f64) -> f64 {
         let x = match self.period_x {
             Some((p, from_y)) if y >= from_y => x.rem_euclid(p),
             _ => x,
@@ -95,13 +95,13 @@ impl Texture {
     }
 
     /// LiDAR-like reflectivity of texture value t (monotonic).
-    pub fn reflectivity(t: f64) -> f64 {
+    pub(crate) fn reflectivity(t: f64) -> f64 {
         255.0 * (0.1 + 0.8 * t)
     }
 
     /// Camera-like gray of texture value t (non-monotonic: dark asphalt and bright paint both map
     /// differently than in reflectivity).
-    pub fn gray(t: f64) -> f64 {
+    pub(crate) fn gray(t: f64) -> f64 {
         40.0 + 190.0 * (1.0 - (1.8 * t - 1.0).powi(2)).max(0.0) * 0.7 + 60.0 * t
     }
 }
@@ -195,7 +195,7 @@ pub fn lidar_rings(
 }
 
 /// Render the ground plane z = `ground_z` through `cam` at `pose`: 2×2 supersampled texture →
-/// [`Texture::gray`] + noise of `noise` gray levels. Pixels outside the valid image circle are 0;
+/// `Texture::gray` + noise of `noise` gray levels. Pixels outside the valid image circle are 0;
 /// rays above the horizon see a uniform sky (gray 210). Returns (gray, valid mask).
 pub fn render(
     tex: &Texture,

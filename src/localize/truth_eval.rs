@@ -23,7 +23,7 @@ use nalgebra::{Point2, Point3};
 use serde::{Deserialize, Serialize};
 
 /// Distance bands from the pole (horizontal, metres) the ground error is reported in.
-pub const BANDS_M: [(f64, f64); 3] = [(0.0, 10.0), (10.0, 20.0), (20.0, 30.0)];
+pub(crate) const BANDS_M: [(f64, f64); 3] = [(0.0, 10.0), (10.0, 20.0), (20.0, 30.0)];
 
 /// Fewest control points the oracle is fitted from (6 DoF, each point gives two residuals; a
 /// margin against a degenerate spread).
@@ -112,7 +112,7 @@ pub struct Percentiles {
 pub struct GroundError {
     /// All control points, metres.
     pub all: Option<Percentiles>,
-    /// Per band of [`BANDS_M`], metres (`None` for a band without points).
+    /// Per band of `BANDS_M`, metres (`None` for a band without points).
     pub bands: Vec<BandError>,
 }
 

@@ -68,7 +68,7 @@ impl Default for UncertaintyConfig {
 
 impl UncertaintyConfig {
     /// The region's reach for a gate's σ limits, as [`UncertaintyConfig::region_bound`] explains.
-    pub fn region_bound_for(q: &super::quality::QualityConfig) -> [f64; 6] {
+    pub(crate) fn region_bound_for(q: &super::quality::QualityConfig) -> [f64; 6] {
         let f = 2.0 * REGION_Z * 1.5;
         let (xy, z) = (q.max_sigma_xy_m, q.max_sigma_z_m);
         let (yaw, tilt) = (q.max_sigma_yaw_deg, q.max_sigma_tilt_deg);
@@ -129,7 +129,7 @@ impl Uncertainty {
     }
 
     /// Whether every entry is finite.
-    pub fn is_finite(&self) -> bool {
+    pub(crate) fn is_finite(&self) -> bool {
         self.sigma.iter().all(|v| v.is_finite())
             && self.matrix.iter().flatten().all(|v| v.is_finite())
     }
@@ -283,7 +283,7 @@ pub fn estimate(
 /// The Student-t quantile with `dof` degrees of freedom at the normal's 3σ probability
 /// (0.99865, one-sided), by the Cornish–Fisher expansion (within 0.5 % of the exact quantile from
 /// 5 degrees of freedom up; 4.53 at 7).
-pub fn student_t_3sigma(dof: usize) -> f64 {
+pub(crate) fn student_t_3sigma(dof: usize) -> f64 {
     let (z, v) = (3.0f64, dof.max(1) as f64);
     let (z3, z5, z7, z9) = (z.powi(3), z.powi(5), z.powi(7), z.powi(9));
     z + (z3 + z) / (4.0 * v)
@@ -295,10 +295,10 @@ pub fn student_t_3sigma(dof: usize) -> f64 {
 /// z of the contrast test that bounds [`Region`]: a probe is told apart from the answer when the
 /// answer's objective exceeds the probe's by more than `REGION_Z` jackknife standard errors of
 /// that difference.
-pub const REGION_Z: f64 = 2.0;
+pub(crate) const REGION_Z: f64 = 2.0;
 
 /// Patches for the region's standard errors.
-pub const REGION_FOLDS: usize = 32;
+pub(crate) const REGION_FOLDS: usize = 32;
 
 /// Probe radii along each ray, in units of the search's finest step per axis; the last probe of a
 /// ray is at the polish box's edge.
@@ -562,7 +562,7 @@ const MAX_PROPAGATION_POINTS: usize = 4000;
 /// camera centre (m) and of yaw, pitch, roll (deg). Their outer products add up to the part of
 /// the covariance the intrinsics' own uncertainty makes: a bias every ground patch shares, which
 /// no resampling of the points can see.
-pub fn intrinsics_deltas(
+pub(crate) fn intrinsics_deltas(
     cam: &Camera,
     views: &[View<'_>],
     pose: &CamFromMap,
@@ -607,7 +607,7 @@ pub fn intrinsics_deltas(
 }
 
 /// Add the intrinsics' part ([`intrinsics_deltas`]) to an estimate's covariance and σ.
-pub fn add_intrinsics(u: &mut Uncertainty, deltas: &[[f64; 6]]) {
+pub(crate) fn add_intrinsics(u: &mut Uncertainty, deltas: &[[f64; 6]]) {
     let d = u.sigma.len();
     for (a, row) in u.matrix.iter_mut().enumerate() {
         for (b, v) in row.iter_mut().enumerate() {

@@ -113,7 +113,7 @@ impl<'a> MiVerifier<'a> {
     }
 
     /// The settings.
-    pub fn params(&self) -> &VerifyParams {
+    pub(crate) fn params(&self) -> &VerifyParams {
         &self.p
     }
 
@@ -130,7 +130,7 @@ impl<'a> MiVerifier<'a> {
         for (p, r) in pts {
             let Ok(px) = self
                 .cam
-                .project_visible_within(&pose.transform(p).coords, cos_max_theta)
+                .project_visible_cos(&pose.transform(p).coords, cos_max_theta)
             else {
                 continue;
             };
@@ -203,10 +203,10 @@ impl<'a> MiVerifier<'a> {
     }
 
     /// Climb the MI from `pose` over x, y, yaw and height: coordinate ascent with steps
-    /// (1 m, 4°, 8 % of the height above ground) halved [`CLIMB_HALVINGS`] times, within
-    /// [`CLIMB_MAX_XY_M`] / [`CLIMB_MAX_YAW_DEG`] of the start and 1 m above ground, on one fixed
+    /// (1 m, 4°, 8 % of the height above ground) halved `CLIMB_HALVINGS` times, within
+    /// `CLIMB_MAX_XY_M` / `CLIMB_MAX_YAW_DEG` of the start and 1 m above ground, on one fixed
     /// point set (the ground disc seen from `pose`, thinned to 3 × [`VerifyParams::points`]), at most
-    /// [`CLIMB_MAX_EVALUATIONS`] evaluations. For a sweep candidate whose satellite match was too
+    /// `CLIMB_MAX_EVALUATIONS` evaluations. For a sweep candidate whose satellite match was too
     /// coarse for the fine stage (1–3 m, 5–15°, a height step off): the LiDAR map pulls it to where
     /// the fine stage can match. `None` when the start sees too few points. Deterministic.
     pub fn climb(&self, pose: &CamFromMap) -> Option<Verdict> {

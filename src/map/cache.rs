@@ -46,7 +46,7 @@ const GRID_TOL_M: f64 = 1e-6;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case", deny_unknown_fields)]
 pub struct Manifest {
-    /// Always [`FORMAT`].
+    /// Always `FORMAT`.
     pub format: String,
     /// Tile id = directory name.
     pub id: String,
@@ -217,7 +217,7 @@ fn check_tile(t: &Tile) -> Result<Crs> {
     Ok(crs)
 }
 
-/// Write `tile` into `cache_dir/<tile.id>/` with default provenance. See [`write_tile_with`].
+/// Write `tile` into `cache_dir/<tile.id>/` with default provenance. See `write_tile_with`.
 pub fn write_tile(cache_dir: &Path, tile: &Tile) -> Result<()> {
     write_tile_with(cache_dir, tile, &Provenance::default())
 }

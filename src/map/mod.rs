@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 pub mod cache;
 pub mod geotiff;
-pub mod import;
+pub(crate) mod import;
 
 /// A coordinate reference system of map data.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -93,7 +93,7 @@ impl GeoGrid {
     }
 
     /// Whether (x, y) is at least `margin` metres inside the grid.
-    pub fn contains(&self, x: f64, y: f64, margin: f64) -> bool {
+    pub(crate) fn contains(&self, x: f64, y: f64, margin: f64) -> bool {
         let (a, b, c, d) = self.bounds();
         x >= a + margin && x <= c - margin && y >= b + margin && y <= d - margin
     }
@@ -132,7 +132,7 @@ impl<T: Copy> Raster<T> {
 
     /// Sample at (col, row), `None` outside.
     #[inline]
-    pub fn get(&self, col: usize, row: usize) -> Option<T> {
+    pub(crate) fn get(&self, col: usize, row: usize) -> Option<T> {
         (col < self.grid.width && row < self.grid.height)
             .then(|| self.data[row * self.grid.width + col])
     }
@@ -181,7 +181,7 @@ pub struct GroundPoint {
 /// no-data value, are skipped. Order is deterministic: row-major from the north-west (rows north →
 /// south, columns west → east), i.e. the raster order. A tile whose reflectivity and height grids
 /// differ yields no points ([`cache::write_tile`] and [`cache::load_tile`] refuse such tiles).
-pub fn ground_points(tile: &Tile, center_xy: (f64, f64), radius_m: f64) -> Vec<GroundPoint> {
+pub(crate) fn ground_points(tile: &Tile, center_xy: (f64, f64), radius_m: f64) -> Vec<GroundPoint> {
     let refl = &tile.reflectivity;
     let hgt = &tile.height;
     let g = refl.grid;

@@ -20,7 +20,7 @@ use super::world::{Material, Surface, World};
 
 /// Per-band texture fields.
 #[derive(Debug, Clone)]
-pub struct Appearance {
+pub(crate) struct Appearance {
     // LiDAR.
     l_agg: Field,
     l_grass: Field,
@@ -50,7 +50,7 @@ const LIDAR_CONCRETE: f64 = 62.0;
 
 impl Appearance {
     /// Fields for a world seed.
-    pub fn new(seed: u64) -> Self {
+    pub(crate) fn new(seed: u64) -> Self {
         let f = |k: u64, s: f64| Field::new(seed ^ (0xA000 + k), s);
         Appearance {
             l_agg: f(1, 0.4),
@@ -71,7 +71,7 @@ impl Appearance {
 
     /// Noise-free LiDAR reflectivity (0..255) of the ground at (x, y) before speckle; the mapping
     /// drive's slow gain variation is included.
-    pub fn lidar(&self, s: &Surface, x: f64, y: f64) -> f64 {
+    pub(crate) fn lidar(&self, s: &Surface, x: f64, y: f64) -> f64 {
         let asphalt = LIDAR_ASPHALT + 4.0 * self.l_agg.at(x, y);
         let v = match s.mat {
             Material::Asphalt => asphalt,
@@ -94,7 +94,7 @@ impl Appearance {
 
     /// Visible-band albedo (0..1) seen by the fisheye camera, including camera-only effects
     /// (tyre marks, oil drips, wet gutters, dirt on paint).
-    pub fn visible(&self, w: &World, s: &Surface, x: f64, y: f64) -> f64 {
+    pub(crate) fn visible(&self, w: &World, s: &Surface, x: f64, y: f64) -> f64 {
         let stain = self.v_stain.fbm(x, y, 2);
         // Stains (metres), texture (decimetres) and aggregate grain (about a centimetre).
         let asphalt =
@@ -153,7 +153,7 @@ impl Appearance {
     }
 
     /// Satellite RGB albedo (linear, 0..1): its own colours and its own paint wear.
-    pub fn satellite(&self, s: &Surface, x: f64, y: f64) -> [f64; 3] {
+    pub(crate) fn satellite(&self, s: &Surface, x: f64, y: f64) -> [f64; 3] {
         let tone = 1.0 + 0.12 * self.s_tone.fbm(x, y, 2);
         let asphalt = [0.21 * tone, 0.21 * tone, 0.225 * tone];
         // The image was taken at another time: paint was fresher or more worn, unevenly.

@@ -315,7 +315,7 @@ pub fn poses(cam: &Camera, board: &Board, n: usize, seed: u64) -> Vec<BoardPose>
 pub fn render(cam: &Camera, board: &Board, n: usize, seed: u64) -> Vec<BoardView> {
     let grid = RayGrid::new(cam);
     let (w, h) = (cam.width() as usize, cam.height() as usize);
-    let max_theta = cam.max_theta();
+    let cos_max_theta = cam.max_theta().cos();
     poses(cam, board, n, seed)
         .into_iter()
         .enumerate()
@@ -338,7 +338,7 @@ pub fn render(cam: &Camera, board: &Board, n: usize, seed: u64) -> Vec<BoardView
                 .iter()
                 .map(|x| {
                     let pc = pose.r * Vector3::new(x[0], x[1], x[2]) + pose.t;
-                    cam.project_visible_within(&pc, max_theta)
+                    cam.project_visible_cos(&pc, cos_max_theta)
                         .ok()
                         .map(|p| [p.x, p.y])
                 })

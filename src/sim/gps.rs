@@ -8,7 +8,7 @@ use std::fmt::Write as _;
 
 /// Error model of the receiver.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct GpsModel {
+pub(crate) struct GpsModel {
     /// σ of the constant per-axis bias (multipath, atmosphere), metres.
     pub bias_sigma: f64,
     /// σ of the per-axis time-correlated noise, metres.
@@ -27,7 +27,7 @@ pub struct GpsModel {
 
 /// One epoch of the receiver's output.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Fix {
+pub(crate) struct Fix {
     /// Seconds after the log's start.
     pub secs: u32,
     /// Latitude, degrees.
@@ -70,7 +70,7 @@ fn std_normal(rng: &mut ChaCha8Rng) -> f64 {
 /// Receiver track around the true map position `truth` (x, y, z): bias + Gauss–Markov noise per
 /// axis. `to_wgs84` converts map (x, y) to (lat, lon); `geoid_sep` is N (ellipsoid − geoid), so
 /// the map height `z` (orthometric) is reported as altitude MSL.
-pub fn track(
+pub(crate) fn track(
     rng: &mut ChaCha8Rng,
     truth: [f64; 3],
     m: &GpsModel,
@@ -133,7 +133,7 @@ pub fn track(
 }
 
 /// XOR checksum of the characters between `$` and `*`.
-pub fn checksum(body: &str) -> u8 {
+pub(crate) fn checksum(body: &str) -> u8 {
     body.bytes().fold(0, |a, b| a ^ b)
 }
 

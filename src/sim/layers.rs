@@ -26,7 +26,7 @@ const HOLE_SHADOW: f64 = 1.3;
 
 /// LiDAR layers on a shared grid.
 #[derive(Debug, Clone)]
-pub struct Lidar {
+pub(crate) struct Lidar {
     /// Reflectivity 0..255, nodata 0.
     pub reflectivity: Raster<u8>,
     /// Height, metres; NaN = no data.
@@ -70,7 +70,7 @@ fn in_hole(w: &World, x: f64, y: f64) -> bool {
 
 /// Build the LiDAR layers on `grid` (map CRS); `origin` is the map position of the world's
 /// local (0, 0); `height_sigma` the height noise σ in metres.
-pub fn lidar(
+pub(crate) fn lidar(
     w: &World,
     look: &Appearance,
     grid: &GeoGrid,
@@ -122,7 +122,7 @@ pub fn lidar(
 
 /// Satellite acquisition settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SatelliteShot {
+pub(crate) struct SatelliteShot {
     /// Sun of the acquisition.
     pub light: Light,
     /// Unit viewing direction (from the satellite down to the ground): off-nadir lean of tall
@@ -137,7 +137,7 @@ pub struct SatelliteShot {
 }
 
 /// Render the satellite orthophoto on `grid`. `parked` are the cars present that day.
-pub fn satellite(
+pub(crate) fn satellite(
     w: &World,
     look: &Appearance,
     grid: &GeoGrid,

@@ -8,13 +8,13 @@
 
 pub(crate) mod appearance;
 pub mod checkerboard;
-pub mod gps;
-pub mod layers;
-pub mod noise;
-pub mod render;
+pub(crate) mod gps;
+pub(crate) mod layers;
+pub(crate) mod noise;
+pub(crate) mod render;
 pub(crate) mod solids;
 pub mod truth;
-pub mod world;
+pub(crate) mod world;
 
 use crate::camera::{Camera, CameraModel, Equidistant, Mei};
 use crate::error::{Error, Result};
@@ -256,7 +256,7 @@ const fn rms_uniform(a: f64, b: f64) -> f64 {
 }
 
 /// The 1σ `hard` states for its given intrinsics: the RMS of the errors [`perturbed_camera`] draws.
-pub const HARD_INTRINSICS_SIGMA: crate::camera::import::IntrinsicsSigma =
+pub(crate) const HARD_INTRINSICS_SIGMA: crate::camera::import::IntrinsicsSigma =
     crate::camera::import::IntrinsicsSigma {
         focal_rel: 0.002_291_3,
         principal_point_px: 1.527_5,

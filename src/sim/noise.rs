@@ -22,7 +22,7 @@ pub(crate) fn hash3(seed: u64, a: i64, b: i64) -> u64 {
 
 /// Uniform in [0, 1) from a hash.
 #[inline]
-pub fn unit(h: u64) -> f64 {
+pub(crate) fn unit(h: u64) -> f64 {
     (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
 }
 
@@ -36,7 +36,7 @@ pub(crate) fn gauss(h: u64) -> f64 {
 
 /// A deterministic 2-D noise field (value noise with quintic fade), values in about [−1, 1].
 #[derive(Debug, Clone, Copy)]
-pub struct Field {
+pub(crate) struct Field {
     seed: u64,
     /// Feature size, metres (lattice spacing).
     scale: f64,
@@ -44,7 +44,7 @@ pub struct Field {
 
 impl Field {
     /// A field with lattice spacing `scale` metres.
-    pub fn new(seed: u64, scale: f64) -> Self {
+    pub(crate) fn new(seed: u64, scale: f64) -> Self {
         Field { seed, scale }
     }
 
@@ -55,7 +55,7 @@ impl Field {
 
     /// Value at (x, y).
     #[inline]
-    pub fn at(&self, x: f64, y: f64) -> f64 {
+    pub(crate) fn at(&self, x: f64, y: f64) -> f64 {
         let (u, v) = (x / self.scale, y / self.scale);
         let (fi, fj) = (u.floor(), v.floor());
         let (i, j) = (fi as i64, fj as i64);

@@ -33,7 +33,7 @@ const CROWN_TRANSMIT: f64 = 0.22;
 
 /// Sun and sky of one sensor's acquisition.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Light {
+pub(crate) struct Light {
     /// Unit vector towards the sun (map frame).
     pub sun: Vector3<f64>,
     /// Direct irradiance on a surface facing the sun (0 = overcast).
@@ -210,7 +210,7 @@ pub(crate) struct StaticPass {
 
 /// Everything the fisheye sees of the scene.
 #[derive(Debug, Clone, Copy)]
-pub struct View<'a> {
+pub(crate) struct View<'a> {
     /// World.
     pub world: &'a World,
     /// Appearance fields.

@@ -95,7 +95,7 @@ pub(crate) struct Hit {
 
 impl Solid {
     /// A solid; the bounding sphere is computed here.
-    pub fn new(
+    pub(crate) fn new(
         shape: Shape,
         kind: Kind,
         gray: (f64, f64),

@@ -62,7 +62,7 @@ pub(crate) const DETAIL_MAX: f64 = 0.45;
 
 /// Ground material.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Material {
+pub(crate) enum Material {
     /// Weathered asphalt.
     Asphalt,
     /// Newer asphalt patch (visibly darker, about the same to the LiDAR).
@@ -87,7 +87,7 @@ pub enum Material {
 
 /// What a point of the ground is.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Surface {
+pub(crate) struct Surface {
     /// Material.
     pub mat: Material,
     /// Paint wear 0 (fresh) … 1 (gone); for other materials a per-feature age in 0..1.
@@ -195,13 +195,13 @@ pub struct Approach {
 impl Approach {
     /// (s, l) of a local point.
     #[inline]
-    pub fn local(&self, x: f64, y: f64) -> (f64, f64) {
+    pub(crate) fn local(&self, x: f64, y: f64) -> (f64, f64) {
         (x * self.u[0] + y * self.u[1], x * self.n[0] + y * self.n[1])
     }
 
     /// Local point of (s, l).
     #[inline]
-    pub fn point(&self, s: f64, l: f64) -> (f64, f64) {
+    pub(crate) fn point(&self, s: f64, l: f64) -> (f64, f64) {
         (s * self.u[0] + l * self.n[0], s * self.u[1] + l * self.n[1])
     }
 
@@ -281,7 +281,7 @@ pub struct Footprint {
 impl Footprint {
     /// Whether (x, y) lies within the footprint grown by `margin` (and by `extra` on the side
     /// away from `away_from`, the LiDAR's viewpoint: its occlusion shadow).
-    pub fn contains(&self, x: f64, y: f64, margin: f64) -> bool {
+    pub(crate) fn contains(&self, x: f64, y: f64, margin: f64) -> bool {
         let (s, c) = self.yaw.sin_cos();
         let (dx, dy) = (x - self.x, y - self.y);
         let a = c * dx + s * dy;
@@ -377,7 +377,7 @@ const CAR_COLOURS: [(f64, [f64; 3]); 8] = [
 ];
 
 /// Solids of a car (body + cabin) or a box truck at (x, y, ground z) heading `yaw`.
-pub fn vehicle(rng: &mut impl RngCore, x: f64, y: f64, z: f64, yaw: f64) -> Vec<Solid> {
+pub(crate) fn vehicle(rng: &mut impl RngCore, x: f64, y: f64, z: f64, yaw: f64) -> Vec<Solid> {
     let (gray, rgb) = CAR_COLOURS[rng.random_range(0..CAR_COLOURS.len())];
     let tex = rng.next_u64();
     if rng.random_bool(0.12) {
@@ -459,7 +459,7 @@ pub(crate) fn pedestrian(rng: &mut impl RngCore, x: f64, y: f64, z: f64) -> Soli
 
 impl World {
     /// Generate the world for a seed.
-    pub fn generate(seed: u64) -> World {
+    pub(crate) fn generate(seed: u64) -> World {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let k = match rng.random_range(0..10) {
             0 => 2,
@@ -908,14 +908,14 @@ impl World {
 
     /// Height of the sloped base plane.
     #[inline]
-    pub fn base(&self, x: f64, y: f64) -> f64 {
+    pub(crate) fn base(&self, x: f64, y: f64) -> f64 {
         self.z0 + self.grad[0] * x + self.grad[1] * y
     }
 
     /// Ground height at (x, y): base plane + crown / curb / sidewalk rise + roughness. Always
     /// within [`DETAIL_MIN`, `DETAIL_MAX`] of [`World::base`].
     #[inline]
-    pub fn height(&self, x: f64, y: f64) -> f64 {
+    pub(crate) fn height(&self, x: f64, y: f64) -> f64 {
         let (d, _) = self.curb_distance(x, y);
         self.base(x, y) + self.detail(x, y, d)
     }
@@ -941,7 +941,7 @@ impl World {
     }
 
     /// Material and paint at (x, y).
-    pub fn surface(&self, x: f64, y: f64) -> Surface {
+    pub(crate) fn surface(&self, x: f64, y: f64) -> Surface {
         let (d, corner) = self.curb_distance(x, y);
         let mk = |mat, wear| Surface {
             mat,
