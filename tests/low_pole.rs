@@ -54,7 +54,9 @@ fn a_low_pole_localizes_from_a_coarser_fine_iteration() {
         .iter()
         .find(|s| s["name"] == "pnp")
         .expect("a pnp stage");
+    // It is the last resort, and the report says so.
     assert!(pnp["detail"]["matches"].as_u64().unwrap() >= 12, "{pnp}");
+    assert_eq!(pnp["detail"]["partial_fine_stage"], true, "{pnp}");
     // The answer: accepted and within the node's 10 cm / 0.2° of the truth.
     let pose: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("pose.json")).unwrap()).unwrap();

@@ -279,6 +279,9 @@ pub struct InitResult {
     /// With a verifier: the pose's bias-corrected MI with the LiDAR map (nats), and the runner-up
     /// hypothesis' (another PnP pose or, if none, the best screened sweep candidate not tried).
     pub mi: Option<(f64, Option<f64>)>,
+    /// The pose is the initializer's last resort: the PnP pose of a fine stage that stopped at a
+    /// finer iteration ([`FineOutcome::partial`]).
+    pub partial_fine_stage: bool,
 }
 
 impl InitResult {
@@ -293,6 +296,7 @@ impl InitResult {
             candidates_tried: 0,
             candidate_rank: rank,
             mi: mi.map(|m| (m, None)),
+            partial_fine_stage: f.partial,
         }
     }
 }
@@ -308,6 +312,8 @@ pub struct FineOutcome {
     pub inliers: usize,
     /// Its reprojection RMS, px.
     pub rms_px: f64,
+    /// A later, finer iteration failed: this is the last iteration that gave a PnP pose.
+    pub partial: bool,
 }
 
 /// Fine stage of one sweep candidate (offset relative to `prior_xy`): the iterations of local
@@ -367,12 +373,13 @@ fn fine_stage_partial<R: rand::Rng>(
                     matches: corr.len(),
                     inliers: r.inliers.len(),
                     rms_px: r.rms_px,
+                    partial: false,
                 });
             }
             Err(e) => {
                 return (
                     Err(format!("{e} ({} patch matches)", corr.len())),
-                    outcome.ok(),
+                    outcome.ok().map(|f| FineOutcome { partial: true, ..f }),
                 )
             }
         }
@@ -673,6 +680,7 @@ fn sweep_result(cand: &Candidate, rank: usize, s: &super::verify::Verdict) -> In
         candidates_tried: 0,
         candidate_rank: rank,
         mi: Some((s.mi, None)),
+        partial_fine_stage: false,
     }
 }
 

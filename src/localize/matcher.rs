@@ -243,6 +243,7 @@ pub(crate) fn initialize_with<R: rand::Rng>(
         candidates_tried: 1,
         candidate_rank: 0,
         mi,
+        partial_fine_stage: false,
     })
 }
 

@@ -148,6 +148,10 @@ pub struct PnpDetail {
     pub mi_runner_up: Option<f64>,
     /// The coarse candidate the pose grew from.
     pub coarse: CoarseDetail,
+    /// Present (`true`) only when the pose is the initializer's last resort: no candidate's fine
+    /// stage got through all its iterations, and this is the PnP pose of a coarser one.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub partial_fine_stage: bool,
 }
 
 impl PriorDetail {
@@ -180,6 +184,7 @@ impl PnpDetail {
                 offset_m: init.candidate.offset,
                 score: init.candidate.score,
             },
+            partial_fine_stage: init.partial_fine_stage,
         }
     }
 }
