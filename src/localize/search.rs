@@ -815,7 +815,7 @@ fn prepare_view(
     }
     let raw = PreparedPoints::new(points, origin, &identity);
     let keep = if cfg.fixed_point_set {
-        let eroded = erode(mask, w, h, cfg.visibility_margin_px);
+        let (eroded, dist) = erode_with_distance(mask, w, h, cfg.visibility_margin_px);
         let img_e = BinnedImage::new(w, h, gray, &eroded, &lut_gray, invalid);
         // A point is kept when every pose of the 3^d lattice sees it. Blocks of points in
         // parallel, each tested against all the poses at once (`visible_from_all`): the flags do
@@ -843,7 +843,7 @@ fn prepare_view(
                 })
             })
             .collect();
-        let sure = surely_visible(cam, &raw, origin, &center, &extremes, &eroded, w, h);
+        let sure = surely_visible(cam, &raw, origin, &center, &extremes, &dist, w);
         let unsure: Vec<bool> = sure.iter().map(|s| !s).collect();
         let rest = raw.select(&unsure);
         const BLOCK: usize = 2048;
@@ -929,47 +929,24 @@ fn blur3(gray: &[u8], mask: &[u8], w: usize, h: usize) -> Vec<u8> {
     out
 }
 
-/// Erode a validity mask by `r` pixels (square window), so a pixel stays valid only if every pixel
-/// within `r` is.
-fn erode(mask: &[u8], w: usize, h: usize, r: usize) -> Vec<u8> {
-    if r == 0 {
-        return mask.to_vec();
-    }
-    // Both passes row-parallel: each output row reads only the previous pass.
-    let mut tmp = vec![0u8; w * h];
-    tmp.par_chunks_mut(w.max(1))
-        .enumerate()
-        .for_each(|(v, row)| {
-            for (u, t) in row.iter_mut().enumerate() {
-                let lo = u.saturating_sub(r);
-                let hi = (u + r).min(w - 1);
-                *t = if (lo..=hi).all(|x| mask[v * w + x] != 0) && u >= r && u + r < w {
-                    255
-                } else {
-                    0
-                };
-            }
-        });
-    let mut out = vec![0u8; w * h];
-    out.par_chunks_mut(w.max(1))
-        .enumerate()
-        .for_each(|(v, row)| {
-            let lo = v.saturating_sub(r);
-            let hi = (v + r).min(h - 1);
-            for (u, o) in row.iter_mut().enumerate() {
-                *o = if (lo..=hi).all(|y| tmp[y * w + u] != 0) && v >= r && v + r < h {
-                    255
-                } else {
-                    0
-                };
-            }
-        });
-    out
+/// Erode a validity mask by `r` pixels (square window: a pixel stays valid only if every pixel
+/// within `r`, and the image, reaches that far), and give the eroded mask's chessboard distance
+/// map ([`chessboard_distance`]) with it. One distance transform gives both: a pixel survives the
+/// erosion exactly when its distance exceeds `r`, and its distance in the eroded mask is `r` less.
+fn erode_with_distance(mask: &[u8], w: usize, h: usize, r: usize) -> (Vec<u8>, Vec<u16>) {
+    let r = r.min(u16::MAX as usize) as u16;
+    let dist: Vec<u16> = chessboard_distance(mask, w, h)
+        .into_iter()
+        .map(|d| d.saturating_sub(r))
+        .collect();
+    let eroded = dist.iter().map(|&d| if d > 0 { 255 } else { 0 }).collect();
+    (eroded, dist)
 }
 
-/// Points that every pose of a box certainly sees on a valid pixel of `mask`: a point whose
-/// pixel at the box's `center` pose lies farther from any invalid pixel (chessboard distance, a
-/// lower bound of the Euclidean one) than its pixel moves over the box. The move is taken as the
+/// Points that every pose of a box certainly sees on a valid pixel of a mask whose chessboard
+/// distance map (`w` wide) is `dist`: a point whose pixel at the box's `center` pose lies farther
+/// from any invalid pixel (chessboard distance, a lower bound of the Euclidean one) than its pixel
+/// moves over the box. The move is taken as the
 /// sum over the axes of the farther of its two axis `extremes`' moves, exact for a map linear in
 /// the offsets; ×1.5 and 4 px more cover the projection's curvature over a box, f32 against f64
 /// and nearest-pixel rounding. That margin is measured, not proven: the worst lattice move found
@@ -983,11 +960,10 @@ fn surely_visible(
     origin: [f64; 3],
     center: &CamFromMap,
     extremes: &[CamFromMap],
-    mask: &[u8],
+    dist: &[u16],
     w: usize,
-    h: usize,
 ) -> Vec<bool> {
-    let dist = chessboard_distance(mask, w, h);
+    let h = dist.len() / w.max(1);
     // The kernel drops rays beyond the field of view whatever the mask says; so must this.
     let cos_max_theta = cam.max_theta().cos();
     let mut out = vec![false; pts.len()];
@@ -1401,6 +1377,36 @@ mod tests {
         c + d * ((ground_z - c.z) / d.z)
     }
 
+    /// The erosion from the distance map is the square-window erosion, image edges included,
+    /// and the eroded mask's own distance map is the one returned.
+    #[test]
+    fn erosion_by_distance_is_the_square_window_erosion() {
+        let (w, h) = (37, 23);
+        let mask: Vec<u8> = (0..w * h)
+            .map(|i| {
+                let (u, v) = ((i % w) as i64, (i / w) as i64);
+                let hole = (u - 20).pow(2) + (v - 9).pow(2) < 10 || (u * 7 + v * 13) % 41 == 0;
+                if hole {
+                    0
+                } else {
+                    255
+                }
+            })
+            .collect();
+        for r in 0..4usize {
+            let (eroded, dist) = erode_with_distance(&mask, w, h, r);
+            for v in 0..h {
+                for u in 0..w {
+                    let inside = u >= r && v >= r && u + r < w && v + r < h;
+                    let window = inside
+                        && (v - r..=v + r).all(|y| (u - r..=u + r).all(|x| mask[y * w + x] != 0));
+                    assert_eq!(eroded[v * w + u] != 0, window, "r {r} at ({u}, {v})");
+                }
+            }
+            assert_eq!(dist, chessboard_distance(&eroded, w, h), "r {r}");
+        }
+    }
+
     /// `surely_visible` may only leave points to the lattice test, never keep one that some pose
     /// of the box loses: checked pose by pose with the kernel's own visibility, on a 185° Mei
     /// camera for a small 6-DoF box and a wide 4-DoF one.
@@ -1424,7 +1430,7 @@ mod tests {
             fov_deg: Some(185.0),
         });
         let (w, h) = (cam.width() as usize, cam.height() as usize);
-        let mask = erode(&cam.valid_mask(), w, h, 3);
+        let (mask, dist) = erode_with_distance(&cam.valid_mask(), w, h, 3);
         let gray: Vec<u8> = (0..w * h).map(|i| (i * 31 % 251) as u8).collect();
         let lut = bin_lut(super::super::mi::Binning::Uniform, 32, &[0; 256]);
         let img = BinnedImage::new(w, h, &gray, &mask, &lut, 32);
@@ -1474,7 +1480,7 @@ mod tests {
                     })
                 })
                 .collect();
-            let sure = surely_visible(&cam, &pts, origin, &at([0.0; 6]), &extremes, &mask, w, h);
+            let sure = surely_visible(&cam, &pts, origin, &at([0.0; 6]), &extremes, &dist, w);
             let mut seen = vec![true; pts.len()];
             let mut one = vec![false; pts.len()];
             for o in &lattice {
