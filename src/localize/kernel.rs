@@ -248,24 +248,43 @@ impl GrayLevel {
     }
 }
 
-/// Fast Mei projection of one chunk into pixel indices (sentinel when not visible).
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn project_chunk_mei(
-    xs: &[f32],
-    ys: &[f32],
-    zs: &[f32],
-    p: &PoseF32,
+/// The constants of a [`FastCamera::Mei`], as the projection loops take them.
+#[derive(Debug, Clone, Copy)]
+struct MeiConsts {
     k: [f32; 5],
     xi: f32,
     d: [f32; 4],
     zmin: f32,
     r2max: f32,
+}
+
+/// Where a chunk's projections land: the image's size and its sentinel index.
+#[derive(Debug, Clone, Copy)]
+struct Raster {
     w: usize,
     h: usize,
     sentinel: u32,
+}
+
+/// Fast Mei projection of one chunk into pixel indices (sentinel when not visible).
+#[inline(always)]
+fn project_chunk_mei(
+    xs: &[f32],
+    ys: &[f32],
+    zs: &[f32],
+    p: &PoseF32,
+    m: MeiConsts,
+    t: Raster,
     out: &mut [u32],
 ) {
+    let MeiConsts {
+        k,
+        xi,
+        d,
+        zmin,
+        r2max,
+    } = m;
+    let Raster { w, h, sentinel } = t;
     let r = p.r;
     let (wf, hf) = (w.min(MAX_SIDE) as f32, h.min(MAX_SIDE) as f32);
     for i in 0..out.len().min(xs.len()).min(ys.len()).min(zs.len()) {
@@ -305,22 +324,23 @@ fn project_chunk_mei(
 /// the scalar loop.
 #[cfg(target_arch = "aarch64")]
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn project_chunk_mei_neon(
     xs: &[f32],
     ys: &[f32],
     zs: &[f32],
     p: &PoseF32,
-    k: [f32; 5],
-    xi: f32,
-    d: [f32; 4],
-    zmin: f32,
-    r2max: f32,
-    w: usize,
-    h: usize,
-    sentinel: u32,
+    m: MeiConsts,
+    t: Raster,
     out: &mut [u32],
 ) {
+    let MeiConsts {
+        k,
+        xi,
+        d,
+        zmin,
+        r2max,
+    } = m;
+    let Raster { w, h, sentinel } = t;
     use core::arch::aarch64::*;
     let n_all = out.len().min(xs.len()).min(ys.len()).min(zs.len());
     let body = n_all - n_all % 4;
@@ -457,14 +477,8 @@ fn project_chunk_mei_neon(
         &ys[body..n_all],
         &zs[body..n_all],
         p,
-        k,
-        xi,
-        d,
-        zmin,
-        r2max,
-        w,
-        h,
-        sentinel,
+        m,
+        t,
         &mut out[body..n_all],
     );
 }
@@ -565,16 +579,24 @@ fn project_chunk<const NEON: bool>(
             zmin,
             r2max,
         } => {
+            let m = MeiConsts {
+                k,
+                xi,
+                d,
+                zmin,
+                r2max,
+            };
+            let t = Raster {
+                w: img.width,
+                h: img.height,
+                sentinel: s,
+            };
             #[cfg(target_arch = "aarch64")]
             if NEON {
-                project_chunk_mei_neon(
-                    xs, ys, zs, pose, k, xi, d, zmin, r2max, img.width, img.height, s, out,
-                );
+                project_chunk_mei_neon(xs, ys, zs, pose, m, t, out);
                 return;
             }
-            project_chunk_mei(
-                xs, ys, zs, pose, k, xi, d, zmin, r2max, img.width, img.height, s, out,
-            )
+            project_chunk_mei(xs, ys, zs, pose, m, t, out)
         }
         FastCamera::Equidistant { k, d, theta_max } => project_chunk_equidistant(
             xs, ys, zs, pose, k, d, theta_max, img.width, img.height, s, out,
