@@ -27,6 +27,7 @@ fn main() {
         difficulty: Difficulty::Hard,
         lens: Lens::Mei,
         frames: 5,
+        intrinsics: Default::default(),
     })
     .unwrap();
     let tmp = tempfile::tempdir().unwrap();

@@ -88,6 +88,7 @@ fn main() {
             difficulty,
             lens: Lens::Mei,
             frames,
+            intrinsics: Default::default(),
         };
         match run_seed(&settings, true_intrinsics) {
             Ok(r) => {

@@ -18,6 +18,9 @@
 //! comparisons on the same seeds; `--no-verify` turns off the LiDAR-MI verification of the
 //! initializer's hypotheses (the satellite-only initializer before it). The JSON (per-seed records and the summary) is rewritten after
 //! every seed, so an interrupted run keeps what it measured.
+//!
+//! `--calibrated-intrinsics` generates the scenes with `simulate --given-intrinsics calibrated`:
+//! camera.yaml from the product's calibrator on rendered board views instead of a drawn offset.
 
 use infraloc::camera::import::{parse_camera, to_opencv_yaml};
 use infraloc::config::{Config, GpsSourceKind};
@@ -26,7 +29,7 @@ use infraloc::localize::init::SearchArea;
 use infraloc::localize::pipeline::{self, Params, PnpDetail, PriorDetail, StageDetail};
 use infraloc::localize::truth_eval;
 use infraloc::pose::CamFromMap;
-use infraloc::sim::{self, Difficulty, Lens, Preset, Settings};
+use infraloc::sim::{self, Difficulty, GivenIntrinsics, Lens, Preset, Settings};
 use infraloc::stage::StageName;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
@@ -52,6 +55,7 @@ struct Opts {
     init_only: bool,
     mi_off_nadir: Option<f64>,
     true_intrinsics: bool,
+    calibrated_intrinsics: bool,
     search_rounds: Option<usize>,
     fine_off_nadir: Option<f64>,
 }
@@ -60,7 +64,7 @@ fn usage() -> ! {
     eprintln!(
         "usage: pipeline_accuracy [--preset small|5mp] [--difficulty hard|easy] --seeds A..B|A,B,C \
          [--frames N] [--json OUT] [--threads N] [--top-k N] [--no-early-stop] [--no-verify] [--init-only]\n  \
-         [--mi-off-nadir DEG] [--true-intrinsics] [--search-rounds N] [--fine-off-nadir DEG]\n  \
+         [--mi-off-nadir DEG] [--true-intrinsics] [--calibrated-intrinsics] [--search-rounds N] [--fine-off-nadir DEG]\n  \
          A..B is inclusive: 1..100 is 100 seeds"
     );
     std::process::exit(2)
@@ -88,6 +92,7 @@ fn opts() -> Opts {
         init_only: false,
         mi_off_nadir: None,
         true_intrinsics: false,
+        calibrated_intrinsics: false,
         search_rounds: None,
         fine_off_nadir: None,
     };
@@ -118,6 +123,7 @@ fn opts() -> Opts {
             "--no-verify" => o.no_verify = true,
             "--init-only" => o.init_only = true,
             "--true-intrinsics" => o.true_intrinsics = true,
+            "--calibrated-intrinsics" => o.calibrated_intrinsics = true,
             "--fine-off-nadir" => {
                 o.fine_off_nadir = Some(val().parse().unwrap_or_else(|_| usage()))
             }
@@ -140,6 +146,11 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
         difficulty: o.difficulty,
         lens: Lens::Mei,
         frames: o.frames,
+        intrinsics: if o.calibrated_intrinsics {
+            GivenIntrinsics::Calibrated
+        } else {
+            GivenIntrinsics::Offset
+        },
     };
     let t0 = Instant::now();
     let scene = sim::generate(&settings)?;

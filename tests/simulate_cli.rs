@@ -80,3 +80,39 @@ fn two_runs_give_identical_bytes_and_the_directory_loads() {
     assert_eq!(tile.reflectivity.grid.width, 1200);
     assert_eq!(truth["crs"], "EPSG:32617");
 }
+
+/// `--given-intrinsics calibrated`: camera.yaml comes from the calibrator (a camera that loads,
+/// differs from the offset scene's, states a σ); nothing else of the scene changes but the
+/// intrinsics' record in truth.json.
+#[test]
+fn calibrated_intrinsics_change_only_the_camera_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (off, cal) = (tmp.path().join("off"), tmp.path().join("cal"));
+    simulate(&off, &[]);
+    simulate(&cal, &["--given-intrinsics", "calibrated"]);
+    let (a, b) = (files(&off), files(&cal));
+    assert_eq!(
+        a.keys().collect::<Vec<_>>(),
+        b.keys().collect::<Vec<_>>(),
+        "the same files"
+    );
+    let differ: Vec<&PathBuf> = a.keys().filter(|k| a[*k] != b[*k]).collect();
+    assert_eq!(
+        differ,
+        [Path::new("camera.yaml"), Path::new("truth.json")],
+        "only the intrinsics differ"
+    );
+    let cam = load_camera(&cal.join("camera.yaml")).unwrap();
+    assert_ne!(cam, load_camera(&off.join("camera.yaml")).unwrap());
+    let text = std::fs::read_to_string(cal.join("camera.yaml")).unwrap();
+    assert!(
+        text.contains("sigma_focal_rel") && text.contains("sigma_principal_point_px"),
+        "no stated σ: {text}"
+    );
+    let truth: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(cal.join("truth.json")).unwrap()).unwrap();
+    assert_eq!(truth["settings"]["intrinsics"], "calibrated");
+    let truth_off: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(off.join("truth.json")).unwrap()).unwrap();
+    assert!(truth_off["settings"].get("intrinsics").is_none());
+}

@@ -4,7 +4,7 @@
 use crate::config::{Config, GpsSourceKind};
 use crate::error::{Error, Result};
 use crate::map::cache::{write_tile_with, Provenance};
-use crate::sim::{self, Difficulty, Lens, Preset, Scene, Settings};
+use crate::sim::{self, Difficulty, GivenIntrinsics, Lens, Preset, Scene, Settings};
 use std::fs;
 use std::path::{Path, PathBuf};
 
@@ -36,6 +36,15 @@ pub enum LensArg {
     Equidistant,
 }
 
+/// Where the given intrinsics come from.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum IntrinsicsArg {
+    /// `easy`: the true ones; `hard`: the true ones with a drawn focal and principal-point offset.
+    Offset,
+    /// `infraloc calibrate`'s own result on rendered checkerboard views of the true camera.
+    Calibrated,
+}
+
 /// Arguments of `simulate`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -57,6 +66,11 @@ pub struct Args {
     /// Number of fisheye frames.
     #[arg(long, default_value_t = 5)]
     pub frames: u32,
+    /// Where camera.yaml's intrinsics come from: a drawn offset from the true ones, or the
+    /// product's calibrator run on 16 rendered checkerboard views (docs/calibrate.md), which
+    /// leaves the error a real install has.
+    #[arg(long, value_enum, default_value = "offset")]
+    pub given_intrinsics: IntrinsicsArg,
     /// Also write a side-by-side PNG (satellite | reflectivity | height | fisheye) here.
     #[arg(long)]
     pub montage: Option<PathBuf>,
@@ -103,6 +117,10 @@ impl Args {
                 LensArg::Equidistant => Lens::Equidistant,
             },
             frames: self.frames,
+            intrinsics: match self.given_intrinsics {
+                IntrinsicsArg::Offset => GivenIntrinsics::Offset,
+                IntrinsicsArg::Calibrated => GivenIntrinsics::Calibrated,
+            },
         }
     }
 }

@@ -7,6 +7,7 @@
 //! See `docs/simulator.md`.
 
 pub(crate) mod appearance;
+pub(crate) mod calibrated;
 pub mod checkerboard;
 pub(crate) mod gps;
 pub(crate) mod layers;
@@ -92,6 +93,25 @@ pub enum Lens {
     Equidistant,
 }
 
+/// Where a scene's given intrinsics (camera.yaml) come from.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum GivenIntrinsics {
+    /// `easy`: the true ones; `hard`: the true ones with a drawn focal and principal-point
+    /// offset, stating the spread they are drawn from.
+    #[default]
+    Offset,
+    /// The product's own calibrator run on rendered checkerboard views of the true camera
+    /// (`calibrated::calibrated_camera`), stating the fit's σ: the error a real install has.
+    Calibrated,
+}
+
+impl GivenIntrinsics {
+    fn is_offset(&self) -> bool {
+        *self == GivenIntrinsics::Offset
+    }
+}
+
 /// Generator settings.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -106,6 +126,10 @@ pub struct Settings {
     pub lens: Lens,
     /// Number of frames.
     pub frames: u32,
+    /// Where the given intrinsics come from (absent from truth.json when [`GivenIntrinsics::Offset`],
+    /// so scenes made before the choice existed read the same).
+    #[serde(default, skip_serializing_if = "GivenIntrinsics::is_offset")]
+    pub intrinsics: GivenIntrinsics,
 }
 
 /// A control point with its true image position.
@@ -409,6 +433,17 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
     } else {
         camera_true.clone()
     };
+    // The calibrated choice replaces the intrinsics after the offset's draws, so the rest of the
+    // scene (pose, world, frames) is the same as with the offset: only the intrinsics differ.
+    let (camera_given, camera_sigma) = match settings.intrinsics {
+        GivenIntrinsics::Offset => (camera_given, hard.then_some(HARD_INTRINSICS_SIGMA)),
+        GivenIntrinsics::Calibrated => {
+            let (c, sigma, _rms) =
+                calibrated::calibrated_camera(&camera_true, mix64(settings.seed ^ 0xCA1B_0A2D))
+                    .map_err(|e| Error::Invalid(format!("simulate: given intrinsics: {e}")))?;
+            (c, Some(sigma))
+        }
+    };
     let r = 10.0 * rng.random::<f64>().sqrt();
     let phi = rng.random_range(0.0..TAU);
     let (cx, cy) = (r * phi.cos(), r * phi.sin());
@@ -615,7 +650,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         world,
         camera_true,
         camera_given,
-        camera_sigma: hard.then_some(HARD_INTRINSICS_SIGMA),
+        camera_sigma,
         pose,
         tile,
         frames,

@@ -14,6 +14,7 @@ fn scene() -> &'static Scene {
             difficulty: Difficulty::Hard,
             lens: Lens::Mei,
             frames: 2,
+            intrinsics: Default::default(),
         })
         .unwrap()
     })
@@ -221,4 +222,52 @@ fn hard_states_the_rms_of_the_intrinsics_errors_it_draws() {
         (s.principal_point_px - rms_uniform(c.0, c.1).sqrt()).abs() < 1e-3,
         "{s:?}"
     );
+}
+
+/// `Calibrated` changes only the given intrinsics (same pose, same frames), and they come out of
+/// the calibrator close to the true camera in what matters, the ray → pixel mapping (not the
+/// parameters: focal and ξ trade), with a stated σ.
+#[test]
+fn calibrated_intrinsics_map_like_the_true_camera_and_leave_the_scene_alone() {
+    let settings = Settings {
+        intrinsics: GivenIntrinsics::Calibrated,
+        ..scene().settings
+    };
+    let cal = generate(&settings).unwrap();
+    let off = scene();
+    assert_eq!(cal.frames, off.frames, "the frames differ");
+    assert_eq!(cal.pose, off.pose, "the pose differs");
+    assert_ne!(cal.camera_given, off.camera_given);
+    let sigma = cal.camera_sigma.expect("a calibration states its σ");
+    assert!(
+        sigma.focal_rel > 0.0 && sigma.principal_point_px > 0.0,
+        "{sigma:?}"
+    );
+    // Rays up to 80° from the axis (the boards reach the lens edge; the localizer's ground disc
+    // stays within 78°), every 2° and 10° of azimuth.
+    let mut errs = Vec::new();
+    for t in (0..=40).map(|k| (2.0 * k as f64).to_radians()) {
+        for a in (0..36).map(|k| (10.0 * k as f64).to_radians()) {
+            let ray = Vector3::new(t.sin() * a.cos(), t.sin() * a.sin(), t.cos());
+            let (Ok(p), Ok(q)) = (
+                cal.camera_true.project(&ray),
+                cal.camera_given.project(&ray),
+            ) else {
+                panic!("ray at {:.0}° not projected", t.to_degrees());
+            };
+            errs.push((p - q).norm());
+        }
+    }
+    let mean = errs.iter().sum::<f64>() / errs.len() as f64;
+    let max = errs.iter().fold(0.0f64, |m, &e| m.max(e));
+    assert!(
+        mean <= 0.15 && max <= 0.5,
+        "mapping mean {mean:.3} px, max {max:.3} px"
+    );
+    // The offset `hard` draws is far larger: the calibrated floor is a different regime.
+    let off_mean = {
+        let ray = Vector3::new(0.0, 0.0, 1.0);
+        (off.camera_true.project(&ray).unwrap() - off.camera_given.project(&ray).unwrap()).norm()
+    };
+    assert!(off_mean > 1.0, "offset at the axis {off_mean:.3} px");
 }
