@@ -19,8 +19,9 @@
 //! initializer's hypotheses (the satellite-only initializer before it). The JSON (per-seed records and the summary) is rewritten after
 //! every seed, so an interrupted run keeps what it measured.
 //!
-//! `--calibrated-intrinsics` generates the scenes with `simulate --given-intrinsics calibrated`:
-//! camera.yaml from the product's calibrator on rendered board views instead of a drawn offset.
+//! `--offset-intrinsics` generates `hard` scenes with `simulate --given-intrinsics offset` (a
+//! drawn intrinsics offset, what `hard` was before the calibrator) instead of the default
+//! calibrated intrinsics.
 
 use infraloc::camera::import::{parse_camera, to_opencv_yaml};
 use infraloc::config::{Config, GpsSourceKind};
@@ -55,7 +56,7 @@ struct Opts {
     init_only: bool,
     mi_off_nadir: Option<f64>,
     true_intrinsics: bool,
-    calibrated_intrinsics: bool,
+    offset_intrinsics: bool,
     search_rounds: Option<usize>,
     fine_off_nadir: Option<f64>,
 }
@@ -64,7 +65,7 @@ fn usage() -> ! {
     eprintln!(
         "usage: pipeline_accuracy [--preset small|5mp] [--difficulty hard|easy] --seeds A..B|A,B,C \
          [--frames N] [--json OUT] [--threads N] [--top-k N] [--no-early-stop] [--no-verify] [--init-only]\n  \
-         [--mi-off-nadir DEG] [--true-intrinsics] [--calibrated-intrinsics] [--search-rounds N] [--fine-off-nadir DEG]\n  \
+         [--mi-off-nadir DEG] [--true-intrinsics] [--offset-intrinsics] [--search-rounds N] [--fine-off-nadir DEG]\n  \
          A..B is inclusive: 1..100 is 100 seeds"
     );
     std::process::exit(2)
@@ -92,7 +93,7 @@ fn opts() -> Opts {
         init_only: false,
         mi_off_nadir: None,
         true_intrinsics: false,
-        calibrated_intrinsics: false,
+        offset_intrinsics: false,
         search_rounds: None,
         fine_off_nadir: None,
     };
@@ -123,7 +124,7 @@ fn opts() -> Opts {
             "--no-verify" => o.no_verify = true,
             "--init-only" => o.init_only = true,
             "--true-intrinsics" => o.true_intrinsics = true,
-            "--calibrated-intrinsics" => o.calibrated_intrinsics = true,
+            "--offset-intrinsics" => o.offset_intrinsics = true,
             "--fine-off-nadir" => {
                 o.fine_off_nadir = Some(val().parse().unwrap_or_else(|_| usage()))
             }
@@ -146,10 +147,10 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
         difficulty: o.difficulty,
         lens: Lens::Mei,
         frames: o.frames,
-        intrinsics: if o.calibrated_intrinsics {
-            GivenIntrinsics::Calibrated
-        } else {
+        intrinsics: if o.offset_intrinsics {
             GivenIntrinsics::Offset
+        } else {
+            GivenIntrinsics::Calibrated
         },
     };
     let t0 = Instant::now();

@@ -84,7 +84,7 @@ pub(super) fn run(a: Args) -> Result<()> {
         difficulty: a.difficulty,
         lens: LensArg::Mei,
         frames: 5,
-        given_intrinsics: super::simulate::IntrinsicsArg::Offset,
+        given_intrinsics: super::simulate::IntrinsicsArg::Calibrated,
         montage: None,
         board: Default::default(),
     };

@@ -36,13 +36,13 @@ pub enum LensArg {
     Equidistant,
 }
 
-/// Where the given intrinsics come from.
+/// How `hard`'s given intrinsics are made.
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 pub enum IntrinsicsArg {
-    /// `easy`: the true ones; `hard`: the true ones with a drawn focal and principal-point offset.
-    Offset,
     /// `infraloc calibrate`'s own result on rendered checkerboard views of the true camera.
     Calibrated,
+    /// The true ones with a drawn focal and principal-point offset.
+    Offset,
 }
 
 /// Arguments of `simulate`.
@@ -66,10 +66,10 @@ pub struct Args {
     /// Number of fisheye frames.
     #[arg(long, default_value_t = 5)]
     pub frames: u32,
-    /// Where camera.yaml's intrinsics come from: a drawn offset from the true ones, or the
-    /// product's calibrator run on 16 rendered checkerboard views (docs/calibrate.md), which
-    /// leaves the error a real install has.
-    #[arg(long, value_enum, default_value = "offset")]
+    /// How a `hard` scene's camera.yaml is made (`easy` gets the true intrinsics): the product's
+    /// calibrator run on 16 rendered checkerboard views of the true camera, which leaves the
+    /// error a real install has, or a drawn offset from the true ones (docs/simulator.md).
+    #[arg(long, value_enum, default_value = "calibrated")]
     pub given_intrinsics: IntrinsicsArg,
     /// Also write a side-by-side PNG (satellite | reflectivity | height | fisheye) here.
     #[arg(long)]

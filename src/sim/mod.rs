@@ -93,23 +93,22 @@ pub enum Lens {
     Equidistant,
 }
 
-/// Where a scene's given intrinsics (camera.yaml) come from.
+/// How a `hard` scene's given intrinsics (camera.yaml) are made; `easy` hands over the true ones.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum GivenIntrinsics {
-    /// `easy`: the true ones; `hard`: the true ones with a drawn focal and principal-point
-    /// offset, stating the spread they are drawn from.
-    #[default]
-    Offset,
     /// The product's own calibrator run on rendered checkerboard views of the true camera
     /// (`calibrated::calibrated_camera`), stating the fit's σ: the error a real install has.
+    #[default]
     Calibrated,
+    /// The true intrinsics with a drawn focal (±0.15–0.3 %) and principal-point (±1–2 px)
+    /// offset, stating the spread they are drawn from (`hard` before the calibrator existed).
+    Offset,
 }
 
-impl GivenIntrinsics {
-    fn is_offset(&self) -> bool {
-        *self == GivenIntrinsics::Offset
-    }
+/// What truth.json files written before [`Settings::intrinsics`] existed had.
+fn offset() -> GivenIntrinsics {
+    GivenIntrinsics::Offset
 }
 
 /// Generator settings.
@@ -126,9 +125,8 @@ pub struct Settings {
     pub lens: Lens,
     /// Number of frames.
     pub frames: u32,
-    /// Where the given intrinsics come from (absent from truth.json when [`GivenIntrinsics::Offset`],
-    /// so scenes made before the choice existed read the same).
-    #[serde(default, skip_serializing_if = "GivenIntrinsics::is_offset")]
+    /// How `hard`'s given intrinsics are made (ignored by `easy`).
+    #[serde(default = "offset")]
     pub intrinsics: GivenIntrinsics,
 }
 
@@ -436,7 +434,8 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
     // The calibrated choice replaces the intrinsics after the offset's draws, so the rest of the
     // scene (pose, world, frames) is the same as with the offset: only the intrinsics differ.
     let (camera_given, camera_sigma) = match settings.intrinsics {
-        GivenIntrinsics::Offset => (camera_given, hard.then_some(HARD_INTRINSICS_SIGMA)),
+        _ if !hard => (camera_given, None),
+        GivenIntrinsics::Offset => (camera_given, Some(HARD_INTRINSICS_SIGMA)),
         GivenIntrinsics::Calibrated => {
             let (c, sigma, _rms) =
                 calibrated::calibrated_camera(&camera_true, mix64(settings.seed ^ 0xCA1B_0A2D))

@@ -229,12 +229,17 @@ fn hard_states_the_rms_of_the_intrinsics_errors_it_draws() {
 /// parameters: focal and ξ trade), with a stated σ.
 #[test]
 fn calibrated_intrinsics_map_like_the_true_camera_and_leave_the_scene_alone() {
-    let settings = Settings {
-        intrinsics: GivenIntrinsics::Calibrated,
-        ..scene().settings
-    };
-    let cal = generate(&settings).unwrap();
-    let off = scene();
+    let cal = scene();
+    assert_eq!(
+        cal.settings.intrinsics,
+        GivenIntrinsics::Calibrated,
+        "the default"
+    );
+    let off = &generate(&Settings {
+        intrinsics: GivenIntrinsics::Offset,
+        ..cal.settings
+    })
+    .unwrap();
     assert_eq!(cal.frames, off.frames, "the frames differ");
     assert_eq!(cal.pose, off.pose, "the pose differs");
     assert_ne!(cal.camera_given, off.camera_given);
