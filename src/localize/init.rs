@@ -211,29 +211,12 @@ pub fn match_anchors(
 /// complex correlation, with a sub-pixel parabola fit; `None` if the peak is flat or on the edge.
 fn best_shift(patch: &Field, search: &Field, ph: i64, sh: i64) -> Option<(f64, f64, f64)> {
     let side = (2 * ph + 1) as usize;
-    let sw = search.width;
     let pn: f64 = patch.data.iter().map(|z| z.norm_sqr() as f64).sum();
     if pn <= 0.0 {
         return None;
     }
     let span = (2 * sh + 1) as usize;
-    let mut scores = vec![f64::NEG_INFINITY; span * span];
-    for oy in 0..span {
-        for ox in 0..span {
-            let (mut num, mut e) = (0.0f64, 0.0f64);
-            for r in 0..side {
-                let srow = &search.data[(oy + r) * sw + ox..(oy + r) * sw + ox + side];
-                let prow = &patch.data[r * side..(r + 1) * side];
-                for (s, t) in srow.iter().zip(prow) {
-                    num += (s * t.conj()).re as f64;
-                    e += s.norm_sqr() as f64;
-                }
-            }
-            if e > 0.0 {
-                scores[oy * span + ox] = num / (e * pn).sqrt();
-            }
-        }
-    }
+    let scores = shift_scores(patch, search, side, span, pn);
     let (bi, &best) = scores
         .iter()
         .enumerate()
@@ -253,6 +236,75 @@ fn best_shift(patch: &Field, search: &Field, ph: i64, sh: i64) -> Option<(f64, f
     let dx = fit(scores[bi - 1], best, scores[bi + 1]);
     let dy = fit(scores[bi - span], best, scores[bi + span]);
     Some((best, bx as f64 + dx - sh as f64, by as f64 + dy - sh as f64))
+}
+
+/// Shifts of one search row that [`shift_scores`] scores together …
+const SHIFT_LANES: usize = 4;
+/// … and search rows.
+const SHIFT_ROWS: usize = 2;
+
+/// The normalised correlation of `patch` (`side` × `side`) at every shift of the `span` × `span`
+/// window of `search` (row-major, −∞ where the search window has no energy):
+/// `Re Σ s·t̄ / √(Σ|s|² · pn)`, both sums in f64 over the patch's rows and, within a row, its
+/// columns. Each sum is one long chain of dependent additions, so one shift at a time waits on
+/// the adder's latency; here a block of [`SHIFT_ROWS`] × [`SHIFT_LANES`] shifts shares each
+/// patch sample and keeps its own accumulators, every one adding the same terms in the same
+/// order as a lone shift would (the scores are bit-identical to the one-shift loop, unit test
+/// `blocked_shift_scores_equal_the_one_shift_loop`). The search is split into real, imaginary
+/// and squared-norm planes, padded with zeros so a block may run past the window's edge (those
+/// lanes' scores are dropped).
+fn shift_scores(patch: &Field, search: &Field, side: usize, span: usize, pn: f64) -> Vec<f64> {
+    let (sw, sh) = (search.width, search.height);
+    debug_assert!(sw >= side + span - 1 && sh >= side + span - 1);
+    let pw = sw + SHIFT_LANES - 1;
+    let rows = sh + SHIFT_ROWS - 1;
+    let (mut re, mut im, mut ns) = (
+        vec![0f32; pw * rows],
+        vec![0f32; pw * rows],
+        vec![0f32; pw * rows],
+    );
+    for y in 0..sh {
+        for x in 0..sw {
+            let z = search.data[y * sw + x];
+            re[y * pw + x] = z.re;
+            im[y * pw + x] = z.im;
+            ns[y * pw + x] = z.norm_sqr();
+        }
+    }
+    let mut scores = vec![f64::NEG_INFINITY; span * span];
+    for oy in (0..span).step_by(SHIFT_ROWS) {
+        for ox in (0..span).step_by(SHIFT_LANES) {
+            let mut num = [[0.0f64; SHIFT_LANES]; SHIFT_ROWS];
+            let mut e = [[0.0f64; SHIFT_LANES]; SHIFT_ROWS];
+            for r in 0..side {
+                let prow = &patch.data[r * side..(r + 1) * side];
+                for (c, t) in prow.iter().enumerate() {
+                    for j in 0..SHIFT_ROWS {
+                        let i = (oy + j + r) * pw + ox + c;
+                        let (sre, sim, sns) = (
+                            &re[i..i + SHIFT_LANES],
+                            &im[i..i + SHIFT_LANES],
+                            &ns[i..i + SHIFT_LANES],
+                        );
+                        for k in 0..SHIFT_LANES {
+                            // Re(s·t̄), as `(s * t.conj()).re` computes it.
+                            num[j][k] += (sre[k] * t.re + sim[k] * t.im) as f64;
+                            e[j][k] += sns[k] as f64;
+                        }
+                    }
+                }
+            }
+            for j in 0..SHIFT_ROWS {
+                for k in 0..SHIFT_LANES {
+                    let (y, x) = (oy + j, ox + k);
+                    if y < span && x < span && e[j][k] > 0.0 {
+                        scores[y * span + x] = num[j][k] / (e[j][k] * pn).sqrt();
+                    }
+                }
+            }
+        }
+    }
+    scores
 }
 
 /// PnP inliers (with ≥ 2/3 of the patch matches agreeing) that end the candidate search early
@@ -687,6 +739,74 @@ fn sweep_result(cand: &Candidate, rank: usize, s: &super::verify::Verdict) -> In
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The one-shift-at-a-time loop [`shift_scores`] blocks.
+    fn shift_scores_reference(
+        patch: &Field,
+        search: &Field,
+        side: usize,
+        span: usize,
+        pn: f64,
+    ) -> Vec<f64> {
+        let sw = search.width;
+        let mut scores = vec![f64::NEG_INFINITY; span * span];
+        for oy in 0..span {
+            for ox in 0..span {
+                let (mut num, mut e) = (0.0f64, 0.0f64);
+                for r in 0..side {
+                    let srow = &search.data[(oy + r) * sw + ox..(oy + r) * sw + ox + side];
+                    let prow = &patch.data[r * side..(r + 1) * side];
+                    for (s, t) in srow.iter().zip(prow) {
+                        num += (s * t.conj()).re as f64;
+                        e += s.norm_sqr() as f64;
+                    }
+                }
+                if e > 0.0 {
+                    scores[oy * span + ox] = num / (e * pn).sqrt();
+                }
+            }
+        }
+        scores
+    }
+
+    #[test]
+    fn blocked_shift_scores_equal_the_one_shift_loop() {
+        use rand::{Rng, SeedableRng};
+        use rustfft::num_complex::Complex32;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(18);
+        // The fine stage's sizes (patch side 31 and 41, spans 21, 13, 9) and odd small ones, with
+        // zero stretches as a masked field has.
+        for (side, span) in [
+            (31usize, 21usize),
+            (31, 13),
+            (41, 13),
+            (41, 9),
+            (3, 1),
+            (5, 2),
+            (7, 6),
+        ] {
+            let field = |w: usize, rng: &mut rand_chacha::ChaCha8Rng| Field {
+                width: w,
+                height: w,
+                data: (0..w * w)
+                    .map(|_| {
+                        if rng.random_bool(0.2) {
+                            Complex32::new(0.0, 0.0)
+                        } else {
+                            Complex32::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0))
+                        }
+                    })
+                    .collect(),
+            };
+            let patch = field(side, &mut rng);
+            let search = field(side + span - 1, &mut rng);
+            let pn: f64 = patch.data.iter().map(|z| z.norm_sqr() as f64).sum();
+            let got = shift_scores(&patch, &search, side, span, pn);
+            let want = shift_scores_reference(&patch, &search, side, span, pn);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&got), bits(&want), "side {side} span {span}");
+        }
+    }
     use crate::camera::Mei;
     use crate::localize::coarse::*;
     use crate::map::{Crs, GeoGrid};
