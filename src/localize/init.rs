@@ -562,8 +562,10 @@ fn initialize_verified<R: rand::Rng>(
     let heights = map.heights;
     // Screening: MI of each sweep candidate's own pose. Candidates whose view holds too few LiDAR
     // points have no evidence and go last, in sweep order.
+    // Candidates in parallel as well as each one's grid cells: a screening's LiDAR disc is
+    // gathered serially, and the cells alone leave threads idle between candidates.
     let screened: Vec<Option<super::verify::Verdict>> = cands
-        .iter()
+        .par_iter()
         .map(|c| verifier.screen(&candidate_pose(heights, prior_xy, c)))
         .collect();
     let screen_mi = |i: usize| screened[i].map(|v| v.mi);

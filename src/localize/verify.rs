@@ -20,7 +20,7 @@
 use super::ground::{focal_px, ground_disc, Mip};
 use super::mi::{bin_lut, mutual_information, Binning, JointHist};
 use crate::camera::CameraModel;
-use crate::map::{ground_points, Tile};
+use crate::map::{ground_points_iter, Tile};
 use crate::pose::CamFromMap;
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
@@ -194,12 +194,14 @@ impl<'a> MiVerifier<'a> {
             self.p.max_off_nadir_deg,
             self.p.max_radius_m,
         );
-        let pts: Vec<(Point3<f64>, u8)> = ground_points(self.tile, (c.x, c.y), radius)
-            .into_iter()
+        // The disc holds ~10⁵ cells and a few thousand are kept: count, then walk again.
+        let disc = || ground_points_iter(self.tile, (c.x, c.y), radius);
+        let stride = (disc().count() / keep.max(1)).max(1);
+        let pts = disc()
+            .step_by(stride)
             .map(|g| (Point3::new(g.x, g.y, g.z), g.reflectivity))
             .collect();
-        let stride = (pts.len() / keep.max(1)).max(1);
-        (cam_h, pts.into_iter().step_by(stride).collect())
+        (cam_h, pts)
     }
 
     /// Climb the MI from `pose` over x, y, yaw and height: coordinate ascent with steps
