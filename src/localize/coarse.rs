@@ -82,14 +82,12 @@ impl CoarseParams {
 /// over `|q| ≤ tan(max_off_nadir)`, step `dq`; and the pixels that are seen.
 pub(crate) fn nominal_view(
     cam: &dyn CameraModel,
-    image: &[u8],
+    mip: &Mip,
     p: &CoarseParams,
 ) -> (GrayF32, Vec<bool>) {
     let q_max = p.max_off_nadir_deg.to_radians().tan();
     let half = (q_max / p.nominal_dq).ceil() as usize;
     let n = 2 * half + 1;
-    let (w, h) = (cam.width() as usize, cam.height() as usize);
-    let mip = Mip::new(image, w, h);
     let rows: Vec<(Vec<f32>, Vec<bool>)> = (0..n)
         .into_par_iter()
         .map(|y| {
@@ -133,9 +131,9 @@ pub(crate) fn nominal_view(
     (img, valid)
 }
 
-/// Orientation-field pyramid of the nominal view.
-pub(crate) fn nominal_field(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> NominalField {
-    let (img, valid) = nominal_view(cam, image, p);
+/// Orientation-field pyramid of the nominal view (`mip`: the frame's pyramid).
+pub(crate) fn nominal_field(cam: &dyn CameraModel, mip: &Mip, p: &CoarseParams) -> NominalField {
+    let (img, valid) = nominal_view(cam, mip, p);
     let mut levels = vec![orientation_field(&img, Some(&valid))];
     // Enough levels to reach the coarsest template step (res / lowest height).
     let coarsest = p.res_m / p.height_range_m.0.max(1e-3);
@@ -215,11 +213,24 @@ pub fn coarse_candidates(
     cam: &dyn CameraModel,
     image: &[u8],
     sat: &Raster<[u8; 3]>,
+    center: (f64, f64),
+    search_radius_m: f64,
+    p: &CoarseParams,
+) -> Vec<Candidate> {
+    let mip = Mip::new(image, cam.width() as usize, cam.height() as usize);
+    coarse_candidates_mip(cam, &mip, sat, center, search_radius_m, p)
+}
+
+/// [`coarse_candidates`] of the frame whose mip pyramid is `mip`.
+pub(crate) fn coarse_candidates_mip(
+    cam: &dyn CameraModel,
+    mip: &Mip,
+    sat: &Raster<[u8; 3]>,
     (cx, cy): (f64, f64),
     search_radius_m: f64,
     p: &CoarseParams,
 ) -> Vec<Candidate> {
-    let nominal = nominal_field(cam, image, p);
+    let nominal = nominal_field(cam, mip, p);
     let heights = p.heights();
     let sweep = |heights: Vec<f64>, top_k: usize, res: f64| {
         let params = SweepParams {

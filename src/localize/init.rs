@@ -3,7 +3,7 @@
 //! matched against the satellite, PnP + RANSAC on their bearings — judged on the LiDAR MI
 //! ([`super::verify`]) when enabled.
 
-use super::coarse::{coarse_candidates, satellite_gray, CoarseParams};
+use super::coarse::{coarse_candidates_mip, satellite_gray, CoarseParams};
 use super::frame::{Frame, MapLayers};
 use super::ground::{focal_px, ground_disc, height_at, Mip};
 use super::sweep::{orientation_field, Candidate, Field, GrayF32};
@@ -119,6 +119,20 @@ pub fn match_anchors(
     sat: &Raster<[u8; 3]>,
     heights: &Raster<f32>,
     pose: &crate::pose::CamFromMap,
+    sizes: (f64, f64, f64),
+    p: &FineParams,
+) -> Vec<AnchorMatch> {
+    let mip = Mip::new(image, cam.width() as usize, cam.height() as usize);
+    match_anchors_mip(cam, &mip, sat, heights, pose, sizes, p)
+}
+
+/// [`match_anchors`] of the frame whose mip pyramid is `mip`.
+fn match_anchors_mip(
+    cam: &dyn CameraModel,
+    mip: &Mip,
+    sat: &Raster<[u8; 3]>,
+    heights: &Raster<f32>,
+    pose: &crate::pose::CamFromMap,
     (patch_half, search_half, res): (f64, f64, f64),
     p: &FineParams,
 ) -> Vec<AnchorMatch> {
@@ -134,7 +148,6 @@ pub fn match_anchors(
             }
         }
     }
-    let mip = Mip::new(image, cam.width() as usize, cam.height() as usize);
     let ph = (patch_half / res).round() as i64;
     let sh = (search_half / res).round() as i64;
     let side = (2 * ph + 1) as usize;
@@ -379,14 +392,32 @@ pub fn fine_stage<R: rand::Rng>(
     fine: &FineParams,
     rng: &mut R,
 ) -> std::result::Result<FineOutcome, String> {
-    fine_stage_partial(frame, map, prior_xy, cand, fine, rng).0
+    fine_stage_partial(&Sampled::new(frame), map, prior_xy, cand, fine, rng).0
+}
+
+/// A frame with its mip pyramid: built once per initialization, for the nominal view and every
+/// fine-stage iteration (which resample from it), and dropped with it (20–30 MB for a 5 MP
+/// frame, which the refinement after it does not need).
+struct Sampled<'f, 'a> {
+    frame: &'f Frame<'a>,
+    mip: Mip,
+}
+
+impl<'f, 'a> Sampled<'f, 'a> {
+    fn new(frame: &'f Frame<'a>) -> Self {
+        let cam = frame.camera();
+        Sampled {
+            frame,
+            mip: Mip::new(frame.gray(), cam.width() as usize, cam.height() as usize),
+        }
+    }
 }
 
 /// [`fine_stage`], and on failure the last iteration that did give a PnP pose (`None` when the
 /// first failed or all succeeded): the last resort of [`initialize`] with a verifier when no
 /// candidate's fine stage gets through all its iterations.
 fn fine_stage_partial<R: rand::Rng>(
-    frame: &Frame<'_>,
+    view: &Sampled<'_, '_>,
     map: MapLayers<'_>,
     prior_xy: (f64, f64),
     cand: &Candidate,
@@ -396,7 +427,7 @@ fn fine_stage_partial<R: rand::Rng>(
     std::result::Result<FineOutcome, String>,
     Option<FineOutcome>,
 ) {
-    let (cam, image): (&dyn CameraModel, _) = (frame.camera(), frame.gray());
+    let cam: &dyn CameraModel = view.frame.camera();
     let (sat, heights) = (map.satellite, map.heights);
     let (cx, cy) = (prior_xy.0 + cand.offset[0], prior_xy.1 + cand.offset[1]);
     let zg = height_at(heights, cx, cy).unwrap_or(0.0);
@@ -409,7 +440,7 @@ fn fine_stage_partial<R: rand::Rng>(
     let mut outcome: std::result::Result<FineOutcome, String> =
         Err("no fine iterations configured".to_string());
     for &(ph, sh, res, tol_m) in &fine.iterations {
-        let m = match_anchors(cam, image, sat, heights, &pose, (ph, sh, res), fine);
+        let m = match_anchors_mip(cam, &view.mip, sat, heights, &pose, (ph, sh, res), fine);
         let corr: Vec<_> = m.iter().map(|a| a.corr).collect();
         let c = pose.center();
         let cam_h = (c.z - height_at(heights, c.x, c.y).unwrap_or(c.z - cand.height)).max(1.0);
@@ -459,7 +490,8 @@ pub fn initialize<R: rand::Rng>(
     verifier: Option<&MiVerifier>,
     rng: &mut R,
 ) -> crate::Result<InitResult> {
-    let (cam, image): (&dyn CameraModel, _) = (frame.camera(), frame.gray());
+    let cam: &dyn CameraModel = frame.camera();
+    let view = Sampled::new(frame);
     let sat = map.satellite;
     let (prior_xy, search_radius_m) = (area.center, area.radius_m);
     let cands = match verifier {
@@ -468,9 +500,9 @@ pub fn initialize<R: rand::Rng>(
                 top_k: coarse.top_k.max(fine.verify.shortlist),
                 ..coarse.clone()
             };
-            coarse_candidates(cam, image, sat, prior_xy, search_radius_m, &longer)
+            coarse_candidates_mip(cam, &view.mip, sat, prior_xy, search_radius_m, &longer)
         }
-        None => coarse_candidates(cam, image, sat, prior_xy, search_radius_m, coarse),
+        None => coarse_candidates_mip(cam, &view.mip, sat, prior_xy, search_radius_m, coarse),
     };
     if cands.is_empty() {
         return Err(crate::Error::stage(
@@ -479,14 +511,14 @@ pub fn initialize<R: rand::Rng>(
         ));
     }
     if let Some(v) = verifier {
-        return initialize_verified(frame, map, prior_xy, &cands, fine, v, rng);
+        return initialize_verified(&view, map, prior_xy, &cands, fine, v, rng);
     }
     let mut best: Option<InitResult> = None;
     let mut last_err = String::new();
     let mut tried = 0;
     for (rank, cand) in cands.iter().enumerate() {
         tried = rank + 1;
-        let outcome = match fine_stage(frame, map, prior_xy, cand, fine, rng) {
+        let outcome = match fine_stage_partial(&view, map, prior_xy, cand, fine, rng).0 {
             Ok(f) => Some(f),
             Err(e) => {
                 last_err = e;
@@ -551,7 +583,7 @@ pub fn candidate_pose(
 /// iterations, the last resort is the PnP poses of the iterations before the ones that failed
 /// (satellite-confirmed at a coarser tolerance), each scored by the verifier.
 fn initialize_verified<R: rand::Rng>(
-    frame: &Frame<'_>,
+    view: &Sampled<'_, '_>,
     map: MapLayers<'_>,
     prior_xy: (f64, f64),
     cands: &[Candidate],
@@ -588,7 +620,7 @@ fn initialize_verified<R: rand::Rng>(
         // with PnP poses on equal terms; the screening only orders.
         let sweep =
             screened[rank].and_then(|_| verifier.verify(&candidate_pose(heights, prior_xy, cand)));
-        let (outcome, partial) = fine_stage_partial(frame, map, prior_xy, cand, fine, rng);
+        let (outcome, partial) = fine_stage_partial(view, map, prior_xy, cand, fine, rng);
         partials.extend(partial.map(|f| (rank, *cand, f)));
         let hyp = match outcome {
             Ok(f) => {
@@ -646,7 +678,7 @@ fn initialize_verified<R: rand::Rng>(
                 offset: [c.x - prior_xy.0, c.y - prior_xy.1],
                 score: cand.score,
             };
-            let (outcome, partial) = fine_stage_partial(frame, map, prior_xy, &climbed, fine, rng);
+            let (outcome, partial) = fine_stage_partial(view, map, prior_xy, &climbed, fine, rng);
             partials.extend(partial.map(|f| (rank, climbed, f)));
             match outcome {
                 Ok(f) => {
