@@ -265,22 +265,25 @@ fn transpose(buf: &mut [Complex32], n: usize) {
 /// thirds.)
 fn transpose_pruned(buf: &mut [Complex32], n: usize, nonzero: usize, keep: usize) {
     let zero = Complex32::new(0.0, 0.0);
-    for bi in (0..n).step_by(TRANSPOSE_BLOCK) {
+    // Pairs (i, j), i < j: element (i, j) goes to row j, (j, i) to row i. Rows i ≥ `nonzero`
+    // pair only zeros. For i < `nonzero`: up to `split` both rows are data and wanted (a swap),
+    // up to `nonzero` row j is unwanted (a copy into row i), beyond it row j is zero (a copy
+    // into row j and a zero into row i).
+    let split = nonzero.min(keep);
+    for bi in (0..nonzero).step_by(TRANSPOSE_BLOCK) {
         for bj in (bi..n).step_by(TRANSPOSE_BLOCK) {
-            for i in bi..(bi + TRANSPOSE_BLOCK).min(n) {
+            let j1 = (bj + TRANSPOSE_BLOCK).min(n);
+            for i in bi..(bi + TRANSPOSE_BLOCK).min(nonzero) {
                 let j0 = if bi == bj { i + 1 } else { bj };
-                for j in j0..(bj + TRANSPOSE_BLOCK).min(n) {
-                    // i < j: element (i, j) goes to row j, (j, i) to row i.
-                    let (a, b) = (i * n + j, j * n + i);
-                    match (i < nonzero, j < nonzero) {
-                        (false, false) => {}
-                        (true, false) => {
-                            buf[b] = buf[a];
-                            buf[a] = zero;
-                        }
-                        _ if j >= keep => buf[a] = buf[b],
-                        _ => buf.swap(a, b),
-                    }
+                for j in j0..j1.min(split) {
+                    buf.swap(i * n + j, j * n + i);
+                }
+                for j in j0.max(split)..j1.min(nonzero) {
+                    buf[i * n + j] = buf[j * n + i];
+                }
+                for j in j0.max(nonzero)..j1 {
+                    buf[j * n + i] = buf[i * n + j];
+                    buf[i * n + j] = zero;
                 }
             }
         }
@@ -379,12 +382,20 @@ impl SearchField {
     }
 }
 
+/// Relative margin by which [`sweep`]'s score estimate may fall short of the best exact score
+/// and still be computed exactly: the estimate and the exact score differ by a few rounding
+/// errors (~10⁻¹⁵ relative), so 10⁻⁹ is a wide margin, and a shift within it costs only the
+/// exact computation.
+const SCORE_SLACK: f64 = 1e-9;
+
 /// A shift of the template inside the search field that [`sweep`] scores.
 struct Shift {
     /// Its element of the correlation buffer (row-major, side n).
     index: usize,
-    /// The satellite field's energy under the template's disk there (> 0).
+    /// The satellite field's energy under the template's disk there (> 0) …
     energy: f64,
+    /// … and 1 / √ of it.
+    inv_sqrt_energy: f64,
     /// The camera offset it stands for, metres (east, north).
     offset: [f64; 2],
 }
@@ -439,6 +450,7 @@ fn scored_shifts(
             shifts.push(Shift {
                 index: y * n + x,
                 energy: e,
+                inv_sqrt_energy: 1.0 / e.sqrt(),
                 offset: [cx * res, -cy * res],
             });
         }
@@ -503,7 +515,6 @@ pub(crate) fn sweep(
             let to_level = |x0: f64| ((x0 + 0.5) * inv_scale - 0.5) as f32;
             let mut best: Vec<Candidate> = Vec::new();
             let mut buf = vec![Complex32::new(0.0, 0.0); n * n];
-            let mut scores = vec![0.0f64; shifts.len()];
             let (mut xs, mut ys) = (vec![0.0f32; side], vec![0.0f32; side]);
             for k in 0..n_yaw {
                 let yaw = (k as f64 * p.yaw_step_deg).to_radians();
@@ -543,21 +554,30 @@ pub(crate) fn sweep(
                     *b = s * b.conj();
                 }
                 search.fft.inverse_top_rows(&mut buf, &mut scratch, valid);
-                // Both inverse transforms are unscaled (×n²). The scores first (no dependence
-                // between them), then the first of the highest.
-                for (sc, sh) in scores.iter_mut().zip(&shifts) {
-                    *sc = buf[sh.index].re as f64 * inv_n2 / (sh.energy * tnorm).sqrt();
-                }
+                // Both inverse transforms are unscaled (×n²). The score of a shift is
+                // a / √(e·tnorm); the first of the highest wins. Its estimate a·(1/√e)·(1/√tnorm)
+                // is within ~10⁻¹⁵ (relative) of it, so a shift whose estimate falls short of the
+                // best score so far by more than `SCORE_SLACK` cannot beat it, and only the
+                // others pay for the exact square root and division: the same winner, from the
+                // same exact scores.
+                let inv_sqrt_t = 1.0 / tnorm.sqrt();
                 let mut top = Candidate {
                     yaw,
                     height: h,
                     offset: [0.0; 2],
                     score: f64::NEG_INFINITY,
                 };
-                for (sc, sh) in scores.iter().zip(&shifts) {
-                    if *sc > top.score {
-                        top.score = *sc;
+                let mut bar = f64::NEG_INFINITY;
+                for sh in &shifts {
+                    let a = buf[sh.index].re as f64 * inv_n2;
+                    if a * sh.inv_sqrt_energy * inv_sqrt_t < bar {
+                        continue;
+                    }
+                    let sc = a / (sh.energy * tnorm).sqrt();
+                    if sc > top.score {
+                        top.score = sc;
                         top.offset = sh.offset;
+                        bar = sc - SCORE_SLACK * sc.abs() - f64::MIN_POSITIVE;
                     }
                 }
                 if top.score.is_finite() {
