@@ -15,13 +15,6 @@ pub(crate) struct Mip {
     levels: Vec<(Vec<f32>, usize, usize)>,
 }
 
-impl std::fmt::Debug for Mip {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let sizes: Vec<(usize, usize)> = self.levels.iter().map(|l| (l.1, l.2)).collect();
-        f.debug_struct("Mip").field("levels", &sizes).finish()
-    }
-}
-
 /// Deepest pyramid level.
 const MIP_LEVELS: usize = 6;
 
@@ -52,7 +45,17 @@ impl Mip {
     /// Bilinear sample at level-0 pixel coordinates (u, v), at the level whose pixel is about
     /// `footprint` level-0 pixels wide.
     pub(crate) fn sample(&self, u: f64, v: f64, footprint: f64) -> Option<f32> {
-        let l = (footprint.max(1.0).log2().floor() as usize).min(self.levels.len() - 1);
+        self.sample_level(self.level(footprint), u, v)
+    }
+
+    /// The level [`Mip::sample`] reads for `footprint`: a loop whose footprint is fixed asks
+    /// once (a `log2` per sample otherwise) and samples with [`Mip::sample_level`].
+    pub(crate) fn level(&self, footprint: f64) -> usize {
+        (footprint.max(1.0).log2().floor() as usize).min(self.levels.len() - 1)
+    }
+
+    /// [`Mip::sample`] at level `l` (from [`Mip::level`]).
+    pub(crate) fn sample_level(&self, l: usize, u: f64, v: f64) -> Option<f32> {
         let s = (1usize << l) as f64;
         let (data, w, h) = &self.levels[l];
         let (x, y) = ((u + 0.5) / s - 0.5, (v + 0.5) / s - 0.5);

@@ -176,6 +176,7 @@ fn match_anchors_mip(
             let mut patch = GrayF32::new(side, side);
             let mut valid = vec![false; side * side];
             let mut n_valid = 0;
+            let level = mip.level(fp);
             for r in 0..side {
                 for col in 0..side {
                     let (x, y) = (
@@ -185,7 +186,7 @@ fn match_anchors_mip(
                     let z = height_at(heights, x, y).unwrap_or(az);
                     let pc = pose.transform(&nalgebra::Point3::new(x, y, z)).coords;
                     if let Ok(px) = cam.project_visible_cos(&pc, cos_max_theta) {
-                        if let Some(v) = mip.sample(px.x, px.y, fp) {
+                        if let Some(v) = mip.sample_level(level, px.x, px.y) {
                             patch.data[r * side + col] = v;
                             valid[r * side + col] = true;
                             n_valid += 1;

@@ -127,6 +127,7 @@ impl<'a> MiVerifier<'a> {
     ) -> Option<(f64, usize)> {
         let mut pairs: Vec<(u8, u8)> = Vec::with_capacity(pts.len());
         let cos_max_theta = self.cam.max_theta().cos();
+        let level = self.mip.level(footprint);
         for (p, r) in pts {
             let Ok(px) = self
                 .cam
@@ -134,7 +135,7 @@ impl<'a> MiVerifier<'a> {
             else {
                 continue;
             };
-            if let Some(g) = self.mip.sample(px.x, px.y, footprint) {
+            if let Some(g) = self.mip.sample_level(level, px.x, px.y) {
                 pairs.push((*r, g.clamp(0.0, 255.0) as u8));
             }
         }
