@@ -253,12 +253,21 @@ pub(crate) fn coarse_candidates_mip(
         None => Vec::new(),
     };
     let tall_sweep = !tall.is_empty() && tall.len() < heights.len() && p.tall_top_k > 0;
-    let mut cands = sweep(heights, p.top_k, p.res_m);
-    if tall_sweep {
-        for c in sweep(tall, p.tall_top_k, p.res_m) {
-            if !cands.contains(&c) {
-                cands.push(c);
+    // Both sweeps at once: each one's satellite field is built serially and its heights end
+    // unevenly, and the other's work fills those gaps. The lists are merged as before.
+    let (mut cands, tall) = rayon::join(
+        || sweep(heights, p.top_k, p.res_m),
+        || {
+            if tall_sweep {
+                sweep(tall, p.tall_top_k, p.res_m)
+            } else {
+                Vec::new()
             }
+        },
+    );
+    for c in tall {
+        if !cands.contains(&c) {
+            cands.push(c);
         }
     }
     cands
