@@ -133,6 +133,23 @@ fn match_anchors_mip(
     sat: &Raster<[u8; 3]>,
     heights: &Raster<f32>,
     pose: &crate::pose::CamFromMap,
+    sizes: (f64, f64, f64),
+    p: &FineParams,
+) -> Vec<AnchorMatch> {
+    // The patches project ~10⁵ ground cells per call: on the concrete model, not through `dyn`.
+    match cam.as_mei() {
+        Some(mei) => match_anchors_in(mei, mip, sat, heights, pose, sizes, p),
+        None => match_anchors_in(cam, mip, sat, heights, pose, sizes, p),
+    }
+}
+
+/// [`match_anchors_mip`] for camera model `C`.
+fn match_anchors_in<C: CameraModel + ?Sized>(
+    cam: &C,
+    mip: &Mip,
+    sat: &Raster<[u8; 3]>,
+    heights: &Raster<f32>,
+    pose: &crate::pose::CamFromMap,
     (patch_half, search_half, res): (f64, f64, f64),
     p: &FineParams,
 ) -> Vec<AnchorMatch> {

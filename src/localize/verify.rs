@@ -117,6 +117,28 @@ impl<'a> MiVerifier<'a> {
         &self.p
     }
 
+    /// (reflectivity, gray) of the points of `pts` that `cam` sees from `pose`, the gray sampled
+    /// at mip level `level`; generic so that [`Self::mi_at`] runs it on the concrete model.
+    fn pairs<C: CameraModel + ?Sized>(
+        &self,
+        cam: &C,
+        pose: &CamFromMap,
+        pts: &[(Point3<f64>, u8)],
+        level: usize,
+    ) -> Vec<(u8, u8)> {
+        let mut pairs: Vec<(u8, u8)> = Vec::with_capacity(pts.len());
+        let cos_max_theta = cam.max_theta().cos();
+        for (p, r) in pts {
+            let Ok(px) = cam.project_visible_cos(&pose.transform(p).coords, cos_max_theta) else {
+                continue;
+            };
+            if let Some(g) = self.mip.sample_level(level, px.x, px.y) {
+                pairs.push((*r, g.clamp(0.0, 255.0) as u8));
+            }
+        }
+        pairs
+    }
+
     /// Bias-corrected MI at exactly `pose` with the given points (`None` below `min_points`).
     fn mi_at(
         &self,
@@ -125,20 +147,11 @@ impl<'a> MiVerifier<'a> {
         footprint: f64,
         points: usize,
     ) -> Option<(f64, usize)> {
-        let mut pairs: Vec<(u8, u8)> = Vec::with_capacity(pts.len());
-        let cos_max_theta = self.cam.max_theta().cos();
         let level = self.mip.level(footprint);
-        for (p, r) in pts {
-            let Ok(px) = self
-                .cam
-                .project_visible_cos(&pose.transform(p).coords, cos_max_theta)
-            else {
-                continue;
-            };
-            if let Some(g) = self.mip.sample_level(level, px.x, px.y) {
-                pairs.push((*r, g.clamp(0.0, 255.0) as u8));
-            }
-        }
+        let pairs = match self.cam.as_mei() {
+            Some(mei) => self.pairs(mei, pose, pts, level),
+            None => self.pairs(self.cam, pose, pts, level),
+        };
         if pairs.len() < self.p.min_points {
             return None;
         }
