@@ -156,6 +156,9 @@ pub(crate) fn smallest_positive_root(a: f64, b: f64, c: f64) -> Option<f64> {
 }
 
 impl CameraModel for Mei {
+    fn as_mei(&self) -> Option<&Mei> {
+        Some(self)
+    }
     fn width(&self) -> u32 {
         self.width
     }

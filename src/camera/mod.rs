@@ -55,6 +55,13 @@ pub trait CameraModel: Send + Sync + std::fmt::Debug {
     /// Largest angle from the optical axis the lens sees (half the field of view), radians.
     fn max_theta(&self) -> f64;
 
+    /// This camera as the unified (Mei) model, when it is one: a loop over many points behind a
+    /// `dyn CameraModel` calls the model through it directly (the same functions, inlined, with
+    /// no dynamic calls per point).
+    fn as_mei(&self) -> Option<&Mei> {
+        None
+    }
+
     /// Whether a pixel lies on the sensor (pixel centres from 0 to size−1, half a pixel margin).
     fn in_image(&self, px: &Point2<f64>) -> bool {
         px.x >= -0.5
@@ -293,6 +300,9 @@ impl CameraModel for Camera {
     }
     fn max_theta(&self) -> f64 {
         self.model().max_theta()
+    }
+    fn as_mei(&self) -> Option<&Mei> {
+        self.model().as_mei()
     }
 }
 

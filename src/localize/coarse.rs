@@ -82,14 +82,12 @@ impl CoarseParams {
 /// over `|q| ≤ tan(max_off_nadir)`, step `dq`; and the pixels that are seen.
 pub(crate) fn nominal_view(
     cam: &dyn CameraModel,
-    image: &[u8],
+    mip: &Mip,
     p: &CoarseParams,
 ) -> (GrayF32, Vec<bool>) {
     let q_max = p.max_off_nadir_deg.to_radians().tan();
     let half = (q_max / p.nominal_dq).ceil() as usize;
     let n = 2 * half + 1;
-    let (w, h) = (cam.width() as usize, cam.height() as usize);
-    let mip = Mip::new(image, w, h);
     let rows: Vec<(Vec<f32>, Vec<bool>)> = (0..n)
         .into_par_iter()
         .map(|y| {
@@ -133,9 +131,9 @@ pub(crate) fn nominal_view(
     (img, valid)
 }
 
-/// Orientation-field pyramid of the nominal view.
-pub(crate) fn nominal_field(cam: &dyn CameraModel, image: &[u8], p: &CoarseParams) -> NominalField {
-    let (img, valid) = nominal_view(cam, image, p);
+/// Orientation-field pyramid of the nominal view (`mip`: the frame's pyramid).
+pub(crate) fn nominal_field(cam: &dyn CameraModel, mip: &Mip, p: &CoarseParams) -> NominalField {
+    let (img, valid) = nominal_view(cam, mip, p);
     let mut levels = vec![orientation_field(&img, Some(&valid))];
     // Enough levels to reach the coarsest template step (res / lowest height).
     let coarsest = p.res_m / p.height_range_m.0.max(1e-3);
@@ -164,23 +162,36 @@ pub(crate) fn satellite_gray(
     let g = &sat.grid;
     // Average the source pixels that fall inside each output cell (≥ 1 sample per cell).
     let sub = ((res / g.res).round() as usize).max(1);
+    // The grid is axis-aligned, so a sample's column depends only on its cell's column and
+    // sub-column, and its row only on the cell's row and sub-row: both computed once here, with
+    // the same arithmetic as per sample (`None`: left of or above the grid; a NaN coordinate
+    // reads column or row 0, as a cast of the sample's own NaN did).
+    let axis = |m0: f64, sign: f64, to: &dyn Fn(f64) -> f64| -> Vec<Option<usize>> {
+        let mut v = Vec::with_capacity(n * sub);
+        for i in 0..n {
+            let m = m0 + sign * (i as f64 - c) * res;
+            for k in 0..sub {
+                let o = (k as f64 + 0.5) / sub as f64 - 0.5;
+                let p = to(m + sign * o * res).round();
+                v.push(if p < 0.0 { None } else { Some(p as usize) });
+            }
+        }
+        v
+    };
+    let cols = axis(cx, 1.0, &|x| g.to_pixel(x, cy).0);
+    let rows = axis(cy, -1.0, &|y| g.to_pixel(cx, y).1);
     let mut img = GrayF32::new(n, n);
     let mut valid = vec![false; n * n];
     for y in 0..n {
         for x in 0..n {
-            let (mx, my) = (cx + (x as f64 - c) * res, cy + (c - y as f64) * res);
             let mut acc = 0.0f32;
             let mut cnt = 0;
-            for sy in 0..sub {
-                for sx in 0..sub {
-                    let ox = (sx as f64 + 0.5) / sub as f64 - 0.5;
-                    let oy = (sy as f64 + 0.5) / sub as f64 - 0.5;
-                    let (px, py) = g.to_pixel(mx + ox * res, my - oy * res);
-                    let (col, row) = (px.round(), py.round());
-                    if col < 0.0 || row < 0.0 {
+            for row in &rows[y * sub..(y + 1) * sub] {
+                for col in &cols[x * sub..(x + 1) * sub] {
+                    let (Some(col), Some(row)) = (*col, *row) else {
                         continue;
-                    }
-                    if let Some([r, gg, b]) = sat.get(col as usize, row as usize) {
+                    };
+                    if let Some([r, gg, b]) = sat.get(col, row) {
                         // Rec. 601 luma: the camera is a gray sensor with a broad response.
                         acc += 0.299 * r as f32 + 0.587 * gg as f32 + 0.114 * b as f32;
                         cnt += 1;
@@ -202,11 +213,24 @@ pub fn coarse_candidates(
     cam: &dyn CameraModel,
     image: &[u8],
     sat: &Raster<[u8; 3]>,
+    center: (f64, f64),
+    search_radius_m: f64,
+    p: &CoarseParams,
+) -> Vec<Candidate> {
+    let mip = Mip::new(image, cam.width() as usize, cam.height() as usize);
+    coarse_candidates_mip(cam, &mip, sat, center, search_radius_m, p)
+}
+
+/// [`coarse_candidates`] of the frame whose mip pyramid is `mip`.
+pub(crate) fn coarse_candidates_mip(
+    cam: &dyn CameraModel,
+    mip: &Mip,
+    sat: &Raster<[u8; 3]>,
     (cx, cy): (f64, f64),
     search_radius_m: f64,
     p: &CoarseParams,
 ) -> Vec<Candidate> {
-    let nominal = nominal_field(cam, image, p);
+    let nominal = nominal_field(cam, mip, p);
     let heights = p.heights();
     let sweep = |heights: Vec<f64>, top_k: usize, res: f64| {
         let params = SweepParams {
@@ -229,13 +253,105 @@ pub fn coarse_candidates(
         None => Vec::new(),
     };
     let tall_sweep = !tall.is_empty() && tall.len() < heights.len() && p.tall_top_k > 0;
-    let mut cands = sweep(heights, p.top_k, p.res_m);
-    if tall_sweep {
-        for c in sweep(tall, p.tall_top_k, p.res_m) {
-            if !cands.contains(&c) {
-                cands.push(c);
+    // Both sweeps at once: each one's satellite field is built serially and its heights end
+    // unevenly, and the other's work fills those gaps. The lists are merged as before.
+    let (mut cands, tall) = rayon::join(
+        || sweep(heights, p.top_k, p.res_m),
+        || {
+            if tall_sweep {
+                sweep(tall, p.tall_top_k, p.res_m)
+            } else {
+                Vec::new()
             }
+        },
+    );
+    for c in tall {
+        if !cands.contains(&c) {
+            cands.push(c);
         }
     }
     cands
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::map::{Crs, GeoGrid};
+
+    /// [`satellite_gray`] as it computed every sample's pixel on its own.
+    fn satellite_gray_per_sample(
+        sat: &Raster<[u8; 3]>,
+        cx: f64,
+        cy: f64,
+        half_m: f64,
+        res: f64,
+    ) -> (GrayF32, Vec<bool>) {
+        let n = 2 * (half_m / res).round() as usize + 1;
+        let c = (n as f64 - 1.0) / 2.0;
+        let g = &sat.grid;
+        let sub = ((res / g.res).round() as usize).max(1);
+        let mut img = GrayF32::new(n, n);
+        let mut valid = vec![false; n * n];
+        for y in 0..n {
+            for x in 0..n {
+                let (mx, my) = (cx + (x as f64 - c) * res, cy + (c - y as f64) * res);
+                let (mut acc, mut cnt) = (0.0f32, 0);
+                for sy in 0..sub {
+                    for sx in 0..sub {
+                        let ox = (sx as f64 + 0.5) / sub as f64 - 0.5;
+                        let oy = (sy as f64 + 0.5) / sub as f64 - 0.5;
+                        let (px, py) = g.to_pixel(mx + ox * res, my - oy * res);
+                        let (col, row) = (px.round(), py.round());
+                        if col < 0.0 || row < 0.0 {
+                            continue;
+                        }
+                        if let Some([r, gg, b]) = sat.get(col as usize, row as usize) {
+                            acc += 0.299 * r as f32 + 0.587 * gg as f32 + 0.114 * b as f32;
+                            cnt += 1;
+                        }
+                    }
+                }
+                if cnt == sub * sub {
+                    img.data[y * n + x] = acc / cnt as f32;
+                    valid[y * n + x] = true;
+                }
+            }
+        }
+        (img, valid)
+    }
+
+    #[test]
+    fn separable_sample_positions_give_the_per_sample_image() {
+        let grid = GeoGrid {
+            crs: Crs::Local,
+            x0: 274_760.0,
+            y0: 4_684_360.0,
+            res: 0.1,
+            width: 700,
+            height: 650,
+        };
+        let mut sat = Raster::filled(grid, [0u8; 3], None);
+        for (i, px) in sat.data.iter_mut().enumerate() {
+            *px = [
+                (i * 7 % 251) as u8,
+                (i * 13 % 241) as u8,
+                (i * 29 % 239) as u8,
+            ];
+        }
+        // Centres inside, near and beyond the edges (cells partly or wholly off the grid), the
+        // resolutions the sweep and the fine stage use, and an off-grid phase.
+        for (cx, cy) in [
+            (274_801.29, 4_684_313.17),
+            (274_762.03, 4_684_357.5),
+            (274_826.95, 4_684_296.02),
+        ] {
+            for (half, res) in [(25.2, 0.4), (5.0, 0.2), (2.6, 0.1), (3.0, 0.3)] {
+                let (a, va) = satellite_gray(&sat, cx, cy, half, res);
+                let (b, vb) = satellite_gray_per_sample(&sat, cx, cy, half, res);
+                let bits = |g: &GrayF32| g.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&a), bits(&b), "({cx}, {cy}) half {half} res {res}");
+                assert_eq!(va, vb, "({cx}, {cy}) half {half} res {res}");
+            }
+        }
+    }
 }

@@ -6,6 +6,7 @@
 use crate::camera::CameraModel;
 use crate::map::Raster;
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 /// A 2×2-box mip pyramid of a gray frame, so that resampling the fisheye onto coarse ground cells
 /// averages the pixels a cell covers instead of aliasing (a nadir pixel of a pole camera covers
@@ -18,23 +19,24 @@ pub(crate) struct Mip {
 const MIP_LEVELS: usize = 6;
 
 impl Mip {
-    /// Build from a row-major gray image.
+    /// Build from a row-major gray image. Rows in parallel (a 5 MP frame is 20 MB of level 0):
+    /// every value is computed as a serial loop would.
     pub(crate) fn new(img: &[u8], w: usize, h: usize) -> Self {
-        let mut levels = vec![(img.iter().map(|&v| v as f32).collect::<Vec<f32>>(), w, h)];
+        let level0: Vec<f32> = img.par_iter().map(|&v| v as f32).collect();
+        let mut levels = vec![(level0, w, h)];
         while levels.len() < MIP_LEVELS {
             let (prev, pw, ph) = &levels[levels.len() - 1];
-            let (nw, nh) = (pw / 2, ph / 2);
+            let (pw, nw, nh) = (*pw, pw / 2, ph / 2);
             if nw < 2 || nh < 2 {
                 break;
             }
             let mut next = vec![0.0; nw * nh];
-            for y in 0..nh {
-                for x in 0..nw {
+            next.par_chunks_mut(nw).enumerate().for_each(|(y, row)| {
+                for (x, v) in row.iter_mut().enumerate() {
                     let i = 2 * y * pw + 2 * x;
-                    next[y * nw + x] =
-                        0.25 * (prev[i] + prev[i + 1] + prev[i + pw] + prev[i + pw + 1]);
+                    *v = 0.25 * (prev[i] + prev[i + 1] + prev[i + pw] + prev[i + pw + 1]);
                 }
-            }
+            });
             levels.push((next, nw, nh));
         }
         Mip { levels }
@@ -43,7 +45,17 @@ impl Mip {
     /// Bilinear sample at level-0 pixel coordinates (u, v), at the level whose pixel is about
     /// `footprint` level-0 pixels wide.
     pub(crate) fn sample(&self, u: f64, v: f64, footprint: f64) -> Option<f32> {
-        let l = (footprint.max(1.0).log2().floor() as usize).min(self.levels.len() - 1);
+        self.sample_level(self.level(footprint), u, v)
+    }
+
+    /// The level [`Mip::sample`] reads for `footprint`: a loop whose footprint is fixed asks
+    /// once (a `log2` per sample otherwise) and samples with [`Mip::sample_level`].
+    pub(crate) fn level(&self, footprint: f64) -> usize {
+        (footprint.max(1.0).log2().floor() as usize).min(self.levels.len() - 1)
+    }
+
+    /// [`Mip::sample`] at level `l` (from [`Mip::level`]).
+    pub(crate) fn sample_level(&self, l: usize, u: f64, v: f64) -> Option<f32> {
         let s = (1usize << l) as f64;
         let (data, w, h) = &self.levels[l];
         let (x, y) = ((u + 0.5) / s - 0.5, (v + 0.5) / s - 0.5);

@@ -3,7 +3,7 @@
 //! matched against the satellite, PnP + RANSAC on their bearings — judged on the LiDAR MI
 //! ([`super::verify`]) when enabled.
 
-use super::coarse::{coarse_candidates, satellite_gray, CoarseParams};
+use super::coarse::{coarse_candidates_mip, satellite_gray, CoarseParams};
 use super::frame::{Frame, MapLayers};
 use super::ground::{focal_px, ground_disc, height_at, Mip};
 use super::sweep::{orientation_field, Candidate, Field, GrayF32};
@@ -119,6 +119,37 @@ pub fn match_anchors(
     sat: &Raster<[u8; 3]>,
     heights: &Raster<f32>,
     pose: &crate::pose::CamFromMap,
+    sizes: (f64, f64, f64),
+    p: &FineParams,
+) -> Vec<AnchorMatch> {
+    let mip = Mip::new(image, cam.width() as usize, cam.height() as usize);
+    match_anchors_mip(cam, &mip, sat, heights, pose, sizes, p)
+}
+
+/// [`match_anchors`] of the frame whose mip pyramid is `mip`.
+fn match_anchors_mip(
+    cam: &dyn CameraModel,
+    mip: &Mip,
+    sat: &Raster<[u8; 3]>,
+    heights: &Raster<f32>,
+    pose: &crate::pose::CamFromMap,
+    sizes: (f64, f64, f64),
+    p: &FineParams,
+) -> Vec<AnchorMatch> {
+    // The patches project ~10⁵ ground cells per call: on the concrete model, not through `dyn`.
+    match cam.as_mei() {
+        Some(mei) => match_anchors_in(mei, mip, sat, heights, pose, sizes, p),
+        None => match_anchors_in(cam, mip, sat, heights, pose, sizes, p),
+    }
+}
+
+/// [`match_anchors_mip`] for camera model `C`.
+fn match_anchors_in<C: CameraModel + ?Sized>(
+    cam: &C,
+    mip: &Mip,
+    sat: &Raster<[u8; 3]>,
+    heights: &Raster<f32>,
+    pose: &crate::pose::CamFromMap,
     (patch_half, search_half, res): (f64, f64, f64),
     p: &FineParams,
 ) -> Vec<AnchorMatch> {
@@ -134,7 +165,6 @@ pub fn match_anchors(
             }
         }
     }
-    let mip = Mip::new(image, cam.width() as usize, cam.height() as usize);
     let ph = (patch_half / res).round() as i64;
     let sh = (search_half / res).round() as i64;
     let side = (2 * ph + 1) as usize;
@@ -163,6 +193,7 @@ pub fn match_anchors(
             let mut patch = GrayF32::new(side, side);
             let mut valid = vec![false; side * side];
             let mut n_valid = 0;
+            let level = mip.level(fp);
             for r in 0..side {
                 for col in 0..side {
                     let (x, y) = (
@@ -172,7 +203,7 @@ pub fn match_anchors(
                     let z = height_at(heights, x, y).unwrap_or(az);
                     let pc = pose.transform(&nalgebra::Point3::new(x, y, z)).coords;
                     if let Ok(px) = cam.project_visible_cos(&pc, cos_max_theta) {
-                        if let Some(v) = mip.sample(px.x, px.y, fp) {
+                        if let Some(v) = mip.sample_level(level, px.x, px.y) {
                             patch.data[r * side + col] = v;
                             valid[r * side + col] = true;
                             n_valid += 1;
@@ -211,29 +242,12 @@ pub fn match_anchors(
 /// complex correlation, with a sub-pixel parabola fit; `None` if the peak is flat or on the edge.
 fn best_shift(patch: &Field, search: &Field, ph: i64, sh: i64) -> Option<(f64, f64, f64)> {
     let side = (2 * ph + 1) as usize;
-    let sw = search.width;
     let pn: f64 = patch.data.iter().map(|z| z.norm_sqr() as f64).sum();
     if pn <= 0.0 {
         return None;
     }
     let span = (2 * sh + 1) as usize;
-    let mut scores = vec![f64::NEG_INFINITY; span * span];
-    for oy in 0..span {
-        for ox in 0..span {
-            let (mut num, mut e) = (0.0f64, 0.0f64);
-            for r in 0..side {
-                let srow = &search.data[(oy + r) * sw + ox..(oy + r) * sw + ox + side];
-                let prow = &patch.data[r * side..(r + 1) * side];
-                for (s, t) in srow.iter().zip(prow) {
-                    num += (s * t.conj()).re as f64;
-                    e += s.norm_sqr() as f64;
-                }
-            }
-            if e > 0.0 {
-                scores[oy * span + ox] = num / (e * pn).sqrt();
-            }
-        }
-    }
+    let scores = shift_scores(patch, search, side, span, pn);
     let (bi, &best) = scores
         .iter()
         .enumerate()
@@ -253,6 +267,75 @@ fn best_shift(patch: &Field, search: &Field, ph: i64, sh: i64) -> Option<(f64, f
     let dx = fit(scores[bi - 1], best, scores[bi + 1]);
     let dy = fit(scores[bi - span], best, scores[bi + span]);
     Some((best, bx as f64 + dx - sh as f64, by as f64 + dy - sh as f64))
+}
+
+/// Shifts of one search row that [`shift_scores`] scores together …
+const SHIFT_LANES: usize = 4;
+/// … and search rows.
+const SHIFT_ROWS: usize = 2;
+
+/// The normalised correlation of `patch` (`side` × `side`) at every shift of the `span` × `span`
+/// window of `search` (row-major, −∞ where the search window has no energy):
+/// `Re Σ s·t̄ / √(Σ|s|² · pn)`, both sums in f64 over the patch's rows and, within a row, its
+/// columns. Each sum is one long chain of dependent additions, so one shift at a time waits on
+/// the adder's latency; here a block of [`SHIFT_ROWS`] × [`SHIFT_LANES`] shifts shares each
+/// patch sample and keeps its own accumulators, every one adding the same terms in the same
+/// order as a lone shift would (the scores are bit-identical to the one-shift loop, unit test
+/// `blocked_shift_scores_equal_the_one_shift_loop`). The search is split into real, imaginary
+/// and squared-norm planes, padded with zeros so a block may run past the window's edge (those
+/// lanes' scores are dropped).
+fn shift_scores(patch: &Field, search: &Field, side: usize, span: usize, pn: f64) -> Vec<f64> {
+    let (sw, sh) = (search.width, search.height);
+    debug_assert!(sw >= side + span - 1 && sh >= side + span - 1);
+    let pw = sw + SHIFT_LANES - 1;
+    let rows = sh + SHIFT_ROWS - 1;
+    let (mut re, mut im, mut ns) = (
+        vec![0f32; pw * rows],
+        vec![0f32; pw * rows],
+        vec![0f32; pw * rows],
+    );
+    for y in 0..sh {
+        for x in 0..sw {
+            let z = search.data[y * sw + x];
+            re[y * pw + x] = z.re;
+            im[y * pw + x] = z.im;
+            ns[y * pw + x] = z.norm_sqr();
+        }
+    }
+    let mut scores = vec![f64::NEG_INFINITY; span * span];
+    for oy in (0..span).step_by(SHIFT_ROWS) {
+        for ox in (0..span).step_by(SHIFT_LANES) {
+            let mut num = [[0.0f64; SHIFT_LANES]; SHIFT_ROWS];
+            let mut e = [[0.0f64; SHIFT_LANES]; SHIFT_ROWS];
+            for r in 0..side {
+                let prow = &patch.data[r * side..(r + 1) * side];
+                for (c, t) in prow.iter().enumerate() {
+                    for j in 0..SHIFT_ROWS {
+                        let i = (oy + j + r) * pw + ox + c;
+                        let (sre, sim, sns) = (
+                            &re[i..i + SHIFT_LANES],
+                            &im[i..i + SHIFT_LANES],
+                            &ns[i..i + SHIFT_LANES],
+                        );
+                        for k in 0..SHIFT_LANES {
+                            // Re(s·t̄), as `(s * t.conj()).re` computes it.
+                            num[j][k] += (sre[k] * t.re + sim[k] * t.im) as f64;
+                            e[j][k] += sns[k] as f64;
+                        }
+                    }
+                }
+            }
+            for j in 0..SHIFT_ROWS {
+                for k in 0..SHIFT_LANES {
+                    let (y, x) = (oy + j, ox + k);
+                    if y < span && x < span && e[j][k] > 0.0 {
+                        scores[y * span + x] = num[j][k] / (e[j][k] * pn).sqrt();
+                    }
+                }
+            }
+        }
+    }
+    scores
 }
 
 /// PnP inliers (with ≥ 2/3 of the patch matches agreeing) that end the candidate search early
@@ -327,14 +410,32 @@ pub fn fine_stage<R: rand::Rng>(
     fine: &FineParams,
     rng: &mut R,
 ) -> std::result::Result<FineOutcome, String> {
-    fine_stage_partial(frame, map, prior_xy, cand, fine, rng).0
+    fine_stage_partial(&Sampled::new(frame), map, prior_xy, cand, fine, rng).0
+}
+
+/// A frame with its mip pyramid: built once per initialization, for the nominal view and every
+/// fine-stage iteration (which resample from it), and dropped with it (20–30 MB for a 5 MP
+/// frame, which the refinement after it does not need).
+struct Sampled<'f, 'a> {
+    frame: &'f Frame<'a>,
+    mip: Mip,
+}
+
+impl<'f, 'a> Sampled<'f, 'a> {
+    fn new(frame: &'f Frame<'a>) -> Self {
+        let cam = frame.camera();
+        Sampled {
+            frame,
+            mip: Mip::new(frame.gray(), cam.width() as usize, cam.height() as usize),
+        }
+    }
 }
 
 /// [`fine_stage`], and on failure the last iteration that did give a PnP pose (`None` when the
 /// first failed or all succeeded): the last resort of [`initialize`] with a verifier when no
 /// candidate's fine stage gets through all its iterations.
 fn fine_stage_partial<R: rand::Rng>(
-    frame: &Frame<'_>,
+    view: &Sampled<'_, '_>,
     map: MapLayers<'_>,
     prior_xy: (f64, f64),
     cand: &Candidate,
@@ -344,7 +445,7 @@ fn fine_stage_partial<R: rand::Rng>(
     std::result::Result<FineOutcome, String>,
     Option<FineOutcome>,
 ) {
-    let (cam, image): (&dyn CameraModel, _) = (frame.camera(), frame.gray());
+    let cam: &dyn CameraModel = view.frame.camera();
     let (sat, heights) = (map.satellite, map.heights);
     let (cx, cy) = (prior_xy.0 + cand.offset[0], prior_xy.1 + cand.offset[1]);
     let zg = height_at(heights, cx, cy).unwrap_or(0.0);
@@ -357,7 +458,7 @@ fn fine_stage_partial<R: rand::Rng>(
     let mut outcome: std::result::Result<FineOutcome, String> =
         Err("no fine iterations configured".to_string());
     for &(ph, sh, res, tol_m) in &fine.iterations {
-        let m = match_anchors(cam, image, sat, heights, &pose, (ph, sh, res), fine);
+        let m = match_anchors_mip(cam, &view.mip, sat, heights, &pose, (ph, sh, res), fine);
         let corr: Vec<_> = m.iter().map(|a| a.corr).collect();
         let c = pose.center();
         let cam_h = (c.z - height_at(heights, c.x, c.y).unwrap_or(c.z - cand.height)).max(1.0);
@@ -407,7 +508,8 @@ pub fn initialize<R: rand::Rng>(
     verifier: Option<&MiVerifier>,
     rng: &mut R,
 ) -> crate::Result<InitResult> {
-    let (cam, image): (&dyn CameraModel, _) = (frame.camera(), frame.gray());
+    let cam: &dyn CameraModel = frame.camera();
+    let view = Sampled::new(frame);
     let sat = map.satellite;
     let (prior_xy, search_radius_m) = (area.center, area.radius_m);
     let cands = match verifier {
@@ -416,9 +518,9 @@ pub fn initialize<R: rand::Rng>(
                 top_k: coarse.top_k.max(fine.verify.shortlist),
                 ..coarse.clone()
             };
-            coarse_candidates(cam, image, sat, prior_xy, search_radius_m, &longer)
+            coarse_candidates_mip(cam, &view.mip, sat, prior_xy, search_radius_m, &longer)
         }
-        None => coarse_candidates(cam, image, sat, prior_xy, search_radius_m, coarse),
+        None => coarse_candidates_mip(cam, &view.mip, sat, prior_xy, search_radius_m, coarse),
     };
     if cands.is_empty() {
         return Err(crate::Error::stage(
@@ -427,14 +529,14 @@ pub fn initialize<R: rand::Rng>(
         ));
     }
     if let Some(v) = verifier {
-        return initialize_verified(frame, map, prior_xy, &cands, fine, v, rng);
+        return initialize_verified(&view, map, prior_xy, &cands, fine, v, rng);
     }
     let mut best: Option<InitResult> = None;
     let mut last_err = String::new();
     let mut tried = 0;
     for (rank, cand) in cands.iter().enumerate() {
         tried = rank + 1;
-        let outcome = match fine_stage(frame, map, prior_xy, cand, fine, rng) {
+        let outcome = match fine_stage_partial(&view, map, prior_xy, cand, fine, rng).0 {
             Ok(f) => Some(f),
             Err(e) => {
                 last_err = e;
@@ -499,7 +601,7 @@ pub fn candidate_pose(
 /// iterations, the last resort is the PnP poses of the iterations before the ones that failed
 /// (satellite-confirmed at a coarser tolerance), each scored by the verifier.
 fn initialize_verified<R: rand::Rng>(
-    frame: &Frame<'_>,
+    view: &Sampled<'_, '_>,
     map: MapLayers<'_>,
     prior_xy: (f64, f64),
     cands: &[Candidate],
@@ -510,8 +612,10 @@ fn initialize_verified<R: rand::Rng>(
     let heights = map.heights;
     // Screening: MI of each sweep candidate's own pose. Candidates whose view holds too few LiDAR
     // points have no evidence and go last, in sweep order.
+    // Candidates in parallel as well as each one's grid cells: a screening's LiDAR disc is
+    // gathered serially, and the cells alone leave threads idle between candidates.
     let screened: Vec<Option<super::verify::Verdict>> = cands
-        .iter()
+        .par_iter()
         .map(|c| verifier.screen(&candidate_pose(heights, prior_xy, c)))
         .collect();
     let screen_mi = |i: usize| screened[i].map(|v| v.mi);
@@ -534,7 +638,7 @@ fn initialize_verified<R: rand::Rng>(
         // with PnP poses on equal terms; the screening only orders.
         let sweep =
             screened[rank].and_then(|_| verifier.verify(&candidate_pose(heights, prior_xy, cand)));
-        let (outcome, partial) = fine_stage_partial(frame, map, prior_xy, cand, fine, rng);
+        let (outcome, partial) = fine_stage_partial(view, map, prior_xy, cand, fine, rng);
         partials.extend(partial.map(|f| (rank, *cand, f)));
         let hyp = match outcome {
             Ok(f) => {
@@ -592,7 +696,7 @@ fn initialize_verified<R: rand::Rng>(
                 offset: [c.x - prior_xy.0, c.y - prior_xy.1],
                 score: cand.score,
             };
-            let (outcome, partial) = fine_stage_partial(frame, map, prior_xy, &climbed, fine, rng);
+            let (outcome, partial) = fine_stage_partial(view, map, prior_xy, &climbed, fine, rng);
             partials.extend(partial.map(|f| (rank, climbed, f)));
             match outcome {
                 Ok(f) => {
@@ -687,6 +791,74 @@ fn sweep_result(cand: &Candidate, rank: usize, s: &super::verify::Verdict) -> In
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The one-shift-at-a-time loop [`shift_scores`] blocks.
+    fn shift_scores_reference(
+        patch: &Field,
+        search: &Field,
+        side: usize,
+        span: usize,
+        pn: f64,
+    ) -> Vec<f64> {
+        let sw = search.width;
+        let mut scores = vec![f64::NEG_INFINITY; span * span];
+        for oy in 0..span {
+            for ox in 0..span {
+                let (mut num, mut e) = (0.0f64, 0.0f64);
+                for r in 0..side {
+                    let srow = &search.data[(oy + r) * sw + ox..(oy + r) * sw + ox + side];
+                    let prow = &patch.data[r * side..(r + 1) * side];
+                    for (s, t) in srow.iter().zip(prow) {
+                        num += (s * t.conj()).re as f64;
+                        e += s.norm_sqr() as f64;
+                    }
+                }
+                if e > 0.0 {
+                    scores[oy * span + ox] = num / (e * pn).sqrt();
+                }
+            }
+        }
+        scores
+    }
+
+    #[test]
+    fn blocked_shift_scores_equal_the_one_shift_loop() {
+        use rand::{Rng, SeedableRng};
+        use rustfft::num_complex::Complex32;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(18);
+        // The fine stage's sizes (patch side 31 and 41, spans 21, 13, 9) and odd small ones, with
+        // zero stretches as a masked field has.
+        for (side, span) in [
+            (31usize, 21usize),
+            (31, 13),
+            (41, 13),
+            (41, 9),
+            (3, 1),
+            (5, 2),
+            (7, 6),
+        ] {
+            let field = |w: usize, rng: &mut rand_chacha::ChaCha8Rng| Field {
+                width: w,
+                height: w,
+                data: (0..w * w)
+                    .map(|_| {
+                        if rng.random_bool(0.2) {
+                            Complex32::new(0.0, 0.0)
+                        } else {
+                            Complex32::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0))
+                        }
+                    })
+                    .collect(),
+            };
+            let patch = field(side, &mut rng);
+            let search = field(side + span - 1, &mut rng);
+            let pn: f64 = patch.data.iter().map(|z| z.norm_sqr() as f64).sum();
+            let got = shift_scores(&patch, &search, side, span, pn);
+            let want = shift_scores_reference(&patch, &search, side, span, pn);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&got), bits(&want), "side {side} span {span}");
+        }
+    }
     use crate::camera::Mei;
     use crate::localize::coarse::*;
     use crate::map::{Crs, GeoGrid};

@@ -177,7 +177,8 @@ impl Fft2 {
     }
 
     /// Row transforms of the first `first` rows, transpose, row transforms of the first `second`
-    /// rows (both at most n).
+    /// rows (both at most n). Rows from `first` on must be zero on entry, and rows from
+    /// `second` on are left unspecified: the transpose moves only what the second pass reads.
     fn run(
         &self,
         f: &Arc<dyn Fft<f32>>,
@@ -187,11 +188,12 @@ impl Fft2 {
         second: usize,
     ) {
         let n = self.n;
+        let (first, second) = (first.min(n), second.min(n));
         // rustfft's `process` allocates this scratch on every call; keep it across calls.
         scratch.resize(f.get_inplace_scratch_len(), Complex32::default());
-        f.process_with_scratch(&mut buf[..first.min(n) * n], scratch);
-        transpose(buf, n);
-        f.process_with_scratch(&mut buf[..second.min(n) * n], scratch);
+        f.process_with_scratch(&mut buf[..first * n], scratch);
+        transpose_pruned(buf, n, first, second);
+        f.process_with_scratch(&mut buf[..second * n], scratch);
     }
 
     /// Forward transform in place (output transposed). `scratch` is reused between calls.
@@ -218,7 +220,7 @@ impl Fft2 {
     }
 
     /// [`Fft2::inverse`] whose output is needed in its first `rows` rows only (the valid shifts
-    /// of a correlation): the rest are left as partial sums. Those rows are bit-identical to
+    /// of a correlation): the rest are left unspecified. Those rows are bit-identical to
     /// `inverse`'s.
     pub(crate) fn inverse_top_rows(
         &self,
@@ -250,13 +252,38 @@ const TRANSPOSE_BLOCK: usize = 32;
 
 /// `buf` (n × n, row-major) transposed in place by swapping mirrored elements, block by block
 /// (pure data movement: the result is the same as the element-by-element loop's, without a copy).
+#[cfg(test)]
 fn transpose(buf: &mut [Complex32], n: usize) {
-    for bi in (0..n).step_by(TRANSPOSE_BLOCK) {
+    transpose_pruned(buf, n, n, n)
+}
+
+/// [`transpose`] of a `buf` whose rows from `nonzero` on are zero, where only the first `keep`
+/// rows of the result are wanted: mirrored pairs that are both zero stay, a pair with one zero
+/// side is a copy and a zero, and a pair whose lower half lands in an unwanted row is a copy.
+/// The first `keep` rows are those of the full transpose, and so are the others when `keep` is
+/// n. (The sweep's templates fill a third of their rows; its correlations are read in two
+/// thirds.)
+fn transpose_pruned(buf: &mut [Complex32], n: usize, nonzero: usize, keep: usize) {
+    let zero = Complex32::new(0.0, 0.0);
+    // Pairs (i, j), i < j: element (i, j) goes to row j, (j, i) to row i. Rows i ≥ `nonzero`
+    // pair only zeros. For i < `nonzero`: up to `split` both rows are data and wanted (a swap),
+    // up to `nonzero` row j is unwanted (a copy into row i), beyond it row j is zero (a copy
+    // into row j and a zero into row i).
+    let split = nonzero.min(keep);
+    for bi in (0..nonzero).step_by(TRANSPOSE_BLOCK) {
         for bj in (bi..n).step_by(TRANSPOSE_BLOCK) {
-            for i in bi..(bi + TRANSPOSE_BLOCK).min(n) {
+            let j1 = (bj + TRANSPOSE_BLOCK).min(n);
+            for i in bi..(bi + TRANSPOSE_BLOCK).min(nonzero) {
                 let j0 = if bi == bj { i + 1 } else { bj };
-                for j in j0..(bj + TRANSPOSE_BLOCK).min(n) {
+                for j in j0..j1.min(split) {
                     buf.swap(i * n + j, j * n + i);
+                }
+                for j in j0.max(split)..j1.min(nonzero) {
+                    buf[i * n + j] = buf[j * n + i];
+                }
+                for j in j0.max(nonzero)..j1 {
+                    buf[j * n + i] = buf[i * n + j];
+                    buf[i * n + j] = zero;
                 }
             }
         }
@@ -355,6 +382,82 @@ impl SearchField {
     }
 }
 
+/// Relative margin by which [`sweep`]'s score estimate may fall short of the best exact score
+/// and still be computed exactly: the estimate and the exact score differ by a few rounding
+/// errors (~10⁻¹⁵ relative), so 10⁻⁹ is a wide margin, and a shift within it costs only the
+/// exact computation.
+const SCORE_SLACK: f64 = 1e-9;
+
+/// A shift of the template inside the search field that [`sweep`] scores.
+struct Shift {
+    /// Its element of the correlation buffer (row-major, side n).
+    index: usize,
+    /// The satellite field's energy under the template's disk there (> 0) …
+    energy: f64,
+    /// … and 1 / √ of it.
+    inv_sqrt_energy: f64,
+    /// The camera offset it stands for, metres (east, north).
+    offset: [f64; 2],
+}
+
+/// The shifts [`sweep`] scores, in row-major order: those among the first `valid` × `valid`
+/// whose disk holds satellite energy and whose camera position lies within `max_offset_m` of
+/// the field's centre. Neither depends on the hypothesis, so both are settled here once: the
+/// energy is the correlation of the satellite's |z|² with the disk mask (one FFT pair).
+fn scored_shifts(
+    search: &SearchField,
+    r_px: isize,
+    side: usize,
+    valid: usize,
+    centre: f64,
+    max_offset_m: f64,
+) -> Vec<Shift> {
+    let n = search.fft.size();
+    let res = search.res;
+    let mut scratch = Vec::new();
+    let mut mask = vec![Complex32::new(0.0, 0.0); n * n];
+    for dy in 0..side {
+        for dx in 0..side {
+            let (ex, ey) = (dx as isize - r_px, dy as isize - r_px);
+            if ex * ex + ey * ey <= r_px * r_px {
+                mask[dy * n + dx] = Complex32::new(1.0, 0.0);
+            }
+        }
+    }
+    search.fft.forward(&mut mask, &mut scratch);
+    let mut local = vec![Complex32::new(0.0, 0.0); n * n];
+    for ((l, e), m) in local.iter_mut().zip(&search.energy).zip(&mask) {
+        *l = e * m.conj();
+    }
+    search.fft.inverse(&mut local, &mut scratch);
+    let inv_n2 = 1.0 / (n * n) as f64;
+    // A hypothesis outside the prior's search disk is not one the prior allows; the corners of
+    // the square field would only add chances for a false peak.
+    let max_off_px2 = (max_offset_m / res).powi(2);
+    let mut shifts = Vec::new();
+    for y in 0..valid {
+        for x in 0..valid {
+            // The inverse transform is unscaled (×n²).
+            let e = local[y * n + x].re as f64 * inv_n2;
+            if e <= 0.0 {
+                continue;
+            }
+            let cx = x as f64 + r_px as f64 - centre;
+            let cy = y as f64 + r_px as f64 - centre;
+            if cx * cx + cy * cy > max_off_px2 {
+                continue;
+            }
+            shifts.push(Shift {
+                index: y * n + x,
+                energy: e,
+                inv_sqrt_energy: 1.0 / e.sqrt(),
+                offset: [cx * res, -cy * res],
+            });
+        }
+    }
+    shifts
+}
+
 /// Dense sweep over yaw × height × translation. The search field must cover the search window plus
 /// the largest template radius on every side; offsets are relative to its centre.
 pub(crate) fn sweep(
@@ -366,35 +469,35 @@ pub(crate) fn sweep(
     let res = search.res;
     let n_yaw = (360.0 / p.yaw_step_deg).round().max(1.0) as usize;
     let centre = (search.size as f64 - 1.0) / 2.0;
+    // One radius for every height: a correlation over fewer pixels has a higher noise maximum,
+    // so height-dependent templates would bias the sweep towards low heights.
+    let radius_m = p.effective_template_radius_m(nominal.q_max);
+    let r_px = (radius_m / res).floor() as isize;
+    let side = (2 * r_px + 1) as usize;
+    if side >= search.size {
+        return Vec::new();
+    }
+    let inv_n2 = 1.0 / (n * n) as f64;
+    let valid = search.size - side + 1; // shifts with the template fully inside
+    let shifts = scored_shifts(search, r_px, side, valid, centre, p.max_offset_m);
+    // The template's disk, row by row: the columns dx ∈ [lo, hi) with ex² + ey² ≤ r².
+    let disk_rows: Vec<(usize, usize)> = (0..side)
+        .map(|dy| {
+            let ey = dy as isize - r_px;
+            let inside = |dx: &usize| {
+                let ex = *dx as isize - r_px;
+                ex * ex + ey * ey <= r_px * r_px
+            };
+            let lo = (0..side).find(inside).unwrap_or(side);
+            let hi = (lo..side).rfind(inside).map_or(lo, |x| x + 1);
+            (lo, hi)
+        })
+        .collect();
     let per_height: Vec<Vec<Candidate>> = p
         .heights
         .par_iter()
         .map(|&h| {
-            // One radius for every height: a correlation over fewer pixels has a higher noise
-            // maximum, so height-dependent templates would bias the sweep towards low heights.
-            let radius_m = p.effective_template_radius_m(nominal.q_max);
-            let r_px = (radius_m / res).floor() as isize;
-            let side = (2 * r_px + 1) as usize;
-            if side >= search.size {
-                return Vec::new();
-            }
             let mut scratch = Vec::new();
-            // Local energy of the satellite under the disk mask at every shift.
-            let mut mask = vec![Complex32::new(0.0, 0.0); n * n];
-            for dy in 0..side {
-                for dx in 0..side {
-                    let (ex, ey) = (dx as isize - r_px, dy as isize - r_px);
-                    if ex * ex + ey * ey <= r_px * r_px {
-                        mask[dy * n + dx] = Complex32::new(1.0, 0.0);
-                    }
-                }
-            }
-            search.fft.forward(&mut mask, &mut scratch);
-            let mut local = vec![Complex32::new(0.0, 0.0); n * n];
-            for ((l, e), m) in local.iter_mut().zip(&search.energy).zip(&mask) {
-                *l = e * m.conj();
-            }
-            search.fft.inverse(&mut local, &mut scratch);
             // Pyramid level whose step is closest to (not finer than half) the template step.
             let want = res / h;
             let mut level = 0;
@@ -404,18 +507,15 @@ pub(crate) fn sweep(
                 level += 1;
             }
             let f = &nominal.levels[level];
-            let scale = 2f64.powi(level as i32);
+            // A power of two: multiplying by its inverse is exactly dividing by it.
+            let inv_scale = 1.0 / 2f64.powi(level as i32);
             // Level-l pixel X averages level-0 pixels [2^l X, 2^l X + 2^l): its centre sits at
             // level-0 coordinate (X + 0.5)·2^l − 0.5.
             let c0 = (nominal.levels[0].width as f64 - 1.0) / 2.0;
-            let to_level = |x0: f64| ((x0 + 0.5) / scale - 0.5) as f32;
-            let inv_n2 = 1.0 / (n * n) as f64;
-            let valid = search.size - side + 1; // shifts with the template fully inside
-                                                // A hypothesis outside the prior's search disk is not one the prior allows; the
-                                                // corners of the square field would only add chances for a false peak.
-            let max_off_px2 = (p.max_offset_m / res).powi(2);
+            let to_level = |x0: f64| ((x0 + 0.5) * inv_scale - 0.5) as f32;
             let mut best: Vec<Candidate> = Vec::new();
             let mut buf = vec![Complex32::new(0.0, 0.0); n * n];
+            let (mut xs, mut ys) = (vec![0.0f32; side], vec![0.0f32; side]);
             for k in 0..n_yaw {
                 let yaw = (k as f64 * p.yaw_step_deg).to_radians();
                 let (s, c) = yaw.sin_cos();
@@ -424,21 +524,24 @@ pub(crate) fn sweep(
                 let phase = Complex32::from_polar(1.0, (-2.0 * yaw) as f32);
                 buf.iter_mut().for_each(|v| *v = Complex32::new(0.0, 0.0));
                 let mut tnorm = 0.0f64;
-                for dy in 0..side {
-                    for dx in 0..side {
-                        let (ex, ey) = (dx as isize - r_px, dy as isize - r_px);
-                        if ex * ex + ey * ey > r_px * r_px {
-                            continue;
-                        }
-                        // Map offset u (east, north) of this template pixel, then q = Rz(−ψ)u / h.
+                for (dy, &(lo, hi)) in disk_rows.iter().enumerate() {
+                    let ey = dy as isize - r_px;
+                    // Where each template pixel of the row samples the nominal field: the
+                    // coordinates first (a loop of divisions the compiler can pair), then the
+                    // samples.
+                    for dx in lo..hi {
+                        let ex = dx as isize - r_px;
+                        // Map offset u (east, north) of this pixel, then q = Rz(−ψ)u / h.
                         let (ux, uy) = (ex as f64 * res, -(ey as f64) * res);
                         let (qx, qy) = ((c * ux + s * uy) / h, (-s * ux + c * uy) / h);
-                        let z = f.sample(
-                            to_level(c0 + qx / nominal.dq),
-                            to_level(c0 - qy / nominal.dq),
-                        ) * phase;
+                        xs[dx] = to_level(c0 + qx / nominal.dq);
+                        ys[dx] = to_level(c0 - qy / nominal.dq);
+                    }
+                    let row = &mut buf[dy * n..dy * n + side];
+                    for dx in lo..hi {
+                        let z = f.sample(xs[dx], ys[dx]) * phase;
                         tnorm += z.norm_sqr() as f64;
-                        buf[dy * n + dx] = z;
+                        row[dx] = z;
                     }
                 }
                 if tnorm <= 0.0 {
@@ -451,29 +554,30 @@ pub(crate) fn sweep(
                     *b = s * b.conj();
                 }
                 search.fft.inverse_top_rows(&mut buf, &mut scratch, valid);
+                // Both inverse transforms are unscaled (×n²). The score of a shift is
+                // a / √(e·tnorm); the first of the highest wins. Its estimate a·(1/√e)·(1/√tnorm)
+                // is within ~10⁻¹⁵ (relative) of it, so a shift whose estimate falls short of the
+                // best score so far by more than `SCORE_SLACK` cannot beat it, and only the
+                // others pay for the exact square root and division: the same winner, from the
+                // same exact scores.
+                let inv_sqrt_t = 1.0 / tnorm.sqrt();
                 let mut top = Candidate {
                     yaw,
                     height: h,
                     offset: [0.0; 2],
                     score: f64::NEG_INFINITY,
                 };
-                for y in 0..valid {
-                    for x in 0..valid {
-                        // Both inverse transforms are unscaled (×n²).
-                        let e = local[y * n + x].re as f64 * inv_n2;
-                        if e <= 0.0 {
-                            continue;
-                        }
-                        let cx = x as f64 + r_px as f64 - centre;
-                        let cy = y as f64 + r_px as f64 - centre;
-                        if cx * cx + cy * cy > max_off_px2 {
-                            continue;
-                        }
-                        let sc = buf[y * n + x].re as f64 * inv_n2 / (e * tnorm).sqrt();
-                        if sc > top.score {
-                            top.score = sc;
-                            top.offset = [cx * res, -cy * res];
-                        }
+                let mut bar = f64::NEG_INFINITY;
+                for sh in &shifts {
+                    let a = buf[sh.index].re as f64 * inv_n2;
+                    if a * sh.inv_sqrt_energy * inv_sqrt_t < bar {
+                        continue;
+                    }
+                    let sc = a / (sh.energy * tnorm).sqrt();
+                    if sc > top.score {
+                        top.score = sc;
+                        top.offset = sh.offset;
+                        bar = sc - SCORE_SLACK * sc.abs() - f64::MIN_POSITIVE;
                     }
                 }
                 if top.score.is_finite() {
@@ -560,6 +664,26 @@ mod tests {
                 for x in 0..n {
                     assert_eq!(buf[x * n + y], orig[y * n + x], "n {n} at ({x}, {y})");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn pruned_transpose_gives_the_wanted_rows_of_the_full_one() {
+        for n in [5usize, 33, 64, 100] {
+            for (nonzero, keep) in [(n, n), (1, n), (n / 3, n), (n, n / 2), (n / 3, 2 * n / 3)] {
+                let mut orig: Vec<Complex32> = (0..n * n)
+                    .map(|i| Complex32::new(i as f32 + 1.0, -(i as f32) * 0.5))
+                    .collect();
+                orig[nonzero * n..].fill(Complex32::new(0.0, 0.0));
+                let mut full = orig.clone();
+                transpose(&mut full, n);
+                let mut pruned = orig.clone();
+                transpose_pruned(&mut pruned, n, nonzero, keep);
+                assert!(
+                    pruned[..keep * n] == full[..keep * n],
+                    "n {n}, nonzero {nonzero}, keep {keep}"
+                );
             }
         }
     }

@@ -20,7 +20,7 @@
 use super::ground::{focal_px, ground_disc, Mip};
 use super::mi::{bin_lut, mutual_information, Binning, JointHist};
 use crate::camera::CameraModel;
-use crate::map::{ground_points, Tile};
+use crate::map::{ground_points_iter, Tile};
 use crate::pose::CamFromMap;
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
@@ -117,6 +117,28 @@ impl<'a> MiVerifier<'a> {
         &self.p
     }
 
+    /// (reflectivity, gray) of the points of `pts` that `cam` sees from `pose`, the gray sampled
+    /// at mip level `level`; generic so that [`Self::mi_at`] runs it on the concrete model.
+    fn pairs<C: CameraModel + ?Sized>(
+        &self,
+        cam: &C,
+        pose: &CamFromMap,
+        pts: &[(Point3<f64>, u8)],
+        level: usize,
+    ) -> Vec<(u8, u8)> {
+        let mut pairs: Vec<(u8, u8)> = Vec::with_capacity(pts.len());
+        let cos_max_theta = cam.max_theta().cos();
+        for (p, r) in pts {
+            let Ok(px) = cam.project_visible_cos(&pose.transform(p).coords, cos_max_theta) else {
+                continue;
+            };
+            if let Some(g) = self.mip.sample_level(level, px.x, px.y) {
+                pairs.push((*r, g.clamp(0.0, 255.0) as u8));
+            }
+        }
+        pairs
+    }
+
     /// Bias-corrected MI at exactly `pose` with the given points (`None` below `min_points`).
     fn mi_at(
         &self,
@@ -125,19 +147,11 @@ impl<'a> MiVerifier<'a> {
         footprint: f64,
         points: usize,
     ) -> Option<(f64, usize)> {
-        let mut pairs: Vec<(u8, u8)> = Vec::with_capacity(pts.len());
-        let cos_max_theta = self.cam.max_theta().cos();
-        for (p, r) in pts {
-            let Ok(px) = self
-                .cam
-                .project_visible_cos(&pose.transform(p).coords, cos_max_theta)
-            else {
-                continue;
-            };
-            if let Some(g) = self.mip.sample(px.x, px.y, footprint) {
-                pairs.push((*r, g.clamp(0.0, 255.0) as u8));
-            }
-        }
+        let level = self.mip.level(footprint);
+        let pairs = match self.cam.as_mei() {
+            Some(mei) => self.pairs(mei, pose, pts, level),
+            None => self.pairs(self.cam, pose, pts, level),
+        };
         if pairs.len() < self.p.min_points {
             return None;
         }
@@ -194,12 +208,14 @@ impl<'a> MiVerifier<'a> {
             self.p.max_off_nadir_deg,
             self.p.max_radius_m,
         );
-        let pts: Vec<(Point3<f64>, u8)> = ground_points(self.tile, (c.x, c.y), radius)
-            .into_iter()
+        // The disc holds ~10⁵ cells and a few thousand are kept: count, then walk again.
+        let disc = || ground_points_iter(self.tile, (c.x, c.y), radius);
+        let stride = (disc().count() / keep.max(1)).max(1);
+        let pts = disc()
+            .step_by(stride)
             .map(|g| (Point3::new(g.x, g.y, g.z), g.reflectivity))
             .collect();
-        let stride = (pts.len() / keep.max(1)).max(1);
-        (cam_h, pts.into_iter().step_by(stride).collect())
+        (cam_h, pts)
     }
 
     /// Climb the MI from `pose` over x, y, yaw and height: coordinate ascent with steps

@@ -182,14 +182,23 @@ pub struct GroundPoint {
 /// south, columns west → east), i.e. the raster order. A tile whose reflectivity and height grids
 /// differ yields no points ([`cache::write_tile`] and [`cache::load_tile`] refuse such tiles).
 pub(crate) fn ground_points(tile: &Tile, center_xy: (f64, f64), radius_m: f64) -> Vec<GroundPoint> {
+    ground_points_iter(tile, center_xy, radius_m).collect()
+}
+
+/// [`ground_points`] one at a time, in the same order, without collecting them: a caller that
+/// keeps only a stride of them (initialization's verifier) counts them and then walks them again
+/// instead of allocating all the disc's points.
+pub(crate) fn ground_points_iter(
+    tile: &Tile,
+    center_xy: (f64, f64),
+    radius_m: f64,
+) -> impl Iterator<Item = GroundPoint> + '_ {
     let refl = &tile.reflectivity;
     let hgt = &tile.height;
     let g = refl.grid;
-    if !(radius_m >= 0.0) || g.is_empty() || hgt.grid != g {
-        return Vec::new();
-    }
+    let usable = radius_m >= 0.0 && !g.is_empty() && hgt.grid == g;
     let (cx, cy) = center_xy;
-    // Pixel-index window of the circle's bounding box, clamped to the grid.
+    // Pixel-index window of the circle's bounding box, clamped to the grid (empty when unusable).
     let (pc, pr) = g.to_pixel(cx, cy);
     let rpx = radius_m / g.res;
     let clamp = |v: f64, n: usize| -> usize { v.max(0.0).min(n as f64) as usize };
@@ -197,33 +206,35 @@ pub(crate) fn ground_points(tile: &Tile, center_xy: (f64, f64), radius_m: f64) -
         clamp((pc - rpx).floor(), g.width),
         clamp((pc + rpx).ceil() + 1.0, g.width),
     );
-    let (r0, r1) = (
-        clamp((pr - rpx).floor(), g.height),
-        clamp((pr + rpx).ceil() + 1.0, g.height),
-    );
+    let (r0, r1) = if usable {
+        (
+            clamp((pr - rpx).floor(), g.height),
+            clamp((pr + rpx).ceil() + 1.0, g.height),
+        )
+    } else {
+        (0, 0)
+    };
     let r2 = radius_m * radius_m;
-    let mut out = Vec::new();
-    for row in r0..r1 {
-        for col in c0..c1 {
+    (r0..r1).flat_map(move |row| {
+        (c0..c1).filter_map(move |col| {
             let (x, y) = g.pixel_center(col, row);
             if (x - cx).powi(2) + (y - cy).powi(2) > r2 {
-                continue;
+                return None;
             }
             let i = row * g.width + col;
             let r = refl.data[i];
             let z = hgt.data[i];
             if Some(r) == refl.nodata || z.is_nan() || Some(z) == hgt.nodata {
-                continue;
+                return None;
             }
-            out.push(GroundPoint {
+            Some(GroundPoint {
                 x,
                 y,
                 z: f64::from(z),
                 reflectivity: r,
-            });
-        }
-    }
-    out
+            })
+        })
+    })
 }
 
 #[cfg(test)]
