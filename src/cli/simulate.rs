@@ -23,7 +23,7 @@ pub enum PresetArg {
 pub enum DifficultyArg {
     /// Level camera, good GPS, exact intrinsics, light traffic.
     Easy,
-    /// Tilted camera, 5 m GPS, slightly wrong intrinsics, dense traffic.
+    /// Tilted camera, 5 m GPS, calibrated (not exact) intrinsics, dense traffic.
     Hard,
 }
 

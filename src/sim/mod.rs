@@ -79,7 +79,7 @@ pub enum Preset {
 pub enum Difficulty {
     /// Level camera, good GPS (σ ≈ 2 m), exact intrinsics, light traffic, sunny.
     Easy,
-    /// Roll/pitch ±3°, GPS σ ≈ 5 m, slightly wrong intrinsics, dense traffic, noisy sensor.
+    /// Roll/pitch ±3°, GPS σ ≈ 5 m, calibrated (not exact) intrinsics, dense traffic, noisy sensor.
     Hard,
 }
 
