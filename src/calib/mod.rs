@@ -134,6 +134,21 @@ pub(crate) struct Calibration {
     pub not_found: Vec<NotFound>,
 }
 
+impl Calibration {
+    /// The intrinsics uncertainty a camera file states for this fit
+    /// ([`crate::camera::import::IntrinsicsSigma`]), from the parameters' standard deviations:
+    /// the larger of the two focal lengths' relative σ, the larger principal-point coordinate's σ.
+    pub(crate) fn stated_sigma(&self) -> crate::camera::import::IntrinsicsSigma {
+        let p = |name: &str| self.params.iter().find(|p| p.name == name);
+        let rel = |name: &str| p(name).map_or(0.0, |p| (p.std / p.value).abs());
+        let std = |name: &str| p(name).map_or(0.0, |p| p.std);
+        crate::camera::import::IntrinsicsSigma {
+            focal_rel: rel("fx").max(rel("fy")),
+            principal_point_px: std("cx").max(std("cy")),
+        }
+    }
+}
+
 /// An image without a usable board.
 #[derive(Debug, Clone, Serialize)]
 pub struct NotFound {

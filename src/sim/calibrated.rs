@@ -21,33 +21,26 @@ const BOARD: Board = Board {
 pub(crate) const VIEWS: usize = 16;
 
 /// A calibration of `truth` from [`VIEWS`] rendered board views (deterministic for `seed`): the
-/// fitted camera, the σ it states (from the fit's parameter standard deviations: the larger
-/// focal's relative σ, the larger principal-point coordinate's σ) and the fit's RMS (px).
+/// fitted camera and the σ it states ([`calib::Calibration::stated_sigma`]).
 /// `Err` names the stage that failed (no board found, the fit).
 pub(crate) fn calibrated_camera(
     truth: &Camera,
     seed: u64,
-) -> Result<(Camera, IntrinsicsSigma, f64), String> {
+) -> Result<(Camera, IntrinsicsSigma), String> {
     let (w, h) = (truth.width(), truth.height());
     let views = render(truth, &BOARD, VIEWS, seed);
-    let found: Vec<(usize, Result<detect::Found, String>)> = views
+    // Views without a board are dropped, as `calibrate --images` lists and skips them.
+    let views: Vec<calib::View> = views
         .par_iter()
         .enumerate()
-        .map(|(i, v)| {
-            (
-                i,
-                detect::detect(&v.image, w, h, BOARD.cols, BOARD.rows, BOARD.square),
-            )
-        })
-        .collect();
-    let views: Vec<calib::View> = found
-        .into_iter()
-        .filter_map(|(i, f)| {
-            f.ok().map(|f| calib::View {
-                name: format!("view {i}"),
-                object: f.object,
-                image: f.image,
-            })
+        .filter_map(|(i, v)| {
+            detect::detect(&v.image, w, h, BOARD.cols, BOARD.rows, BOARD.square)
+                .ok()
+                .map(|f| calib::View {
+                    name: format!("view {i}"),
+                    object: f.object,
+                    image: f.image,
+                })
         })
         .collect();
     let obs = calib::Observations {
@@ -60,13 +53,7 @@ pub(crate) fn calibrated_camera(
         Camera::Equidistant(_) => LensModel::Equidistant,
     };
     let c = calib::calibrate(&obs, model).map_err(|e| format!("calibration: {e}"))?;
-    let p = |name: &str| c.params.iter().find(|p| p.name == name);
-    let rel = |name: &str| p(name).map_or(0.0, |p| (p.std / p.value).abs());
-    let std = |name: &str| p(name).map_or(0.0, |p| p.std);
-    let sigma = IntrinsicsSigma {
-        focal_rel: rel("fx").max(rel("fy")),
-        principal_point_px: std("cx").max(std("cy")),
-    };
+    let sigma = c.stated_sigma();
     // The lens's field of view is its datasheet's, not something a board calibration measures:
     // an installer writes it into the camera file as well.
     let mut camera = c.camera;
@@ -78,5 +65,5 @@ pub(crate) fn calibrated_camera(
         }
         _ => {}
     }
-    Ok((camera, sigma, c.rms))
+    Ok((camera, sigma))
 }

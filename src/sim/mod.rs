@@ -437,7 +437,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         _ if !hard => (camera_given, None),
         GivenIntrinsics::Offset => (camera_given, Some(HARD_INTRINSICS_SIGMA)),
         GivenIntrinsics::Calibrated => {
-            let (c, sigma, _rms) =
+            let (c, sigma) =
                 calibrated::calibrated_camera(&camera_true, mix64(settings.seed ^ 0xCA1B_0A2D))
                     .map_err(|e| Error::Invalid(format!("simulate: given intrinsics: {e}")))?;
             (c, Some(sigma))
