@@ -192,6 +192,32 @@ fn omni_calib_data_matches_opencv() {
     // for this data are of that order).
     assert!(params[0]["std"].as_f64().unwrap() < 0.02 * m.fx);
     assert!(params[9]["std"].as_f64().unwrap() < 0.05);
+    // The camera file states the fit's σ, which localize carries into the pose's covariance:
+    // the larger focal length's relative σ and the larger principal-point coordinate's σ.
+    let text = std::fs::read_to_string(&yaml).unwrap();
+    let key = |k: &str| -> f64 {
+        let line = text
+            .lines()
+            .find(|l| l.starts_with(&format!("{k}:")))
+            .unwrap_or_else(|| panic!("{k} missing from\n{text}"));
+        line[k.len() + 1..].trim().parse().unwrap()
+    };
+    let std_of = |name: &str| {
+        let p = params.iter().find(|p| p["name"] == name).unwrap();
+        (p["std"].as_f64().unwrap(), p["value"].as_f64().unwrap())
+    };
+    let rel = |n: &str| std_of(n).0 / std_of(n).1;
+    let want_f = rel("fx").max(rel("fy"));
+    let want_c = std_of("cx").0.max(std_of("cy").0);
+    assert!(
+        (key("sigma_focal_rel") - want_f).abs() <= 1e-9 * want_f,
+        "{text}"
+    );
+    assert!(
+        (key("sigma_principal_point_px") - want_c).abs() <= 1e-9 * want_c,
+        "{text}"
+    );
+    assert!(want_f > 0.0 && want_c > 0.0);
     let img = image::open(&png).unwrap();
     assert_eq!((img.width(), img.height()), (1024, 768));
 }

@@ -442,10 +442,13 @@ fn rms_of(r: &[[f64; 2]]) -> f64 {
 }
 
 /// The calibration as OpenCV FileStorage YAML: the camera (docs/interfaces.md, "Camera intrinsics files"; read back by
-/// [`crate::camera::load_camera`] and by `cv2.FileStorage`) plus `rms`.
+/// [`crate::camera::load_camera`] and by `cv2.FileStorage`), `rms`, and the σ the fit states
+/// ([`Calibration::stated_sigma`]: `sigma_focal_rel`, `sigma_principal_point_px`), which
+/// `localize` carries into the pose's covariance.
 pub(crate) fn to_yaml(c: &Calibration) -> String {
     let mut s = crate::camera::to_opencv_yaml(&c.camera);
     s.push_str(&format!("rms: {:e}\n", c.rms));
+    s.push_str(&c.stated_sigma().yaml_lines());
     s
 }
 
