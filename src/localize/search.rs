@@ -900,32 +900,55 @@ fn prepare_view(
 fn blur3(gray: &[u8], mask: &[u8], w: usize, h: usize) -> Vec<u8> {
     const K: [u32; 3] = [1, 2, 1];
     let mut out = gray.to_vec();
-    // Rows in parallel: each output row reads only the input, so the result is the same.
-    out.par_chunks_mut(w.max(1))
-        .enumerate()
-        .for_each(|(v, row)| {
+    // A valid pixel near the mask's edge or the image's averages its valid neighbours only.
+    let edge = |u: usize, v: usize| -> u8 {
+        let (mut acc, mut wsum) = (0u32, 0u32);
+        for (j, kj) in K.iter().enumerate() {
+            let y = v + j;
+            if y < 1 || y > h {
+                continue;
+            }
+            for (i, ki) in K.iter().enumerate() {
+                let x = u + i;
+                if x < 1 || x > w || mask[(y - 1) * w + x - 1] == 0 {
+                    continue;
+                }
+                acc += kj * ki * gray[(y - 1) * w + x - 1] as u32;
+                wsum += kj * ki;
+            }
+        }
+        ((acc + wsum / 2) / wsum.max(1)) as u8
+    };
+    // Rows in parallel: each output row reads only the input, so the result is the same. Inside
+    // the mask (all nine pixels valid, most of the image) the kernel is separable and its weights
+    // sum to 16: the column sums once per pixel, then the row's; the same integers as the edge
+    // formula.
+    out.par_chunks_mut(w.max(1)).enumerate().for_each_init(
+        || (vec![0u16; w], vec![false; w]),
+        |(col, all), (v, row)| {
+            let inner_row = v >= 1 && v + 1 < h;
+            if inner_row {
+                let r = |k: usize| k * w..(k + 1) * w;
+                let (g0, g1, g2) = (&gray[r(v - 1)], &gray[r(v)], &gray[r(v + 1)]);
+                let (m0, m1, m2) = (&mask[r(v - 1)], &mask[r(v)], &mask[r(v + 1)]);
+                for u in 0..w {
+                    col[u] = g0[u] as u16 + 2 * g1[u] as u16 + g2[u] as u16;
+                    all[u] = m0[u] != 0 && m1[u] != 0 && m2[u] != 0;
+                }
+            }
             for (u, o) in row.iter_mut().enumerate() {
                 if mask[v * w + u] == 0 {
                     continue;
                 }
-                let (mut acc, mut wsum) = (0u32, 0u32);
-                for (j, kj) in K.iter().enumerate() {
-                    let y = v + j;
-                    if y < 1 || y > h {
-                        continue;
-                    }
-                    for (i, ki) in K.iter().enumerate() {
-                        let x = u + i;
-                        if x < 1 || x > w || mask[(y - 1) * w + x - 1] == 0 {
-                            continue;
-                        }
-                        acc += kj * ki * gray[(y - 1) * w + x - 1] as u32;
-                        wsum += kj * ki;
-                    }
-                }
-                *o = ((acc + wsum / 2) / wsum.max(1)) as u8;
+                *o = if inner_row && u >= 1 && u + 1 < w && all[u - 1] && all[u] && all[u + 1] {
+                    let acc = col[u - 1] as u32 + 2 * col[u] as u32 + col[u + 1] as u32;
+                    ((acc + 8) / 16) as u8
+                } else {
+                    edge(u, v)
+                };
             }
-        });
+        },
+    );
     out
 }
 
@@ -1005,43 +1028,57 @@ fn surely_visible(
 }
 
 /// Per pixel, the chessboard distance to the nearest pixel whose `mask` is 0 or to the outside of
-/// the image (1 on a valid pixel next to an invalid one, 0 on an invalid one).
+/// the image (1 on a valid pixel next to an invalid one, 0 on an invalid one). Two chamfer passes
+/// with the image border handled apart, so that the inner loops read their neighbours without
+/// bounds tests (a pixel on the border has an outside neighbour, so its distance is 1 when valid);
+/// the unit tests keep the plain per-neighbour version as the reference.
 fn chessboard_distance(mask: &[u8], w: usize, h: usize) -> Vec<u16> {
     let mut d = vec![0u16; w * h];
-    let at = |d: &[u16], u: isize, v: isize| -> u16 {
-        if u < 0 || v < 0 || u >= w as isize || v >= h as isize {
-            0
-        } else {
-            d[v as usize * w + u as usize]
-        }
-    };
-    for v in 0..h as isize {
-        for u in 0..w as isize {
-            let i = v as usize * w + u as usize;
-            if mask[i] == 0 {
-                continue;
-            }
-            let m = [(-1, -1), (0, -1), (1, -1), (-1, 0)]
-                .iter()
-                .map(|&(du, dv)| at(&d, u + du, v + dv))
-                .min()
-                .unwrap_or(0);
-            d[i] = m.saturating_add(1);
-        }
+    if w < 3 || h < 3 {
+        // Every pixel is on the border.
+        d.iter_mut()
+            .zip(mask)
+            .for_each(|(d, &m)| *d = u16::from(m != 0));
+        return d;
     }
-    for v in (0..h as isize).rev() {
-        for u in (0..w as isize).rev() {
-            let i = v as usize * w + u as usize;
-            if d[i] == 0 {
-                continue;
-            }
-            let m = [(1, 1), (0, 1), (-1, 1), (1, 0)]
-                .iter()
-                .map(|&(du, dv)| at(&d, u + du, v + dv))
-                .min()
-                .unwrap_or(0);
-            d[i] = d[i].min(m.saturating_add(1));
+    // Forward: left, up-left, up, up-right.
+    for v in 0..h {
+        let (done, rest) = d.split_at_mut(v * w);
+        let cur = &mut rest[..w];
+        let m = &mask[v * w..(v + 1) * w];
+        if v == 0 {
+            cur.iter_mut()
+                .zip(m)
+                .for_each(|(d, &m)| *d = u16::from(m != 0));
+            continue;
         }
+        let prev = &done[(v - 1) * w..];
+        cur[0] = u16::from(m[0] != 0);
+        for u in 1..w - 1 {
+            if m[u] != 0 {
+                let a = cur[u - 1].min(prev[u - 1]).min(prev[u]).min(prev[u + 1]);
+                cur[u] = a.saturating_add(1);
+            }
+        }
+        cur[w - 1] = u16::from(m[w - 1] != 0);
+    }
+    // Backward: right, down-right, down, down-left.
+    for v in (0..h).rev() {
+        let (head, below) = d.split_at_mut((v + 1) * w);
+        let cur = &mut head[v * w..];
+        if v == h - 1 {
+            cur.iter_mut().for_each(|d| *d = (*d).min(1));
+            continue;
+        }
+        let next = &below[..w];
+        cur[w - 1] = cur[w - 1].min(1);
+        for u in (1..w - 1).rev() {
+            if cur[u] != 0 {
+                let a = cur[u + 1].min(next[u + 1]).min(next[u]).min(next[u - 1]);
+                cur[u] = cur[u].min(a.saturating_add(1));
+            }
+        }
+        cur[0] = cur[0].min(1);
     }
     d
 }
@@ -1404,6 +1441,156 @@ mod tests {
                 }
             }
             assert_eq!(dist, chessboard_distance(&eroded, w, h), "r {r}");
+        }
+    }
+
+    /// The 3×3 masked blur written out per neighbour: what [`blur3`] must equal.
+    fn blur3_reference(gray: &[u8], mask: &[u8], w: usize, h: usize) -> Vec<u8> {
+        const K: [u32; 3] = [1, 2, 1];
+        let mut out = gray.to_vec();
+        for v in 0..h {
+            for u in 0..w {
+                if mask[v * w + u] == 0 {
+                    continue;
+                }
+                let (mut acc, mut wsum) = (0u32, 0u32);
+                for (j, kj) in K.iter().enumerate() {
+                    for (i, ki) in K.iter().enumerate() {
+                        let (x, y) = (u + i, v + j);
+                        if x < 1 || y < 1 || x > w || y > h || mask[(y - 1) * w + x - 1] == 0 {
+                            continue;
+                        }
+                        acc += kj * ki * gray[(y - 1) * w + x - 1] as u32;
+                        wsum += kj * ki;
+                    }
+                }
+                out[v * w + u] = ((acc + wsum / 2) / wsum.max(1)) as u8;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn blur3_equals_the_per_neighbour_blur() {
+        for (w, h) in [
+            (1, 1),
+            (1, 6),
+            (6, 1),
+            (2, 2),
+            (3, 3),
+            (5, 8),
+            (64, 41),
+            (131, 97),
+        ] {
+            for pattern in 0..3u64 {
+                let gray: Vec<u8> = (0..w * h)
+                    .map(|i| ((i as u64 * 2_654_435_761) >> 7) as u8)
+                    .collect();
+                let mask: Vec<u8> = (0..w * h)
+                    .map(|i| {
+                        let (u, v) = ((i % w) as i64, (i / w) as i64);
+                        let r2 = (u - w as i64 / 2).pow(2) + (v - h as i64 / 2).pow(2);
+                        let valid = match pattern {
+                            0 => true,
+                            1 => r2 < (w.min(h) as i64 / 2).pow(2),
+                            _ => (u * 7 + v * 13) % 11 != 0 && r2 < (w.max(h) as i64).pow(2) / 5,
+                        };
+                        if valid {
+                            255
+                        } else {
+                            0
+                        }
+                    })
+                    .collect();
+                assert_eq!(
+                    blur3(&gray, &mask, w, h),
+                    blur3_reference(&gray, &mask, w, h),
+                    "{w}×{h} pattern {pattern}"
+                );
+            }
+        }
+    }
+
+    /// The chamfer transform written out with a bounds test per neighbour: what
+    /// [`chessboard_distance`] must equal.
+    pub(super) fn chessboard_distance_reference(mask: &[u8], w: usize, h: usize) -> Vec<u16> {
+        let mut d = vec![0u16; w * h];
+        let at = |d: &[u16], u: isize, v: isize| -> u16 {
+            if u < 0 || v < 0 || u >= w as isize || v >= h as isize {
+                0
+            } else {
+                d[v as usize * w + u as usize]
+            }
+        };
+        for v in 0..h as isize {
+            for u in 0..w as isize {
+                let i = v as usize * w + u as usize;
+                if mask[i] == 0 {
+                    continue;
+                }
+                let m = [(-1, -1), (0, -1), (1, -1), (-1, 0)]
+                    .iter()
+                    .map(|&(du, dv)| at(&d, u + du, v + dv))
+                    .min()
+                    .unwrap_or(0);
+                d[i] = m.saturating_add(1);
+            }
+        }
+        for v in (0..h as isize).rev() {
+            for u in (0..w as isize).rev() {
+                let i = v as usize * w + u as usize;
+                if d[i] == 0 {
+                    continue;
+                }
+                let m = [(1, 1), (0, 1), (-1, 1), (1, 0)]
+                    .iter()
+                    .map(|&(du, dv)| at(&d, u + du, v + dv))
+                    .min()
+                    .unwrap_or(0);
+                d[i] = d[i].min(m.saturating_add(1));
+            }
+        }
+        d
+    }
+
+    #[test]
+    fn chessboard_distance_equals_the_reference_transform() {
+        // Discs, holes, a lattice of specks and the degenerate sizes (every pixel on the border).
+        for (w, h) in [
+            (1, 1),
+            (1, 7),
+            (7, 1),
+            (2, 5),
+            (3, 3),
+            (4, 9),
+            (41, 23),
+            (120, 77),
+        ] {
+            for pattern in 0..4u64 {
+                let mask: Vec<u8> = (0..w * h)
+                    .map(|i| {
+                        let (u, v) = ((i % w) as i64, (i / w) as i64);
+                        let (cu, cv) = (w as i64 / 2, h as i64 / 2);
+                        let r2 = (u - cu).pow(2) + (v - cv).pow(2);
+                        let valid = match pattern {
+                            0 => true,
+                            1 => r2 < (w.min(h) as i64 / 2).pow(2),
+                            2 => (u * 7 + v * 13) % 11 != 0,
+                            _ => r2 < (w.max(h) as i64).pow(2) / 5 && (u * 3 + v * 5) % 29 != 0,
+                        };
+                        if valid {
+                            255
+                        } else {
+                            0
+                        }
+                    })
+                    .collect();
+                assert_eq!(
+                    chessboard_distance(&mask, w, h),
+                    chessboard_distance_reference(&mask, w, h),
+                    "{w}×{h} pattern {pattern}"
+                );
+            }
         }
     }
 
