@@ -12,7 +12,7 @@
 use infraloc::app::{camera_and_frame, Overrides};
 use infraloc::camera::CameraModel;
 use infraloc::config::Config;
-use infraloc::daemon::{drift_search, DRIFT_SPEC, DRIFT_THIN};
+use infraloc::daemon::{drift_search, DriftParams, DRIFT_SPEC};
 use infraloc::localize::pipeline::{mi_points, Params};
 use infraloc::localize::polish::PolishParams;
 use infraloc::localize::quality::{assess, QualityConfig};
@@ -65,7 +65,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let pose = served.pose();
     let all_points = mi_points(&tile, &pose, &Params::default());
     let g = tile.reflectivity.grid;
-    let on_grid = |v: f64| (v.round() as i64).rem_euclid(DRIFT_THIN) == 0;
+    let drift = DriftParams::default();
+    let on_grid = |v: f64| (v.round() as i64).rem_euclid(drift.thin) == 0;
     let points: Vec<_> = all_points
         .iter()
         .filter(|p| {
@@ -76,6 +77,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .collect();
     let search_cfg = SearchConfig {
         spec: DRIFT_SPEC,
+        coarse_min_points: drift.coarse_min_points,
         ..SearchConfig::default()
     };
     let qcfg = QualityConfig::default();

@@ -132,12 +132,7 @@ fn run_seed(settings: &Settings, true_intrinsics: bool) -> infraloc::Result<Valu
         &scene.camera_given
     });
     let camera = parse_camera(&cam_text, Path::new("camera.yaml"))?;
-    let (w, h) = scene.frame_size();
-    let frames: Vec<image::GrayImage> = scene
-        .frames
-        .iter()
-        .filter_map(|f| image::GrayImage::from_raw(w, h, f.clone()))
-        .collect();
+    let frames = scene.frame_images();
     let median = infraloc::capture::temporal_median(&frames)?;
     let truth_text = serde_json::to_string(&scene.truth_json())
         .map_err(|e| infraloc::Error::Invalid(format!("truth: {e}")))?;

@@ -181,12 +181,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
         params.quality.intrinsics_sigma = scene.camera_sigma;
     }
     let params = &params;
-    let (w, h) = scene.frame_size();
-    let frames: Vec<image::GrayImage> = scene
-        .frames
-        .iter()
-        .filter_map(|f| image::GrayImage::from_raw(w, h, f.clone()))
-        .collect();
+    let frames = scene.frame_images();
     let image = infraloc::capture::temporal_median(&frames)?;
     let cfg = Config::default();
     let mut g = cfg.gps.clone();

@@ -166,6 +166,28 @@ pub struct AxisQuality {
     pub on_edge: bool,
 }
 
+/// Which of the gate's checks refused a result ([`Quality::reason`] says it in words). The
+/// checks run in this order and the first failing one refuses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GateCheck {
+    /// Too few points seen from every pose of the box.
+    TooFewPoints,
+    /// Too much of the fixed point set left the image at some pose.
+    PointsLost,
+    /// The optimum sits on the box's edge.
+    OnEdge,
+    /// The objective rises again too close to the optimum along an axis.
+    NoBasin,
+    /// No negative curvature along an axis.
+    NoPeak,
+    /// A separate second peak reaches too close to the optimum's height: every other check
+    /// passed, so the optimum itself is a clear peak.
+    Ambiguous,
+    /// The marginal uncertainty (applied after the checks above passed): no peak over all free
+    /// axes together, a covariance that is not finite, or a σ over its limit.
+    Uncertain,
+}
+
 /// Quality of one result.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Quality {
@@ -197,6 +219,9 @@ pub struct Quality {
     pub accepted: bool,
     /// Why the gate rejected (None when accepted).
     pub reason: Option<String>,
+    /// Which check rejected (None when accepted); not serialized, `reason` is its words.
+    #[serde(skip)]
+    pub refused_by: Option<GateCheck>,
 }
 
 /// Marginal σ per axis: metres for x, y, z; degrees for the angles (∞ where there is no peak).
@@ -333,6 +358,7 @@ pub(crate) fn apply_uncertainty(q: &mut Quality, u: Uncertainty, cfg: &QualityCo
         if let Some(r) = reason {
             q.accepted = false;
             q.reason = Some(r);
+            q.refused_by = Some(GateCheck::Uncertain);
         }
     }
     q.sigma = Some(reported);
@@ -537,18 +563,22 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
 
     // The gate: first failing check wins.
     let mut reason = None;
+    let mut refused_by = None;
     if ev.n_points < cfg.min_points {
+        refused_by = Some(GateCheck::TooFewPoints);
         reason = Some(format!(
             "only {} points seen from every pose of the search box (< {})",
             ev.n_points, cfg.min_points
         ));
     } else if res.stats.max_lost_fraction > cfg.max_lost_fraction {
+        refused_by = Some(GateCheck::PointsLost);
         reason = Some(format!(
             "{:.1}% of the fixed point set left the image at some pose (> {:.1}%)",
             100.0 * res.stats.max_lost_fraction,
             100.0 * cfg.max_lost_fraction
         ));
     } else if let Some(a) = axes.iter().find(|a| a.on_edge) {
+        refused_by = Some(GateCheck::OnEdge);
         reason = Some(format!(
             "optimum on the search box's {} edge: the true optimum may lie outside; widen --search",
             a.axis
@@ -561,11 +591,13 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
         })
         .find(|(_, cells)| *cells < cfg.min_basin_steps)
     {
+        refused_by = Some(GateCheck::NoBasin);
         reason = Some(format!(
             "no basin along {}: the objective rises again {cells} step(s) from the optimum (< {}), a spike rather than an alignment peak",
             a.axis, cfg.min_basin_steps
         ));
     } else if let Some(a) = axes.iter().find(|a| !(a.curvature > 0.0)) {
+        refused_by = Some(GateCheck::NoPeak);
         reason = Some(format!(
             "no peak along {}: MI curvature {:.3e} nats/{}² is not negative-definite",
             a.axis, a.curvature, a.unit
@@ -573,6 +605,7 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
     } else if let (Some(c), Some(o)) = (contrast, offset) {
         if c > cfg.max_second_peak_contrast {
             let a = res.offsets;
+            refused_by = Some(GateCheck::Ambiguous);
             reason = Some(format!(
                 "ambiguous: two separate peaks, the optimum at ({:+.2} m, {:+.2} m, {:+.2} m, {:+.2}°) from the start and a second at ({:+.2} m, {:+.2} m, {:+.2} m, {:+.2}°), offset ({:.2} m, {:.2} m, {:.2} m, {:.2}°) from it, reaching {:.0}% of the optimum's height above background (> {:.0}%)",
                 a[0], a[1], a[2], a[3],
@@ -595,6 +628,7 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
         covariance: None,
         accepted: reason.is_none(),
         reason,
+        refused_by,
     }
 }
 

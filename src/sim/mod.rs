@@ -700,6 +700,16 @@ impl Scene {
         (self.camera_true.width(), self.camera_true.height())
     }
 
+    /// The frames as images (the measuring examples feed them to the temporal median as
+    /// `localize` does after reading the PNGs, which are lossless).
+    pub fn frame_images(&self) -> Vec<image::GrayImage> {
+        let (w, h) = self.frame_size();
+        self.frames
+            .iter()
+            .filter_map(|f| image::GrayImage::from_raw(w, h, f.clone()))
+            .collect()
+    }
+
     /// A side-by-side picture: satellite | reflectivity | height | fisheye frame 0, each panel
     /// `panel` pixels high. The three map panels show the same central square of the tile.
     pub(crate) fn montage(&self, panel: u32) -> image::RgbImage {
