@@ -648,8 +648,10 @@ impl Evaluator {
         self.histogram_at(level, &self.pose(cell), scratch)
     }
 
-    /// Joint histogram of any pose at a level: the sum over the views.
-    fn histogram_at(&self, level: u32, pose: &CamFromMap, scratch: &mut Scratch) -> JointHist {
+    /// Joint histogram of any pose at a level, on the fixed point set: the sum over the views
+    /// (its invalid column counts the points of the set that pose loses). For diagnostics that
+    /// score poses off the grid on one point set (`examples/diag_s11.rs`).
+    pub fn histogram_at(&self, level: u32, pose: &CamFromMap, scratch: &mut Scratch) -> JointHist {
         let lv = &self.levels[level as usize];
         let mut h = JointHist::new(self.mi.bins_reflectivity, self.mi.bins_gray);
         let p = PoseF32::new(pose, self.origin);
