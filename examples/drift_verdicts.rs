@@ -197,7 +197,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let xy = infraloc::geo::wgs84_to_map(tile.reflectivity.grid.crs, lat, lon)?;
         let clock = Instant::now();
         let now = || clock.elapsed().as_secs_f64();
-        let served = match pipeline::localize_ungated(
+        let (served, served_nmi) = match pipeline::localize_ungated(
             &Frame::new(&camera, image.as_raw())?,
             &tile,
             xy,
@@ -206,8 +206,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             &now,
             &|_| {},
         )
-        .and_then(|out| pipeline::quality_gate(&out).map(|_| out.pose))
-        {
+        .and_then(|out| {
+            pipeline::quality_gate(&out).map(|_| (out.pose, out.refinement.quality.nmi))
+        }) {
             Ok(p) => p,
             Err(e) => {
                 println!("seed {seed}: not localized, skipped ({e})");
@@ -229,6 +230,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 served.yaw_pitch_roll().2,
             );
             let mut line = format!("seed {seed:>3} {:<8}", case.name);
+            if case.shift_m == 0.0 && case.yaw_deg == 0.0 {
+                line += &format!(" (localize NMI {served_nmi:.4})");
+            }
             for (v, t) in variants.iter().zip(tallies.iter_mut()) {
                 let (c0, w0) = (cpu_s(), Instant::now());
                 let d = drift_search_with(&camera, &image, &tile, &knocked, &cfg, v)?;
@@ -268,14 +272,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     t.yaw_err_deg.push(yerr);
                 }
                 line += &format!(
-                    "  | {}:{} {} {:.3} m {:+.3}° err {:.3} m {:.3}°",
+                    "  | {}:{} {} {:.3} m {:+.3}° err {:.3} m {:.3}° NMI {:.4}",
                     v.thin,
                     v.coarse_min_points,
                     if d.verdict.moved { "MOVED" } else { "steady" },
                     d.verdict.shift_m,
                     d.verdict.yaw_deg,
                     herr,
-                    yerr
+                    yerr,
+                    d.optimum.nmi
                 );
             }
             println!("{line}");
