@@ -27,7 +27,9 @@
 //! unknocked served pose (where the frames put the camera, as the full refinement found it).
 //! CPU-seconds are the process's, around each `drift_search_with` call alone (the frames and the
 //! tile are loaded once per seed; `examples/drift_cost.rs` times a whole check).
-//! The first variant is the shipped one ([`DriftParams::default`]).
+//! The first variant is the shipped one ([`DriftParams::default`]). Each line also shows the
+//! optimum's NMI, and the steady line the localization's own NMI (on every cell), for the
+//! cross-check's NMI comparison (docs/benchmarks.md "Drift check").
 
 use infraloc::camera::import::{parse_camera, to_opencv_yaml};
 use infraloc::config::{Config, GpsSourceKind};
