@@ -18,9 +18,7 @@
 //!   the truth and the oracle (tilting about the camera centre);
 //! - `all`: every point, no fixed set (what each pose sees).
 
-use infraloc::camera::import::{parse_camera, to_opencv_yaml};
 use infraloc::camera::CameraModel;
-use infraloc::config::{Config, GpsSourceKind};
 use infraloc::localize::kernel::Scratch;
 use infraloc::localize::mi::mutual_information;
 use infraloc::localize::pipeline::{self, Params};
@@ -30,6 +28,10 @@ use infraloc::localize::truth_eval;
 use infraloc::pose::{offsets_between, CamFromMap};
 use infraloc::sim::{self, Difficulty, GivenIntrinsics, Lens, Preset, Settings};
 use nalgebra::Point3;
+
+#[path = "common/mod.rs"]
+mod common;
+use common::{scene_inputs, SceneInputs};
 
 fn usage() -> ! {
     eprintln!(
@@ -109,36 +111,16 @@ fn main() -> infraloc::Result<()> {
         intrinsics: given,
     };
     let scene = sim::generate(&settings)?;
-    let tmp = tempfile::tempdir().map_err(|e| infraloc::Error::io(std::env::temp_dir(), e))?;
-    let dir = tmp.path();
-    let tiles = dir.join("tiles");
-    infraloc::map::cache::write_tile(&tiles, &scene.tile)?;
-    let nmea = dir.join("gps.nmea");
-    std::fs::write(&nmea, &scene.nmea).map_err(|e| infraloc::Error::io(&nmea, e))?;
-    let cam_text = to_opencv_yaml(if true_intr {
-        &scene.camera_true
-    } else {
-        &scene.camera_given
-    });
-    let camera = parse_camera(&cam_text, &dir.join("camera.yaml"))?;
-    let (w, h) = scene.frame_size();
-    let frames: Vec<image::GrayImage> = scene
-        .frames
-        .iter()
-        .filter_map(|f| image::GrayImage::from_raw(w, h, f.clone()))
-        .collect();
-    let image = infraloc::capture::temporal_median(&frames)?;
-    let cfg = Config::default();
-    let mut g = cfg.gps.clone();
-    g.source = GpsSourceKind::NmeaFile;
-    g.path = Some(nmea);
-    let prior = infraloc::gps_serial::acquire_prior(&g)?;
-    let (lat, lon, _) = prior.position().expect("prior");
-    let tref = infraloc::map::cache::find_tile(&tiles, lat, lon, cfg.map.search_margin_m)?;
-    let tile = infraloc::map::cache::load_tile(&tref.dir)?;
+    let SceneInputs {
+        camera,
+        image,
+        tile,
+        dir,
+        ..
+    } = scene_inputs(&scene, true_intr)?;
 
     let truth_text = serde_json::to_string(&scene.truth_json()).expect("truth");
-    let truth = sim::truth::parse_truth(&truth_text, &dir.join("truth.json"))?;
+    let truth = sim::truth::parse_truth(&truth_text, &dir.path().join("truth.json"))?;
     let oracle = truth_eval::oracle_pose(&camera, &truth).expect("oracle");
     let params = Params::default();
     let points = pipeline::mi_points(&tile, &pnp, &params);

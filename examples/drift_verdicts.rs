@@ -31,8 +31,7 @@
 //! optimum's NMI, and the steady line the localization's own NMI (on every cell), for the
 //! cross-check's NMI comparison (docs/benchmarks.md "Drift check").
 
-use infraloc::camera::import::{parse_camera, to_opencv_yaml};
-use infraloc::config::{Config, GpsSourceKind};
+use infraloc::config::Config;
 use infraloc::daemon::{drift_search_with, DriftParams};
 use infraloc::localize::frame::Frame;
 use infraloc::localize::pipeline::{self, Params};
@@ -40,12 +39,11 @@ use infraloc::pose::{angle_difference, CamFromMap};
 use infraloc::sim::{self, Difficulty, GivenIntrinsics, Lens, Preset, Settings};
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
-use std::path::Path;
 use std::time::Instant;
 
 #[path = "common/mod.rs"]
 mod common;
-use common::cpu_s;
+use common::{cpu_s, scene_inputs, SceneInputs};
 
 /// One knock: horizontal move (m), yaw turn (deg), whether the check must say "moved".
 struct Case {
@@ -176,27 +174,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             intrinsics: GivenIntrinsics::Calibrated,
         };
         let scene = sim::generate(&settings)?;
-        let tmp = tempfile::tempdir()?;
-        let tiles = tmp.path().join("tiles");
-        infraloc::map::cache::write_tile(&tiles, &scene.tile)?;
-        let nmea = tmp.path().join("gps.nmea");
-        std::fs::write(&nmea, &scene.nmea)?;
-        let camera = parse_camera(
-            &to_opencv_yaml(&scene.camera_given),
-            Path::new("camera.yaml"),
-        )?;
+        let SceneInputs {
+            camera,
+            image,
+            tile,
+            prior_xy: xy,
+            prior_sigma_m: sigma,
+            dir: _dir,
+        } = scene_inputs(&scene, false)?;
         let mut params = Params::default();
         params.quality.intrinsics_sigma = scene.camera_sigma;
-        let frames = scene.frame_images();
-        let image = infraloc::capture::temporal_median(&frames)?;
-        let mut g = cfg.gps.clone();
-        g.source = GpsSourceKind::NmeaFile;
-        g.path = Some(nmea);
-        let prior = infraloc::gps_serial::acquire_prior(&g)?;
-        let (lat, lon, sigma) = prior.position().ok_or("no position from the NMEA log")?;
-        let tref = infraloc::map::cache::find_tile(&tiles, lat, lon, cfg.map.search_margin_m)?;
-        let tile = infraloc::map::cache::load_tile(&tref.dir)?;
-        let xy = infraloc::geo::wgs84_to_map(tile.reflectivity.grid.crs, lat, lon)?;
         let clock = Instant::now();
         let now = || clock.elapsed().as_secs_f64();
         let (served, served_nmi) = match pipeline::localize_ungated(

@@ -1,5 +1,6 @@
-//! Helpers shared by the measuring examples (`drift_cost`, `scaling`; `benches/refine.rs` uses
-//! the camera). Included with `#[path]`, so each user compiles only what it calls.
+//! Helpers shared by the measuring examples (`drift_cost`, `scaling`, `drift_verdicts`,
+//! `diag_s11`; `benches/refine.rs` uses the camera). Included with `#[path]`, so each user
+//! compiles only what it calls.
 #![allow(dead_code, unreachable_pub)]
 
 use infraloc::camera::{Camera, Mei};
@@ -33,5 +34,65 @@ pub fn preset_camera(width: u32, height: u32) -> Camera {
         p1: -1.7e-4,
         p2: -3.1e-5,
         fov_deg: Some(185.0),
+    })
+}
+
+/// What `infraloc localize` reads from a simulated scene's directory, made from the scene in
+/// memory: the camera through its YAML, the temporal median of the frames, the tile through the
+/// GeoTIFF cache (in `dir`), and the prior from the NMEA log with the default `[gps]` settings.
+pub struct SceneInputs {
+    /// The camera handed to the localizer (the given intrinsics, or the true ones).
+    pub camera: Camera,
+    /// Temporal median of the frames.
+    pub image: image::GrayImage,
+    /// The tile as read back from the cache.
+    pub tile: infraloc::map::Tile,
+    /// The prior's map position.
+    pub prior_xy: (f64, f64),
+    /// The prior's σ, metres.
+    pub prior_sigma_m: f64,
+    /// The temporary directory holding the tile cache and the NMEA log.
+    pub dir: tempfile::TempDir,
+}
+
+/// [`SceneInputs`] of `scene`; `true_intrinsics` hands over the scene's true camera instead of
+/// the given one.
+pub fn scene_inputs(
+    scene: &infraloc::sim::Scene,
+    true_intrinsics: bool,
+) -> infraloc::Result<SceneInputs> {
+    use infraloc::config::{Config, GpsSourceKind};
+    let dir = tempfile::tempdir().map_err(|e| infraloc::Error::io(std::env::temp_dir(), e))?;
+    let tiles = dir.path().join("tiles");
+    infraloc::map::cache::write_tile(&tiles, &scene.tile)?;
+    let nmea = dir.path().join("gps.nmea");
+    std::fs::write(&nmea, &scene.nmea).map_err(|e| infraloc::Error::io(&nmea, e))?;
+    let camera = infraloc::camera::import::parse_camera(
+        &infraloc::camera::import::to_opencv_yaml(if true_intrinsics {
+            &scene.camera_true
+        } else {
+            &scene.camera_given
+        }),
+        &dir.path().join("camera.yaml"),
+    )?;
+    let image = infraloc::capture::temporal_median(&scene.frame_images())?;
+    let cfg = Config::default();
+    let mut g = cfg.gps.clone();
+    g.source = GpsSourceKind::NmeaFile;
+    g.path = Some(nmea);
+    let prior = infraloc::gps_serial::acquire_prior(&g)?;
+    let (lat, lon, prior_sigma_m) = prior
+        .position()
+        .ok_or_else(|| infraloc::Error::stage("prior", "no position from the NMEA log"))?;
+    let tref = infraloc::map::cache::find_tile(&tiles, lat, lon, cfg.map.search_margin_m)?;
+    let tile = infraloc::map::cache::load_tile(&tref.dir)?;
+    let prior_xy = infraloc::geo::wgs84_to_map(tile.reflectivity.grid.crs, lat, lon)?;
+    Ok(SceneInputs {
+        camera,
+        image,
+        tile,
+        prior_xy,
+        prior_sigma_m,
+        dir,
     })
 }

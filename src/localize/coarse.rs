@@ -148,6 +148,11 @@ pub(crate) fn nominal_field(cam: &dyn CameraModel, mip: &Mip, p: &CoarseParams) 
     }
 }
 
+/// Rec. 601 luma of a satellite pixel: the camera is a gray sensor with a broad response.
+fn luma([r, g, b]: [u8; 3]) -> f32 {
+    0.299 * r as f32 + 0.587 * g as f32 + 0.114 * b as f32
+}
+
 /// Luminance of the satellite layer, area-averaged to `res` m/px over a square of half-size
 /// `half_m` centred on (cx, cy) (map coordinates); outside the layer the field is zero.
 pub(crate) fn satellite_gray(
@@ -191,9 +196,8 @@ pub(crate) fn satellite_gray(
                     let (Some(col), Some(row)) = (*col, *row) else {
                         continue;
                     };
-                    if let Some([r, gg, b]) = sat.get(col, row) {
-                        // Rec. 601 luma: the camera is a gray sensor with a broad response.
-                        acc += 0.299 * r as f32 + 0.587 * gg as f32 + 0.114 * b as f32;
+                    if let Some(rgb) = sat.get(col, row) {
+                        acc += luma(rgb);
                         cnt += 1;
                     }
                 }
@@ -305,8 +309,8 @@ mod tests {
                         if col < 0.0 || row < 0.0 {
                             continue;
                         }
-                        if let Some([r, gg, b]) = sat.get(col as usize, row as usize) {
-                            acc += 0.299 * r as f32 + 0.587 * gg as f32 + 0.114 * b as f32;
+                        if let Some(rgb) = sat.get(col as usize, row as usize) {
+                            acc += luma(rgb);
                             cnt += 1;
                         }
                     }

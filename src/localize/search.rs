@@ -1446,6 +1446,33 @@ mod tests {
         }
     }
 
+    /// Number of [`pattern_mask`]s.
+    const PATTERNS: u64 = 5;
+
+    /// Test masks of a `w`×`h` image: all valid, a centred disc, a lattice of specks, a larger
+    /// disc with sparser specks, a larger disc with the specks (holes next to the disc's edge).
+    fn pattern_mask(w: usize, h: usize, pattern: u64) -> Vec<u8> {
+        (0..w * h)
+            .map(|i| {
+                let (u, v) = ((i % w) as i64, (i / w) as i64);
+                let r2 = (u - w as i64 / 2).pow(2) + (v - h as i64 / 2).pow(2);
+                let big = r2 < (w.max(h) as i64).pow(2) / 5;
+                let valid = match pattern {
+                    0 => true,
+                    1 => r2 < (w.min(h) as i64 / 2).pow(2),
+                    2 => (u * 7 + v * 13) % 11 != 0,
+                    3 => big && (u * 3 + v * 5) % 29 != 0,
+                    _ => big && (u * 7 + v * 13) % 11 != 0,
+                };
+                if valid {
+                    255
+                } else {
+                    0
+                }
+            })
+            .collect()
+    }
+
     /// The 3×3 masked blur written out per neighbour: what [`blur3`] must equal.
     fn blur3_reference(gray: &[u8], mask: &[u8], w: usize, h: usize) -> Vec<u8> {
         const K: [u32; 3] = [1, 2, 1];
@@ -1484,26 +1511,11 @@ mod tests {
             (64, 41),
             (131, 97),
         ] {
-            for pattern in 0..3u64 {
+            for pattern in 0..PATTERNS {
                 let gray: Vec<u8> = (0..w * h)
                     .map(|i| ((i as u64 * 2_654_435_761) >> 7) as u8)
                     .collect();
-                let mask: Vec<u8> = (0..w * h)
-                    .map(|i| {
-                        let (u, v) = ((i % w) as i64, (i / w) as i64);
-                        let r2 = (u - w as i64 / 2).pow(2) + (v - h as i64 / 2).pow(2);
-                        let valid = match pattern {
-                            0 => true,
-                            1 => r2 < (w.min(h) as i64 / 2).pow(2),
-                            _ => (u * 7 + v * 13) % 11 != 0 && r2 < (w.max(h) as i64).pow(2) / 5,
-                        };
-                        if valid {
-                            255
-                        } else {
-                            0
-                        }
-                    })
-                    .collect();
+                let mask = pattern_mask(w, h, pattern);
                 assert_eq!(
                     blur3(&gray, &mask, w, h),
                     blur3_reference(&gray, &mask, w, h),
@@ -1568,25 +1580,8 @@ mod tests {
             (41, 23),
             (120, 77),
         ] {
-            for pattern in 0..4u64 {
-                let mask: Vec<u8> = (0..w * h)
-                    .map(|i| {
-                        let (u, v) = ((i % w) as i64, (i / w) as i64);
-                        let (cu, cv) = (w as i64 / 2, h as i64 / 2);
-                        let r2 = (u - cu).pow(2) + (v - cv).pow(2);
-                        let valid = match pattern {
-                            0 => true,
-                            1 => r2 < (w.min(h) as i64 / 2).pow(2),
-                            2 => (u * 7 + v * 13) % 11 != 0,
-                            _ => r2 < (w.max(h) as i64).pow(2) / 5 && (u * 3 + v * 5) % 29 != 0,
-                        };
-                        if valid {
-                            255
-                        } else {
-                            0
-                        }
-                    })
-                    .collect();
+            for pattern in 0..PATTERNS {
+                let mask = pattern_mask(w, h, pattern);
                 assert_eq!(
                     chessboard_distance(&mask, w, h),
                     chessboard_distance_reference(&mask, w, h),
