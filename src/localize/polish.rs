@@ -11,7 +11,9 @@
 //! Deterministic: no randomness, ties broken by order.
 
 use super::kernel::Scratch;
-use super::search::{pose_at_pivot, AxisRange, Evaluator, SearchConfig, SearchSpec, View};
+use super::search::{
+    pose_at_pivot, AxisRange, Evaluator, ImageCache, SearchConfig, SearchSpec, View,
+};
 use crate::camera::Camera;
 use crate::error::Result;
 use crate::pose::CamFromMap;
@@ -304,7 +306,20 @@ pub fn polish_pose(
     search: &SearchConfig,
     p: &PolishParams,
 ) -> Result<(CamFromMap, PolishRecord)> {
-    let ev = Evaluator::pooled(camera, views, pose, &box_config(search, p, pivot), 0)?;
+    polish_pose_cached(camera, views, pose, pivot, search, p, &ImageCache::default())
+}
+
+/// [`polish_pose`] taking the views' image preparations from `cache`.
+pub(crate) fn polish_pose_cached<'a>(
+    camera: &Camera,
+    views: &[View<'a>],
+    pose: &CamFromMap,
+    pivot: Option<f64>,
+    search: &SearchConfig,
+    p: &PolishParams,
+    cache: &ImageCache<'a>,
+) -> Result<(CamFromMap, PolishRecord)> {
+    let ev = Evaluator::pooled_cached(camera, views, pose, &box_config(search, p, pivot), 0, cache)?;
     let objective = ev.objective();
     let ev = &ev;
     let res = nelder_mead_multi(

@@ -3,8 +3,10 @@
 
 use super::points::GroundPoint;
 use super::quality::{apply_uncertainty, assess, Quality, QualityConfig};
-use super::search::{search, Evaluator, Mode, SearchConfig, SearchStats, View, MAX_LEVEL};
-use super::uncertainty::{estimate, UncertaintyConfig};
+use super::search::{
+    search, Evaluator, ImageCache, Mode, SearchConfig, SearchStats, View, MAX_LEVEL,
+};
+use super::uncertainty::{estimate_cached, UncertaintyConfig};
 use crate::camera::{Camera, CameraModel};
 use crate::error::{Error, Result};
 use crate::pose::CamFromMap;
@@ -98,17 +100,20 @@ pub(crate) fn refine_masked(
     cfg: &SearchConfig,
     qcfg: &QualityConfig,
 ) -> Result<Refinement> {
-    let r = search_views(cam, &[View { gray, mask, points }], init, cfg, qcfg)?;
-    with_uncertainty(cam, &[View { gray, mask, points }], r, cfg, qcfg, None)
+    let views = [View { gray, mask, points }];
+    let cache = ImageCache::default();
+    let r = search_views(cam, &views, init, cfg, qcfg, &cache)?;
+    with_uncertainty(cam, &views, r, cfg, qcfg, None, &cache)
 }
 
 /// The grid search and its quality on pooled views, without the uncertainty estimate.
-fn search_views(
+fn search_views<'a>(
     cam: &Camera,
-    views: &[View<'_>],
+    views: &[View<'a>],
     init: &CamFromMap,
     cfg: &SearchConfig,
     qcfg: &QualityConfig,
+    cache: &ImageCache<'a>,
 ) -> Result<Refinement> {
     // `Evaluator::pooled` checks the images' and masks' sizes.
     let levels = if cfg.mode == Mode::Exhaustive {
@@ -116,7 +121,7 @@ fn search_views(
     } else {
         MAX_LEVEL
     };
-    let ev = Evaluator::pooled(cam, views, init, cfg, levels)?;
+    let ev = Evaluator::pooled_cached(cam, views, init, cfg, levels, cache)?;
     let res = search(&ev, cfg);
     let quality = assess(&ev, &res, qcfg);
     if !res.pose.translation.iter().all(|v| v.is_finite()) {
@@ -138,13 +143,14 @@ fn search_views(
 /// polish settled, so the position's σ carries the tilt–position valley.
 ///
 /// [`polish_pose`]: super::polish::polish_pose
-fn with_uncertainty(
+fn with_uncertainty<'a>(
     cam: &Camera,
-    views: &[View<'_>],
+    views: &[View<'a>],
     mut r: Refinement,
     cfg: &SearchConfig,
     qcfg: &QualityConfig,
     tilt_pivot: Option<Option<f64>>,
+    cache: &ImageCache<'a>,
 ) -> Result<Refinement> {
     let polish = match tilt_pivot {
         Some(_) => super::polish::PolishParams {
@@ -153,7 +159,7 @@ fn with_uncertainty(
         },
         None => super::polish::PolishParams::four_dof(),
     };
-    let mut u = estimate(
+    let mut u = estimate_cached(
         cam,
         views,
         &r.pose,
@@ -164,6 +170,7 @@ fn with_uncertainty(
             folds: qcfg.jackknife_folds,
             region_bound: UncertaintyConfig::region_bound_for(qcfg),
         },
+        cache,
     )?;
     r.stats.poses += u.poses as u64;
     // The groups' re-optimisations score (K − 1)/K of the jackknife's set per pose, the region's
@@ -320,10 +327,13 @@ pub fn refine_polished(
     p: Option<&PolishedSearch>,
     pivot: &dyn Fn(&CamFromMap) -> Option<f64>,
 ) -> Result<(Refinement, Vec<Round>)> {
+    // Every search, polish and uncertainty estimate below works on the same frames: they share
+    // one image preparation.
+    let cache = ImageCache::default();
     let Some(p) = p else {
-        let r = search_views(cam, views, init, cfg, qcfg)?;
+        let r = search_views(cam, views, init, cfg, qcfg, &cache)?;
         return Ok((
-            with_uncertainty(cam, views, r, cfg, qcfg, None)?,
+            with_uncertainty(cam, views, r, cfg, qcfg, None, &cache)?,
             Vec::new(),
         ));
     };
@@ -333,7 +343,7 @@ pub fn refine_polished(
     // Work done by all the searches and polishes: the reported evaluation ratio counts it all.
     let (mut poses, mut point_evaluations) = (0u64, 0u64);
     loop {
-        let mut r = search_views(cam, views, &start, cfg, qcfg)?;
+        let mut r = search_views(cam, views, &start, cfg, qcfg, &cache)?;
         poses += r.stats.poses;
         point_evaluations += r.stats.point_evaluations;
         let mut polish = Vec::new();
@@ -350,8 +360,15 @@ pub fn refine_polished(
             } else {
                 p.polish
             };
-            let (pose, record) =
-                super::polish::polish_pose(cam, views, &r.pose, pivot(&r.pose), cfg, &params)?;
+            let (pose, record) = super::polish::polish_pose_cached(
+                cam,
+                views,
+                &r.pose,
+                pivot(&r.pose),
+                cfg,
+                &params,
+                &cache,
+            )?;
             r.pose = pose;
             poses += record.evaluations as u64;
             point_evaluations += record.evaluations as u64 * record.points as u64;
@@ -384,7 +401,10 @@ pub fn refine_polished(
                 r.stats.point_evaluations = point_evaluations;
                 // A finish that moved the tilt has its tilt uncertain too: the jackknife frees it.
                 let tilt = (p.polish.is_free(4) || p.polish.is_free(5)).then(|| pivot(&r.pose));
-                return Ok((with_uncertainty(cam, views, r, cfg, qcfg, tilt)?, rounds));
+                return Ok((
+                    with_uncertainty(cam, views, r, cfg, qcfg, tilt, &cache)?,
+                    rounds,
+                ));
             }
         }
     }

@@ -41,6 +41,7 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
 
 /// Axis names in grid order.
 pub(crate) const AXES: [&str; 6] = ["x", "y", "z", "yaw", "pitch", "roll"];
@@ -454,7 +455,7 @@ pub(crate) struct Folds {
 /// One view at one level of the evaluator: its image and its points at that resolution.
 #[derive(Debug, Clone)]
 struct Part {
-    img: BinnedImage,
+    img: Arc<BinnedImage>,
     pts: PreparedPoints,
 }
 
@@ -505,12 +506,101 @@ fn best_of<'a>(it: impl IntoIterator<Item = &'a Scored>) -> Option<Scored> {
         })
 }
 
-/// A view prepared at level 0: its image, the pyramid's base, and its fixed point set.
-struct Prepared {
-    level0: GrayLevel,
+/// The image side of a view's preparation: everything that depends on the frame, its mask and
+/// the estimator's gray binning and visibility margin, but not on the pose or the points.
+struct ViewImage {
     lut_gray: [u8; 256],
-    img0: BinnedImage,
-    pts0: PreparedPoints,
+    /// The mask eroded by the visibility margin (as the binned image the fixed set is tested
+    /// on) and its chessboard distance map; only with the fixed point set.
+    eroded: Option<(BinnedImage, Vec<u16>)>,
+    /// Level l's smoothed gray and mask with its binned image, from level 0 up to the deepest
+    /// level asked for so far (levels are added on demand: only the search uses coarse ones).
+    levels: Mutex<Vec<(GrayLevel, Arc<BinnedImage>)>>,
+}
+
+impl ViewImage {
+    /// Binned images of levels 0..=`max_level`, building the missing coarse levels.
+    fn binned_levels(&self, max_level: u32, invalid: u8) -> Vec<Arc<BinnedImage>> {
+        let mut levels = self.levels.lock().unwrap_or_else(|e| e.into_inner());
+        while levels.len() <= max_level as usize {
+            let (prev, _) = &levels[levels.len() - 1];
+            let g = prev.downsample();
+            let img = BinnedImage::new(g.width, g.height, &g.gray, &g.mask, &self.lut_gray, invalid);
+            levels.push((g, Arc::new(img)));
+        }
+        levels[..=max_level as usize]
+            .iter()
+            .map(|(_, img)| Arc::clone(img))
+            .collect()
+    }
+}
+
+/// What a [`ViewImage`] was prepared with, besides the frame and mask themselves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct ImageKey {
+    binning: super::mi::Binning,
+    bins_gray: usize,
+    fixed_point_set: bool,
+    visibility_margin_px: usize,
+}
+
+impl ImageKey {
+    fn of(cfg: &SearchConfig) -> Self {
+        ImageKey {
+            binning: cfg.mi.binning,
+            bins_gray: cfg.mi.bins_gray,
+            fixed_point_set: cfg.fixed_point_set,
+            visibility_margin_px: cfg.visibility_margin_px,
+        }
+    }
+}
+
+/// Image preparations shared by the evaluators one refinement builds on the same frames (the
+/// search's, the polish's, the jackknife's and the region's): the blur, the gray binning, the
+/// erosion with its distance map and the pyramid are the same for all of them, only the point
+/// sets differ. An entry is found by the very slices it was made from (same address and
+/// length, borrowed for the cache's whole life so they cannot change) and the same settings;
+/// anything else is prepared afresh, so the cache can only save work, never change a result.
+#[derive(Default)]
+pub(crate) struct ImageCache<'a> {
+    entries: Mutex<Vec<CachedImage<'a>>>,
+}
+
+struct CachedImage<'a> {
+    gray: &'a [u8],
+    mask: &'a [u8],
+    key: ImageKey,
+    image: Arc<ViewImage>,
+}
+
+impl<'a> ImageCache<'a> {
+    /// The preparation of `v`'s image under `cfg`, made now or earlier.
+    fn get(
+        &self,
+        cam: &Camera,
+        v: &View<'a>,
+        cfg: &SearchConfig,
+    ) -> std::result::Result<Arc<ViewImage>, String> {
+        let key = ImageKey::of(cfg);
+        let same = |e: &CachedImage<'a>| {
+            std::ptr::eq(e.gray, v.gray) && std::ptr::eq(e.mask, v.mask) && e.key == key
+        };
+        if let Some(e) = self.lock().iter().find(|e| same(e)) {
+            return Ok(Arc::clone(&e.image));
+        }
+        let image = Arc::new(prepare_image(cam, v.gray, v.mask, cfg)?);
+        self.lock().push(CachedImage {
+            gray: v.gray,
+            mask: v.mask,
+            key,
+            image: Arc::clone(&image),
+        });
+        Ok(image)
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Vec<CachedImage<'a>>> {
+        self.entries.lock().unwrap_or_else(|e| e.into_inner())
+    }
 }
 
 impl Evaluator {
@@ -540,6 +630,19 @@ impl Evaluator {
         cfg: &SearchConfig,
         max_level: u32,
     ) -> Result<Self> {
+        Self::pooled_cached(cam, views, init, cfg, max_level, &ImageCache::default())
+    }
+
+    /// [`Evaluator::pooled`] taking the views' image preparations from `cache` (and leaving
+    /// there the ones it makes), for a refinement that builds several evaluators on one frame.
+    pub(crate) fn pooled_cached<'a>(
+        cam: &Camera,
+        views: &[View<'a>],
+        init: &CamFromMap,
+        cfg: &SearchConfig,
+        max_level: u32,
+        cache: &ImageCache<'a>,
+    ) -> Result<Self> {
         if views.is_empty() {
             return Err(Error::Invalid(
                 "no image/point-set pair to refine on".into(),
@@ -559,52 +662,41 @@ impl Evaluator {
                 Error::Invalid(msg)
             }
         };
+        let invalid = cfg.mi.bins_gray as u8;
+        // Per view: its binned image at every level, and its fixed point set.
         let mut prepared = Vec::with_capacity(views.len());
         for (i, v) in views.iter().enumerate() {
             validate(v.points, "points").map_err(|e| match e {
                 Error::Invalid(m) => name(i, m),
                 other => other,
             })?;
-            prepared.push(prepare_view(cam, v, init, origin, &grid, cfg).map_err(|m| name(i, m))?);
+            let image = cache.get(cam, v, cfg).map_err(|m| name(i, m))?;
+            let pts0 =
+                prepare_points(cam, v.points, &image, init, origin, &grid, cfg).map_err(|m| name(i, m))?;
+            prepared.push((image.binned_levels(max_level, invalid), pts0));
         }
-        let n_points = prepared.iter().map(|p| p.pts0.len()).sum::<usize>();
+        let n_points = prepared.iter().map(|(_, p)| p.len()).sum::<usize>();
         let view_points = views
             .iter()
             .zip(&prepared)
-            .map(|(v, p)| (v.points.len(), p.pts0.len()))
+            .map(|(v, (_, p))| (v.points.len(), p.len()))
             .collect();
-        let invalid = cfg.mi.bins_gray as u8;
-        let mut levels = vec![Level {
-            cam: FastCamera::new(cam, 0),
-            parts: prepared
-                .iter()
-                .map(|p| Part {
-                    img: p.img0.clone(),
-                    pts: p.pts0.clone(),
-                })
-                .collect(),
-        }];
-        let mut pyramids: Vec<GrayLevel> = prepared.iter().map(|p| p.level0.clone()).collect();
-        for l in 1..=max_level {
+        let mut levels = Vec::with_capacity(max_level as usize + 1);
+        for l in 0..=max_level {
             let stride = (1usize << (2 * l)).min((n_points / cfg.coarse_min_points.max(1)).max(1));
-            let mut parts = Vec::with_capacity(prepared.len());
-            for (g, p) in pyramids.iter_mut().zip(&prepared) {
-                *g = g.downsample();
-                parts.push(Part {
-                    img: BinnedImage::new(
-                        g.width,
-                        g.height,
-                        &g.gray,
-                        &g.mask,
-                        &p.lut_gray,
-                        invalid,
-                    ),
-                    pts: p.pts0.subsample(stride),
-                });
-            }
             levels.push(Level {
                 cam: FastCamera::new(cam, l),
-                parts,
+                parts: prepared
+                    .iter()
+                    .map(|(imgs, pts0)| Part {
+                        img: Arc::clone(&imgs[l as usize]),
+                        pts: if l == 0 {
+                            pts0.clone()
+                        } else {
+                            pts0.subsample(stride)
+                        },
+                    })
+                    .collect(),
             });
         }
         Ok(Evaluator {
@@ -766,17 +858,15 @@ impl Evaluator {
     }
 }
 
-/// Bin one view's image, blur it, and pick its fixed point set (see [`Evaluator::pooled`]).
-/// Errors are the message alone; the caller names the view.
-fn prepare_view(
+/// Check one view's image against the camera, bin its gray levels and blur it (see
+/// [`Evaluator::pooled`]); with the fixed point set, erode its mask too. Errors are the message
+/// alone; the caller names the view.
+fn prepare_image(
     cam: &Camera,
-    v: &View<'_>,
-    init: &CamFromMap,
-    origin: [f64; 3],
-    grid: &Grid,
+    gray: &[u8],
+    mask: &[u8],
     cfg: &SearchConfig,
-) -> std::result::Result<Prepared, String> {
-    let (gray, mask, points) = (v.gray, v.mask, v.points);
+) -> std::result::Result<ViewImage, String> {
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     if gray.len() != w * h || mask.len() != w * h {
         return Err(format!(
@@ -800,15 +890,39 @@ fn prepare_view(
 
     // Level 0 image (anti-aliased, see `blur3`), and the eroded one used to pick the fixed set.
     let smooth = blur3(gray, mask, w, h);
-    let gray = &smooth[..];
+    let img0 = BinnedImage::new(w, h, &smooth, mask, &lut_gray, invalid);
+    let eroded = cfg.fixed_point_set.then(|| {
+        let (eroded, dist) = erode_with_distance(mask, w, h, cfg.visibility_margin_px);
+        let img_e = BinnedImage::new(w, h, &smooth, &eroded, &lut_gray, invalid);
+        (img_e, dist)
+    });
     let level0 = GrayLevel {
         width: w,
         height: h,
-        gray: gray.to_vec(),
+        gray: smooth,
         mask: mask.to_vec(),
     };
+    Ok(ViewImage {
+        lut_gray,
+        eroded,
+        levels: Mutex::new(vec![(level0, Arc::new(img0))]),
+    })
+}
+
+/// Pick one view's fixed point set on its prepared `image` and bin the points' reflectivity
+/// (see [`Evaluator::pooled`]). Errors are the message alone; the caller names the view.
+fn prepare_points(
+    cam: &Camera,
+    points: &[GroundPoint],
+    image: &ViewImage,
+    init: &CamFromMap,
+    origin: [f64; 3],
+    grid: &Grid,
+    cfg: &SearchConfig,
+) -> std::result::Result<PreparedPoints, String> {
+    let w = cam.width() as usize;
+    let invalid = cfg.mi.bins_gray as u8;
     let cam0 = FastCamera::new(cam, 0);
-    let img0 = BinnedImage::new(w, h, gray, mask, &lut_gray, invalid);
 
     // Points with raw reflectivity as "bin" first, to select the fixed set.
     let mut identity = [0u8; 256];
@@ -816,9 +930,7 @@ fn prepare_view(
         *v = i as u8;
     }
     let raw = PreparedPoints::new(points, origin, &identity);
-    let keep = if cfg.fixed_point_set {
-        let (eroded, dist) = erode_with_distance(mask, w, h, cfg.visibility_margin_px);
-        let img_e = BinnedImage::new(w, h, gray, &eroded, &lut_gray, invalid);
+    let keep = if let Some((img_e, dist)) = &image.eroded {
         // A point is kept when every pose of the 3^d lattice sees it. Blocks of points in
         // parallel, each tested against all the poses at once (`visible_from_all`): the flags do
         // not depend on how the work is split, since each point's flag is its own AND.
@@ -845,7 +957,7 @@ fn prepare_view(
                 })
             })
             .collect();
-        let sure = surely_visible(cam, &raw, origin, &center, &extremes, &dist, w);
+        let sure = surely_visible(cam, &raw, origin, &center, &extremes, dist, w);
         let unsure: Vec<bool> = sure.iter().map(|s| !s).collect();
         let rest = raw.select(&unsure);
         const BLOCK: usize = 2048;
@@ -854,16 +966,17 @@ fn prepare_view(
             .par_chunks_mut(BLOCK)
             .enumerate()
             .for_each(|(b, k)| {
-                visible_from_all(&rest, b * BLOCK, &poses, &cam0, &img_e, invalid, k)
+                visible_from_all(&rest, b * BLOCK, &poses, &cam0, img_e, invalid, k)
             });
         let mut rest_keep = rest_keep.into_iter();
         sure.iter()
             .map(|&s| s || rest_keep.next().unwrap_or(false))
             .collect()
     } else {
+        let img0 = image.binned_levels(0, invalid);
         let mut vis = vec![false; raw.len()];
         let p = PoseF32::new(init, origin);
-        visible(&raw, &p, &cam0, &img0, invalid, &mut vis);
+        visible(&raw, &p, &cam0, &img0[0], invalid, &mut vis);
         // The naive estimator uses every point; it only needs one visible to be meaningful.
         if !vis.iter().any(|&v| v) {
             vis.iter_mut().for_each(|v| *v = false);
@@ -887,12 +1000,7 @@ fn prepare_view(
     }
     let lut_refl = bin_lut(cfg.mi.binning, cfg.mi.bins_reflectivity, &rcounts);
     pts0.bin.iter_mut().for_each(|b| *b = lut_refl[*b as usize]);
-    Ok(Prepared {
-        level0,
-        lut_gray,
-        img0,
-        pts0,
-    })
+    Ok(pts0)
 }
 
 /// 3×3 binomial blur ([1 2 1]⊗[1 2 1]/16) over valid pixels only (weights renormalised at the

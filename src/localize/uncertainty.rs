@@ -32,7 +32,7 @@ use super::kernel::Scratch;
 use super::mi::{mutual_information, JointHist};
 use super::pnp::{refine_lm, Correspondence};
 use super::polish::{box_config, nelder_mead, PolishParams};
-use super::search::{pose_at_pivot, Evaluator, SearchConfig, View, AXES};
+use super::search::{pose_at_pivot, Evaluator, ImageCache, SearchConfig, View, AXES};
 use crate::camera::import::IntrinsicsSigma;
 use crate::camera::{Camera, CameraModel};
 use crate::error::Result;
@@ -150,12 +150,27 @@ pub fn estimate(
     pivot: Option<f64>,
     ucfg: &UncertaintyConfig,
 ) -> Result<Uncertainty> {
+    estimate_cached(cam, views, pose, search, polish, pivot, ucfg, &ImageCache::default())
+}
+
+/// [`estimate`] taking the views' image preparations from `cache`.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn estimate_cached<'a>(
+    cam: &Camera,
+    views: &[View<'a>],
+    pose: &CamFromMap,
+    search: &SearchConfig,
+    polish: &PolishParams,
+    pivot: Option<f64>,
+    ucfg: &UncertaintyConfig,
+    cache: &ImageCache<'a>,
+) -> Result<Uncertainty> {
     let p = PolishParams {
         tilt_starts_deg: 0.0,
         ..*polish
     };
     let tilt = p.is_free(4) || p.is_free(5);
-    let ev = Evaluator::pooled(cam, views, pose, &box_config(search, &p, pivot), 0)?;
+    let ev = Evaluator::pooled_cached(cam, views, pose, &box_config(search, &p, pivot), 0, cache)?;
     let k = ucfg.folds.max(2);
     let folds = ev.folds(k);
     let objective = ev.objective();
@@ -242,7 +257,7 @@ pub fn estimate(
         }
     }
     // Its own fixed point set: the points every pose of its wider box sees.
-    let rev = Evaluator::pooled(cam, views, pose, &box_config(search, &rp, pivot), 0)?;
+    let rev = Evaluator::pooled_cached(cam, views, pose, &box_config(search, &rp, pivot), 0, cache)?;
     // Its standard errors from more, smaller patches than the re-optimisations: every probe
     // scores every patch in one pass, so more patches cost nothing, and the standard error has
     // REGION_FOLDS − 1 degrees of freedom instead of K − 1 (with 7, its own noise opened the
