@@ -808,6 +808,32 @@ impl Evaluator {
         out
     }
 
+    /// The level-0 joint histogram at `offsets` of every group of `folds` but `left_out`, in one
+    /// pass: the sum of those groups' [`Evaluator::fold_histograms`] (counts are integers, so
+    /// the order of the sum cannot change them), without scoring the group left out.
+    pub(crate) fn histogram_without(
+        &self,
+        folds: &Folds,
+        left_out: usize,
+        offsets: &[f64; 6],
+        scratch: &mut Scratch,
+    ) -> JointHist {
+        let lv = &self.levels[0];
+        let pose = PoseF32::new(
+            &pose_at_pivot(&self.init, offsets, self.grid.pivot),
+            self.origin,
+        );
+        let mut h = JointHist::new(self.mi.bins_reflectivity, self.mi.bins_gray);
+        for (part, groups) in lv.parts.iter().zip(&folds.parts) {
+            for (j, pts) in groups.iter().enumerate() {
+                if j != left_out {
+                    accumulate(pts, &pose, &lv.cam, &part.img, &mut h, scratch);
+                }
+            }
+        }
+        h
+    }
+
     /// The objective the search maximises (MI or NMI, per the configuration).
     pub(crate) fn objective(&self) -> super::mi::Objective {
         self.mi.objective

@@ -185,8 +185,8 @@ pub(crate) fn estimate_cached<'a>(
         .map(|left_out| {
             let mut scratch = Scratch::default();
             let mut f = |o: &[f64; 6]| {
-                let hists = ev.fold_histograms(folds, o, &mut scratch);
-                value_without(&hists, Some(left_out), objective, parzen)
+                let h = ev.histogram_without(folds, left_out, o, &mut scratch);
+                mutual_information(&h, parzen).get(objective)
             };
             let end = nelder_mead(&mut f, &p);
             let on_edge = (0..6).any(|i| p.is_free(i) && end.offsets[i].abs() >= 0.95 * p.bound[i]);
