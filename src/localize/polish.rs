@@ -255,9 +255,34 @@ pub struct PolishRecord {
     pub points: usize,
     /// Pivot depth of pitch/roll, metres (`None`: about the camera centre).
     pub pivot_m: Option<f64>,
+    /// The starts' screening on a thinned point set, when the polish had several starts.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub screening: Option<Screening>,
+}
+
+/// The screening of a multi-start polish: every start's run on a thinned point set.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Screening {
+    /// Objective evaluations of all the starts' runs.
+    pub evaluations: usize,
+    /// Points of the thinned set.
+    pub points: usize,
 }
 
 impl PolishRecord {
+    /// Point-evaluations of the polish: its runs on the whole set and the screening's.
+    pub fn point_evaluations(&self) -> u64 {
+        self.evaluations as u64 * self.points as u64
+            + self
+                .screening
+                .map_or(0, |s| s.evaluations as u64 * s.points as u64)
+    }
+
+    /// Objective evaluations, the screening's included.
+    pub fn all_evaluations(&self) -> usize {
+        self.evaluations + self.screening.map_or(0, |s| s.evaluations)
+    }
+
     /// Whether the polish ended on (within 5 % of) its box's edge on some parameter: the optimum
     /// may lie outside, and a caller may polish again from there.
     /// A held parameter ([`PolishParams::is_free`] false) is never on an edge.
@@ -306,7 +331,15 @@ pub fn polish_pose(
     search: &SearchConfig,
     p: &PolishParams,
 ) -> Result<(CamFromMap, PolishRecord)> {
-    polish_pose_cached(camera, views, pose, pivot, search, p, &ImageCache::default())
+    polish_pose_cached(
+        camera,
+        views,
+        pose,
+        pivot,
+        search,
+        p,
+        &ImageCache::default(),
+    )
 }
 
 /// [`polish_pose`] taking the views' image preparations from `cache`.
@@ -319,16 +352,27 @@ pub(crate) fn polish_pose_cached<'a>(
     p: &PolishParams,
     cache: &ImageCache<'a>,
 ) -> Result<(CamFromMap, PolishRecord)> {
-    let ev = Evaluator::pooled_cached(camera, views, pose, &box_config(search, p, pivot), 0, cache)?;
+    let ev =
+        Evaluator::pooled_cached(camera, views, pose, &box_config(search, p, pivot), 0, cache)?;
     let objective = ev.objective();
-    let ev = &ev;
-    let res = nelder_mead_multi(
-        || {
-            let mut scratch = Scratch::default();
-            move |x: &[f64; 6]| ev.value_at(0, x, &mut scratch).get(objective)
-        },
-        p,
-    );
+    let starts = 1 + if p.tilt_starts_deg > 0.0 {
+        2 * (p.is_free(4) as usize + p.is_free(5) as usize)
+    } else {
+        0
+    };
+    let (res, screening) = if starts > 1 {
+        screened_polish(&ev, p)
+    } else {
+        let ev = &ev;
+        let res = nelder_mead_multi(
+            || {
+                let mut scratch = Scratch::default();
+                move |x: &[f64; 6]| ev.value_at(0, x, &mut scratch).get(objective)
+            },
+            p,
+        );
+        (res, None)
+    };
     let record = PolishRecord {
         offsets: res.offsets,
         start_value: res.start_value,
@@ -336,8 +380,88 @@ pub(crate) fn polish_pose_cached<'a>(
         evaluations: res.evaluations,
         points: ev.n_points,
         pivot_m: pivot,
+        screening,
     };
     Ok((pose_at_pivot(pose, &res.offsets, pivot), record))
+}
+
+/// Every `SCREEN_STRIDE`-th point of the polish's set scores its starts (see [`screened_polish`]).
+const SCREEN_STRIDE: usize = 4;
+
+/// Point groups a single Nelder–Mead run's evaluations are split into, so that it uses every
+/// thread ([`Evaluator::value_at_split`]).
+const SPLIT_GROUPS: usize = 8;
+
+/// The multi-start polish in two steps: every start's Nelder–Mead on a quarter of the points
+/// (every `SCREEN_STRIDE`-th, spread over the whole ground), then one Nelder–Mead on all the
+/// points from the best of those ends ([`nelder_mead_screened`]). Returns the polish and what
+/// the screening did.
+fn screened_polish(ev: &Evaluator, p: &PolishParams) -> (Polished, Option<Screening>) {
+    let objective = ev.objective();
+    let thin = ev.thinned(SCREEN_STRIDE);
+    let thin_ref = &thin;
+    let folds = ev.folds(SPLIT_GROUPS);
+    let mut full = |x: &[f64; 6]| ev.value_at_split(&folds, x).get(objective);
+    let (res, screen_evaluations) = nelder_mead_screened(
+        || {
+            let mut scratch = Scratch::default();
+            move |x: &[f64; 6]| thin_ref.value_at(0, x, &mut scratch).get(objective)
+        },
+        &mut full,
+        p,
+    );
+    (
+        res,
+        Some(Screening {
+            evaluations: screen_evaluations,
+            points: thin.n_points,
+        }),
+    )
+}
+
+/// [`nelder_mead_multi`] on a cheap approximation of `full` (`make_screen`), then one
+/// Nelder–Mead on `full` from the best screened end. The starts are there to escape a local
+/// maximum (a tilt the search traded for position), a difference far above the approximation's
+/// noise; the precision comes from the final run. If that run ends below `full` at the origin
+/// (the approximation misled it), a run from the origin decides. `start_value` is `full` at the
+/// origin and `evaluations` counts `full`'s; the second value is the screening's evaluations.
+pub(crate) fn nelder_mead_screened<F, M>(
+    make_screen: M,
+    full: &mut dyn FnMut(&[f64; 6]) -> f64,
+    p: &PolishParams,
+) -> (Polished, usize)
+where
+    F: FnMut(&[f64; 6]) -> f64,
+    M: Fn() -> F + Sync,
+{
+    let screen = nelder_mead_multi(make_screen, p);
+    let single = PolishParams {
+        tilt_starts_deg: 0.0,
+        ..*p
+    };
+    let origin = full(&[0.0; 6]);
+    let origin = if origin.is_finite() {
+        origin
+    } else {
+        f64::NEG_INFINITY
+    };
+    let mut end = nelder_mead_from(full, &single, screen.offsets);
+    let mut evaluations = 1 + end.evaluations;
+    if end.value < origin {
+        let own = nelder_mead_from(full, &single, [0.0; 6]);
+        evaluations += own.evaluations;
+        if own.value > end.value {
+            end = own;
+        }
+    }
+    (
+        Polished {
+            start_value: origin,
+            evaluations,
+            ..end
+        },
+        screen.evaluations,
+    )
 }
 
 #[cfg(test)]
@@ -390,6 +514,53 @@ mod tests {
     }
 
     #[test]
+    fn screened_starts_find_the_real_peak_and_finish_on_the_full_objective() {
+        // The two-peak objective above, screened through a coarse, slightly shifted copy of
+        // itself (a thinned point set's noisier objective): the screening picks the real peak's
+        // start and the final run converges on the full objective's own peak.
+        let peak = |x: &[f64; 6], shift: f64| {
+            let d2 = |c: [f64; 6]| (0..6).map(|i| (x[i] - c[i]).powi(2)).sum::<f64>();
+            let real = [0.02 + shift, 0.0, 0.0, 0.0, 2.2 + shift, 0.0];
+            0.5 * (-d2([0.0; 6]) / 0.05).exp() + (-d2(real) / 0.5).exp()
+        };
+        let mut full_evals = 0;
+        let mut full = |x: &[f64; 6]| {
+            full_evals += 1;
+            peak(x, 0.0)
+        };
+        let (r, screened) = nelder_mead_screened(
+            || |x: &[f64; 6]| peak(x, 0.03),
+            &mut full,
+            &PolishParams::default(),
+        );
+        assert!((r.offsets[4] - 2.2).abs() < 0.02, "{:?}", r.offsets);
+        assert!((r.offsets[0] - 0.02).abs() < 0.01, "{:?}", r.offsets);
+        assert_eq!(r.start_value, peak(&[0.0; 6], 0.0));
+        assert_eq!(r.evaluations, full_evals);
+        // The full objective ran once (from the screened end), far fewer times than the starts.
+        assert!(
+            screened > 2 * r.evaluations,
+            "{screened} vs {}",
+            r.evaluations
+        );
+    }
+
+    #[test]
+    fn a_misleading_screen_falls_back_to_the_origin() {
+        // The screen's best peak is only a low bump of the full objective (1.5° in pitch),
+        // whose highest peak is at the origin: the run from the screened end stays on the bump,
+        // below the origin's value, so the origin's own run decides.
+        let d2 = |x: &[f64; 6], pitch: f64| {
+            (x[4] - pitch).powi(2) + x.iter().take(4).map(|v| v * v).sum::<f64>()
+        };
+        let mut full = |x: &[f64; 6]| (-d2(x, 0.0) / 0.05).exp() + 0.5 * (-d2(x, 1.5) / 0.05).exp();
+        let screen = |x: &[f64; 6]| (-d2(x, 1.5) / 0.5).exp();
+        let (r, _) = nelder_mead_screened(|| screen, &mut full, &PolishParams::default());
+        assert!(r.offsets.iter().all(|v| v.abs() < 0.01), "{:?}", r.offsets);
+        assert!(r.value > 0.99 && r.value >= r.start_value, "{}", r.value);
+    }
+
+    #[test]
     fn multi_start_result_does_not_depend_on_the_thread_count() {
         // A rugged objective (ties and many local maxima), so the winner depends on every start.
         let f = |x: &[f64; 6]| {
@@ -428,6 +599,7 @@ mod tests {
             evaluations: r.evaluations,
             points: 1,
             pivot_m: None,
+            screening: None,
         };
         assert!(!record.on_edge(&p));
         let six = nelder_mead(&mut { f }, &PolishParams::default());

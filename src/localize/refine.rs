@@ -370,8 +370,8 @@ pub fn refine_polished(
                 &cache,
             )?;
             r.pose = pose;
-            poses += record.evaluations as u64;
-            point_evaluations += record.evaluations as u64 * record.points as u64;
+            poses += record.all_evaluations() as u64;
+            point_evaluations += record.point_evaluations();
             polish.push(record);
             let again = record.on_edge(&params)
                 || (p.repolish_when_moved && polish_moved(std::slice::from_ref(&record)));
@@ -444,6 +444,7 @@ mod tests {
             evaluations: 150,
             points: 40_000,
             pivot_m: Some(5.0),
+            screening: None,
         }
     }
 

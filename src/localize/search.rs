@@ -525,7 +525,8 @@ impl ViewImage {
         while levels.len() <= max_level as usize {
             let (prev, _) = &levels[levels.len() - 1];
             let g = prev.downsample();
-            let img = BinnedImage::new(g.width, g.height, &g.gray, &g.mask, &self.lut_gray, invalid);
+            let img =
+                BinnedImage::new(g.width, g.height, &g.gray, &g.mask, &self.lut_gray, invalid);
             levels.push((g, Arc::new(img)));
         }
         levels[..=max_level as usize]
@@ -671,8 +672,8 @@ impl Evaluator {
                 other => other,
             })?;
             let image = cache.get(cam, v, cfg).map_err(|m| name(i, m))?;
-            let pts0 =
-                prepare_points(cam, v.points, &image, init, origin, &grid, cfg).map_err(|m| name(i, m))?;
+            let pts0 = prepare_points(cam, v.points, &image, init, origin, &grid, cfg)
+                .map_err(|m| name(i, m))?;
             prepared.push((image.binned_levels(max_level, invalid), pts0));
         }
         let n_points = prepared.iter().map(|(_, p)| p.len()).sum::<usize>();
@@ -806,6 +807,83 @@ impl Evaluator {
             }
         }
         out
+    }
+
+    /// This evaluator's level 0 on every `stride`-th point of each view's fixed set (Morton
+    /// order, so the kept points spread evenly over the ground): a cheaper and noisier objective,
+    /// for screening optimiser starts. The images are shared, not copied.
+    pub(crate) fn thinned(&self, stride: usize) -> Evaluator {
+        let lv = &self.levels[0];
+        let parts: Vec<Part> = lv
+            .parts
+            .iter()
+            .map(|p| Part {
+                img: Arc::clone(&p.img),
+                pts: p.pts.subsample(stride),
+            })
+            .collect();
+        Evaluator {
+            init: self.init,
+            origin: self.origin,
+            grid: self.grid,
+            mi: self.mi,
+            n_points: parts.iter().map(|p| p.pts.len()).sum(),
+            n_input: self.n_input,
+            view_points: self
+                .view_points
+                .iter()
+                .zip(&parts)
+                .map(|(v, p)| (v.0, p.pts.len()))
+                .collect(),
+            levels: vec![Level {
+                cam: lv.cam,
+                parts,
+            }],
+        }
+    }
+
+    /// [`Evaluator::value_at`] at level 0 with the groups of `folds` scored in parallel: their
+    /// histograms add up to the one `value_at` scores (integer counts), so the value is the
+    /// same; for a single optimiser run that should still use every thread.
+    pub(crate) fn value_at_split(&self, folds: &Folds, offsets: &[f64; 6]) -> MiValue {
+        let lv = &self.levels[0];
+        let pose = PoseF32::new(
+            &pose_at_pivot(&self.init, offsets, self.grid.pivot),
+            self.origin,
+        );
+        let (rows, cols) = (self.mi.bins_reflectivity, self.mi.bins_gray);
+        let jobs: Vec<(usize, usize)> = (0..folds.parts.len())
+            .flat_map(|v| (0..folds.k).map(move |g| (v, g)))
+            .collect();
+        let h = jobs
+            .par_iter()
+            .fold(
+                || (JointHist::new(rows, cols), Scratch::default()),
+                |(mut h, mut scratch), &(v, g)| {
+                    let part = &lv.parts[v];
+                    accumulate(
+                        &folds.parts[v][g],
+                        &pose,
+                        &lv.cam,
+                        &part.img,
+                        &mut h,
+                        &mut scratch,
+                    );
+                    (h, scratch)
+                },
+            )
+            .map(|(h, _)| h)
+            .reduce(
+                || JointHist::new(rows, cols),
+                |mut a, b| {
+                    a.counts
+                        .iter_mut()
+                        .zip(&b.counts)
+                        .for_each(|(x, y)| *x += y);
+                    a
+                },
+            );
+        mutual_information(&h, self.mi.parzen)
     }
 
     /// The level-0 joint histogram at `offsets` of every group of `folds` but `left_out`, in one
@@ -1723,6 +1801,124 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The evaluator's shortcuts give the plain evaluator's numbers bit for bit: one built from
+    /// a shared image preparation (after another evaluator on the same frame filled the cache),
+    /// the split parallel score and the one-pass leave-one-group-out histogram. A thinned
+    /// evaluator keeps every `stride`-th point.
+    #[test]
+    fn shared_preparation_and_split_scores_equal_the_plain_evaluator() {
+        use super::super::synth::{ground_points, render, Texture};
+        let cam = Camera::Mei(crate::camera::Mei {
+            width: 480,
+            height: 400,
+            fx: 220.0,
+            fy: 220.4,
+            cx: 241.0,
+            cy: 199.0,
+            skew: 0.0,
+            xi: 1.1,
+            k1: -0.25,
+            k2: 0.08,
+            p1: 0.0,
+            p2: 0.0,
+            fov_deg: Some(185.0),
+        });
+        let tex = Texture::new(11);
+        let truth = CamFromMap::from_center_ypr(&Point3::new(5.0, 8.0, 6.0), 0.7, 0.0, 0.0);
+        let (gray, mask) = render(&tex, &cam, &truth, 0.0, 0.03, 4);
+        let pts = ground_points(&tex, (5.0, 8.0), 14.0, 0.25, 0.0, 0.05, 5);
+        let start = CamFromMap::from_center_ypr(&Point3::new(5.1, 7.95, 6.05), 0.71, 0.0, 0.0);
+        let views = [View {
+            gray: &gray,
+            mask: &mask,
+            points: &pts,
+        }];
+        let cfg = SearchConfig {
+            spec: SearchSpec {
+                x: AxisRange {
+                    half: 0.3,
+                    step: 0.05,
+                },
+                y: AxisRange {
+                    half: 0.3,
+                    step: 0.05,
+                },
+                z: AxisRange {
+                    half: 0.1,
+                    step: 0.05,
+                },
+                yaw: AxisRange {
+                    half: 1.0,
+                    step: 0.25,
+                },
+                ..SearchSpec::default()
+            },
+            ..SearchConfig::default()
+        };
+        let plain = Evaluator::pooled(&cam, &views, &start, &cfg, 2).unwrap();
+        let cache = ImageCache::default();
+        // A level-0-only evaluator of another box fills the cache first; the pyramid is then
+        // built on demand for the second.
+        let narrow = SearchConfig {
+            spec: SearchSpec {
+                x: AxisRange {
+                    half: 0.1,
+                    step: 0.05,
+                },
+                ..cfg.spec
+            },
+            ..cfg
+        };
+        let first = Evaluator::pooled_cached(&cam, &views, &start, &narrow, 0, &cache).unwrap();
+        let shared = Evaluator::pooled_cached(&cam, &views, &start, &cfg, 2, &cache).unwrap();
+        assert_eq!(cache.lock().len(), 1, "one preparation for both evaluators");
+        assert_eq!(
+            first.n_points,
+            Evaluator::pooled(&cam, &views, &start, &narrow, 0)
+                .unwrap()
+                .n_points
+        );
+        assert_eq!(shared.n_points, plain.n_points);
+        let mut sc = Scratch::default();
+        let offsets = [0.02, -0.03, 0.01, 0.1, 0.2, -0.1];
+        for level in 0..=2 {
+            for idx in [0, 7, plain.grid().cells() / 2] {
+                let cell = plain.grid().cell(idx);
+                assert_eq!(
+                    plain.histogram(level, &cell, &mut sc).counts,
+                    shared.histogram(level, &cell, &mut sc).counts,
+                    "level {level} cell {idx}"
+                );
+            }
+        }
+        let whole = plain.value_at(0, &offsets, &mut sc);
+        let folds = plain.folds(5);
+        assert_eq!(plain.value_at_split(&folds, &offsets), whole);
+        let per_group = plain.fold_histograms(&folds, &offsets, &mut sc);
+        for left_out in 0..5 {
+            let mut sum = JointHist::new(cfg.mi.bins_reflectivity, cfg.mi.bins_gray);
+            for (j, h) in per_group.iter().enumerate() {
+                if j != left_out {
+                    sum.counts
+                        .iter_mut()
+                        .zip(&h.counts)
+                        .for_each(|(a, b)| *a += b);
+                }
+            }
+            assert_eq!(
+                plain
+                    .histogram_without(&folds, left_out, &offsets, &mut sc)
+                    .counts,
+                sum.counts
+            );
+        }
+        let thin = plain.thinned(4);
+        assert_eq!(thin.n_points, plain.n_points.div_ceil(4));
+        assert_eq!(thin.view_points, vec![(pts.len(), thin.n_points)]);
+        let n_thin = thin.value_at(0, &offsets, &mut sc).n;
+        assert!(n_thin > 0 && n_thin <= thin.n_points as u64, "{n_thin}");
     }
 
     /// `surely_visible` may only leave points to the lattice test, never keep one that some pose

@@ -150,7 +150,16 @@ pub fn estimate(
     pivot: Option<f64>,
     ucfg: &UncertaintyConfig,
 ) -> Result<Uncertainty> {
-    estimate_cached(cam, views, pose, search, polish, pivot, ucfg, &ImageCache::default())
+    estimate_cached(
+        cam,
+        views,
+        pose,
+        search,
+        polish,
+        pivot,
+        ucfg,
+        &ImageCache::default(),
+    )
 }
 
 /// [`estimate`] taking the views' image preparations from `cache`.
@@ -257,7 +266,8 @@ pub(crate) fn estimate_cached<'a>(
         }
     }
     // Its own fixed point set: the points every pose of its wider box sees.
-    let rev = Evaluator::pooled_cached(cam, views, pose, &box_config(search, &rp, pivot), 0, cache)?;
+    let rev =
+        Evaluator::pooled_cached(cam, views, pose, &box_config(search, &rp, pivot), 0, cache)?;
     // Its standard errors from more, smaller patches than the re-optimisations: every probe
     // scores every patch in one pass, so more patches cost nothing, and the standard error has
     // REGION_FOLDS − 1 degrees of freedom instead of K − 1 (with 7, its own noise opened the
