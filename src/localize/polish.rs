@@ -360,8 +360,11 @@ pub(crate) fn polish_pose_cached<'a>(
     } else {
         0
     };
-    let (res, screening) = if starts > 1 {
-        screened_polish(&ev, p)
+    // The quarter set must keep as many points as the search's coarsest levels do, or its
+    // noise could pick the wrong start: a smaller set polishes every start on all points.
+    let stride = SCREEN_STRIDE.min(ev.n_points / search.coarse_min_points.max(1));
+    let (res, screening) = if starts > 1 && stride >= 2 {
+        screened_polish(&ev, p, stride)
     } else {
         let ev = &ev;
         let res = nelder_mead_multi(
@@ -385,20 +388,26 @@ pub(crate) fn polish_pose_cached<'a>(
     Ok((pose_at_pivot(pose, &res.offsets, pivot), record))
 }
 
-/// Every `SCREEN_STRIDE`-th point of the polish's set scores its starts (see [`screened_polish`]).
+/// Every `SCREEN_STRIDE`-th point of the polish's set scores its starts (see [`screened_polish`]),
+/// or a smaller stride where that would leave fewer points than the search's coarse levels use
+/// (`SearchConfig::coarse_min_points`).
 const SCREEN_STRIDE: usize = 4;
 
 /// Point groups a single Nelder–Mead run's evaluations are split into, so that it uses every
 /// thread ([`Evaluator::value_at_split`]).
 const SPLIT_GROUPS: usize = 8;
 
-/// The multi-start polish in two steps: every start's Nelder–Mead on a quarter of the points
-/// (every `SCREEN_STRIDE`-th, spread over the whole ground), then one Nelder–Mead on all the
+/// The multi-start polish in two steps: every start's Nelder–Mead on a thinned point set
+/// (every `stride`-th, spread over the whole ground), then one Nelder–Mead on all the
 /// points from the best of those ends ([`nelder_mead_screened`]). Returns the polish and what
 /// the screening did.
-fn screened_polish(ev: &Evaluator, p: &PolishParams) -> (Polished, Option<Screening>) {
+fn screened_polish(
+    ev: &Evaluator,
+    p: &PolishParams,
+    stride: usize,
+) -> (Polished, Option<Screening>) {
     let objective = ev.objective();
-    let thin = ev.thinned(SCREEN_STRIDE);
+    let thin = ev.thinned(stride);
     let thin_ref = &thin;
     let folds = ev.folds(SPLIT_GROUPS);
     let mut full = |x: &[f64; 6]| ev.value_at_split(&folds, x).get(objective);

@@ -835,10 +835,7 @@ impl Evaluator {
                 .zip(&parts)
                 .map(|(v, p)| (v.0, p.pts.len()))
                 .collect(),
-            levels: vec![Level {
-                cam: lv.cam,
-                parts,
-            }],
+            levels: vec![Level { cam: lv.cam, parts }],
         }
     }
 
