@@ -208,6 +208,21 @@ where
     F: FnMut(&[f64; 6]) -> f64,
     M: Fn() -> F + Sync,
 {
+    let ends = multi_start_ends(make, p);
+    let best = ends[best_end(&ends)];
+    Polished {
+        start_value: ends[0].start_value,
+        evaluations: ends.iter().map(|r| r.evaluations).sum(),
+        ..best
+    }
+}
+
+/// Every start's end of [`nelder_mead_multi`], in start order (the origin first).
+fn multi_start_ends<F, M>(make: M, p: &PolishParams) -> Vec<Polished>
+where
+    F: FnMut(&[f64; 6]) -> f64,
+    M: Fn() -> F + Sync,
+{
     let mut starts = vec![[0.0; 6]];
     let a = p.tilt_starts_deg;
     if a > 0.0 {
@@ -220,23 +235,21 @@ where
             starts.push(x0);
         }
     }
-    let ends: Vec<Polished> = starts
+    starts
         .par_iter()
         .map(|x0| nelder_mead_from(&mut make(), p, *x0))
-        .collect();
-    let evaluations = ends.iter().map(|r| r.evaluations).sum();
-    let start_value = ends[0].start_value;
-    let mut best = ends[0];
-    for r in &ends[1..] {
-        if r.value > best.value {
-            best = *r;
+        .collect()
+}
+
+/// The index of the best end (ties: the earlier).
+fn best_end(ends: &[Polished]) -> usize {
+    let mut best = 0;
+    for (i, r) in ends.iter().enumerate().skip(1) {
+        if r.value > ends[best].value {
+            best = i;
         }
     }
-    Polished {
-        start_value,
-        evaluations,
-        ..best
-    }
+    best
 }
 
 /// What a polish did: the optimiser's record, the point set's size and the pivot used.
@@ -397,10 +410,10 @@ const SCREEN_STRIDE: usize = 4;
 /// thread ([`Evaluator::value_at_split`]).
 const SPLIT_GROUPS: usize = 8;
 
-/// The multi-start polish in two steps: every start's Nelder–Mead on a thinned point set
-/// (every `stride`-th, spread over the whole ground), then one Nelder–Mead on all the
-/// points from the best of those ends ([`nelder_mead_screened`]). Returns the polish and what
-/// the screening did.
+/// The multi-start polish with its extra starts screened on a thinned point set (every
+/// `stride`-th, spread over the whole ground): Nelder–Mead on all the points from the origin,
+/// and from an extra start's screened end only when one ends best on the thinned set
+/// ([`nelder_mead_screened`]). Returns the polish and what the screening did.
 fn screened_polish(
     ev: &Evaluator,
     p: &PolishParams,
@@ -410,13 +423,13 @@ fn screened_polish(
     let thin = ev.thinned(stride);
     let thin_ref = &thin;
     let folds = ev.folds(SPLIT_GROUPS);
-    let mut full = |x: &[f64; 6]| ev.value_at_split(&folds, x).get(objective);
+    let folds = &folds;
     let (res, screen_evaluations) = nelder_mead_screened(
         || {
             let mut scratch = Scratch::default();
             move |x: &[f64; 6]| thin_ref.value_at(0, x, &mut scratch).get(objective)
         },
-        &mut full,
+        || move |x: &[f64; 6]| ev.value_at_split(folds, x).get(objective),
         p,
     );
     (
@@ -428,48 +441,52 @@ fn screened_polish(
     )
 }
 
-/// [`nelder_mead_multi`] on a cheap approximation of `full` (`make_screen`), then one
-/// Nelder–Mead on `full` from the best screened end. The starts are there to escape a local
-/// maximum (a tilt the search traded for position), a difference far above the approximation's
-/// noise; the precision comes from the final run. If that run ends below `full` at the origin
-/// (the approximation misled it), a run from the origin decides. `start_value` is `full` at the
-/// origin and `evaluations` counts `full`'s; the second value is the screening's evaluations.
-pub(crate) fn nelder_mead_screened<F, M>(
+/// [`nelder_mead_multi`] with the extra starts screened on a cheap approximation of `full`
+/// (`make_full` makes `full`, `make_screen` the approximation). Nelder–Mead on `full` always
+/// runs from the origin, exactly as the plain multi-start's first start; every start also runs
+/// on the approximation, and when one of the *extra* starts ends best there, `full` runs again
+/// from that end and the better of the two full runs wins (ties: the origin's). The extra starts
+/// exist to leave a local maximum a tilt trade left behind, a difference far above the
+/// approximation's noise; where they find nothing better, the answer is the origin's run itself.
+/// `start_value` is `full` at the origin and `evaluations` counts `full`'s; the second value is
+/// the screening's evaluations.
+pub(crate) fn nelder_mead_screened<F, G, M, N>(
     make_screen: M,
-    full: &mut dyn FnMut(&[f64; 6]) -> f64,
+    make_full: N,
     p: &PolishParams,
 ) -> (Polished, usize)
 where
     F: FnMut(&[f64; 6]) -> f64,
+    G: FnMut(&[f64; 6]) -> f64,
     M: Fn() -> F + Sync,
+    N: Fn() -> G + Sync,
 {
-    let screen = nelder_mead_multi(make_screen, p);
+    let screen = multi_start_ends(make_screen, p);
+    let screen_evaluations = screen.iter().map(|r| r.evaluations).sum();
     let single = PolishParams {
         tilt_starts_deg: 0.0,
         ..*p
     };
-    let origin = full(&[0.0; 6]);
-    let origin = if origin.is_finite() {
-        origin
+    let winner = best_end(&screen);
+    let run = |x0: [f64; 6]| nelder_mead_from(&mut make_full(), &single, x0);
+    let (own, other) = if winner == 0 {
+        (run([0.0; 6]), None)
     } else {
-        f64::NEG_INFINITY
+        let (a, b) = rayon::join(|| run([0.0; 6]), || run(screen[winner].offsets));
+        (a, Some(b))
     };
-    let mut end = nelder_mead_from(full, &single, screen.offsets);
-    let mut evaluations = 1 + end.evaluations;
-    if end.value < origin {
-        let own = nelder_mead_from(full, &single, [0.0; 6]);
-        evaluations += own.evaluations;
-        if own.value > end.value {
-            end = own;
-        }
-    }
+    let evaluations = own.evaluations + other.map_or(0, |r| r.evaluations);
+    let end = match other {
+        Some(o) if o.value > own.value => o,
+        _ => own,
+    };
     (
         Polished {
-            start_value: origin,
+            start_value: own.start_value,
             evaluations,
             ..end
         },
-        screen.evaluations,
+        screen_evaluations,
     )
 }
 
@@ -524,49 +541,70 @@ mod tests {
 
     #[test]
     fn screened_starts_find_the_real_peak_and_finish_on_the_full_objective() {
-        // The two-peak objective above, screened through a coarse, slightly shifted copy of
-        // itself (a thinned point set's noisier objective): the screening picks the real peak's
-        // start and the final run converges on the full objective's own peak.
+        // The two-peak objective above, screened through a slightly shifted copy of itself (a
+        // thinned point set's noisier objective): an extra start wins the screening, so the
+        // full objective runs from the origin (which stays on the local peak) and from that
+        // start's screened end, which converges on the full objective's own real peak.
+        use std::sync::atomic::{AtomicUsize, Ordering};
         let peak = |x: &[f64; 6], shift: f64| {
             let d2 = |c: [f64; 6]| (0..6).map(|i| (x[i] - c[i]).powi(2)).sum::<f64>();
             let real = [0.02 + shift, 0.0, 0.0, 0.0, 2.2 + shift, 0.0];
             0.5 * (-d2([0.0; 6]) / 0.05).exp() + (-d2(real) / 0.5).exp()
         };
-        let mut full_evals = 0;
-        let mut full = |x: &[f64; 6]| {
-            full_evals += 1;
-            peak(x, 0.0)
-        };
+        let full_evals = AtomicUsize::new(0);
         let (r, screened) = nelder_mead_screened(
             || |x: &[f64; 6]| peak(x, 0.03),
-            &mut full,
+            || {
+                |x: &[f64; 6]| {
+                    full_evals.fetch_add(1, Ordering::Relaxed);
+                    peak(x, 0.0)
+                }
+            },
             &PolishParams::default(),
         );
         assert!((r.offsets[4] - 2.2).abs() < 0.02, "{:?}", r.offsets);
         assert!((r.offsets[0] - 0.02).abs() < 0.01, "{:?}", r.offsets);
         assert_eq!(r.start_value, peak(&[0.0; 6], 0.0));
-        assert_eq!(r.evaluations, full_evals);
-        // The full objective ran once (from the screened end), far fewer times than the starts.
+        assert_eq!(r.evaluations, full_evals.load(Ordering::Relaxed));
+        // Two full runs instead of five; all five ran on the screen.
+        let five = nelder_mead_multi(|| |x: &[f64; 6]| peak(x, 0.0), &PolishParams::default());
         assert!(
-            screened > 2 * r.evaluations,
-            "{screened} vs {}",
-            r.evaluations
+            r.evaluations < five.evaluations,
+            "{} vs {}",
+            r.evaluations,
+            five.evaluations
         );
+        assert!(screened > r.evaluations, "{screened} vs {}", r.evaluations);
     }
 
     #[test]
-    fn a_misleading_screen_falls_back_to_the_origin() {
-        // The screen's best peak is only a low bump of the full objective (1.5° in pitch),
-        // whose highest peak is at the origin: the run from the screened end stays on the bump,
-        // below the origin's value, so the origin's own run decides.
+    fn a_misleading_screen_leaves_the_origin_run() {
+        // The screen's best peak (1.5° in pitch, only reached from the +pitch start) is only a
+        // low bump of the full objective, whose highest peak is at the origin: the full run
+        // from the screened end stays on the bump, and the origin's run wins.
         let d2 = |x: &[f64; 6], pitch: f64| {
             (x[4] - pitch).powi(2) + x.iter().take(4).map(|v| v * v).sum::<f64>()
         };
-        let mut full = |x: &[f64; 6]| (-d2(x, 0.0) / 0.05).exp() + 0.5 * (-d2(x, 1.5) / 0.05).exp();
-        let screen = |x: &[f64; 6]| (-d2(x, 1.5) / 0.5).exp();
-        let (r, _) = nelder_mead_screened(|| screen, &mut full, &PolishParams::default());
+        let full = |x: &[f64; 6]| (-d2(x, 0.0) / 0.05).exp() + 0.5 * (-d2(x, 1.5) / 0.05).exp();
+        let screen = |x: &[f64; 6]| (-d2(x, 1.5) / 0.05).exp();
+        let (r, _) = nelder_mead_screened(|| screen, || full, &PolishParams::default());
         assert!(r.offsets.iter().all(|v| v.abs() < 0.01), "{:?}", r.offsets);
         assert!(r.value > 0.99 && r.value >= r.start_value, "{}", r.value);
+        // Exactly the plain run from the origin.
+        let own = nelder_mead(&mut { full }, &PolishParams::default());
+        assert_eq!((r.offsets, r.value), (own.offsets, own.value));
+    }
+
+    #[test]
+    fn when_the_origin_wins_the_screening_the_answer_is_its_full_run() {
+        // The screen has one narrow peak at the origin that the tilt starts (±1.5°) cannot see:
+        // the origin's screened run ends best, the full objective runs from the origin only,
+        // and the answer is bit for bit that run's.
+        let full = |x: &[f64; 6]| -(x.iter().map(|v| (v - 0.01).powi(2)).sum::<f64>());
+        let screen = |x: &[f64; 6]| (-(x.iter().map(|v| v * v).sum::<f64>()) / 0.05).exp();
+        let (r, _) = nelder_mead_screened(|| screen, || full, &PolishParams::default());
+        let own = nelder_mead(&mut { full }, &PolishParams::default());
+        assert_eq!(r, own);
     }
 
     #[test]
