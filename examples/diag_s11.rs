@@ -26,12 +26,12 @@ use infraloc::localize::polish::{polish_pose, PolishParams};
 use infraloc::localize::search::{pose_at, AxisRange, Evaluator, SearchConfig, SearchSpec, View};
 use infraloc::localize::truth_eval;
 use infraloc::pose::{offsets_between, CamFromMap};
-use infraloc::sim::{self, Difficulty, GivenIntrinsics, Lens, Preset, Settings};
+use infraloc::sim::{self, GivenIntrinsics, Preset};
 use nalgebra::Point3;
 
 #[path = "common/mod.rs"]
 mod common;
-use common::{scene_inputs, SceneInputs};
+use common::{hard_settings, parse_preset, scene_inputs, SceneInputs};
 
 fn usage() -> ! {
     eprintln!(
@@ -76,13 +76,7 @@ fn main() -> infraloc::Result<()> {
     while let Some(a) = it.next() {
         let mut val = || it.next().unwrap_or_else(|| usage());
         match a.as_str() {
-            "--preset" => {
-                preset = match val().as_str() {
-                    "small" => Preset::Small,
-                    "5mp" => Preset::FiveMp,
-                    _ => usage(),
-                }
-            }
+            "--preset" => preset = parse_preset(&val()).unwrap_or_else(|| usage()),
             "--seed" => seed = val().parse().unwrap_or_else(|_| usage()),
             "--json" => json = Some(val()),
             "--offset-intrinsics" => given = GivenIntrinsics::Offset,
@@ -102,15 +96,7 @@ fn main() -> infraloc::Result<()> {
     let accepted = pose_of(&rec["poses"]["mi"]).expect("poses.mi");
     let pnp = pose_of(&rec["poses"]["pnp"]).expect("poses.pnp");
 
-    let settings = Settings {
-        seed,
-        preset,
-        difficulty: Difficulty::Hard,
-        lens: Lens::Mei,
-        frames: 5,
-        intrinsics: given,
-    };
-    let scene = sim::generate(&settings)?;
+    let scene = sim::generate(&hard_settings(seed, preset, given))?;
     let SceneInputs {
         camera,
         image,

@@ -36,14 +36,14 @@ use infraloc::daemon::{drift_search_with, DriftParams};
 use infraloc::localize::frame::Frame;
 use infraloc::localize::pipeline::{self, Params};
 use infraloc::pose::{angle_difference, CamFromMap};
-use infraloc::sim::{self, Difficulty, GivenIntrinsics, Lens, Preset, Settings};
+use infraloc::sim::{self, GivenIntrinsics, Preset};
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use std::time::Instant;
 
 #[path = "common/mod.rs"]
 mod common;
-use common::{cpu_s, scene_inputs, SceneInputs};
+use common::{cpu_s, hard_settings, parse_preset, scene_inputs, SceneInputs};
 
 /// One knock: horizontal move (m), yaw turn (deg), whether the check must say "moved".
 struct Case {
@@ -151,11 +151,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut val = || args.next().ok_or_else(|| format!("{a} needs a value"));
         match a.as_str() {
             "--preset" => {
-                preset = match val()?.as_str() {
-                    "small" => Preset::Small,
-                    "5mp" => Preset::FiveMp,
-                    other => return Err(format!("--preset: unknown {other:?}").into()),
-                }
+                let name = val()?;
+                preset =
+                    parse_preset(&name).ok_or_else(|| format!("--preset: unknown {name:?}"))?;
             }
             "--seeds" => seeds = parse_seeds(&val()?)?,
             "--variant" => variants.push(parse_variant(&val()?)?),
@@ -165,14 +163,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let cfg = Config::default();
     let mut tallies: Vec<Tally> = variants.iter().map(|_| Tally::default()).collect();
     for &seed in &seeds {
-        let settings = Settings {
-            seed,
-            preset,
-            difficulty: Difficulty::Hard,
-            lens: Lens::Mei,
-            frames: 5,
-            intrinsics: GivenIntrinsics::Calibrated,
-        };
+        let settings = hard_settings(seed, preset, GivenIntrinsics::Calibrated);
         let scene = sim::generate(&settings)?;
         let SceneInputs {
             camera,

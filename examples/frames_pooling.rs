@@ -26,6 +26,10 @@ use rand::{Rng, SeedableRng};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 
+#[path = "common/mod.rs"]
+mod common;
+use common::parse_preset;
+
 const VARIANTS: [&str; 3] = ["median", "pooled", "median+pooled"];
 
 fn usage() -> ! {
@@ -44,13 +48,7 @@ fn main() {
     while let Some(a) = it.next() {
         let mut val = || it.next().unwrap_or_else(|| usage());
         match a.as_str() {
-            "--preset" => {
-                preset = match val().as_str() {
-                    "small" => Preset::Small,
-                    "5mp" => Preset::FiveMp,
-                    _ => usage(),
-                }
-            }
+            "--preset" => preset = parse_preset(&val()).unwrap_or_else(|| usage()),
             "--difficulty" => {
                 difficulty = match val().as_str() {
                     "hard" => Difficulty::Hard,

@@ -23,8 +23,6 @@
 //! drawn intrinsics offset, what `hard` was before the calibrator) instead of the default
 //! calibrated intrinsics.
 
-use infraloc::camera::import::{parse_camera, to_opencv_yaml};
-use infraloc::config::{Config, GpsSourceKind};
 use infraloc::localize::frame::{Frame, MapLayers};
 use infraloc::localize::init::SearchArea;
 use infraloc::localize::pipeline::{self, Params, PnpDetail, PriorDetail, StageDetail};
@@ -33,8 +31,12 @@ use infraloc::pose::CamFromMap;
 use infraloc::sim::{self, Difficulty, GivenIntrinsics, Lens, Preset, Settings};
 use infraloc::stage::StageName;
 use serde_json::{json, Value};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
+
+#[path = "common/mod.rs"]
+mod common;
+use common::{parse_preset, scene_inputs, SceneInputs};
 
 /// Initialization inside the MI search basin (issue 4): horizontal and yaw error bounds.
 const BASIN_M: f64 = 1.0;
@@ -101,13 +103,7 @@ fn opts() -> Opts {
     while let Some(a) = it.next() {
         let mut val = || it.next().unwrap_or_else(|| usage());
         match a.as_str() {
-            "--preset" => {
-                o.preset = match val().as_str() {
-                    "small" => Preset::Small,
-                    "5mp" => Preset::FiveMp,
-                    _ => usage(),
-                }
-            }
+            "--preset" => o.preset = parse_preset(&val()).unwrap_or_else(|| usage()),
             "--difficulty" => {
                 o.difficulty = match val().as_str() {
                     "hard" => Difficulty::Hard,
@@ -156,44 +152,26 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
     let t0 = Instant::now();
     let scene = sim::generate(&settings)?;
     let sim_s = t0.elapsed().as_secs_f64();
-    let tmp = tempfile::tempdir().map_err(|e| infraloc::Error::io(std::env::temp_dir(), e))?;
-    let dir = tmp.path();
-    let io = |p: &Path, e| infraloc::Error::io(p, e);
-    // The scene directory's files `localize` reads (the frames are PNG, lossless: kept in memory).
-    let tiles = dir.join("tiles");
-    infraloc::map::cache::write_tile(&tiles, &scene.tile)?;
-    let nmea = dir.join("gps.nmea");
-    std::fs::write(&nmea, &scene.nmea).map_err(|e| io(&nmea, e))?;
-    let cam_yaml = dir.join("camera.yaml");
-    // `--true-intrinsics`: hand the localizer the camera's true intrinsics (in `hard` it gets
-    // deliberately wrong ones), to separate the intrinsics' bias from the method's.
-    let cam_text = to_opencv_yaml(if o.true_intrinsics {
-        &scene.camera_true
-    } else {
-        &scene.camera_given
-    });
-
+    // The scene directory's files `localize` reads, read back as it reads them (the frames are
+    // PNG, lossless: kept in memory). `--true-intrinsics`: hand the localizer the camera's true
+    // intrinsics (in `hard` it gets deliberately wrong ones), to separate the intrinsics' bias
+    // from the method's.
     let t1 = Instant::now();
-    let camera = parse_camera(&cam_text, &cam_yaml)?;
+    let SceneInputs {
+        camera,
+        image,
+        tile,
+        prior_xy: xy,
+        prior_sigma_m: sigma,
+        dir: tmp,
+    } = scene_inputs(&scene, o.true_intrinsics)?;
+    let dir = tmp.path();
     // The given intrinsics' stated uncertainty reaches the covariance, as camera.yaml's does.
     let mut params = params.clone();
     if !o.true_intrinsics {
         params.quality.intrinsics_sigma = scene.camera_sigma;
     }
     let params = &params;
-    let frames = scene.frame_images();
-    let image = infraloc::capture::temporal_median(&frames)?;
-    let cfg = Config::default();
-    let mut g = cfg.gps.clone();
-    g.source = GpsSourceKind::NmeaFile;
-    g.path = Some(nmea);
-    let prior = infraloc::gps_serial::acquire_prior(&g)?;
-    let (lat, lon, sigma) = prior
-        .position()
-        .ok_or_else(|| infraloc::Error::stage("prior", "no position from the NMEA log"))?;
-    let tref = infraloc::map::cache::find_tile(&tiles, lat, lon, cfg.map.search_margin_m)?;
-    let tile = infraloc::map::cache::load_tile(&tref.dir)?;
-    let xy = infraloc::geo::wgs84_to_map(tile.reflectivity.grid.crs, lat, lon)?;
     let inputs_s = t1.elapsed().as_secs_f64();
     let clock = Instant::now();
     if o.init_only {

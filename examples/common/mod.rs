@@ -1,6 +1,6 @@
 //! Helpers shared by the measuring examples (`drift_cost`, `scaling`, `drift_verdicts`,
-//! `diag_s11`; `benches/refine.rs` uses the camera). Included with `#[path]`, so each user
-//! compiles only what it calls.
+//! `diag_s11`, `pipeline_accuracy`, `frames_pooling`; `benches/refine.rs` uses the camera).
+//! Included with `#[path]`, so each user compiles only what it calls.
 #![allow(dead_code, unreachable_pub)]
 
 use infraloc::camera::{Camera, Mei};
@@ -35,6 +35,28 @@ pub fn preset_camera(width: u32, height: u32) -> Camera {
         p2: -3.1e-5,
         fov_deg: Some(185.0),
     })
+}
+
+/// A preset by its name on the command line (`small`, `5mp`: the names `infraloc simulate` and
+/// the scene files use).
+pub fn parse_preset(name: &str) -> Option<infraloc::sim::Preset> {
+    serde_json::from_value(serde_json::Value::String(name.to_owned())).ok()
+}
+
+/// The settings of `infraloc simulate --difficulty hard` (Mei lens, five frames) for `seed`.
+pub fn hard_settings(
+    seed: u64,
+    preset: infraloc::sim::Preset,
+    intrinsics: infraloc::sim::GivenIntrinsics,
+) -> infraloc::sim::Settings {
+    infraloc::sim::Settings {
+        seed,
+        preset,
+        difficulty: infraloc::sim::Difficulty::Hard,
+        lens: infraloc::sim::Lens::Mei,
+        frames: 5,
+        intrinsics,
+    }
 }
 
 /// What `infraloc localize` reads from a simulated scene's directory, made from the scene in

@@ -223,6 +223,15 @@ where
     F: FnMut(&[f64; 6]) -> f64,
     M: Fn() -> F + Sync,
 {
+    start_offsets(p)
+        .par_iter()
+        .map(|x0| nelder_mead_from(&mut make(), p, *x0))
+        .collect()
+}
+
+/// The starts of a multi-start polish: the origin, then pitch ±`tilt_starts_deg` and roll ± that
+/// (each only where that tilt is free).
+fn start_offsets(p: &PolishParams) -> Vec<[f64; 6]> {
     let mut starts = vec![[0.0; 6]];
     let a = p.tilt_starts_deg;
     if a > 0.0 {
@@ -236,9 +245,6 @@ where
         }
     }
     starts
-        .par_iter()
-        .map(|x0| nelder_mead_from(&mut make(), p, *x0))
-        .collect()
 }
 
 /// The index of the best end (ties: the earlier).
@@ -368,15 +374,10 @@ pub(crate) fn polish_pose_cached<'a>(
     let ev =
         Evaluator::pooled_cached(camera, views, pose, &box_config(search, p, pivot), 0, cache)?;
     let objective = ev.objective();
-    let starts = 1 + if p.tilt_starts_deg > 0.0 {
-        2 * (p.is_free(4) as usize + p.is_free(5) as usize)
-    } else {
-        0
-    };
     // The quarter set must keep as many points as the search's coarsest levels do, or its
     // noise could pick the wrong start: a smaller set polishes every start on all points.
     let stride = SCREEN_STRIDE.min(ev.n_points / search.coarse_min_points.max(1));
-    let (res, screening) = if starts > 1 && stride >= 2 {
+    let (res, screening) = if start_offsets(p).len() > 1 && stride >= 2 {
         screened_polish(&ev, p, stride)
     } else {
         let ev = &ev;

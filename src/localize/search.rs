@@ -682,24 +682,34 @@ impl Evaluator {
             .zip(&prepared)
             .map(|(v, (_, p))| (v.points.len(), p.len()))
             .collect();
-        let mut levels = Vec::with_capacity(max_level as usize + 1);
-        for l in 0..=max_level {
-            let stride = (1usize << (2 * l)).min((n_points / cfg.coarse_min_points.max(1)).max(1));
-            levels.push(Level {
-                cam: FastCamera::new(cam, l),
-                parts: prepared
-                    .iter()
-                    .map(|(imgs, pts0)| Part {
-                        img: Arc::clone(&imgs[l as usize]),
-                        pts: if l == 0 {
-                            pts0.clone()
-                        } else {
-                            pts0.subsample(stride)
-                        },
-                    })
-                    .collect(),
-            });
-        }
+        // The coarse levels subsample the fixed sets first; level 0 then takes them as they are.
+        let coarse: Vec<Level> = (1..=max_level)
+            .map(|l| {
+                let stride =
+                    (1usize << (2 * l)).min((n_points / cfg.coarse_min_points.max(1)).max(1));
+                Level {
+                    cam: FastCamera::new(cam, l),
+                    parts: prepared
+                        .iter()
+                        .map(|(imgs, pts0)| Part {
+                            img: Arc::clone(&imgs[l as usize]),
+                            pts: pts0.subsample(stride),
+                        })
+                        .collect(),
+                }
+            })
+            .collect();
+        let mut levels = vec![Level {
+            cam: FastCamera::new(cam, 0),
+            parts: prepared
+                .into_iter()
+                .map(|(mut imgs, pts)| Part {
+                    img: imgs.swap_remove(0),
+                    pts,
+                })
+                .collect(),
+        }];
+        levels.extend(coarse);
         Ok(Evaluator {
             init: *init,
             origin,
