@@ -155,6 +155,83 @@ pub(crate) fn smallest_positive_root(a: f64, b: f64, c: f64) -> Option<f64> {
     roots.into_iter().find(|r| *r > 0.0)
 }
 
+impl Mei {
+    /// [`CameraModel::project`] with the model's two limits given: the lowest sphere z and
+    /// (asked only for a ray in front of it) the largest undistorted r².
+    #[inline(always)]
+    fn project_with(
+        &self,
+        p: &Vector3<f64>,
+        min_sphere_z: f64,
+        max_r2: impl FnOnce() -> f64,
+    ) -> Result<Point2<f64>, Reject> {
+        let n = p.norm();
+        if !(n > 0.0 && n.is_finite()) {
+            return Err(Reject::Degenerate);
+        }
+        let s = p / n;
+        if s.z <= min_sphere_z {
+            return Err(Reject::OutsideFov);
+        }
+        let denom = s.z + self.xi;
+        let (xu, yu) = (s.x / denom, s.y / denom);
+        if xu * xu + yu * yu >= max_r2() {
+            return Err(Reject::DistortionFold);
+        }
+        let (xd, yd) = self.distort(xu, yu);
+        Ok(Point2::new(
+            self.fx * xd + self.skew * yd + self.cx,
+            self.fy * yd + self.cy,
+        ))
+    }
+}
+
+/// A [`Mei`] camera whose projection limits (lowest sphere z, largest undistorted r², a square
+/// root and two divisions per call otherwise) are computed once: the same model and the same
+/// numbers, for loops that project many points (the fixed point set's visibility, the
+/// initializer's patches and verifier).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct PreparedMei<'a> {
+    mei: &'a Mei,
+    min_sphere_z: f64,
+    max_r2: f64,
+    max_theta: f64,
+}
+
+impl<'a> PreparedMei<'a> {
+    /// The limits of `mei`.
+    pub(crate) fn new(mei: &'a Mei) -> Self {
+        PreparedMei {
+            mei,
+            min_sphere_z: mei.min_sphere_z(),
+            max_r2: mei.max_r2_monotonic(),
+            max_theta: mei.max_theta(),
+        }
+    }
+}
+
+impl CameraModel for PreparedMei<'_> {
+    fn as_mei(&self) -> Option<&Mei> {
+        Some(self.mei)
+    }
+    fn width(&self) -> u32 {
+        self.mei.width
+    }
+    fn height(&self) -> u32 {
+        self.mei.height
+    }
+    #[inline]
+    fn project(&self, p: &Vector3<f64>) -> Result<Point2<f64>, Reject> {
+        self.mei.project_with(p, self.min_sphere_z, || self.max_r2)
+    }
+    fn unproject(&self, px: &Point2<f64>) -> Result<Unit<Vector3<f64>>, Reject> {
+        self.mei.unproject(px)
+    }
+    fn max_theta(&self) -> f64 {
+        self.max_theta
+    }
+}
+
 impl CameraModel for Mei {
     fn as_mei(&self) -> Option<&Mei> {
         Some(self)
@@ -167,24 +244,7 @@ impl CameraModel for Mei {
     }
 
     fn project(&self, p: &Vector3<f64>) -> Result<Point2<f64>, Reject> {
-        let n = p.norm();
-        if !(n > 0.0 && n.is_finite()) {
-            return Err(Reject::Degenerate);
-        }
-        let s = p / n;
-        if s.z <= self.min_sphere_z() {
-            return Err(Reject::OutsideFov);
-        }
-        let denom = s.z + self.xi;
-        let (xu, yu) = (s.x / denom, s.y / denom);
-        if xu * xu + yu * yu >= self.max_r2_monotonic() {
-            return Err(Reject::DistortionFold);
-        }
-        let (xd, yd) = self.distort(xu, yu);
-        Ok(Point2::new(
-            self.fx * xd + self.skew * yd + self.cx,
-            self.fy * yd + self.cy,
-        ))
+        self.project_with(p, self.min_sphere_z(), || self.max_r2_monotonic())
     }
 
     fn unproject(&self, px: &Point2<f64>) -> Result<Unit<Vector3<f64>>, Reject> {

@@ -12,6 +12,7 @@ pub mod rectify;
 pub use equidistant::Equidistant;
 pub use import::{load_camera, parse_camera, to_opencv_yaml};
 pub use mei::Mei;
+pub(crate) use mei::PreparedMei;
 
 use nalgebra::{Point2, Unit, Vector3};
 use serde::{Deserialize, Serialize};

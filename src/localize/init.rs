@@ -8,7 +8,7 @@ use super::frame::{Frame, MapLayers};
 use super::ground::{focal_px, ground_disc, height_at, Mip};
 use super::sweep::{orientation_field, Candidate, Field, GrayF32};
 use super::verify::MiVerifier;
-use crate::camera::CameraModel;
+use crate::camera::{CameraModel, PreparedMei};
 use crate::map::Raster;
 use crate::stage::StageName;
 use rayon::prelude::*;
@@ -138,7 +138,7 @@ fn match_anchors_mip(
 ) -> Vec<AnchorMatch> {
     // The patches project ~10⁵ ground cells per call: on the concrete model, not through `dyn`.
     match cam.as_mei() {
-        Some(mei) => match_anchors_in(mei, mip, sat, heights, pose, sizes, p),
+        Some(mei) => match_anchors_in(&PreparedMei::new(mei), mip, sat, heights, pose, sizes, p),
         None => match_anchors_in(cam, mip, sat, heights, pose, sizes, p),
     }
 }

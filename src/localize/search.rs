@@ -1207,6 +1207,32 @@ fn surely_visible(
     dist: &[u16],
     w: usize,
 ) -> Vec<bool> {
+    // Thirteen projections per point: on the concrete model, its limits computed once.
+    match cam.as_mei() {
+        Some(mei) => surely_visible_in(
+            &crate::camera::PreparedMei::new(mei),
+            pts,
+            origin,
+            center,
+            extremes,
+            dist,
+            w,
+        ),
+        None => surely_visible_in(cam, pts, origin, center, extremes, dist, w),
+    }
+}
+
+/// [`surely_visible`] for camera model `C`.
+#[allow(clippy::too_many_arguments)]
+fn surely_visible_in<C: CameraModel + Sync + ?Sized>(
+    cam: &C,
+    pts: &PreparedPoints,
+    origin: [f64; 3],
+    center: &CamFromMap,
+    extremes: &[CamFromMap],
+    dist: &[u16],
+    w: usize,
+) -> Vec<bool> {
     let h = dist.len() / w.max(1);
     // The kernel drops rays beyond the field of view whatever the mask says; so must this.
     let cos_max_theta = cam.max_theta().cos();

@@ -19,7 +19,7 @@
 
 use super::ground::{focal_px, ground_disc, Mip};
 use super::mi::{bin_lut, mutual_information, Binning, JointHist};
-use crate::camera::CameraModel;
+use crate::camera::{CameraModel, PreparedMei};
 use crate::map::{ground_points_iter, Tile};
 use crate::pose::CamFromMap;
 use nalgebra::{Point3, Vector3};
@@ -149,7 +149,7 @@ impl<'a> MiVerifier<'a> {
     ) -> Option<(f64, usize)> {
         let level = self.mip.level(footprint);
         let pairs = match self.cam.as_mei() {
-            Some(mei) => self.pairs(mei, pose, pts, level),
+            Some(mei) => self.pairs(&PreparedMei::new(mei), pose, pts, level),
             None => self.pairs(self.cam, pose, pts, level),
         };
         if pairs.len() < self.p.min_points {
