@@ -279,3 +279,85 @@ impl CameraModel for Mei {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeSet;
+
+    /// The prepared model gives every ray the model's own answer, bit for bit: the pixel, or the
+    /// same rejection (behind the mirror, past the distortion's fold, degenerate, off the sensor),
+    /// over the whole sphere, for ξ below, at and above 1 and for a radial polynomial that folds.
+    #[test]
+    fn prepared_mei_projects_exactly_as_the_model() {
+        let mut outcomes = BTreeSet::new();
+        for (xi, k1, k2) in [
+            (1.2, -0.27, 0.09),
+            (0.8, -0.4, 0.01),
+            (2.0, 0.1, -0.05),
+            (0.0, 0.0, 0.0),
+        ] {
+            let m = Mei {
+                width: 640,
+                height: 512,
+                fx: 300.0,
+                fy: 300.5,
+                cx: 321.0,
+                cy: 255.0,
+                skew: 0.3,
+                xi,
+                k1,
+                k2,
+                p1: -4.0e-5,
+                p2: 1.4e-4,
+                fov_deg: Some(185.0),
+            };
+            let pm = PreparedMei::new(&m);
+            assert_eq!(pm.max_theta(), m.max_theta());
+            assert_eq!((pm.width(), pm.height()), (m.width, m.height));
+            let cos_max = m.max_theta().cos();
+            let mut rays = vec![
+                Vector3::zeros(),
+                Vector3::new(f64::NAN, 0.0, 1.0),
+                Vector3::new(0.0, f64::INFINITY, 1.0),
+            ];
+            for i in 0..=360 {
+                for j in 0..24 {
+                    let (t, f) = (
+                        (i as f64 * 0.5).to_radians(),
+                        (j as f64 * 15.0).to_radians(),
+                    );
+                    rays.push(3.7 * Vector3::new(t.sin() * f.cos(), t.sin() * f.sin(), t.cos()));
+                }
+            }
+            for v in &rays {
+                let (a, b) = (pm.project(v), m.project(v));
+                assert_eq!(
+                    a.map(|p| (p.x.to_bits(), p.y.to_bits())),
+                    b.map(|p| (p.x.to_bits(), p.y.to_bits())),
+                    "ξ {xi}, ray {v:?}"
+                );
+                let (a, b) = (
+                    pm.project_visible_cos(v, cos_max),
+                    m.project_visible_cos(v, cos_max),
+                );
+                assert_eq!(
+                    a.map(|p| (p.x.to_bits(), p.y.to_bits())),
+                    b.map(|p| (p.x.to_bits(), p.y.to_bits())),
+                    "ξ {xi}, ray {v:?}"
+                );
+                outcomes.insert(format!("{:?}", b.map(|_| ())));
+                outcomes.insert(format!("{:?}", m.project(v).map(|_| ())));
+            }
+        }
+        // Every branch of the projection was compared, not only the pixels.
+        for o in [
+            "Ok(())",
+            "Err(OutsideFov)",
+            "Err(DistortionFold)",
+            "Err(Degenerate)",
+        ] {
+            assert!(outcomes.contains(o), "{o} never reached: {outcomes:?}");
+        }
+    }
+}
