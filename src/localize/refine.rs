@@ -4,7 +4,7 @@
 use super::points::GroundPoint;
 use super::quality::{apply_uncertainty, assess, Quality, QualityConfig};
 use super::search::{
-    search, Evaluator, ImageCache, Mode, SearchConfig, SearchStats, View, MAX_LEVEL,
+    search_thinned, Evaluator, ImageCache, Mode, SearchConfig, SearchStats, View, MAX_LEVEL,
 };
 use super::uncertainty::{estimate_cached, UncertaintyConfig};
 use crate::camera::{Camera, CameraModel};
@@ -102,7 +102,7 @@ pub(crate) fn refine_masked(
 ) -> Result<Refinement> {
     let views = [View { gray, mask, points }];
     let cache = ImageCache::default();
-    let r = search_views(cam, &views, init, cfg, qcfg, &cache)?;
+    let r = search_views(cam, &views, init, cfg, qcfg, 1, &cache)?;
     with_uncertainty(cam, &views, r, cfg, qcfg, None, &cache)
 }
 
@@ -113,6 +113,7 @@ fn search_views<'a>(
     init: &CamFromMap,
     cfg: &SearchConfig,
     qcfg: &QualityConfig,
+    thinning: usize,
     cache: &ImageCache<'a>,
 ) -> Result<Refinement> {
     // `Evaluator::pooled` checks the images' and masks' sizes.
@@ -122,7 +123,7 @@ fn search_views<'a>(
         MAX_LEVEL
     };
     let ev = Evaluator::pooled_cached(cam, views, init, cfg, levels, cache)?;
-    let res = search(&ev, cfg);
+    let res = search_thinned(&ev, cfg, thinning);
     let quality = assess(&ev, &res, qcfg);
     if !res.pose.translation.iter().all(|v| v.is_finite()) {
         return Err(Error::stage("mi", "refined pose is not finite"));
@@ -221,6 +222,10 @@ pub struct PolishedSearch {
     /// far has a new set, and a further polish may move it on (the 4-DoF finish, where no
     /// re-search follows).
     pub repolish_when_moved: bool,
+    /// The searches' finest level scores every this-th point (1: all), see
+    /// [`super::search::search_thinned`]: the 6-DoF polish on all points that follows sets the
+    /// answer, so the grid cell it starts from needs less than the full point set.
+    pub search_thinning: usize,
 }
 
 impl Default for PolishedSearch {
@@ -230,6 +235,7 @@ impl Default for PolishedSearch {
             polish_rounds: POLISH_ROUNDS,
             search_rounds: SEARCH_ROUNDS,
             repolish_when_moved: false,
+            search_thinning: SEARCH_THINNING,
         }
     }
 }
@@ -262,6 +268,9 @@ impl PolishedSearch {
             polish_rounds: POLISH_ROUNDS,
             search_rounds: 2,
             repolish_when_moved: true,
+            // Its grid cell can be the peak itself (a forward view's along-track hump, above):
+            // the search keeps every point.
+            search_thinning: 1,
         }
     }
 }
@@ -278,6 +287,10 @@ pub(crate) fn finish_name(finish: Option<&PolishedSearch>) -> &'static str {
 
 /// Polish rounds per search at most (default of [`PolishedSearch::polish_rounds`]).
 pub(crate) const POLISH_ROUNDS: usize = 3;
+/// Default of [`PolishedSearch::search_thinning`]: the finest level on half the points. A quarter
+/// (the level above's count) changed the path on the scenes whose outcome hangs on it (`5mp` 11
+/// accepted 0.28° off, `small` 98/100; docs/benchmarks.md).
+pub(crate) const SEARCH_THINNING: usize = 2;
 /// Searches at most (default of [`PolishedSearch::search_rounds`]). A round only starts when the
 /// previous polish moved (or the gate refused an optimum on the box's edge), so the limit only
 /// bites on a polish that is still walking along a ridge; with 3, `5mp` seed 3's last polish moved roll by 2° after its search and the gate judged
@@ -331,7 +344,7 @@ pub fn refine_polished(
     // one image preparation.
     let cache = ImageCache::default();
     let Some(p) = p else {
-        let r = search_views(cam, views, init, cfg, qcfg, &cache)?;
+        let r = search_views(cam, views, init, cfg, qcfg, 1, &cache)?;
         return Ok((
             with_uncertainty(cam, views, r, cfg, qcfg, None, &cache)?,
             Vec::new(),
@@ -343,7 +356,7 @@ pub fn refine_polished(
     // Work done by all the searches and polishes: the reported evaluation ratio counts it all.
     let (mut poses, mut point_evaluations) = (0u64, 0u64);
     loop {
-        let mut r = search_views(cam, views, &start, cfg, qcfg, &cache)?;
+        let mut r = search_views(cam, views, &start, cfg, qcfg, p.search_thinning, &cache)?;
         poses += r.stats.poses;
         point_evaluations += r.stats.point_evaluations;
         let mut polish = Vec::new();
