@@ -116,24 +116,14 @@ pub(crate) fn nelder_mead_from(
             f64::NEG_INFINITY
         }
     };
-    let x0 = clamp(x0);
+    let first = initial_simplex(p, x0);
+    let x0 = first[0];
     let start_value = eval(&x0, &mut evals);
-    // The parameters that move: a zero initial step or bound holds one at x0 (e.g. pitch and roll
-    // in a 4-DoF polish), and the simplex spans the others only (n + 1 vertices).
-    let free: Vec<usize> = (0..6).filter(|&i| p.is_free(i)).collect();
-    let n = free.len();
+    let n = first.len() - 1;
     let mut simplex: Vec<([f64; 6], f64)> = vec![(x0, start_value)];
-    for &i in &free {
-        let mut x = x0;
-        // Step towards the box's interior when x0 sits on its edge.
-        x[i] += if x0[i] + p.initial_step[i] > p.bound[i] {
-            -p.initial_step[i]
-        } else {
-            p.initial_step[i]
-        };
-        let x = clamp(x);
-        let v = eval(&x, &mut evals);
-        simplex.push((x, v));
+    for x in &first[1..] {
+        let v = eval(x, &mut evals);
+        simplex.push((*x, v));
     }
     let order = |s: &mut Vec<([f64; 6], f64)>| {
         // Best first; a stable sort keeps the earlier vertex on ties (deterministic).
@@ -196,6 +186,32 @@ pub(crate) fn nelder_mead_from(
         start_value,
         evaluations: evals,
     }
+}
+
+/// The first simplex of [`nelder_mead_from`] from `x0`, in evaluation order: `x0` clamped to
+/// ±`bound`, then one vertex per free parameter, `initial_step` from it towards the box's
+/// interior (a zero initial step or bound holds a parameter, e.g. pitch and roll in a 4-DoF
+/// polish, and the simplex spans the others only). Callers that run many polishes from one
+/// start can score these poses once (the jackknife's groups, [`super::uncertainty`]).
+pub(crate) fn initial_simplex(p: &PolishParams, x0: [f64; 6]) -> Vec<[f64; 6]> {
+    let clamp = |mut x: [f64; 6]| {
+        for (v, b) in x.iter_mut().zip(&p.bound) {
+            *v = v.clamp(-b, *b);
+        }
+        x
+    };
+    let x0 = clamp(x0);
+    let mut out = vec![x0];
+    for i in (0..6).filter(|&i| p.is_free(i)) {
+        let mut x = x0;
+        x[i] += if x0[i] + p.initial_step[i] > p.bound[i] {
+            -p.initial_step[i]
+        } else {
+            p.initial_step[i]
+        };
+        out.push(clamp(x));
+    }
+    out
 }
 
 /// [`nelder_mead`] from the origin and, when [`PolishParams::tilt_starts_deg`] > 0, from pitch
@@ -494,6 +510,40 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_polish_first_scores_its_initial_simplex() {
+        // The jackknife scores these poses once for all its groups; that is only the same as
+        // each group scoring them if the polish scores exactly them, in this order, first.
+        let mut p = PolishParams::four_dof();
+        p.initial_step[5] = 0.2;
+        p.bound[5] = 1.0;
+        for x0 in [
+            [0.0; 6],
+            [0.14, -0.15, 0.0, 0.45, 0.0, 0.9],
+            [1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        ] {
+            let first = initial_simplex(&p, x0);
+            // x, y, z, yaw and roll move; pitch is held.
+            assert_eq!(first.len(), 6);
+            let mut seen = Vec::new();
+            let mut f = |x: &[f64; 6]| {
+                seen.push(*x);
+                -x.iter().map(|v| (v - 0.01).powi(2)).sum::<f64>()
+            };
+            let r = nelder_mead_from(&mut f, &p, x0);
+            assert_eq!(&seen[..first.len()], &first[..], "start {x0:?}");
+            assert!(r.evaluations > first.len());
+            // Every vertex inside the box, one step from the start along its own axis.
+            for (v, i) in first[1..].iter().zip([0, 1, 2, 3, 5]) {
+                assert!(
+                    (v[i] - first[0][i]).abs() > 0.0 && v[i].abs() <= p.bound[i],
+                    "{v:?}"
+                );
+                assert_eq!(v[4], first[0][4]);
+            }
+        }
+    }
 
     #[test]
     fn finds_the_peak_of_a_coupled_quadratic() {

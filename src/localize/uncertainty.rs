@@ -31,7 +31,7 @@
 use super::kernel::Scratch;
 use super::mi::{mutual_information, JointHist};
 use super::pnp::{refine_lm, Correspondence};
-use super::polish::{box_config, nelder_mead, PolishParams};
+use super::polish::{box_config, initial_simplex, nelder_mead, PolishParams};
 use super::search::{pose_at_pivot, Evaluator, ImageCache, SearchConfig, View, AXES};
 use crate::camera::import::IntrinsicsSigma;
 use crate::camera::{Camera, CameraModel};
@@ -187,15 +187,29 @@ pub(crate) fn estimate_cached<'a>(
     // The tilt pivot the evaluator applies (none for a near-horizontal optical axis).
     let applied_pivot = ev.grid().pivot;
     let (ev, folds) = (&ev, &folds);
+    // Every group's polish starts on the same simplex: its poses' per-group histograms are taken
+    // once (one pass over all points each), and a group's objective there is the sum of the
+    // others' — integer counts, so the very histogram `histogram_without` would build.
+    let first = initial_simplex(&p, [0.0; 6]);
+    let first_hists: Vec<Vec<JointHist>> = first
+        .par_iter()
+        .map(|o| ev.fold_histograms(folds, o, &mut Scratch::default()))
+        .collect();
+    let same =
+        |a: &[f64; 6], b: &[f64; 6]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+    let (first, first_hists) = (&first, &first_hists);
     // Group by group, each polish on the other groups' points (deterministic: no randomness,
     // results collected in group order).
     let ends: Vec<([f64; 6], usize, bool)> = (0..k)
         .into_par_iter()
         .map(|left_out| {
             let mut scratch = Scratch::default();
-            let mut f = |o: &[f64; 6]| {
-                let h = ev.histogram_without(folds, left_out, o, &mut scratch);
-                mutual_information(&h, parzen).get(objective)
+            let mut f = |o: &[f64; 6]| match first.iter().position(|x| same(x, o)) {
+                Some(i) => value_without(&first_hists[i], Some(left_out), objective, parzen),
+                None => {
+                    let h = ev.histogram_without(folds, left_out, o, &mut scratch);
+                    mutual_information(&h, parzen).get(objective)
+                }
             };
             let end = nelder_mead(&mut f, &p);
             let on_edge = (0..6).any(|i| p.is_free(i) && end.offsets[i].abs() >= 0.95 * p.bound[i]);
