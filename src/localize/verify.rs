@@ -20,7 +20,7 @@
 use super::ground::{focal_px, ground_disc, Mip};
 use super::mi::{bin_lut, mutual_information, Binning, JointHist};
 use crate::camera::{CameraModel, PreparedMei};
-use crate::map::{ground_points_iter, Tile};
+use crate::map::{GroundIndex, Tile};
 use crate::pose::CamFromMap;
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
@@ -94,6 +94,7 @@ pub struct Verdict {
 pub struct MiVerifier<'a> {
     cam: &'a dyn CameraModel,
     tile: &'a Tile,
+    ground: GroundIndex<'a>,
     mip: Mip,
     focal: f64,
     p: VerifyParams,
@@ -106,6 +107,7 @@ impl<'a> MiVerifier<'a> {
         MiVerifier {
             cam,
             tile,
+            ground: GroundIndex::new(tile),
             mip: Mip::new(image, cam.width() as usize, cam.height() as usize),
             focal: focal_px(cam),
             p,
@@ -208,11 +210,12 @@ impl<'a> MiVerifier<'a> {
             self.p.max_off_nadir_deg,
             self.p.max_radius_m,
         );
-        // The disc holds ~10⁵ cells and a few thousand are kept: count, then walk again.
-        let disc = || ground_points_iter(self.tile, (c.x, c.y), radius);
-        let stride = (disc().count() / keep.max(1)).max(1);
-        let pts = disc()
-            .step_by(stride)
+        // The disc holds ~10⁵ cells and a few thousand are kept: counted and picked from the
+        // tile's row counts, not walked.
+        let pts = self
+            .ground
+            .disc_strided((c.x, c.y), radius, |n| (n / keep.max(1)).max(1))
+            .into_iter()
             .map(|g| (Point3::new(g.x, g.y, g.z), g.reflectivity))
             .collect();
         (cam_h, pts)

@@ -193,48 +193,209 @@ pub(crate) fn ground_points_iter(
     center_xy: (f64, f64),
     radius_m: f64,
 ) -> impl Iterator<Item = GroundPoint> + '_ {
-    let refl = &tile.reflectivity;
-    let hgt = &tile.height;
-    let g = refl.grid;
-    let usable = radius_m >= 0.0 && !g.is_empty() && hgt.grid == g;
-    let (cx, cy) = center_xy;
-    // Pixel-index window of the circle's bounding box, clamped to the grid (empty when unusable).
-    let (pc, pr) = g.to_pixel(cx, cy);
-    let rpx = radius_m / g.res;
-    let clamp = |v: f64, n: usize| -> usize { v.max(0.0).min(n as f64) as usize };
-    let (c0, c1) = (
-        clamp((pc - rpx).floor(), g.width),
-        clamp((pc + rpx).ceil() + 1.0, g.width),
-    );
-    let (r0, r1) = if usable {
-        (
-            clamp((pr - rpx).floor(), g.height),
-            clamp((pr + rpx).ceil() + 1.0, g.height),
-        )
-    } else {
-        (0, 0)
-    };
-    let r2 = radius_m * radius_m;
-    (r0..r1).flat_map(move |row| {
-        (c0..c1).filter_map(move |col| {
-            let (x, y) = g.pixel_center(col, row);
-            if (x - cx).powi(2) + (y - cy).powi(2) > r2 {
+    let w = DiscWindow::new(tile, center_xy, radius_m);
+    (w.r0..w.r1).flat_map(move |row| {
+        (w.c0..w.c1).filter_map(move |col| {
+            if !w.inside(col, row) {
                 return None;
             }
-            let i = row * g.width + col;
-            let r = refl.data[i];
-            let z = hgt.data[i];
-            if Some(r) == refl.nodata || z.is_nan() || Some(z) == hgt.nodata {
-                return None;
-            }
-            Some(GroundPoint {
-                x,
-                y,
-                z: f64::from(z),
-                reflectivity: r,
-            })
+            ground_point(tile, col, row)
         })
     })
+}
+
+/// The cell (`col`, `row`) of `tile` as a ground point, `None` where either layer has no data.
+#[inline]
+fn ground_point(tile: &Tile, col: usize, row: usize) -> Option<GroundPoint> {
+    let (refl, hgt) = (&tile.reflectivity, &tile.height);
+    let g = refl.grid;
+    let (x, y) = g.pixel_center(col, row);
+    let i = row * g.width + col;
+    let r = refl.data[i];
+    let z = hgt.data[i];
+    if Some(r) == refl.nodata || z.is_nan() || Some(z) == hgt.nodata {
+        return None;
+    }
+    Some(GroundPoint {
+        x,
+        y,
+        z: f64::from(z),
+        reflectivity: r,
+    })
+}
+
+/// The cells a disc of [`ground_points_iter`] looks at: the pixel window of its bounding box,
+/// clamped to the grid (empty when the tile is unusable), and the disc test.
+#[derive(Debug, Clone, Copy)]
+struct DiscWindow {
+    grid: GeoGrid,
+    center: (f64, f64),
+    r2: f64,
+    c0: usize,
+    c1: usize,
+    r0: usize,
+    r1: usize,
+}
+
+impl DiscWindow {
+    fn new(tile: &Tile, center: (f64, f64), radius_m: f64) -> Self {
+        let g = tile.reflectivity.grid;
+        let usable = radius_m >= 0.0 && !g.is_empty() && tile.height.grid == g;
+        let (pc, pr) = g.to_pixel(center.0, center.1);
+        let rpx = radius_m / g.res;
+        let clamp = |v: f64, n: usize| -> usize { v.max(0.0).min(n as f64) as usize };
+        let (c0, c1) = (
+            clamp((pc - rpx).floor(), g.width),
+            clamp((pc + rpx).ceil() + 1.0, g.width),
+        );
+        let (r0, r1) = if usable {
+            (
+                clamp((pr - rpx).floor(), g.height),
+                clamp((pr + rpx).ceil() + 1.0, g.height),
+            )
+        } else {
+            (0, 0)
+        };
+        DiscWindow {
+            grid: g,
+            center,
+            r2: radius_m * radius_m,
+            c0,
+            c1,
+            r0,
+            r1,
+        }
+    }
+
+    /// Whether the centre of cell (`col`, `row`) lies in the disc.
+    #[inline]
+    fn inside(&self, col: usize, row: usize) -> bool {
+        let (x, y) = self.grid.pixel_center(col, row);
+        let (cx, cy) = self.center;
+        (x - cx).powi(2) + (y - cy).powi(2) <= self.r2
+    }
+
+    /// The disc's columns in `row`, as `lo..hi` (possibly empty): along a row the test is
+    /// monotone on each side of the centre (rounding keeps the squares' order), so the cells
+    /// inside are one run. Found from the circle's chord, then settled with the exact test.
+    fn run(&self, row: usize) -> (usize, usize) {
+        let (c0, c1) = (self.c0, self.c1);
+        if c0 >= c1 {
+            return (c0, c0);
+        }
+        let g = self.grid;
+        let (_, y) = g.pixel_center(c0, row);
+        let dy2 = (y - self.center.1).powi(2);
+        // Chord from the circle (the test decides; this only starts the search near its edges).
+        let half = (self.r2 - dy2).max(0.0).sqrt() / g.res;
+        let pc = (self.center.0 - g.x0) / g.res - 0.5;
+        let guess = |v: f64| -> usize { v.round().clamp(c0 as f64, (c1 - 1) as f64) as usize };
+        let (mut lo, mut hi) = (guess(pc - half), guess(pc + half));
+        if lo > hi || !self.inside(lo, row) && !self.inside(hi, row) {
+            // The chord's ends missed (a disc thinner than a cell, or a row beyond it): the run,
+            // if any, holds the column nearest the centre (one of two on a tie).
+            let mid = guess(pc);
+            let near = [mid, mid.saturating_sub(1).max(c0), (mid + 1).min(c1 - 1)];
+            let Some(&m) = near.iter().find(|&&c| self.inside(c, row)) else {
+                return (c0, c0);
+            };
+            (lo, hi) = (m, m);
+        }
+        // Move each end onto the run's edge: inwards while outside, outwards while inside.
+        while lo < hi && !self.inside(lo, row) {
+            lo += 1;
+        }
+        while hi > lo && !self.inside(hi, row) {
+            hi -= 1;
+        }
+        while lo > c0 && self.inside(lo - 1, row) {
+            lo -= 1;
+        }
+        while hi + 1 < c1 && self.inside(hi + 1, row) {
+            hi += 1;
+        }
+        if self.inside(lo, row) {
+            (lo, hi + 1)
+        } else {
+            (c0, c0)
+        }
+    }
+}
+
+/// Per-row counts of a tile's ground cells (both layers with data), so that a disc's ground
+/// points can be counted and every `stride`-th one taken without walking all its cells: the
+/// initializer's verifier samples a few thousand of the ~10⁵ points of dozens of discs.
+#[derive(Debug, Clone)]
+pub(crate) struct GroundIndex<'a> {
+    tile: &'a Tile,
+    /// `prefix[row·(width + 1) + col]`: ground cells of `row` left of `col`.
+    prefix: Vec<u32>,
+}
+
+impl<'a> GroundIndex<'a> {
+    /// Index `tile` (one pass over its cells).
+    pub(crate) fn new(tile: &'a Tile) -> Self {
+        let g = tile.reflectivity.grid;
+        let usable = tile.height.grid == g;
+        let w = g.width;
+        let mut prefix = vec![0u32; if usable { g.height * (w + 1) } else { 0 }];
+        for (row, p) in prefix.chunks_exact_mut(w + 1).enumerate() {
+            let mut n = 0u32;
+            for (col, v) in p[..w].iter_mut().enumerate() {
+                *v = n;
+                n += u32::from(ground_point(tile, col, row).is_some());
+            }
+            p[w] = n;
+        }
+        GroundIndex { tile, prefix }
+    }
+
+    /// `ground_points_iter(tile, center_xy, radius_m).count()` and, with `stride` from it,
+    /// `….step_by(stride)` collected: the same points in the same order.
+    pub(crate) fn disc_strided(
+        &self,
+        center_xy: (f64, f64),
+        radius_m: f64,
+        stride: impl FnOnce(usize) -> usize,
+    ) -> Vec<GroundPoint> {
+        let d = DiscWindow::new(self.tile, center_xy, radius_m);
+        let w1 = d.grid.width + 1;
+        if self.prefix.is_empty() {
+            return Vec::new();
+        }
+        let runs: Vec<(usize, usize, usize)> = (d.r0..d.r1)
+            .map(|row| {
+                let (lo, hi) = d.run(row);
+                (row, lo, hi)
+            })
+            .collect();
+        let count_in = |&(row, lo, hi): &(usize, usize, usize)| -> usize {
+            (self.prefix[row * w1 + hi] - self.prefix[row * w1 + lo]) as usize
+        };
+        let total: usize = runs.iter().map(count_in).sum();
+        let step = stride(total).max(1);
+        let mut out = Vec::with_capacity(total.div_ceil(step));
+        // `a`: ordinal of the row's first point in the disc; kept ordinals are multiples of step.
+        let mut a = 0usize;
+        for run in &runs {
+            let (row, lo, hi) = *run;
+            let n = count_in(run);
+            let p = &self.prefix[row * w1..(row + 1) * w1];
+            let mut k = a.div_ceil(step) * step;
+            while k < a + n {
+                // The column of the row's (k − a)-th ground cell from `lo`: the last column whose
+                // prefix is at most that many past `lo`'s.
+                let want = p[lo] + (k - a) as u32;
+                let col = lo + p[lo..hi].partition_point(|&v| v <= want) - 1;
+                if let Some(g) = ground_point(self.tile, col, row) {
+                    out.push(g);
+                }
+                k += step;
+            }
+            a += n;
+        }
+        out
+    }
 }
 
 #[cfg(test)]
@@ -293,5 +454,86 @@ mod tests {
             assert_eq!(got, want, "centre {c:?} radius {rad}");
         }
         assert_eq!(ground_points(&t, (1002.0, 1998.5), 100.0).len(), 48 - 3);
+    }
+
+    /// A 0.1 m tile of 300 × 200 cells with scattered holes in either layer.
+    fn holey_tile(seed: u64) -> Tile {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let g = GeoGrid {
+            crs: Crs::Local,
+            x0: -15.03,
+            y0: 10.07,
+            res: 0.1,
+            width: 300,
+            height: 200,
+        };
+        let mut refl = Raster::filled(g, 1u8, Some(0));
+        let mut h = Raster::filled(g, 0.5f32, Some(-9999.0));
+        for i in 0..g.len() {
+            refl.data[i] = rng.random_range(0..=255u8);
+            match rng.random_range(0..20) {
+                0 => h.data[i] = f32::NAN,
+                1 => h.data[i] = -9999.0,
+                _ => {}
+            }
+        }
+        Tile {
+            id: "holey".into(),
+            satellite: Raster::filled(g, [0, 0, 0], None),
+            reflectivity: refl,
+            height: h,
+            control_points: vec![],
+        }
+    }
+
+    #[test]
+    fn the_ground_index_picks_the_walks_points() {
+        use rand::{Rng, SeedableRng};
+        let t = holey_tile(3);
+        let index = GroundIndex::new(&t);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+        let mut cases: Vec<((f64, f64), f64)> = vec![
+            ((0.0, 0.0), 0.0),       // one cell centre at most
+            ((-14.98, 10.02), 0.05), // the corner cell
+            ((-15.03, 10.07), 0.3),  // the grid's corner itself
+            ((0.0, 0.0), 100.0),     // the whole tile
+            ((40.0, 0.0), 10.0),     // beyond the tile
+            ((20.0, 0.0), 5.2),      // overlapping its east edge
+            ((0.0, 0.0), -1.0),      // no disc
+        ];
+        for _ in 0..200 {
+            let c = (rng.random_range(-18.0..18.0), rng.random_range(-13.0..13.0));
+            // Radii on and off the cell lattice's distances.
+            let r = if rng.random_bool(0.3) {
+                0.1 * rng.random_range(0..120) as f64
+            } else {
+                rng.random_range(0.0..12.0)
+            };
+            cases.push((c, r));
+        }
+        let mut kept = 0;
+        for (c, r) in cases {
+            let all = ground_points(&t, c, r);
+            for keep in [1usize, 7, 100, 5000] {
+                let step = (all.len() / keep).max(1);
+                let want: Vec<GroundPoint> = all.iter().copied().step_by(step).collect();
+                let mut seen = None;
+                let got = index.disc_strided(c, r, |n| {
+                    seen = Some(n);
+                    (n / keep).max(1)
+                });
+                assert_eq!(seen, Some(all.len()), "count, centre {c:?} radius {r}");
+                assert_eq!(got, want, "centre {c:?} radius {r} keep {keep}");
+                kept += got.len();
+            }
+        }
+        assert!(kept > 10_000, "the discs held points ({kept})");
+        // A tile whose layers' grids differ has no ground points, as the walk says.
+        let mut odd = holey_tile(5);
+        odd.height.grid.res = 0.2;
+        let index = GroundIndex::new(&odd);
+        assert!(index.disc_strided((0.0, 0.0), 5.0, |n| n.max(1)).is_empty());
+        assert_eq!(ground_points(&odd, (0.0, 0.0), 5.0).len(), 0);
     }
 }
