@@ -308,6 +308,7 @@ fn init_only(
     // As the pipeline does: the LiDAR map verifies the hypotheses.
     let verifier = p.fine.verify.enabled.then(|| {
         infraloc::localize::verify::MiVerifier::new(camera, image, tile, p.fine.verify.mi.clone())
+            .for_search_area(xy, p.search_radius_m(sigma))
     });
     let init = infraloc::localize::init::initialize(
         frame,

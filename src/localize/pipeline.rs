@@ -320,11 +320,10 @@ pub fn localize_ungated(
     let t0 = now();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(p.seed);
     // The LiDAR map judges the satellite matching's hypotheses (independent evidence).
-    let verifier = p
-        .fine
-        .verify
-        .enabled
-        .then(|| MiVerifier::new(camera, image, tile, p.fine.verify.mi.clone()));
+    let verifier = p.fine.verify.enabled.then(|| {
+        MiVerifier::new(camera, image, tile, p.fine.verify.mi.clone())
+            .for_search_area(prior_xy, radius)
+    });
     let init = match &p.matcher {
         None => initialize(
             frame,

@@ -107,11 +107,21 @@ impl<'a> MiVerifier<'a> {
         MiVerifier {
             cam,
             tile,
-            ground: GroundIndex::new(tile),
+            ground: GroundIndex::new(tile, (0.0, 0.0), -1.0),
             mip: Mip::new(image, cam.width() as usize, cam.height() as usize),
             focal: focal_px(cam),
             p,
         }
+    }
+
+    /// Index the tile's ground cells that the hypotheses of a search within `radius_m` of
+    /// `center` can see (their climbs' reach and the ground discs included): their discs' points
+    /// are then counted and picked from per-row counts instead of walked, with the same result.
+    /// Without it (or for a disc beyond it) every disc is walked.
+    pub fn for_search_area(mut self, center: (f64, f64), radius_m: f64) -> Self {
+        let reach = radius_m + CLIMB_MAX_XY_M + self.p.max_radius_m;
+        self.ground = GroundIndex::new(self.tile, center, reach);
+        self
     }
 
     /// The settings.

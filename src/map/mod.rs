@@ -322,32 +322,61 @@ impl DiscWindow {
     }
 }
 
-/// Per-row counts of a tile's ground cells (both layers with data), so that a disc's ground
-/// points can be counted and every `stride`-th one taken without walking all its cells: the
-/// initializer's verifier samples a few thousand of the ~10⁵ points of dozens of discs.
+/// Per-row counts of a tile's ground cells (both layers with data) over a window, so that a
+/// disc's ground points can be counted and every `stride`-th one taken without walking all its
+/// cells: the initializer's verifier samples a few thousand of the ~10⁵ points of dozens of
+/// discs. A disc that leaves the window is walked instead (same result). The window bounds the
+/// memory (4 bytes per cell) on large tiles.
 #[derive(Debug, Clone)]
 pub(crate) struct GroundIndex<'a> {
     tile: &'a Tile,
-    /// `prefix[row·(width + 1) + col]`: ground cells of `row` left of `col`.
+    /// The window's cells: columns `c0..c1`, rows `r0..r1`.
+    c0: usize,
+    c1: usize,
+    r0: usize,
+    r1: usize,
+    /// `prefix[(row − r0)·(c1 − c0 + 1) + col − c0]`: ground cells of `row` from `c0` to left
+    /// of `col`.
     prefix: Vec<u32>,
 }
 
 impl<'a> GroundIndex<'a> {
-    /// Index `tile` (one pass over its cells).
-    pub(crate) fn new(tile: &'a Tile) -> Self {
-        let g = tile.reflectivity.grid;
-        let usable = tile.height.grid == g;
-        let w = g.width;
-        let mut prefix = vec![0u32; if usable { g.height * (w + 1) } else { 0 }];
-        for (row, p) in prefix.chunks_exact_mut(w + 1).enumerate() {
+    /// Index the cells of `tile` within `reach_m` of `center_xy` (their bounding box; a negative
+    /// reach indexes nothing, and every disc is walked).
+    pub(crate) fn new(tile: &'a Tile, center_xy: (f64, f64), reach_m: f64) -> Self {
+        let d = DiscWindow::new(tile, center_xy, reach_m);
+        let (c0, c1) = (d.c0, d.c1.max(d.c0));
+        let (r0, r1) = (d.r0, d.r1.max(d.r0));
+        let w1 = c1 - c0 + 1;
+        let mut prefix = vec![0u32; (r1 - r0) * w1];
+        for (j, p) in prefix.chunks_exact_mut(w1).enumerate() {
             let mut n = 0u32;
-            for (col, v) in p[..w].iter_mut().enumerate() {
+            for (col, v) in (c0..c1).zip(p.iter_mut()) {
                 *v = n;
-                n += u32::from(ground_point(tile, col, row).is_some());
+                n += u32::from(ground_point(tile, col, r0 + j).is_some());
             }
-            p[w] = n;
+            p[w1 - 1] = n;
         }
-        GroundIndex { tile, prefix }
+        GroundIndex {
+            tile,
+            c0,
+            c1,
+            r0,
+            r1,
+            prefix,
+        }
+    }
+
+    /// Whether a disc's cells lie in the window (and there are any): only then is it indexed.
+    fn covers(&self, d: &DiscWindow) -> bool {
+        let empty = d.r0 >= d.r1 || d.c0 >= d.c1;
+        !empty && d.c0 >= self.c0 && d.c1 <= self.c1 && d.r0 >= self.r0 && d.r1 <= self.r1
+    }
+
+    /// Whether the disc is counted from the index (true) or walked.
+    #[cfg(test)]
+    fn indexes(&self, center_xy: (f64, f64), radius_m: f64) -> bool {
+        self.covers(&DiscWindow::new(self.tile, center_xy, radius_m))
     }
 
     /// `ground_points_iter(tile, center_xy, radius_m).count()` and, with `stride` from it,
@@ -359,18 +388,22 @@ impl<'a> GroundIndex<'a> {
         stride: impl FnOnce(usize) -> usize,
     ) -> Vec<GroundPoint> {
         let d = DiscWindow::new(self.tile, center_xy, radius_m);
-        let w1 = d.grid.width + 1;
-        if self.prefix.is_empty() {
-            return Vec::new();
+        if !self.covers(&d) {
+            let walk = || ground_points_iter(self.tile, center_xy, radius_m);
+            let step = stride(walk().count()).max(1);
+            return walk().step_by(step).collect();
         }
+        let w1 = self.c1 - self.c0 + 1;
+        let row_prefix = |row: usize| &self.prefix[(row - self.r0) * w1..(row - self.r0 + 1) * w1];
         let runs: Vec<(usize, usize, usize)> = (d.r0..d.r1)
             .map(|row| {
                 let (lo, hi) = d.run(row);
-                (row, lo, hi)
+                (row, lo - self.c0, hi - self.c0)
             })
             .collect();
         let count_in = |&(row, lo, hi): &(usize, usize, usize)| -> usize {
-            (self.prefix[row * w1 + hi] - self.prefix[row * w1 + lo]) as usize
+            let p = row_prefix(row);
+            (p[hi] - p[lo]) as usize
         };
         let total: usize = runs.iter().map(count_in).sum();
         let step = stride(total).max(1);
@@ -380,13 +413,13 @@ impl<'a> GroundIndex<'a> {
         for run in &runs {
             let (row, lo, hi) = *run;
             let n = count_in(run);
-            let p = &self.prefix[row * w1..(row + 1) * w1];
+            let p = row_prefix(row);
             let mut k = a.div_ceil(step) * step;
             while k < a + n {
-                // The column of the row's (k − a)-th ground cell from `lo`: the last column whose
-                // prefix is at most that many past `lo`'s.
+                // The row's (k − a)-th ground cell from `lo`: the last column whose prefix is at
+                // most that many past `lo`'s (a ground cell raises the next column's prefix).
                 let want = p[lo] + (k - a) as u32;
-                let col = lo + p[lo..hi].partition_point(|&v| v <= want) - 1;
+                let col = self.c0 + lo + p[lo..hi].partition_point(|&v| v <= want) - 1;
                 if let Some(g) = ground_point(self.tile, col, row) {
                     out.push(g);
                 }
@@ -491,7 +524,12 @@ mod tests {
     fn the_ground_index_picks_the_walks_points() {
         use rand::{Rng, SeedableRng};
         let t = holey_tile(3);
-        let index = GroundIndex::new(&t);
+        // The whole tile, a window around its centre (discs leaving it are walked), and none.
+        let indexes = [
+            GroundIndex::new(&t, (0.0, 0.0), 100.0),
+            GroundIndex::new(&t, (1.0, -2.0), 12.0),
+            GroundIndex::new(&t, (0.0, 0.0), -1.0),
+        ];
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
         let mut cases: Vec<((f64, f64), f64)> = vec![
             ((0.0, 0.0), 0.0),       // one cell centre at most
@@ -513,26 +551,39 @@ mod tests {
             cases.push((c, r));
         }
         let mut kept = 0;
+        let mut indexed = [0; 3];
         for (c, r) in cases {
+            for (n, index) in indexed.iter_mut().zip(&indexes) {
+                *n += usize::from(index.indexes(c, r));
+            }
             let all = ground_points(&t, c, r);
             for keep in [1usize, 7, 100, 5000] {
                 let step = (all.len() / keep).max(1);
                 let want: Vec<GroundPoint> = all.iter().copied().step_by(step).collect();
-                let mut seen = None;
-                let got = index.disc_strided(c, r, |n| {
-                    seen = Some(n);
-                    (n / keep).max(1)
-                });
-                assert_eq!(seen, Some(all.len()), "count, centre {c:?} radius {r}");
-                assert_eq!(got, want, "centre {c:?} radius {r} keep {keep}");
-                kept += got.len();
+                for (i, index) in indexes.iter().enumerate() {
+                    let mut seen = None;
+                    let got = index.disc_strided(c, r, |n| {
+                        seen = Some(n);
+                        (n / keep).max(1)
+                    });
+                    let case = format!("index {i}, centre {c:?} radius {r} keep {keep}");
+                    assert_eq!(seen, Some(all.len()), "count, {case}");
+                    assert_eq!(got, want, "{case}");
+                    kept += got.len();
+                }
             }
         }
         assert!(kept > 10_000, "the discs held points ({kept})");
+        // The whole tile's index counts every disc that touches the tile, the window's some of
+        // them, the empty one none.
+        assert!(
+            indexed[0] > indexed[1] && indexed[1] >= 10 && indexed[2] == 0,
+            "{indexed:?}"
+        );
         // A tile whose layers' grids differ has no ground points, as the walk says.
         let mut odd = holey_tile(5);
         odd.height.grid.res = 0.2;
-        let index = GroundIndex::new(&odd);
+        let index = GroundIndex::new(&odd, (0.0, 0.0), 100.0);
         assert!(index.disc_strided((0.0, 0.0), 5.0, |n| n.max(1)).is_empty());
         assert_eq!(ground_points(&odd, (0.0, 0.0), 5.0).len(), 0);
     }
