@@ -174,10 +174,16 @@ pub(crate) fn estimate_cached<'a>(
     ucfg: &UncertaintyConfig,
     cache: &ImageCache<'a>,
 ) -> Result<Uncertainty> {
-    let p = PolishParams {
+    let mut p = PolishParams {
         tilt_starts_deg: 0.0,
         ..*polish
     };
+    // Each group's optimum is wanted to a quarter of the finest step, not to the answer's own
+    // tolerance: the variance is floored at half a step anyway, and the last halvings of a
+    // simplex that sits on the answer's cusp were a fifth of the jackknife's evaluations.
+    for (t, u) in p.tolerance.iter_mut().zip(step_units(search, 6)) {
+        *t = t.max(JACKKNIFE_TOLERANCE_STEPS * u);
+    }
     let tilt = p.is_free(4) || p.is_free(5);
     let ev = Evaluator::pooled_cached(cam, views, pose, &box_config(search, &p, pivot), 0, cache)?;
     let k = ucfg.folds.max(2);
@@ -318,6 +324,10 @@ pub(crate) fn estimate_cached<'a>(
         gate_sigma,
     })
 }
+
+/// The jackknife groups' re-optimisations stop when every vertex is within this many finest
+/// search steps of the best (or the polish's own tolerance, if coarser).
+pub(crate) const JACKKNIFE_TOLERANCE_STEPS: f64 = 0.25;
 
 /// The Student-t quantile with `dof` degrees of freedom at the normal's 3σ probability
 /// (0.99865, one-sided), by the Cornish–Fisher expansion (within 0.5 % of the exact quantile from
