@@ -100,12 +100,7 @@ pub(crate) fn nelder_mead_from(
     p: &PolishParams,
     x0: [f64; 6],
 ) -> Polished {
-    let clamp = |mut x: [f64; 6]| {
-        for (v, b) in x.iter_mut().zip(&p.bound) {
-            *v = v.clamp(-b, *b);
-        }
-        x
-    };
+    let clamp = |x: [f64; 6]| clamp_to_box(p, x);
     let mut evals = 0usize;
     let mut eval = |x: &[f64; 6], evals: &mut usize| {
         *evals += 1;
@@ -188,18 +183,21 @@ pub(crate) fn nelder_mead_from(
     }
 }
 
+/// `x` clamped to ±[`PolishParams::bound`] per parameter.
+fn clamp_to_box(p: &PolishParams, mut x: [f64; 6]) -> [f64; 6] {
+    for (v, b) in x.iter_mut().zip(&p.bound) {
+        *v = v.clamp(-b, *b);
+    }
+    x
+}
+
 /// The first simplex of [`nelder_mead_from`] from `x0`, in evaluation order: `x0` clamped to
 /// ±`bound`, then one vertex per free parameter, `initial_step` from it towards the box's
 /// interior (a zero initial step or bound holds a parameter, e.g. pitch and roll in a 4-DoF
 /// polish, and the simplex spans the others only). Callers that run many polishes from one
 /// start can score these poses once (the jackknife's groups, [`super::uncertainty`]).
 pub(crate) fn initial_simplex(p: &PolishParams, x0: [f64; 6]) -> Vec<[f64; 6]> {
-    let clamp = |mut x: [f64; 6]| {
-        for (v, b) in x.iter_mut().zip(&p.bound) {
-            *v = v.clamp(-b, *b);
-        }
-        x
-    };
+    let clamp = |x: [f64; 6]| clamp_to_box(p, x);
     let x0 = clamp(x0);
     let mut out = vec![x0];
     for i in (0..6).filter(|&i| p.is_free(i)) {

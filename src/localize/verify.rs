@@ -93,6 +93,8 @@ pub struct Verdict {
 /// Scores poses by MI between LiDAR reflectivity and the (blurred) image; built once per frame.
 pub struct MiVerifier<'a> {
     cam: &'a dyn CameraModel,
+    /// `cam` as the concrete Mei model with its projection limits computed once, when it is one.
+    mei: Option<PreparedMei<'a>>,
     tile: &'a Tile,
     ground: GroundIndex<'a>,
     mip: Mip,
@@ -106,7 +108,9 @@ impl<'a> MiVerifier<'a> {
     pub fn new(cam: &'a dyn CameraModel, image: &[u8], tile: &'a Tile, p: VerifyParams) -> Self {
         MiVerifier {
             cam,
+            mei: cam.as_mei().map(PreparedMei::new),
             tile,
+            // Nothing indexed until `for_search_area`: every disc is walked.
             ground: GroundIndex::new(tile, (0.0, 0.0), -1.0),
             mip: Mip::new(image, cam.width() as usize, cam.height() as usize),
             focal: focal_px(cam),
@@ -160,8 +164,8 @@ impl<'a> MiVerifier<'a> {
         points: usize,
     ) -> Option<(f64, usize)> {
         let level = self.mip.level(footprint);
-        let pairs = match self.cam.as_mei() {
-            Some(mei) => self.pairs(&PreparedMei::new(mei), pose, pts, level),
+        let pairs = match &self.mei {
+            Some(mei) => self.pairs(mei, pose, pts, level),
             None => self.pairs(self.cam, pose, pts, level),
         };
         if pairs.len() < self.p.min_points {

@@ -275,50 +275,36 @@ impl DiscWindow {
         (x - cx).powi(2) + (y - cy).powi(2) <= self.r2
     }
 
-    /// The disc's columns in `row`, as `lo..hi` (possibly empty): along a row the test is
-    /// monotone on each side of the centre (rounding keeps the squares' order), so the cells
-    /// inside are one run. Found from the circle's chord, then settled with the exact test.
+    /// The disc's columns in `row`, as `lo..hi` (possibly empty). The cells inside are one run
+    /// around the column nearest the centre (along a row the test is monotone on each side of
+    /// it: rounding keeps the squares' order), so each end is a binary search with the test.
     fn run(&self, row: usize) -> (usize, usize) {
         let (c0, c1) = (self.c0, self.c1);
         if c0 >= c1 {
             return (c0, c0);
         }
-        let g = self.grid;
-        let (_, y) = g.pixel_center(c0, row);
-        let dy2 = (y - self.center.1).powi(2);
-        // Chord from the circle (the test decides; this only starts the search near its edges).
-        let half = (self.r2 - dy2).max(0.0).sqrt() / g.res;
-        let pc = (self.center.0 - g.x0) / g.res - 0.5;
-        let guess = |v: f64| -> usize { v.round().clamp(c0 as f64, (c1 - 1) as f64) as usize };
-        let (mut lo, mut hi) = (guess(pc - half), guess(pc + half));
-        if lo > hi || !self.inside(lo, row) && !self.inside(hi, row) {
-            // The chord's ends missed (a disc thinner than a cell, or a row beyond it): the run,
-            // if any, holds the column nearest the centre (one of two on a tie).
-            let mid = guess(pc);
-            let near = [mid, mid.saturating_sub(1).max(c0), (mid + 1).min(c1 - 1)];
-            let Some(&m) = near.iter().find(|&&c| self.inside(c, row)) else {
-                return (c0, c0);
-            };
-            (lo, hi) = (m, m);
-        }
-        // Move each end onto the run's edge: inwards while outside, outwards while inside.
-        while lo < hi && !self.inside(lo, row) {
-            lo += 1;
-        }
-        while hi > lo && !self.inside(hi, row) {
-            hi -= 1;
-        }
-        while lo > c0 && self.inside(lo - 1, row) {
-            lo -= 1;
-        }
-        while hi + 1 < c1 && self.inside(hi + 1, row) {
-            hi += 1;
-        }
-        if self.inside(lo, row) {
-            (lo, hi + 1)
-        } else {
-            (c0, c0)
-        }
+        let pc = ((self.center.0 - self.grid.x0) / self.grid.res - 0.5).round();
+        let mid = pc.clamp(c0 as f64, (c1 - 1) as f64) as usize;
+        // On a tie of two columns either may be the one inside.
+        let near = [mid, mid.saturating_sub(1).max(c0), (mid + 1).min(c1 - 1)];
+        let Some(&m) = near.iter().find(|&&c| self.inside(c, row)) else {
+            return (c0, c0);
+        };
+        // The first column of [a, b) where `pred` turns false (`pred` true then false).
+        let edge = |mut a: usize, mut b: usize, pred: &dyn Fn(usize) -> bool| {
+            while a < b {
+                let c = a + (b - a) / 2;
+                if pred(c) {
+                    a = c + 1;
+                } else {
+                    b = c;
+                }
+            }
+            a
+        };
+        let lo = edge(c0, m, &|c| !self.inside(c, row));
+        let hi = edge(m + 1, c1, &|c| self.inside(c, row));
+        (lo, hi)
     }
 }
 
