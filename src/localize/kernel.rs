@@ -258,12 +258,76 @@ struct MeiConsts {
     r2max: f32,
 }
 
+/// A [`FastCamera`]'s constants in the form its projection loops take.
+#[derive(Debug, Clone, Copy)]
+enum Consts {
+    Mei(MeiConsts),
+    Equidistant(EquidistantConsts),
+}
+
+impl FastCamera {
+    #[inline(always)]
+    fn consts(&self) -> Consts {
+        match *self {
+            FastCamera::Mei {
+                k,
+                xi,
+                d,
+                zmin,
+                r2max,
+            } => Consts::Mei(MeiConsts {
+                k,
+                xi,
+                d,
+                zmin,
+                r2max,
+            }),
+            FastCamera::Equidistant { k, d, theta_max } => {
+                Consts::Equidistant(EquidistantConsts { k, d, theta_max })
+            }
+        }
+    }
+}
+
 /// Where a chunk's projections land: the image's size and its sentinel index.
 #[derive(Debug, Clone, Copy)]
 struct Raster {
     w: usize,
     h: usize,
     sentinel: u32,
+}
+
+/// Fast Mei projection of one point: its ½-shifted pixel position (truncation rounds it to the
+/// nearest pixel centre) and whether it is in view and on the `wf`×`hf` raster.
+#[inline(always)]
+fn mei_uv(x: f32, y: f32, z: f32, p: &PoseF32, m: MeiConsts, wf: f32, hf: f32) -> (f32, f32, bool) {
+    let MeiConsts {
+        k,
+        xi,
+        d,
+        zmin,
+        r2max,
+    } = m;
+    let r = p.r;
+    let cx = r[0] * x + r[1] * y + r[2] * z + p.t[0];
+    let cy = r[3] * x + r[4] * y + r[5] * z + p.t[1];
+    let cz = r[6] * x + r[7] * y + r[8] * z + p.t[2];
+    // Unit sphere then normalised plane, x_u = x_s / (z_s + ξ), with the sphere's 1/‖X‖ folded
+    // into the plane's denominator: x_u = X / (Z + ξ‖X‖). One sqrt and one division per point
+    // instead of a sqrt and two divisions (the projection's dominant cost); the sphere test
+    // z_s > zmin becomes Z > zmin·‖X‖ (same set: ‖X‖ = 0 fails both).
+    let n = (cx * cx + cy * cy + cz * cz).sqrt();
+    let f = 1.0 / (cz + xi * n);
+    let (xu, yu) = (cx * f, cy * f);
+    let r2 = xu * xu + yu * yu;
+    let radial = 1.0 + d[0] * r2 + d[1] * r2 * r2;
+    let xd = xu * radial + 2.0 * d[2] * xu * yu + d[3] * (r2 + 2.0 * xu * xu);
+    let yd = yu * radial + d[2] * (r2 + 2.0 * yu * yu) + 2.0 * d[3] * xu * yu;
+    // Shifted by ½ so that truncation is rounding to the nearest pixel centre.
+    let u = k[0] * xd + k[2] * yd + k[3] + 0.5;
+    let v = k[1] * yd + k[4] + 0.5;
+    let ok = cz > zmin * n && r2 < r2max && u >= 0.0 && u < wf && v >= 0.0 && v < hf;
+    (u, v, ok)
 }
 
 /// Fast Mei projection of one chunk into pixel indices (sentinel when not visible).
@@ -277,36 +341,10 @@ fn project_chunk_mei(
     t: Raster,
     out: &mut [u32],
 ) {
-    let MeiConsts {
-        k,
-        xi,
-        d,
-        zmin,
-        r2max,
-    } = m;
     let Raster { w, h, sentinel } = t;
-    let r = p.r;
     let (wf, hf) = (w.min(MAX_SIDE) as f32, h.min(MAX_SIDE) as f32);
     for i in 0..out.len().min(xs.len()).min(ys.len()).min(zs.len()) {
-        let (x, y, z) = (xs[i], ys[i], zs[i]);
-        let cx = r[0] * x + r[1] * y + r[2] * z + p.t[0];
-        let cy = r[3] * x + r[4] * y + r[5] * z + p.t[1];
-        let cz = r[6] * x + r[7] * y + r[8] * z + p.t[2];
-        // Unit sphere then normalised plane, x_u = x_s / (z_s + ξ), with the sphere's 1/‖X‖
-        // folded into the plane's denominator: x_u = X / (Z + ξ‖X‖). One sqrt and one division
-        // per point instead of a sqrt and two divisions (the projection's dominant cost); the
-        // sphere test z_s > zmin becomes Z > zmin·‖X‖ (same set: ‖X‖ = 0 fails both).
-        let n = (cx * cx + cy * cy + cz * cz).sqrt();
-        let f = 1.0 / (cz + xi * n);
-        let (xu, yu) = (cx * f, cy * f);
-        let r2 = xu * xu + yu * yu;
-        let radial = 1.0 + d[0] * r2 + d[1] * r2 * r2;
-        let xd = xu * radial + 2.0 * d[2] * xu * yu + d[3] * (r2 + 2.0 * xu * xu);
-        let yd = yu * radial + d[2] * (r2 + 2.0 * yu * yu) + 2.0 * d[3] * xu * yu;
-        // Shifted by ½ so that truncation is rounding to the nearest pixel centre.
-        let u = k[0] * xd + k[2] * yd + k[3] + 0.5;
-        let v = k[1] * yd + k[4] + 0.5;
-        let ok = cz > zmin * n && r2 < r2max && u >= 0.0 && u < wf && v >= 0.0 && v < hf;
+        let (u, v, ok) = mei_uv(xs[i], ys[i], zs[i], p, m, wf, hf);
         out[i] = pixel_index(ok, u, v, w, sentinel);
     }
 }
@@ -513,45 +551,64 @@ fn atan01(a: f32) -> f32 {
             + s * (0.193_543_46 + s * (-0.116_432_87 + s * (0.052_653_32 + s * -0.011_721_2)))))
 }
 
+/// The constants of a [`FastCamera::Equidistant`], as the projection loops take them.
+#[derive(Debug, Clone, Copy)]
+struct EquidistantConsts {
+    k: [f32; 5],
+    d: [f32; 4],
+    theta_max: f32,
+}
+
+/// Fast equidistant projection of one point, as [`mei_uv`].
+#[inline(always)]
+fn equidistant_uv(
+    x: f32,
+    y: f32,
+    z: f32,
+    p: &PoseF32,
+    e: EquidistantConsts,
+    wf: f32,
+    hf: f32,
+) -> (f32, f32, bool) {
+    let EquidistantConsts { k, d, theta_max } = e;
+    let r = p.r;
+    const HALF_PI: f32 = std::f32::consts::FRAC_PI_2;
+    const PI: f32 = std::f32::consts::PI;
+    let cx = r[0] * x + r[1] * y + r[2] * z + p.t[0];
+    let cy = r[3] * x + r[4] * y + r[5] * z + p.t[1];
+    let cz = r[6] * x + r[7] * y + r[8] * z + p.t[2];
+    let rho = (cx * cx + cy * cy).sqrt();
+    let az = cz.abs();
+    let (lo, hi) = if rho < az { (rho, az) } else { (az, rho) };
+    let a = atan01(lo / hi.max(f32::MIN_POSITIVE));
+    let a = if rho > az { HALF_PI - a } else { a };
+    let theta = if cz < 0.0 { PI - a } else { a };
+    let t2 = theta * theta;
+    let thd = theta * (1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))));
+    // θ_d/ρ → 1/z on the axis.
+    let scale = if rho > 1e-7 * az { thd / rho } else { 1.0 / cz };
+    let (xd, yd) = (cx * scale, cy * scale);
+    let u = k[0] * (xd + k[2] * yd) + k[3] + 0.5;
+    let v = k[1] * yd + k[4] + 0.5;
+    let ok = theta <= theta_max && u >= 0.0 && u < wf && v >= 0.0 && v < hf;
+    (u, v, ok)
+}
+
 /// Fast equidistant projection of one chunk into pixel indices (sentinel when not visible).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn project_chunk_equidistant(
     xs: &[f32],
     ys: &[f32],
     zs: &[f32],
     p: &PoseF32,
-    k: [f32; 5],
-    d: [f32; 4],
-    theta_max: f32,
-    w: usize,
-    h: usize,
-    sentinel: u32,
+    e: EquidistantConsts,
+    t: Raster,
     out: &mut [u32],
 ) {
-    let r = p.r;
+    let Raster { w, h, sentinel } = t;
     let (wf, hf) = (w.min(MAX_SIDE) as f32, h.min(MAX_SIDE) as f32);
-    const HALF_PI: f32 = std::f32::consts::FRAC_PI_2;
-    const PI: f32 = std::f32::consts::PI;
     for i in 0..out.len().min(xs.len()).min(ys.len()).min(zs.len()) {
-        let (x, y, z) = (xs[i], ys[i], zs[i]);
-        let cx = r[0] * x + r[1] * y + r[2] * z + p.t[0];
-        let cy = r[3] * x + r[4] * y + r[5] * z + p.t[1];
-        let cz = r[6] * x + r[7] * y + r[8] * z + p.t[2];
-        let rho = (cx * cx + cy * cy).sqrt();
-        let az = cz.abs();
-        let (lo, hi) = if rho < az { (rho, az) } else { (az, rho) };
-        let a = atan01(lo / hi.max(f32::MIN_POSITIVE));
-        let a = if rho > az { HALF_PI - a } else { a };
-        let theta = if cz < 0.0 { PI - a } else { a };
-        let t2 = theta * theta;
-        let thd = theta * (1.0 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))));
-        // θ_d/ρ → 1/z on the axis.
-        let scale = if rho > 1e-7 * az { thd / rho } else { 1.0 / cz };
-        let (xd, yd) = (cx * scale, cy * scale);
-        let u = k[0] * (xd + k[2] * yd) + k[3] + 0.5;
-        let v = k[1] * yd + k[4] + 0.5;
-        let ok = theta <= theta_max && u >= 0.0 && u < wf && v >= 0.0 && v < hf;
+        let (u, v, ok) = equidistant_uv(xs[i], ys[i], zs[i], p, e, wf, hf);
         out[i] = pixel_index(ok, u, v, w, sentinel);
     }
 }
@@ -570,27 +627,13 @@ fn project_chunk<const NEON: bool>(
     img: &BinnedImage,
     out: &mut [u32],
 ) {
-    let s = img.sentinel() as u32;
-    match *cam {
-        FastCamera::Mei {
-            k,
-            xi,
-            d,
-            zmin,
-            r2max,
-        } => {
-            let m = MeiConsts {
-                k,
-                xi,
-                d,
-                zmin,
-                r2max,
-            };
-            let t = Raster {
-                w: img.width,
-                h: img.height,
-                sentinel: s,
-            };
+    let t = Raster {
+        w: img.width,
+        h: img.height,
+        sentinel: img.sentinel() as u32,
+    };
+    match cam.consts() {
+        Consts::Mei(m) => {
             #[cfg(target_arch = "aarch64")]
             if NEON {
                 project_chunk_mei_neon(xs, ys, zs, pose, m, t, out);
@@ -598,9 +641,7 @@ fn project_chunk<const NEON: bool>(
             }
             project_chunk_mei(xs, ys, zs, pose, m, t, out)
         }
-        FastCamera::Equidistant { k, d, theta_max } => project_chunk_equidistant(
-            xs, ys, zs, pose, k, d, theta_max, img.width, img.height, s, out,
-        ),
+        Consts::Equidistant(e) => project_chunk_equidistant(xs, ys, zs, pose, e, t, out),
     }
 }
 
@@ -881,6 +922,160 @@ fn visible_from_all_impl<const NEON: bool>(
             if !any {
                 break;
             }
+        }
+        start = end;
+    }
+}
+
+/// A search box as the sure-visibility test sees it ([`surely_visible_block`]).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct BoxView<'a> {
+    /// The box's centre pose.
+    pub center: PoseF32,
+    /// Its axis extremes, in pairs: − and + of one axis.
+    pub extremes: &'a [PoseF32],
+    /// The camera.
+    pub cam: FastCamera,
+    /// Chessboard distance map of the valid pixels (0 on an invalid one), `width` wide.
+    pub dist: &'a [u16],
+    /// The image width.
+    pub width: usize,
+}
+
+/// For the points `first..first + sure.len()` of `pts`: whether every pose of the box `b` surely
+/// sees the point on a valid pixel: its pixel at the centre must lie farther from any invalid
+/// pixel than 1.5 × the sum over the axes of the farther of its two extremes' pixel moves, plus
+/// 4 px (the margin is the caller's to justify: `search::surely_visible`). A point an extreme
+/// loses is never sure. The kernel's own projection, so the test sees the pixels the lattice
+/// test will.
+///
+/// Dispatched like [`accumulate`].
+pub(crate) fn surely_visible_block(
+    pts: &PreparedPoints,
+    first: usize,
+    b: &BoxView<'_>,
+    sure: &mut [bool],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2_fma() {
+        // SAFETY: the CPU supports the features the function is compiled for (checked above).
+        unsafe { surely_visible_block_avx2(pts, first, b, sure) };
+        return;
+    }
+    surely_visible_block_impl(pts, first, b, sure);
+}
+
+/// [`surely_visible_block`] compiled for AVX2 + FMA.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn surely_visible_block_avx2(
+    pts: &PreparedPoints,
+    first: usize,
+    b: &BoxView<'_>,
+    sure: &mut [bool],
+) {
+    surely_visible_block_impl(pts, first, b, sure);
+}
+
+/// Pixel positions and in-view flags of a chunk of points (see [`mei_uv`]).
+#[inline(always)]
+fn uv_chunk(
+    xs: &[f32],
+    ys: &[f32],
+    zs: &[f32],
+    pose: &PoseF32,
+    cam: &FastCamera,
+    (wf, hf): (f32, f32),
+    (us, vs, oks): (&mut [f32], &mut [f32], &mut [bool]),
+) {
+    let n = xs
+        .len()
+        .min(ys.len())
+        .min(zs.len())
+        .min(us.len())
+        .min(vs.len())
+        .min(oks.len());
+    match cam.consts() {
+        Consts::Mei(m) => {
+            for i in 0..n {
+                (us[i], vs[i], oks[i]) = mei_uv(xs[i], ys[i], zs[i], pose, m, wf, hf);
+            }
+        }
+        Consts::Equidistant(e) => {
+            for i in 0..n {
+                (us[i], vs[i], oks[i]) = equidistant_uv(xs[i], ys[i], zs[i], pose, e, wf, hf);
+            }
+        }
+    }
+}
+
+/// The body of [`surely_visible_block`].
+#[inline(always)]
+fn surely_visible_block_impl(
+    pts: &PreparedPoints,
+    first: usize,
+    b: &BoxView<'_>,
+    sure: &mut [bool],
+) {
+    let BoxView {
+        ref center,
+        extremes,
+        ref cam,
+        dist,
+        width,
+    } = *b;
+    let height = dist.len() / width.max(1);
+    let raster = (width.min(MAX_SIDE) as f32, height.min(MAX_SIDE) as f32);
+    let (mut u0, mut v0, mut ok0) = ([0f32; CHUNK], [0f32; CHUNK], [false; CHUNK]);
+    let (mut u1, mut v1, mut ok1) = ([0f32; CHUNK], [0f32; CHUNK], [false; CHUNK]);
+    let (mut moved, mut far) = ([0f32; CHUNK], [0f32; CHUNK]);
+    let n = pts.len().saturating_sub(first).min(sure.len());
+    let mut start = 0;
+    while start < n {
+        let end = (start + CHUNK).min(n);
+        let len = end - start;
+        let (a, b) = (first + start, first + end);
+        let (xs, ys, zs) = (&pts.x[a..b], &pts.y[a..b], &pts.z[a..b]);
+        uv_chunk(
+            xs,
+            ys,
+            zs,
+            center,
+            cam,
+            raster,
+            (&mut u0[..len], &mut v0[..len], &mut ok0[..len]),
+        );
+        moved[..len].fill(0.0);
+        for pair in extremes.chunks(2) {
+            far[..len].fill(0.0);
+            for e in pair {
+                uv_chunk(
+                    xs,
+                    ys,
+                    zs,
+                    e,
+                    cam,
+                    raster,
+                    (&mut u1[..len], &mut v1[..len], &mut ok1[..len]),
+                );
+                for i in 0..len {
+                    let (du, dv) = (u1[i] - u0[i], v1[i] - v0[i]);
+                    let d = (du * du + dv * dv).sqrt();
+                    far[i] = if ok1[i] { far[i].max(d) } else { f32::INFINITY };
+                }
+            }
+            for i in 0..len {
+                moved[i] += far[i];
+            }
+        }
+        for i in 0..len {
+            // In-raster when ok, so the index is in `dist`; elsewhere index 0, discarded below.
+            let at = pixel_index(ok0[i], u0[i], v0[i], width, 0) as usize;
+            let d = dist.get(at).copied().unwrap_or(0) as f32;
+            sure[start + i] = ok0[i] && d > 1.5 * moved[i] + 4.0;
         }
         start = end;
     }
@@ -1229,6 +1424,74 @@ mod tests {
             fov_deg: Some(185.0),
             cache: Default::default(),
         }));
+    }
+
+    /// The dispatched copy of the sure-visibility test (AVX2 on most x86-64 CPUs) flags the same
+    /// points as the plain loop, for both models, a chunk-unaligned block and a centre pose with
+    /// each axis' extremes.
+    #[test]
+    fn dispatched_sure_test_matches_the_plain_loop() {
+        let equidistant = Camera::Equidistant(Equidistant {
+            width: 2448,
+            height: 2048,
+            fx: 620.0,
+            fy: 620.4,
+            cx: 1219.8,
+            cy: 1022.1,
+            alpha: 0.0,
+            k1: 0.02,
+            k2: -0.004,
+            k3: 0.0005,
+            k4: 0.0,
+            fov_deg: Some(185.0),
+            cache: Default::default(),
+        });
+        for cam in [test_camera_mei(), equidistant] {
+            let (pts, _, origin) = test_scene(&cam);
+            let fc = FastCamera::new(&cam, 0);
+            let (w, h) = (cam.width() as usize, cam.height() as usize);
+            // A distance map that grows towards the centre, as the valid circle's does.
+            let dist: Vec<u16> = (0..w * h)
+                .map(|i| {
+                    let (u, v) = ((i % w) as i64, (i / w) as i64);
+                    u.min(v).min(w as i64 - 1 - u).min(h as i64 - 1 - v) as u16
+                })
+                .collect();
+            let at = |dx: f64, dy: f64, dz: f64, dyaw: f64| {
+                let c = Point3::new(10.0 + dx, 20.0 + dy, 6.0 + dz);
+                PoseF32::new(
+                    &CamFromMap::from_center_ypr(&c, 0.3 + dyaw, 0.02, -0.01),
+                    origin,
+                )
+            };
+            let center = at(0.0, 0.0, 0.0, 0.0);
+            // Pairs (−, +) along x, y, z and yaw.
+            let extremes: Vec<PoseF32> = [-1.0, 1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0]
+                .into_iter()
+                .enumerate()
+                .map(|(i, s)| {
+                    let mut o = [0.0; 4];
+                    o[i / 2] = s * if i < 6 { 0.05 } else { 0.005 };
+                    at(o[0], o[1], o[2], o[3])
+                })
+                .collect();
+            let first = 77;
+            let n = pts.len() - first - 5;
+            let mut fast = vec![false; n];
+            let mut plain = vec![true; n];
+            let b = BoxView {
+                center,
+                extremes: &extremes,
+                cam: fc,
+                dist: &dist,
+                width: w,
+            };
+            surely_visible_block(&pts, first, &b, &mut fast);
+            surely_visible_block_impl(&pts, first, &b, &mut plain);
+            let sure = fast.iter().filter(|&&s| s).count();
+            assert!(sure > n / 10 && sure < n, "{sure} of {n} sure");
+            assert_eq!(fast, plain, "{cam:?}");
+        }
     }
 
     #[test]

@@ -30,7 +30,8 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::kernel::{
-    accumulate, visible, visible_from_all, BinnedImage, FastCamera, GrayLevel, PoseF32, Scratch,
+    self, accumulate, visible, visible_from_all, BinnedImage, FastCamera, GrayLevel, PoseF32,
+    Scratch,
 };
 use super::mi::{bin_lut, mutual_information, JointHist, MiConfig, MiValue};
 use super::points::{validate, GroundPoint, PreparedPoints};
@@ -1190,14 +1191,13 @@ fn erode_with_distance(mask: &[u8], w: usize, h: usize, r: usize) -> (Vec<u8>, V
 /// Points that every pose of a box certainly sees on a valid pixel of a mask whose chessboard
 /// distance map (`w` wide) is `dist`: a point whose pixel at the box's `center` pose lies farther
 /// from any invalid pixel (chessboard distance, a lower bound of the Euclidean one) than its pixel
-/// moves over the box. The move is taken as the
-/// sum over the axes of the farther of its two axis `extremes`' moves, exact for a map linear in
-/// the offsets; ×1.5 and 4 px more cover the projection's curvature over a box, f32 against f64
-/// and nearest-pixel rounding. That margin is measured, not proven: the worst lattice move found
-/// over nadir to near-horizontal cameras, 4.5–10 m poles and boxes up to ±2 m / ±6° was 0.74–1.09
-/// times the sum (the unit test checks nadir and tilted cameras pose by pose). A `false` means
-/// "test it", not "unseen".
-#[allow(clippy::too_many_arguments)]
+/// moves over the box. The move is taken as the sum over the axes of the farther of its two axis
+/// `extremes`' moves, exact for a map linear in the offsets; ×1.5 and 4 px more cover the
+/// projection's curvature over a box and nearest-pixel rounding. That margin is measured, not
+/// proven: the worst lattice move found over nadir to near-horizontal cameras, 4.5–10 m poles and
+/// boxes up to ±2 m / ±6° was 0.74–1.09 times the sum (the unit test checks nadir and tilted
+/// cameras pose by pose). A `false` means "test it", not "unseen". The projections are the
+/// kernel's own ([`kernel::surely_visible_block`]), in blocks of points in parallel.
 fn surely_visible(
     cam: &Camera,
     pts: &PreparedPoints,
@@ -1207,70 +1207,19 @@ fn surely_visible(
     dist: &[u16],
     w: usize,
 ) -> Vec<bool> {
-    // Thirteen projections per point: on the concrete model, its limits computed once.
-    match cam.as_mei() {
-        Some(mei) => surely_visible_in(
-            &crate::camera::PreparedMei::new(mei),
-            pts,
-            origin,
-            center,
-            extremes,
-            dist,
-            w,
-        ),
-        None => surely_visible_in(cam, pts, origin, center, extremes, dist, w),
-    }
-}
-
-/// [`surely_visible`] for camera model `C`.
-#[allow(clippy::too_many_arguments)]
-fn surely_visible_in<C: CameraModel + Sync + ?Sized>(
-    cam: &C,
-    pts: &PreparedPoints,
-    origin: [f64; 3],
-    center: &CamFromMap,
-    extremes: &[CamFromMap],
-    dist: &[u16],
-    w: usize,
-) -> Vec<bool> {
-    let h = dist.len() / w.max(1);
-    // The kernel drops rays beyond the field of view whatever the mask says; so must this.
-    let cos_max_theta = cam.max_theta().cos();
+    const BLOCK: usize = 4096;
+    let extremes: Vec<PoseF32> = extremes.iter().map(|e| PoseF32::new(e, origin)).collect();
+    let b = kernel::BoxView {
+        center: PoseF32::new(center, origin),
+        extremes: &extremes,
+        cam: FastCamera::new(cam, 0),
+        dist,
+        width: w,
+    };
     let mut out = vec![false; pts.len()];
-    out.par_chunks_mut(4096).enumerate().for_each(|(b, o)| {
-        for (j, flag) in o.iter_mut().enumerate() {
-            let i = b * 4096 + j;
-            let p = nalgebra::Point3::new(
-                pts.x[i] as f64 + origin[0],
-                pts.y[i] as f64 + origin[1],
-                pts.z[i] as f64 + origin[2],
-            );
-            let px = |pose: &CamFromMap| {
-                cam.project_visible_cos(&pose.transform(&p).coords, cos_max_theta)
-                    .ok()
-            };
-            let Some(p0) = px(center) else { continue };
-            let (u, v) = ((p0.x + 0.5).floor(), (p0.y + 0.5).floor());
-            if !(u >= 0.0 && v >= 0.0 && (u as usize) < w && (v as usize) < h) {
-                continue;
-            }
-            let d = dist[v as usize * w + u as usize] as f64;
-            let mut moved = 0.0;
-            for pair in extremes.chunks(2) {
-                let mut far = 0.0f64;
-                for e in pair {
-                    let d = px(e).map_or(f64::INFINITY, |q| (q - p0).norm());
-                    far = if d.is_finite() {
-                        far.max(d)
-                    } else {
-                        f64::INFINITY
-                    };
-                }
-                moved += far;
-            }
-            *flag = d > 1.5 * moved + 4.0;
-        }
-    });
+    out.par_chunks_mut(BLOCK)
+        .enumerate()
+        .for_each(|(i, o)| kernel::surely_visible_block(pts, i * BLOCK, &b, o));
     out
 }
 
@@ -2084,13 +2033,11 @@ mod tests {
     }
 
     /// `surely_visible` may only leave points to the lattice test, never keep one that some pose
-    /// of the box loses: checked pose by pose with the kernel's own visibility, on a 185° Mei
-    /// camera for a small 6-DoF box and a wide 4-DoF one.
+    /// of the box loses: checked pose by pose with the kernel's own visibility, on a 185° Mei and
+    /// a 185° equidistant camera, for small 6-DoF boxes and wide 4-DoF ones.
     #[test]
     fn surely_visible_points_are_seen_from_every_lattice_pose() {
-        use super::super::kernel::visible;
-        use super::super::synth::{ground_points, Texture};
-        let cam = Camera::Mei(crate::camera::Mei {
+        let mei = Camera::Mei(crate::camera::Mei {
             width: 640,
             height: 512,
             fx: 300.0,
@@ -2105,6 +2052,30 @@ mod tests {
             p2: 1.4e-4,
             fov_deg: Some(185.0),
         });
+        let equidistant = Camera::Equidistant(crate::camera::Equidistant {
+            width: 640,
+            height: 512,
+            fx: 150.0,
+            fy: 150.4,
+            cx: 321.0,
+            cy: 255.0,
+            alpha: 0.0,
+            k1: 0.02,
+            k2: -0.004,
+            k3: 0.0005,
+            k4: 0.0,
+            fov_deg: Some(185.0),
+            cache: Default::default(),
+        });
+        for cam in [mei, equidistant] {
+            surely_visible_case(&cam);
+        }
+    }
+
+    /// One camera of [`surely_visible_points_are_seen_from_every_lattice_pose`].
+    fn surely_visible_case(cam: &Camera) {
+        use super::super::kernel::visible;
+        use super::super::synth::{ground_points, Texture};
         let (w, h) = (cam.width() as usize, cam.height() as usize);
         let (mask, dist) = erode_with_distance(&cam.valid_mask(), w, h, 3);
         let gray: Vec<u8> = (0..w * h).map(|i| (i * 31 % 251) as u8).collect();
@@ -2121,7 +2092,7 @@ mod tests {
         // Tilted 70° from nadir: its axis still meets the ground, near where the pivot rule
         // switches between tilting about the ground and about the centre.
         let tilted = CamFromMap::from_center_ypr(&Point3::new(10.2, 19.9, 6.0), 0.4, 1.22, 0.0);
-        let fc = FastCamera::new(&cam, 0);
+        let fc = FastCamera::new(cam, 0);
         // (pose, box, least share of the kept points it must settle): the 6-DoF boxes' 729-pose
         // lattices are what the shortcut is for; a wide 4-DoF box moves most pixels too far.
         for (init, half, settles) in [
@@ -2156,7 +2127,7 @@ mod tests {
                     })
                 })
                 .collect();
-            let sure = surely_visible(&cam, &pts, origin, &at([0.0; 6]), &extremes, &dist, w);
+            let sure = surely_visible(cam, &pts, origin, &at([0.0; 6]), &extremes, &dist, w);
             let mut seen = vec![true; pts.len()];
             let mut one = vec![false; pts.len()];
             for o in &lattice {
@@ -2173,13 +2144,13 @@ mod tests {
             let n_sure = sure.iter().filter(|&&s| s).count();
             assert!(
                 sure.iter().zip(&seen).all(|(s, v)| !s || *v),
-                "{half:?}: a surely visible point is lost by some pose"
+                "{cam:?} {half:?}: a surely visible point is lost by some pose"
             );
             // It must also settle enough of what the lattice keeps, or it saves nothing.
             let n_seen = seen.iter().filter(|&&s| s).count();
             assert!(
                 n_sure as f64 >= settles * n_seen as f64,
-                "{half:?}: {n_sure} sure of {n_seen} seen"
+                "{cam:?} {half:?}: {n_sure} sure of {n_seen} seen"
             );
         }
     }
