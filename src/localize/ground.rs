@@ -55,10 +55,12 @@ impl Mip {
     }
 
     /// [`Mip::sample`] at level `l` (from [`Mip::level`]).
+    #[inline(always)]
     pub(crate) fn sample_level(&self, l: usize, u: f64, v: f64) -> Option<f32> {
-        let s = (1usize << l) as f64;
+        // 2^−l: multiplying by it is exactly dividing by 2^l, without a division's latency.
+        let inv_s = 1.0 / (1usize << l) as f64;
         let (data, w, h) = &self.levels[l];
-        let (x, y) = ((u + 0.5) / s - 0.5, (v + 0.5) / s - 0.5);
+        let (x, y) = ((u + 0.5) * inv_s - 0.5, (v + 0.5) * inv_s - 0.5);
         if !(x >= 0.0 && y >= 0.0) {
             return None;
         }
