@@ -61,18 +61,28 @@ fn status(path: &Path) -> Value {
 }
 
 /// Fill every slot with a client being served (its handler blocks while `hold` is set).
+///
+/// A client that was just answered gives its slot back when its server thread ends, a moment
+/// after the answer reached it; on a loaded machine one of the new clients can arrive in that
+/// moment and be told `busy`. It then tries again, as the answer asks, for up to 30 s.
 fn fill_slots(s: &Server) -> Vec<std::thread::JoinHandle<Value>> {
     s.hold.store(true, Ordering::SeqCst);
     let holders: Vec<_> = (0..MAX_CONNECTIONS)
         .map(|_| {
             let p = s.path.clone();
             std::thread::spawn(move || {
-                Client::connect(&p)
-                    .unwrap()
-                    .call(&Request::Validate {}, Duration::from_secs(60), |_| {})
-                    .unwrap()
-                    .parse("validation")
-                    .unwrap()
+                let start = Instant::now();
+                loop {
+                    let answer = Client::connect(&p)
+                        .unwrap()
+                        .call(&Request::Validate {}, Duration::from_secs(60), |_| {})
+                        .unwrap();
+                    let busy = answer.refusal().is_some_and(|e| e.starts_with("busy"));
+                    if !busy || start.elapsed() > Duration::from_secs(30) {
+                        return answer.parse("validation").unwrap();
+                    }
+                    std::thread::sleep(Duration::from_millis(20));
+                }
             })
         })
         .collect();

@@ -198,10 +198,15 @@ mod tests {
             state ^= state << 17;
             state
         };
-        for (n, bits) in [(0, 40), (1, 40), (1000, 40), (5000, 7), (3000, 64), (2000, 1)] {
-            let items: Vec<(u64, usize)> = (0..n)
-                .map(|i| (next() >> (64 - bits), i))
-                .collect();
+        for (n, bits) in [
+            (0, 40),
+            (1, 40),
+            (1000, 40),
+            (5000, 7),
+            (3000, 64),
+            (2000, 1),
+        ] {
+            let items: Vec<(u64, usize)> = (0..n).map(|i| (next() >> (64 - bits), i)).collect();
             let mut want = items.clone();
             want.sort_unstable();
             assert_eq!(radix_sort_by_key(items), want, "{n} keys of {bits} bits");
