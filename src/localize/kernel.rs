@@ -742,7 +742,7 @@ pub(crate) fn accumulate_reference(
 
 /// Whether this CPU runs the AVX2 + FMA copies of the kernel (the detection is cached by std).
 #[cfg(target_arch = "x86_64")]
-fn has_avx2_fma() -> bool {
+pub(crate) fn has_avx2_fma() -> bool {
     std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }
 
@@ -978,6 +978,72 @@ unsafe fn surely_visible_block_avx2(
     sure: &mut [bool],
 ) {
     surely_visible_block_impl(pts, first, b, sure);
+}
+
+/// Project the points (`xs`, `ys`, `zs`: origin-shifted as [`PoseF32`] expects) with the kernel's
+/// own projection onto a `width` × `height` raster: each point's pixel position (pixel centres
+/// at integers, as [`CameraModel::project`] gives them) and whether it is in view and on the
+/// raster (`u, v ∈ [−½, size − ½)`). For loops that sample the image themselves (the
+/// initializer's LiDAR verifier).
+///
+/// Dispatched like [`accumulate`].
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn project_points(
+    (xs, ys, zs): (&[f32], &[f32], &[f32]),
+    pose: &PoseF32,
+    cam: &FastCamera,
+    (width, height): (usize, usize),
+    (us, vs, oks): (&mut [f32], &mut [f32], &mut [bool]),
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2_fma() {
+        // SAFETY: the CPU supports the features the function is compiled for (checked above).
+        unsafe { project_points_avx2((xs, ys, zs), pose, cam, (width, height), (us, vs, oks)) };
+        return;
+    }
+    project_points_impl((xs, ys, zs), pose, cam, (width, height), (us, vs, oks));
+}
+
+/// [`project_points`] compiled for AVX2 + FMA.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn project_points_avx2(
+    pts: (&[f32], &[f32], &[f32]),
+    pose: &PoseF32,
+    cam: &FastCamera,
+    size: (usize, usize),
+    out: (&mut [f32], &mut [f32], &mut [bool]),
+) {
+    project_points_impl(pts, pose, cam, size, out);
+}
+
+/// The body of [`project_points`].
+#[inline(always)]
+fn project_points_impl(
+    (xs, ys, zs): (&[f32], &[f32], &[f32]),
+    pose: &PoseF32,
+    cam: &FastCamera,
+    (width, height): (usize, usize),
+    (us, vs, oks): (&mut [f32], &mut [f32], &mut [bool]),
+) {
+    let raster = (width.min(MAX_SIDE) as f32, height.min(MAX_SIDE) as f32);
+    uv_chunk(
+        xs,
+        ys,
+        zs,
+        pose,
+        cam,
+        raster,
+        (&mut *us, &mut *vs, &mut *oks),
+    );
+    // The projection's ½ shift (truncation = rounding to the nearest centre) taken back.
+    for (u, v) in us.iter_mut().zip(vs.iter_mut()) {
+        *u -= 0.5;
+        *v -= 0.5;
+    }
 }
 
 /// Pixel positions and in-view flags of a chunk of points (see [`mei_uv`]).

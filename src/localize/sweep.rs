@@ -458,12 +458,178 @@ fn scored_shifts(
     shifts
 }
 
+/// One height of [`sweep`]: what every height shares.
+struct HeightSweep<'a> {
+    search: &'a SearchField,
+    nominal: &'a NominalField,
+    p: &'a SweepParams,
+    /// FFT side.
+    n: usize,
+    /// Satellite field resolution, m/px.
+    res: f64,
+    n_yaw: usize,
+    /// Template radius and side, px.
+    r_px: isize,
+    side: usize,
+    /// Rows and columns of shifts with the template fully inside.
+    valid: usize,
+    /// 1 / n².
+    inv_n2: f64,
+    shifts: &'a [Shift],
+    /// The template's disk, row by row: the columns dx ∈ [lo, hi) inside.
+    disk_rows: &'a [(usize, usize)],
+}
+
+impl HeightSweep<'_> {
+    /// The best shift of every yaw at height `h`.
+    ///
+    /// On x86-64 CPUs with AVX2 and FMA a copy compiled for them runs (the template's sampling,
+    /// the spectra's product and the shifts' scan in wider registers); Rust never fuses a
+    /// multiply and an add on its own, so its candidates are the same bits (unit test
+    /// `sweep_recovers_yaw_height_and_offset_across_polarity`).
+    fn run(&self, h: f64) -> Vec<Candidate> {
+        #[cfg(target_arch = "x86_64")]
+        if super::kernel::has_avx2_fma() {
+            // SAFETY: the CPU supports the features the function is compiled for (checked above).
+            return unsafe { self.run_avx2(h) };
+        }
+        self.run_plain(h)
+    }
+
+    /// [`HeightSweep::run`] compiled for AVX2 + FMA.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2 and FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn run_avx2(&self, h: f64) -> Vec<Candidate> {
+        self.run_plain(h)
+    }
+
+    /// The body of [`HeightSweep::run`], for the target's baseline features.
+    #[inline(always)]
+    fn run_plain(&self, h: f64) -> Vec<Candidate> {
+        let HeightSweep {
+            search,
+            nominal,
+            p,
+            n,
+            res,
+            n_yaw,
+            r_px,
+            side,
+            valid,
+            inv_n2,
+            shifts,
+            disk_rows,
+        } = *self;
+        let mut scratch = Vec::new();
+        // Pyramid level whose step is closest to (not finer than half) the template step.
+        let want = res / h;
+        let mut level = 0;
+        while level + 1 < nominal.levels.len()
+            && nominal.dq * 2f64.powi(level as i32 + 1) <= want * 1.5
+        {
+            level += 1;
+        }
+        let f = &nominal.levels[level];
+        // A power of two: multiplying by its inverse is exactly dividing by it.
+        let inv_scale = 1.0 / 2f64.powi(level as i32);
+        // Level-l pixel X averages level-0 pixels [2^l X, 2^l X + 2^l): its centre sits at
+        // level-0 coordinate (X + 0.5)·2^l − 0.5.
+        let c0 = (nominal.levels[0].width as f64 - 1.0) / 2.0;
+        let to_level = |x0: f64| ((x0 + 0.5) * inv_scale - 0.5) as f32;
+        let mut best: Vec<Candidate> = Vec::new();
+        let mut buf = vec![Complex32::new(0.0, 0.0); n * n];
+        let (mut xs, mut ys) = (vec![0.0f32; side], vec![0.0f32; side]);
+        for k in 0..n_yaw {
+            let yaw = (k as f64 * p.yaw_step_deg).to_radians();
+            let (s, c) = yaw.sin_cos();
+            // Image rows run south, so a counter-clockwise map rotation by ψ turns image
+            // orientations by −ψ and doubled angles by −2ψ.
+            let phase = Complex32::from_polar(1.0, (-2.0 * yaw) as f32);
+            buf.iter_mut().for_each(|v| *v = Complex32::new(0.0, 0.0));
+            let mut tnorm = 0.0f64;
+            for (dy, &(lo, hi)) in disk_rows.iter().enumerate() {
+                let ey = dy as isize - r_px;
+                // Where each template pixel of the row samples the nominal field: the
+                // coordinates first (a loop of divisions the compiler can pair), then the
+                // samples.
+                for dx in lo..hi {
+                    let ex = dx as isize - r_px;
+                    // Map offset u (east, north) of this pixel, then q = Rz(−ψ)u / h.
+                    let (ux, uy) = (ex as f64 * res, -(ey as f64) * res);
+                    let (qx, qy) = ((c * ux + s * uy) / h, (-s * ux + c * uy) / h);
+                    xs[dx] = to_level(c0 + qx / nominal.dq);
+                    ys[dx] = to_level(c0 - qy / nominal.dq);
+                }
+                let row = &mut buf[dy * n..dy * n + side];
+                for dx in lo..hi {
+                    let z = f.sample(xs[dx], ys[dx]) * phase;
+                    tnorm += z.norm_sqr() as f64;
+                    row[dx] = z;
+                }
+            }
+            if tnorm <= 0.0 {
+                continue;
+            }
+            // The template fills the first `side` rows; only the first `valid` rows of the
+            // correlation are read (≈ 35 % of the two transforms' row passes saved).
+            search.fft.forward_top_rows(&mut buf, &mut scratch, side);
+            for (b, s) in buf.iter_mut().zip(&search.spec) {
+                *b = s * b.conj();
+            }
+            search.fft.inverse_top_rows(&mut buf, &mut scratch, valid);
+            // Both inverse transforms are unscaled (×n²). The score of a shift is
+            // a / √(e·tnorm); the first of the highest wins. Its estimate a·(1/√e)·(1/√tnorm)
+            // is within ~10⁻¹⁵ (relative) of it, so a shift whose estimate falls short of the
+            // best score so far by more than `SCORE_SLACK` cannot beat it, and only the
+            // others pay for the exact square root and division: the same winner, from the
+            // same exact scores.
+            let inv_sqrt_t = 1.0 / tnorm.sqrt();
+            let mut top = Candidate {
+                yaw,
+                height: h,
+                offset: [0.0; 2],
+                score: f64::NEG_INFINITY,
+            };
+            let mut bar = f64::NEG_INFINITY;
+            for sh in shifts {
+                let a = buf[sh.index].re as f64 * inv_n2;
+                if a * sh.inv_sqrt_energy * inv_sqrt_t < bar {
+                    continue;
+                }
+                let sc = a / (sh.energy * tnorm).sqrt();
+                if sc > top.score {
+                    top.score = sc;
+                    top.offset = sh.offset;
+                    bar = sc - SCORE_SLACK * sc.abs() - f64::MIN_POSITIVE;
+                }
+            }
+            if top.score.is_finite() {
+                best.push(top);
+            }
+        }
+        best
+    }
+}
+
 /// Dense sweep over yaw × height × translation. The search field must cover the search window plus
 /// the largest template radius on every side; offsets are relative to its centre.
 pub(crate) fn sweep(
     search: &SearchField,
     nominal: &NominalField,
     p: &SweepParams,
+) -> Vec<Candidate> {
+    sweep_by(search, nominal, p, |job, h| job.run(h))
+}
+
+/// [`sweep`] with each height swept by `run` (the dispatched copy, or in a test the plain one).
+fn sweep_by(
+    search: &SearchField,
+    nominal: &NominalField,
+    p: &SweepParams,
+    run: impl Fn(&HeightSweep<'_>, f64) -> Vec<Candidate> + Sync,
 ) -> Vec<Candidate> {
     let n = search.fft.size();
     let res = search.res;
@@ -493,100 +659,21 @@ pub(crate) fn sweep(
             (lo, hi)
         })
         .collect();
-    let per_height: Vec<Vec<Candidate>> = p
-        .heights
-        .par_iter()
-        .map(|&h| {
-            let mut scratch = Vec::new();
-            // Pyramid level whose step is closest to (not finer than half) the template step.
-            let want = res / h;
-            let mut level = 0;
-            while level + 1 < nominal.levels.len()
-                && nominal.dq * 2f64.powi(level as i32 + 1) <= want * 1.5
-            {
-                level += 1;
-            }
-            let f = &nominal.levels[level];
-            // A power of two: multiplying by its inverse is exactly dividing by it.
-            let inv_scale = 1.0 / 2f64.powi(level as i32);
-            // Level-l pixel X averages level-0 pixels [2^l X, 2^l X + 2^l): its centre sits at
-            // level-0 coordinate (X + 0.5)·2^l − 0.5.
-            let c0 = (nominal.levels[0].width as f64 - 1.0) / 2.0;
-            let to_level = |x0: f64| ((x0 + 0.5) * inv_scale - 0.5) as f32;
-            let mut best: Vec<Candidate> = Vec::new();
-            let mut buf = vec![Complex32::new(0.0, 0.0); n * n];
-            let (mut xs, mut ys) = (vec![0.0f32; side], vec![0.0f32; side]);
-            for k in 0..n_yaw {
-                let yaw = (k as f64 * p.yaw_step_deg).to_radians();
-                let (s, c) = yaw.sin_cos();
-                // Image rows run south, so a counter-clockwise map rotation by ψ turns image
-                // orientations by −ψ and doubled angles by −2ψ.
-                let phase = Complex32::from_polar(1.0, (-2.0 * yaw) as f32);
-                buf.iter_mut().for_each(|v| *v = Complex32::new(0.0, 0.0));
-                let mut tnorm = 0.0f64;
-                for (dy, &(lo, hi)) in disk_rows.iter().enumerate() {
-                    let ey = dy as isize - r_px;
-                    // Where each template pixel of the row samples the nominal field: the
-                    // coordinates first (a loop of divisions the compiler can pair), then the
-                    // samples.
-                    for dx in lo..hi {
-                        let ex = dx as isize - r_px;
-                        // Map offset u (east, north) of this pixel, then q = Rz(−ψ)u / h.
-                        let (ux, uy) = (ex as f64 * res, -(ey as f64) * res);
-                        let (qx, qy) = ((c * ux + s * uy) / h, (-s * ux + c * uy) / h);
-                        xs[dx] = to_level(c0 + qx / nominal.dq);
-                        ys[dx] = to_level(c0 - qy / nominal.dq);
-                    }
-                    let row = &mut buf[dy * n..dy * n + side];
-                    for dx in lo..hi {
-                        let z = f.sample(xs[dx], ys[dx]) * phase;
-                        tnorm += z.norm_sqr() as f64;
-                        row[dx] = z;
-                    }
-                }
-                if tnorm <= 0.0 {
-                    continue;
-                }
-                // The template fills the first `side` rows; only the first `valid` rows of the
-                // correlation are read (≈ 35 % of the two transforms' row passes saved).
-                search.fft.forward_top_rows(&mut buf, &mut scratch, side);
-                for (b, s) in buf.iter_mut().zip(&search.spec) {
-                    *b = s * b.conj();
-                }
-                search.fft.inverse_top_rows(&mut buf, &mut scratch, valid);
-                // Both inverse transforms are unscaled (×n²). The score of a shift is
-                // a / √(e·tnorm); the first of the highest wins. Its estimate a·(1/√e)·(1/√tnorm)
-                // is within ~10⁻¹⁵ (relative) of it, so a shift whose estimate falls short of the
-                // best score so far by more than `SCORE_SLACK` cannot beat it, and only the
-                // others pay for the exact square root and division: the same winner, from the
-                // same exact scores.
-                let inv_sqrt_t = 1.0 / tnorm.sqrt();
-                let mut top = Candidate {
-                    yaw,
-                    height: h,
-                    offset: [0.0; 2],
-                    score: f64::NEG_INFINITY,
-                };
-                let mut bar = f64::NEG_INFINITY;
-                for sh in &shifts {
-                    let a = buf[sh.index].re as f64 * inv_n2;
-                    if a * sh.inv_sqrt_energy * inv_sqrt_t < bar {
-                        continue;
-                    }
-                    let sc = a / (sh.energy * tnorm).sqrt();
-                    if sc > top.score {
-                        top.score = sc;
-                        top.offset = sh.offset;
-                        bar = sc - SCORE_SLACK * sc.abs() - f64::MIN_POSITIVE;
-                    }
-                }
-                if top.score.is_finite() {
-                    best.push(top);
-                }
-            }
-            best
-        })
-        .collect();
+    let job = HeightSweep {
+        search,
+        nominal,
+        p,
+        n,
+        res,
+        n_yaw,
+        r_px,
+        side,
+        valid,
+        inv_n2,
+        shifts: &shifts,
+        disk_rows: &disk_rows,
+    };
+    let per_height: Vec<Vec<Candidate>> = p.heights.par_iter().map(|&h| run(&job, h)).collect();
     let mut all: Vec<Candidate> = per_height.into_iter().flatten().collect();
     // Deterministic order: score, then the hypothesis' own coordinates.
     all.sort_by(|a, b| {
@@ -782,5 +869,14 @@ mod tests {
             dyaw <= 3.0 && dpos <= 0.8 && (best.height / true_h - 1.0).abs() < 0.07,
             "{best:?}"
         );
+        // The dispatched copy (AVX2 where this CPU has it) finds every height's and yaw's best
+        // shift with the same score, to the bit, as the plain loop.
+        let every = SweepParams {
+            top_k: usize::MAX,
+            ..params
+        };
+        let plain = sweep_by(&search, &nominal, &every, |j, h| j.run_plain(h));
+        assert!(plain.len() > 20, "{} candidates", plain.len());
+        assert_eq!(plain, sweep_by(&search, &nominal, &every, |j, h| j.run(h)));
     }
 }
