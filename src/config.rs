@@ -884,20 +884,33 @@ fallback-wgs84 = [42.0, -83.0]
             let t = format!("{base}{extra}{gps}");
             Config::parse(&t, Path::new("x.toml"))
         };
-        let c = ok(
+        let aravis = ok(
             "source = \"aravis\"\ndevice = \"Basler-123\"\npixel-format = \"BayerRG8\"\n\
                     region = [8, 4, 640, 480]\nexposure-us = 2500.0\ngain-db = 6.0\n\
                     retry-attempts = 5\nretry-backoff-ms = 200\n",
-        )
-        .unwrap();
-        assert_eq!(c.camera.region, Some([8, 4, 640, 480]));
-        assert_eq!(c.camera.retry_attempts, 5);
-        let c = ok(
+        );
+        // A build without a capture backend says so, as a config error naming the feature.
+        let built_without = |r: Result<Config>, feature: &str| {
+            let e = r.unwrap_err();
+            assert_eq!(e.exit_code(), crate::error::EXIT_CONFIG);
+            assert!(e.to_string().contains(&format!("--features {feature}")), "{e}");
+        };
+        if cfg!(feature = "aravis") {
+            let c = aravis.unwrap();
+            assert_eq!(c.camera.region, Some([8, 4, 640, 480]));
+            assert_eq!(c.camera.retry_attempts, 5);
+        } else {
+            built_without(aravis, "aravis");
+        }
+        let v4l2 = ok(
             "source = \"v4l2\"\ndevice = \"/dev/video0\"\npixel-format = \"YUYV\"\n\
                     resolution = [1280, 720]\n",
-        )
-        .unwrap();
-        assert_eq!(c.camera.resolution, Some([1280, 720]));
+        );
+        if cfg!(feature = "v4l") {
+            assert_eq!(v4l2.unwrap().camera.resolution, Some([1280, 720]));
+        } else {
+            built_without(v4l2, "v4l");
+        }
 
         // Each mistake is a config error (exit 78) naming the key.
         for (extra, key) in [
@@ -925,7 +938,15 @@ fallback-wgs84 = [42.0, -83.0]
         ] {
             let e = ok(extra).unwrap_err();
             assert_eq!(e.exit_code(), crate::error::EXIT_CONFIG);
-            assert!(e.to_string().contains(key), "{extra}: {e}");
+            // Without the backend the source itself is the first mistake.
+            let named = if extra.contains("aravis") && !cfg!(feature = "aravis") {
+                "--features aravis"
+            } else if extra.contains("v4l2") && !cfg!(feature = "v4l") {
+                "--features v4l"
+            } else {
+                key
+            };
+            assert!(e.to_string().contains(named), "{extra}: {e}");
         }
     }
 
