@@ -893,7 +893,10 @@ fallback-wgs84 = [42.0, -83.0]
         let built_without = |r: Result<Config>, feature: &str| {
             let e = r.unwrap_err();
             assert_eq!(e.exit_code(), crate::error::EXIT_CONFIG);
-            assert!(e.to_string().contains(&format!("--features {feature}")), "{e}");
+            assert!(
+                e.to_string().contains(&format!("--features {feature}")),
+                "{e}"
+            );
         };
         if cfg!(feature = "aravis") {
             let c = aravis.unwrap();

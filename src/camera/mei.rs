@@ -188,8 +188,7 @@ impl Mei {
 
 /// A [`Mei`] camera whose projection limits (lowest sphere z, largest undistorted r², a square
 /// root and two divisions per call otherwise) are computed once: the same model and the same
-/// numbers, for loops that project many points (the fixed point set's visibility, the
-/// initializer's patches and verifier).
+/// numbers, for loops that project many points in f64 (the initializer's patches).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct PreparedMei<'a> {
     mei: &'a Mei,

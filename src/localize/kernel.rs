@@ -987,7 +987,6 @@ unsafe fn surely_visible_block_avx2(
 /// initializer's LiDAR verifier).
 ///
 /// Dispatched like [`accumulate`].
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn project_points(
     (xs, ys, zs): (&[f32], &[f32], &[f32]),
     pose: &PoseF32,
