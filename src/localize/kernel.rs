@@ -41,27 +41,35 @@ const MAX_SIDE: usize = 1 << 24;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum FastCamera {
     /// OpenCV omnidir (Mei) model.
-    Mei {
-        /// fx, fy, skew, cx, cy (scaled to the pyramid level).
-        k: [f32; 5],
-        /// ξ.
-        xi: f32,
-        /// k1, k2, p1, p2.
-        d: [f32; 4],
-        /// Smallest admissible sphere z: max of the model's one-to-one limit and cos(max θ).
-        zmin: f32,
-        /// Largest undistorted r² where the radial polynomial is monotonic.
-        r2max: f32,
-    },
+    Mei(MeiConsts),
     /// OpenCV fisheye (equidistant) model with atan2 (rays beyond 90°).
-    Equidistant {
-        /// fx, fy, alpha, cx, cy (scaled to the pyramid level; alpha is dimensionless).
-        k: [f32; 5],
-        /// k1..k4.
-        d: [f32; 4],
-        /// Largest admissible θ.
-        theta_max: f32,
-    },
+    Equidistant(EquidistantConsts),
+}
+
+/// The constants of a [`FastCamera::Mei`], as the projection loops take them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeiConsts {
+    /// fx, fy, skew, cx, cy (scaled to the pyramid level).
+    pub k: [f32; 5],
+    /// ξ.
+    pub xi: f32,
+    /// k1, k2, p1, p2.
+    pub d: [f32; 4],
+    /// Smallest admissible sphere z: max of the model's one-to-one limit and cos(max θ).
+    pub zmin: f32,
+    /// Largest undistorted r² where the radial polynomial is monotonic.
+    pub r2max: f32,
+}
+
+/// The constants of a [`FastCamera::Equidistant`], as the projection loops take them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EquidistantConsts {
+    /// fx, fy, alpha, cx, cy (scaled to the pyramid level; alpha is dimensionless).
+    pub k: [f32; 5],
+    /// k1..k4.
+    pub d: [f32; 4],
+    /// Largest admissible θ.
+    pub theta_max: f32,
 }
 
 impl FastCamera {
@@ -74,7 +82,7 @@ impl FastCamera {
                 let one_to_one = if m.xi <= 1.0 { -m.xi } else { -1.0 / m.xi };
                 let zmin = one_to_one.max(cam.max_theta().cos());
                 let r2max = mei_max_r2_monotonic(m.k1, m.k2);
-                FastCamera::Mei {
+                FastCamera::Mei(MeiConsts {
                     k: [
                         (m.fx * s) as f32,
                         (m.fy * s) as f32,
@@ -86,9 +94,9 @@ impl FastCamera {
                     d: [m.k1 as f32, m.k2 as f32, m.p1 as f32, m.p2 as f32],
                     zmin: zmin as f32,
                     r2max: r2max.min(f32::MAX as f64) as f32,
-                }
+                })
             }
-            Camera::Equidistant(e) => FastCamera::Equidistant {
+            Camera::Equidistant(e) => FastCamera::Equidistant(EquidistantConsts {
                 k: [
                     (e.fx * s) as f32,
                     (e.fy * s) as f32,
@@ -98,7 +106,7 @@ impl FastCamera {
                 ],
                 d: [e.k1 as f32, e.k2 as f32, e.k3 as f32, e.k4 as f32],
                 theta_max: cam.max_theta() as f32,
-            },
+            }),
         }
     }
 }
@@ -244,47 +252,6 @@ impl GrayLevel {
             height: h,
             gray,
             mask,
-        }
-    }
-}
-
-/// The constants of a [`FastCamera::Mei`], as the projection loops take them.
-#[derive(Debug, Clone, Copy)]
-struct MeiConsts {
-    k: [f32; 5],
-    xi: f32,
-    d: [f32; 4],
-    zmin: f32,
-    r2max: f32,
-}
-
-/// A [`FastCamera`]'s constants in the form its projection loops take.
-#[derive(Debug, Clone, Copy)]
-enum Consts {
-    Mei(MeiConsts),
-    Equidistant(EquidistantConsts),
-}
-
-impl FastCamera {
-    #[inline(always)]
-    fn consts(&self) -> Consts {
-        match *self {
-            FastCamera::Mei {
-                k,
-                xi,
-                d,
-                zmin,
-                r2max,
-            } => Consts::Mei(MeiConsts {
-                k,
-                xi,
-                d,
-                zmin,
-                r2max,
-            }),
-            FastCamera::Equidistant { k, d, theta_max } => {
-                Consts::Equidistant(EquidistantConsts { k, d, theta_max })
-            }
         }
     }
 }
@@ -551,14 +518,6 @@ fn atan01(a: f32) -> f32 {
             + s * (0.193_543_46 + s * (-0.116_432_87 + s * (0.052_653_32 + s * -0.011_721_2)))))
 }
 
-/// The constants of a [`FastCamera::Equidistant`], as the projection loops take them.
-#[derive(Debug, Clone, Copy)]
-struct EquidistantConsts {
-    k: [f32; 5],
-    d: [f32; 4],
-    theta_max: f32,
-}
-
 /// Fast equidistant projection of one point, as [`mei_uv`].
 #[inline(always)]
 fn equidistant_uv(
@@ -632,8 +591,8 @@ fn project_chunk<const NEON: bool>(
         h: img.height,
         sentinel: img.sentinel() as u32,
     };
-    match cam.consts() {
-        Consts::Mei(m) => {
+    match *cam {
+        FastCamera::Mei(m) => {
             #[cfg(target_arch = "aarch64")]
             if NEON {
                 project_chunk_mei_neon(xs, ys, zs, pose, m, t, out);
@@ -641,7 +600,7 @@ fn project_chunk<const NEON: bool>(
             }
             project_chunk_mei(xs, ys, zs, pose, m, t, out)
         }
-        Consts::Equidistant(e) => project_chunk_equidistant(xs, ys, zs, pose, e, t, out),
+        FastCamera::Equidistant(e) => project_chunk_equidistant(xs, ys, zs, pose, e, t, out),
     }
 }
 
@@ -1063,13 +1022,13 @@ fn uv_chunk(
         .min(us.len())
         .min(vs.len())
         .min(oks.len());
-    match cam.consts() {
-        Consts::Mei(m) => {
+    match *cam {
+        FastCamera::Mei(m) => {
             for i in 0..n {
                 (us[i], vs[i], oks[i]) = mei_uv(xs[i], ys[i], zs[i], pose, m, wf, hf);
             }
         }
-        Consts::Equidistant(e) => {
+        FastCamera::Equidistant(e) => {
             for i in 0..n {
                 (us[i], vs[i], oks[i]) = equidistant_uv(xs[i], ys[i], zs[i], pose, e, wf, hf);
             }
@@ -1177,6 +1136,27 @@ fn test_camera_mei() -> Camera {
         p1: -4.0e-5,
         p2: 1.4e-4,
         fov_deg: Some(185.0),
+    })
+}
+
+/// A 185° equidistant test camera of `size` px, focal `f` px and principal point `c`, with a
+/// mild distortion (the sure-visibility tests' second model).
+#[cfg(test)]
+pub(crate) fn test_camera_equidistant(size: (u32, u32), f: f64, c: (f64, f64)) -> Camera {
+    Camera::Equidistant(crate::camera::Equidistant {
+        width: size.0,
+        height: size.1,
+        fx: f,
+        fy: f + 0.4,
+        cx: c.0,
+        cy: c.1,
+        alpha: 0.0,
+        k1: 0.02,
+        k2: -0.004,
+        k3: 0.0005,
+        k4: 0.0,
+        fov_deg: Some(185.0),
+        cache: Default::default(),
     })
 }
 
@@ -1496,21 +1476,7 @@ mod tests {
     /// each axis' extremes.
     #[test]
     fn dispatched_sure_test_matches_the_plain_loop() {
-        let equidistant = Camera::Equidistant(Equidistant {
-            width: 2448,
-            height: 2048,
-            fx: 620.0,
-            fy: 620.4,
-            cx: 1219.8,
-            cy: 1022.1,
-            alpha: 0.0,
-            k1: 0.02,
-            k2: -0.004,
-            k3: 0.0005,
-            k4: 0.0,
-            fov_deg: Some(185.0),
-            cache: Default::default(),
-        });
+        let equidistant = test_camera_equidistant((2448, 2048), 620.0, (1219.8, 1022.1));
         for cam in [test_camera_mei(), equidistant] {
             let (pts, _, origin) = test_scene(&cam);
             let fc = FastCamera::new(&cam, 0);

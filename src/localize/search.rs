@@ -1069,7 +1069,7 @@ fn prepare_points(
                 })
             })
             .collect();
-        let sure = surely_visible(cam, &raw, origin, &center, &extremes, dist, w);
+        let sure = surely_visible(&cam0, &raw, origin, &center, &extremes, dist, w);
         let unsure: Vec<bool> = sure.iter().map(|s| !s).collect();
         let rest = raw.select(&unsure);
         const BLOCK: usize = 2048;
@@ -1199,7 +1199,7 @@ fn erode_with_distance(mask: &[u8], w: usize, h: usize, r: usize) -> (Vec<u8>, V
 /// cameras pose by pose). A `false` means "test it", not "unseen". The projections are the
 /// kernel's own ([`kernel::surely_visible_block`]), in blocks of points in parallel.
 fn surely_visible(
-    cam: &Camera,
+    cam: &FastCamera,
     pts: &PreparedPoints,
     origin: [f64; 3],
     center: &CamFromMap,
@@ -1212,7 +1212,7 @@ fn surely_visible(
     let b = kernel::BoxView {
         center: PoseF32::new(center, origin),
         extremes: &extremes,
-        cam: FastCamera::new(cam, 0),
+        cam: *cam,
         dist,
         width: w,
     };
@@ -2052,21 +2052,8 @@ mod tests {
             p2: 1.4e-4,
             fov_deg: Some(185.0),
         });
-        let equidistant = Camera::Equidistant(crate::camera::Equidistant {
-            width: 640,
-            height: 512,
-            fx: 150.0,
-            fy: 150.4,
-            cx: 321.0,
-            cy: 255.0,
-            alpha: 0.0,
-            k1: 0.02,
-            k2: -0.004,
-            k3: 0.0005,
-            k4: 0.0,
-            fov_deg: Some(185.0),
-            cache: Default::default(),
-        });
+        let equidistant =
+            super::super::kernel::test_camera_equidistant((640, 512), 150.0, (321.0, 255.0));
         for cam in [mei, equidistant] {
             surely_visible_case(&cam);
         }
@@ -2127,7 +2114,7 @@ mod tests {
                     })
                 })
                 .collect();
-            let sure = surely_visible(cam, &pts, origin, &at([0.0; 6]), &extremes, &dist, w);
+            let sure = surely_visible(&fc, &pts, origin, &at([0.0; 6]), &extremes, &dist, w);
             let mut seen = vec![true; pts.len()];
             let mut one = vec![false; pts.len()];
             for o in &lattice {

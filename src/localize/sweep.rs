@@ -475,12 +475,57 @@ struct HeightSweep<'a> {
     valid: usize,
     /// 1 / n².
     inv_n2: f64,
-    shifts: &'a [Shift],
+    shifts: Vec<Shift>,
     /// The template's disk, row by row: the columns dx ∈ [lo, hi) inside.
-    disk_rows: &'a [(usize, usize)],
+    disk_rows: Vec<(usize, usize)>,
 }
 
-impl HeightSweep<'_> {
+impl<'a> HeightSweep<'a> {
+    /// What every height of a sweep over `search` shares; `None` when the template does not fit
+    /// inside the search field.
+    fn new(search: &'a SearchField, nominal: &'a NominalField, p: &'a SweepParams) -> Option<Self> {
+        let n = search.fft.size();
+        let res = search.res;
+        let n_yaw = (360.0 / p.yaw_step_deg).round().max(1.0) as usize;
+        let centre = (search.size as f64 - 1.0) / 2.0;
+        // One radius for every height: a correlation over fewer pixels has a higher noise
+        // maximum, so height-dependent templates would bias the sweep towards low heights.
+        let radius_m = p.effective_template_radius_m(nominal.q_max);
+        let r_px = (radius_m / res).floor() as isize;
+        let side = (2 * r_px + 1) as usize;
+        if side >= search.size {
+            return None;
+        }
+        let valid = search.size - side + 1; // shifts with the template fully inside
+        let shifts = scored_shifts(search, r_px, side, valid, centre, p.max_offset_m);
+        let disk_rows = (0..side)
+            .map(|dy| {
+                let ey = dy as isize - r_px;
+                let inside = |dx: &usize| {
+                    let ex = *dx as isize - r_px;
+                    ex * ex + ey * ey <= r_px * r_px
+                };
+                let lo = (0..side).find(inside).unwrap_or(side);
+                let hi = (lo..side).rfind(inside).map_or(lo, |x| x + 1);
+                (lo, hi)
+            })
+            .collect();
+        Some(HeightSweep {
+            search,
+            nominal,
+            p,
+            n,
+            res,
+            n_yaw,
+            r_px,
+            side,
+            valid,
+            inv_n2: 1.0 / (n * n) as f64,
+            shifts,
+            disk_rows,
+        })
+    }
+
     /// The best shift of every yaw at height `h`.
     ///
     /// On x86-64 CPUs with AVX2 and FMA a copy compiled for them runs (the template's sampling,
@@ -520,8 +565,8 @@ impl HeightSweep<'_> {
             side,
             valid,
             inv_n2,
-            shifts,
-            disk_rows,
+            ref shifts,
+            ref disk_rows,
         } = *self;
         let mut scratch = Vec::new();
         // Pyramid level whose step is closest to (not finer than half) the template step.
@@ -631,47 +676,8 @@ fn sweep_by(
     p: &SweepParams,
     run: impl Fn(&HeightSweep<'_>, f64) -> Vec<Candidate> + Sync,
 ) -> Vec<Candidate> {
-    let n = search.fft.size();
-    let res = search.res;
-    let n_yaw = (360.0 / p.yaw_step_deg).round().max(1.0) as usize;
-    let centre = (search.size as f64 - 1.0) / 2.0;
-    // One radius for every height: a correlation over fewer pixels has a higher noise maximum,
-    // so height-dependent templates would bias the sweep towards low heights.
-    let radius_m = p.effective_template_radius_m(nominal.q_max);
-    let r_px = (radius_m / res).floor() as isize;
-    let side = (2 * r_px + 1) as usize;
-    if side >= search.size {
+    let Some(job) = HeightSweep::new(search, nominal, p) else {
         return Vec::new();
-    }
-    let inv_n2 = 1.0 / (n * n) as f64;
-    let valid = search.size - side + 1; // shifts with the template fully inside
-    let shifts = scored_shifts(search, r_px, side, valid, centre, p.max_offset_m);
-    // The template's disk, row by row: the columns dx ∈ [lo, hi) with ex² + ey² ≤ r².
-    let disk_rows: Vec<(usize, usize)> = (0..side)
-        .map(|dy| {
-            let ey = dy as isize - r_px;
-            let inside = |dx: &usize| {
-                let ex = *dx as isize - r_px;
-                ex * ex + ey * ey <= r_px * r_px
-            };
-            let lo = (0..side).find(inside).unwrap_or(side);
-            let hi = (lo..side).rfind(inside).map_or(lo, |x| x + 1);
-            (lo, hi)
-        })
-        .collect();
-    let job = HeightSweep {
-        search,
-        nominal,
-        p,
-        n,
-        res,
-        n_yaw,
-        r_px,
-        side,
-        valid,
-        inv_n2,
-        shifts: &shifts,
-        disk_rows: &disk_rows,
     };
     let per_height: Vec<Vec<Candidate>> = p.heights.par_iter().map(|&h| run(&job, h)).collect();
     let mut all: Vec<Candidate> = per_height.into_iter().flatten().collect();
