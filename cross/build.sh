@@ -4,7 +4,8 @@
 #                             the node's camera; the default build has no capture backend)
 #   cross/build.sh --demo     … and run `infraloc demo --preset small` under qemu
 #   cross/build.sh --check    … and run `infraloc self-test` under qemu (the NEON MI kernel must be
-#                             bit-identical to the reference loop), then localize a host-simulated
+#                             bit-identical to the reference loop; so must the host binary's baseline
+#                             copy on an emulated CPU without FMA), then localize a host-simulated
 #                             scene under qemu: the aarch64 pose must equal the host binary's and be
 #                             within the demo's thresholds (CI runs this)
 #   cross/build.sh --test     … and run the tests under qemu (baud-rate tests skip: qemu-user lacks TCGETS2)
@@ -41,6 +42,12 @@ check() {
     cargo build --release
     host_bin=target/release/infraloc
   fi
+  # The host binary on an emulated x86-64 CPU without AVX2 and FMA (Nehalem): the baseline copy,
+  # which rounds the projection's multiply-adds separately, against its reference loop. No machine
+  # CI runs on lacks FMA, so this is the one place that copy and its dispatch run.
+  t=$SECONDS
+  qemu-x86_64 -cpu Nehalem "$host_bin" self-test
+  echo "cross/build.sh: x86-64 baseline self-test under qemu took $((SECONDS - t)) s"
   local work
   work="$(mktemp -d)"
   # shellcheck disable=SC2064  # expand now: $work is local

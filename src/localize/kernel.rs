@@ -6,7 +6,7 @@
 //!   a Morton curve so that neighbouring points hit neighbouring pixels;
 //! - the projection is the camera's exact formula specialised to f32 ([`FastCamera`]), written
 //!   without branches (invalid points are *selected* onto a sentinel pixel), in chunks, so the
-//!   compiler vectorises it;
+//!   compiler vectorises it, with fused multiply-adds where the CPU has them ([`BASELINE_FMA`]);
 //! - the image is pre-binned ([`BinnedImage`], one u8 per pixel holding the gray bin, invalid
 //!   pixels and the sentinel hold the histogram's invalid column), so a sample is one load;
 //! - the histogram is u32 counts in four interleaved copies (breaking the store→load dependency of
@@ -267,7 +267,15 @@ struct Raster {
 /// Fast Mei projection of one point: its ½-shifted pixel position (truncation rounds it to the
 /// nearest pixel centre) and whether it is in view and on the `wf`×`hf` raster.
 #[inline(always)]
-fn mei_uv(x: f32, y: f32, z: f32, p: &PoseF32, m: MeiConsts, wf: f32, hf: f32) -> (f32, f32, bool) {
+fn mei_uv<const FMA: bool>(
+    x: f32,
+    y: f32,
+    z: f32,
+    p: &PoseF32,
+    m: MeiConsts,
+    wf: f32,
+    hf: f32,
+) -> (f32, f32, bool) {
     let MeiConsts {
         k,
         xi,
@@ -276,30 +284,38 @@ fn mei_uv(x: f32, y: f32, z: f32, p: &PoseF32, m: MeiConsts, wf: f32, hf: f32) -
         r2max,
     } = m;
     let r = p.r;
-    let cx = r[0] * x + r[1] * y + r[2] * z + p.t[0];
-    let cy = r[3] * x + r[4] * y + r[5] * z + p.t[1];
-    let cz = r[6] * x + r[7] * y + r[8] * z + p.t[2];
+    // a·b + c, fused (one rounding) where the CPU has FMA; see [`BASELINE_FMA`]. The polynomials
+    // in Horner form: 32 floating-point operations per point where the earlier separate products
+    // and sums took 61. Fused, they are exact IEEE operations that the AVX2 and NEON copies
+    // reproduce bit for bit by fusing the same pairs.
+    let fma = |a: f32, b: f32, c: f32| if FMA { a.mul_add(b, c) } else { a * b + c };
+    let cx = fma(r[0], x, fma(r[1], y, fma(r[2], z, p.t[0])));
+    let cy = fma(r[3], x, fma(r[4], y, fma(r[5], z, p.t[1])));
+    let cz = fma(r[6], x, fma(r[7], y, fma(r[8], z, p.t[2])));
     // Unit sphere then normalised plane, x_u = x_s / (z_s + ξ), with the sphere's 1/‖X‖ folded
     // into the plane's denominator: x_u = X / (Z + ξ‖X‖). One sqrt and one division per point
     // instead of a sqrt and two divisions (the projection's dominant cost); the sphere test
     // z_s > zmin becomes Z > zmin·‖X‖ (same set: ‖X‖ = 0 fails both).
-    let n = (cx * cx + cy * cy + cz * cz).sqrt();
-    let f = 1.0 / (cz + xi * n);
+    let n = fma(cx, cx, fma(cy, cy, cz * cz)).sqrt();
+    let f = 1.0 / fma(xi, n, cz);
     let (xu, yu) = (cx * f, cy * f);
-    let r2 = xu * xu + yu * yu;
-    let radial = 1.0 + d[0] * r2 + d[1] * r2 * r2;
-    let xd = xu * radial + 2.0 * d[2] * xu * yu + d[3] * (r2 + 2.0 * xu * xu);
-    let yd = yu * radial + d[2] * (r2 + 2.0 * yu * yu) + 2.0 * d[3] * xu * yu;
+    let (xx, yy, xy) = (xu * xu, yu * yu, xu * yu);
+    let r2 = xx + yy;
+    // 1 + k1·r² + k2·r⁴, then the tangential terms 2p1·xy + p2·(r² + 2x²) and
+    // p1·(r² + 2y²) + 2p2·xy.
+    let radial = fma(fma(d[1], r2, d[0]), r2, 1.0);
+    let xd = fma(xu, radial, fma(2.0 * d[2], xy, d[3] * fma(2.0, xx, r2)));
+    let yd = fma(yu, radial, fma(2.0 * d[3], xy, d[2] * fma(2.0, yy, r2)));
     // Shifted by ½ so that truncation is rounding to the nearest pixel centre.
-    let u = k[0] * xd + k[2] * yd + k[3] + 0.5;
-    let v = k[1] * yd + k[4] + 0.5;
+    let u = fma(k[0], xd, fma(k[2], yd, k[3] + 0.5));
+    let v = fma(k[1], yd, k[4] + 0.5);
     let ok = cz > zmin * n && r2 < r2max && u >= 0.0 && u < wf && v >= 0.0 && v < hf;
     (u, v, ok)
 }
 
 /// Fast Mei projection of one chunk into pixel indices (sentinel when not visible).
 #[inline(always)]
-fn project_chunk_mei(
+fn project_chunk_mei<const FMA: bool>(
     xs: &[f32],
     ys: &[f32],
     zs: &[f32],
@@ -311,7 +327,7 @@ fn project_chunk_mei(
     let Raster { w, h, sentinel } = t;
     let (wf, hf) = (w.min(MAX_SIDE) as f32, h.min(MAX_SIDE) as f32);
     for i in 0..out.len().min(xs.len()).min(ys.len()).min(zs.len()) {
-        let (u, v, ok) = mei_uv(xs[i], ys[i], zs[i], p, m, wf, hf);
+        let (u, v, ok) = mei_uv::<FMA>(xs[i], ys[i], zs[i], p, m, wf, hf);
         out[i] = pixel_index(ok, u, v, w, sentinel);
     }
 }
@@ -351,19 +367,19 @@ fn project_chunk_mei_neon(
     let body = n_all - n_all % 4;
     let r = p.r;
     let (wf, hf) = (w.min(MAX_SIDE) as f32, h.min(MAX_SIDE) as f32);
-    // The scalar loop's `2.0 * d[2]` and `2.0 * d[3]` are the left-most products of their terms,
-    // so hoisting them out of the loop keeps the order (and doubling is exact anyway).
+    // The scalar loop's `2.0 * d[2]`, `2.0 * d[3]`, `k[3] + 0.5` and `k[4] + 0.5` depend on
+    // constants only, so computing them once here gives the same values.
     let (d2x2, d3x2) = (2.0 * d[2], 2.0 * d[3]);
-    // The multipliers packed four to a register and used by lane (`fmul` by element, the same
-    // single rounding as a plain `fmul`): one broadcast register per constant would need more than
-    // NEON's 32, and the compiler spilled and shuffled them inside the loop: 110 instructions per
-    // four points against 96 for its own vectorisation of the plain loop; packed, 89
-    // (docs/benchmarks.md "aarch64"). Addends and comparison bounds stay broadcast: `fadd` and
-    // `fcm*` have no by-element form.
+    let (k3h, k4h) = (k[3] + 0.5, k[4] + 0.5);
+    // The multipliers packed four to a register and used by lane (`fmla` by element, the same
+    // single rounding as a plain `fmla`): one broadcast register per constant would need more than
+    // NEON's 32, and the compiler spilled and shuffled them inside the loop (docs/benchmarks.md
+    // "aarch64"). Addends and comparison bounds stay broadcast: `fadd` and `fcm*` have no
+    // by-element form.
     let (m0, m1, m2, m3, m4) = (
         [r[0], r[1], r[2], r[3]],
         [r[4], r[5], r[6], r[7]],
-        [r[8], xi, d[0], d[1]],
+        [r[8], xi, d[1], 0.0],
         [d2x2, d[2], d[3], d3x2],
         [k[0], k[1], k[2], zmin],
     );
@@ -392,67 +408,48 @@ fn project_chunk_mei_neon(
                 vld1q_f32(ys.as_ptr().add(i)),
                 vld1q_f32(zs.as_ptr().add(i)),
             );
-            // r[0]·x + r[1]·y + r[2]·z + t, left to right as in the scalar expression.
-            let cx = vaddq_f32(
-                vaddq_f32(
-                    vaddq_f32(vmulq_laneq_f32::<0>(x, m0), vmulq_laneq_f32::<1>(y, m0)),
-                    vmulq_laneq_f32::<2>(z, m0),
-                ),
-                v(p.t[0]),
+            // `vfmaq(a, b, c)` is a + b·c rounded once: the scalar `b.mul_add(c, a)` (the product
+            // commutes), nested as in the scalar expressions.
+            // r0·x + (r1·y + (r2·z + t))
+            let cx = vfmaq_laneq_f32::<0>(
+                vfmaq_laneq_f32::<1>(vfmaq_laneq_f32::<2>(v(p.t[0]), z, m0), y, m0),
+                x,
+                m0,
             );
-            let cy = vaddq_f32(
-                vaddq_f32(
-                    vaddq_f32(vmulq_laneq_f32::<3>(x, m0), vmulq_laneq_f32::<0>(y, m1)),
-                    vmulq_laneq_f32::<1>(z, m1),
-                ),
-                v(p.t[1]),
+            let cy = vfmaq_laneq_f32::<3>(
+                vfmaq_laneq_f32::<0>(vfmaq_laneq_f32::<1>(v(p.t[1]), z, m1), y, m1),
+                x,
+                m0,
             );
-            let cz = vaddq_f32(
-                vaddq_f32(
-                    vaddq_f32(vmulq_laneq_f32::<2>(x, m1), vmulq_laneq_f32::<3>(y, m1)),
-                    vmulq_laneq_f32::<0>(z, m2),
-                ),
-                v(p.t[2]),
+            let cz = vfmaq_laneq_f32::<2>(
+                vfmaq_laneq_f32::<3>(vfmaq_laneq_f32::<0>(v(p.t[2]), z, m2), y, m1),
+                x,
+                m1,
             );
-            let n = vsqrtq_f32(vaddq_f32(
-                vaddq_f32(vmulq_f32(cx, cx), vmulq_f32(cy, cy)),
-                vmulq_f32(cz, cz),
-            ));
+            let n = vsqrtq_f32(vfmaq_f32(vfmaq_f32(vmulq_f32(cz, cz), cy, cy), cx, cx));
             // 1 / (cz + ξ·n): a true division, never the reciprocal estimate.
-            let f = vdivq_f32(v(1.0), vaddq_f32(cz, vmulq_laneq_f32::<1>(n, m2)));
+            let f = vdivq_f32(v(1.0), vfmaq_laneq_f32::<1>(cz, n, m2));
             let (xu, yu) = (vmulq_f32(cx, f), vmulq_f32(cy, f));
-            let r2 = vaddq_f32(vmulq_f32(xu, xu), vmulq_f32(yu, yu));
-            // 1 + d0·r2 + (d1·r2)·r2
-            let radial = vaddq_f32(
-                vaddq_f32(v(1.0), vmulq_laneq_f32::<2>(r2, m2)),
-                vmulq_f32(vmulq_laneq_f32::<3>(r2, m2), r2),
-            );
+            let (xx, yy, xy) = (vmulq_f32(xu, xu), vmulq_f32(yu, yu), vmulq_f32(xu, yu));
+            let r2 = vaddq_f32(xx, yy);
+            // (k1 + k2·r2)·r2 + 1
+            let radial = vfmaq_f32(v(1.0), vfmaq_laneq_f32::<2>(v(d[0]), r2, m2), r2);
             let two = v(2.0);
-            // xu·radial + ((2·d2)·xu)·yu + d3·(r2 + (2·xu)·xu)
-            let xd = vaddq_f32(
-                vaddq_f32(
-                    vmulq_f32(xu, radial),
-                    vmulq_f32(vmulq_laneq_f32::<0>(xu, m3), yu),
-                ),
-                vmulq_laneq_f32::<2>(vaddq_f32(r2, vmulq_f32(vmulq_f32(two, xu), xu)), m3),
+            // xu·radial + (2·p1·xy + p2·(r2 + 2·xx))
+            let xd = vfmaq_f32(
+                vfmaq_laneq_f32::<0>(vmulq_laneq_f32::<2>(vfmaq_f32(r2, two, xx), m3), xy, m3),
+                xu,
+                radial,
             );
-            // yu·radial + d2·(r2 + (2·yu)·yu) + ((2·d3)·xu)·yu
-            let yd = vaddq_f32(
-                vaddq_f32(
-                    vmulq_f32(yu, radial),
-                    vmulq_laneq_f32::<1>(vaddq_f32(r2, vmulq_f32(vmulq_f32(two, yu), yu)), m3),
-                ),
-                vmulq_f32(vmulq_laneq_f32::<3>(xu, m3), yu),
+            // yu·radial + (2·p2·xy + p1·(r2 + 2·yy))
+            let yd = vfmaq_f32(
+                vfmaq_laneq_f32::<3>(vmulq_laneq_f32::<1>(vfmaq_f32(r2, two, yy), m3), xy, m3),
+                yu,
+                radial,
             );
-            // k0·xd + k2·yd + k3 + ½ and k1·yd + k4 + ½
-            let u = vaddq_f32(
-                vaddq_f32(
-                    vaddq_f32(vmulq_laneq_f32::<0>(xd, m4), vmulq_laneq_f32::<2>(yd, m4)),
-                    v(k[3]),
-                ),
-                v(0.5),
-            );
-            let vv = vaddq_f32(vaddq_f32(vmulq_laneq_f32::<1>(yd, m4), v(k[4])), v(0.5));
+            // k0·xd + (k2·yd + (k3 + ½)) and k1·yd + (k4 + ½)
+            let u = vfmaq_laneq_f32::<0>(vfmaq_laneq_f32::<2>(v(k3h), yd, m4), xd, m4);
+            let vv = vfmaq_laneq_f32::<1>(v(k4h), yd, m4);
             // IEEE comparisons are false for NaN, as the scalar `>`, `<`, `>=` are.
             let zero = v(0.0);
             let ok = vandq_u32(
@@ -477,7 +474,7 @@ fn project_chunk_mei_neon(
         }
         i += 4;
     }
-    project_chunk_mei(
+    project_chunk_mei::<true>(
         &xs[body..n_all],
         &ys[body..n_all],
         &zs[body..n_all],
@@ -577,7 +574,7 @@ fn project_chunk_equidistant(
 /// ([`project_chunk_mei_neon`]; the equidistant model keeps the plain loop); elsewhere, and with
 /// `false` (the reference), the plain loop, which the compiler vectorises for the target.
 #[inline(always)]
-fn project_chunk<const NEON: bool>(
+fn project_chunk<const NEON: bool, const FMA: bool>(
     xs: &[f32],
     ys: &[f32],
     zs: &[f32],
@@ -598,7 +595,7 @@ fn project_chunk<const NEON: bool>(
                 project_chunk_mei_neon(xs, ys, zs, pose, m, t, out);
                 return;
             }
-            project_chunk_mei(xs, ys, zs, pose, m, t, out)
+            project_chunk_mei::<FMA>(xs, ys, zs, pose, m, t, out)
         }
         FastCamera::Equidistant(e) => project_chunk_equidistant(xs, ys, zs, pose, e, t, out),
     }
@@ -606,7 +603,7 @@ fn project_chunk<const NEON: bool>(
 
 /// [`project_chunk`] of the points `a..b` of `pts` into `out` (length `b − a`).
 #[inline(always)]
-fn project_range<const NEON: bool>(
+fn project_range<const NEON: bool, const FMA: bool>(
     pts: &PreparedPoints,
     a: usize,
     b: usize,
@@ -615,7 +612,7 @@ fn project_range<const NEON: bool>(
     img: &BinnedImage,
     out: &mut [u32],
 ) {
-    project_chunk::<NEON>(
+    project_chunk::<NEON, FMA>(
         &pts.x[a..b],
         &pts.y[a..b],
         &pts.z[a..b],
@@ -646,10 +643,12 @@ impl Default for Scratch {
 /// as many rows as reflectivity bins and `cols` = the image's invalid value).
 ///
 /// On x86-64 CPUs with AVX2 and FMA (detected at run time) a copy of the kernel compiled for them
-/// runs (8-wide projection instead of SSE2's 4-wide). Both copies perform the same IEEE operations
-/// in the same order — Rust never contracts `a·b + c` into an FMA on its own — so the histogram is
-/// bit-identical whichever runs (tested). On aarch64 the Mei projection is the explicit NEON copy
-/// ([`project_chunk_mei_neon`]), bit-identical too (`infraloc self-test` under qemu in CI).
+/// runs (8-wide projection instead of SSE2's 4-wide). It performs the same IEEE operations in the
+/// same order as [`accumulate_reference`] — the fused multiply-adds are explicit `mul_add`s, and
+/// Rust never contracts `a·b + c` on its own — so the histogram is bit-identical to it (tested).
+/// On aarch64 the Mei projection is the explicit NEON copy ([`project_chunk_mei_neon`]),
+/// bit-identical too (`infraloc self-test` under qemu in CI). An x86-64 CPU without AVX2 and
+/// FMA runs the baseline copy, which rounds the multiply-adds separately ([`BASELINE_FMA`]).
 pub fn accumulate(
     pts: &PreparedPoints,
     pose: &PoseF32,
@@ -665,7 +664,7 @@ pub fn accumulate(
         return;
     }
     // The target's baseline features (SSE2 on x86-64; NEON on aarch64, with the explicit copy).
-    accumulate_impl::<true>(pts, pose, cam, img, hist, scratch);
+    accumulate_impl::<true, BASELINE_FMA>(pts, pose, cam, img, hist, scratch);
 }
 
 /// [`accumulate`] compiled for AVX2 + FMA.
@@ -682,12 +681,14 @@ unsafe fn accumulate_avx2(
     hist: &mut JointHist,
     scratch: &mut Scratch,
 ) {
-    accumulate_impl::<true>(pts, pose, cam, img, hist, scratch);
+    accumulate_impl::<true, true>(pts, pose, cam, img, hist, scratch);
 }
 
 /// [`accumulate`] without hand-picked SIMD: the plain loop for the target's baseline features
-/// (SSE2 on x86-64; on aarch64 whatever NEON code the compiler makes of it). The reference the
-/// fast copies must equal bit for bit (tests, `infraloc self-test`).
+/// (SSE2 on x86-64; on aarch64 whatever NEON code the compiler makes of it), fusing the
+/// multiply-adds exactly when the copy [`accumulate`] runs does (on x86-64 with FMA through libm's
+/// `fmaf`, slowly: a check, not a path). The reference the fast copies must equal bit for bit
+/// (tests, `infraloc self-test`).
 pub(crate) fn accumulate_reference(
     pts: &PreparedPoints,
     pose: &PoseF32,
@@ -696,7 +697,11 @@ pub(crate) fn accumulate_reference(
     hist: &mut JointHist,
     scratch: &mut Scratch,
 ) {
-    accumulate_impl::<false>(pts, pose, cam, img, hist, scratch);
+    if fused() {
+        accumulate_impl::<false, true>(pts, pose, cam, img, hist, scratch);
+    } else {
+        accumulate_impl::<false, false>(pts, pose, cam, img, hist, scratch);
+    }
 }
 
 /// Whether this CPU runs the AVX2 + FMA copies of the kernel (the detection is cached by std).
@@ -705,10 +710,28 @@ pub(crate) fn has_avx2_fma() -> bool {
     std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
 }
 
+/// Whether the baseline copies (no run-time selected features) fuse the projection's
+/// multiply-adds. Every aarch64 CPU has FMA. An x86-64 CPU without FMA (before Haswell and
+/// Piledriver; Atom-class cores up to Tremont) would have to emulate each fused operation, ~9×
+/// slower (measured: an exact emulation through f64 with round-to-odd), so there the baseline
+/// copies round the product and the sum separately: the same formula, fast, but its poses agree
+/// with an FMA machine's to the projection's rounding, not bit for bit (docs/benchmarks.md).
+const BASELINE_FMA: bool = cfg!(target_arch = "aarch64");
+
+/// Whether the kernel that [`accumulate`] dispatches to on this CPU fuses the multiply-adds: the
+/// reference loop must do the same to be its bit-for-bit check.
+fn fused() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2_fma() {
+        return true;
+    }
+    BASELINE_FMA
+}
+
 /// The kernel's body, inlined into each feature-specific copy (and into [`accumulate`] itself for
 /// the baseline features).
 #[inline(always)]
-fn accumulate_impl<const NEON: bool>(
+fn accumulate_impl<const NEON: bool, const FMA: bool>(
     pts: &PreparedPoints,
     pose: &PoseF32,
     cam: &FastCamera,
@@ -727,7 +750,7 @@ fn accumulate_impl<const NEON: bool>(
     while start < n {
         let end = (start + CHUNK).min(n);
         let len = end - start;
-        project_range::<NEON>(pts, start, end, pose, cam, img, &mut idx[..len]);
+        project_range::<NEON, FMA>(pts, start, end, pose, cam, img, &mut idx[..len]);
         let bins = &pts.bin[start..end];
         let mut quads = idx[..len].chunks_exact(SUB_HISTS);
         let mut bquads = bins.chunks_exact(SUB_HISTS);
@@ -765,7 +788,7 @@ pub(crate) fn visible(
         unsafe { visible_avx2(pts, pose, cam, img, invalid, out) };
         return;
     }
-    visible_impl::<true>(pts, pose, cam, img, invalid, out);
+    visible_impl::<true, BASELINE_FMA>(pts, pose, cam, img, invalid, out);
 }
 
 /// [`visible`] compiled for AVX2 + FMA.
@@ -782,12 +805,12 @@ unsafe fn visible_avx2(
     invalid: u8,
     out: &mut [bool],
 ) {
-    visible_impl::<true>(pts, pose, cam, img, invalid, out);
+    visible_impl::<true, true>(pts, pose, cam, img, invalid, out);
 }
 
 /// The body of [`visible`].
 #[inline(always)]
-fn visible_impl<const NEON: bool>(
+fn visible_impl<const NEON: bool, const FMA: bool>(
     pts: &PreparedPoints,
     pose: &PoseF32,
     cam: &FastCamera,
@@ -801,7 +824,7 @@ fn visible_impl<const NEON: bool>(
     while start < n {
         let end = (start + CHUNK).min(n);
         let len = end - start;
-        project_range::<NEON>(pts, start, end, pose, cam, img, &mut idx[..len]);
+        project_range::<NEON, FMA>(pts, start, end, pose, cam, img, &mut idx[..len]);
         for (o, &i) in out[start..end].iter_mut().zip(&idx[..len]) {
             *o = img.data[i as usize] != invalid;
         }
@@ -831,7 +854,7 @@ pub(crate) fn visible_from_all(
         unsafe { visible_from_all_avx2(pts, first, poses, cam, img, invalid, keep) };
         return;
     }
-    visible_from_all_impl::<true>(pts, first, poses, cam, img, invalid, keep);
+    visible_from_all_impl::<true, BASELINE_FMA>(pts, first, poses, cam, img, invalid, keep);
 }
 
 /// [`visible_from_all`] compiled for AVX2 + FMA.
@@ -849,12 +872,12 @@ unsafe fn visible_from_all_avx2(
     invalid: u8,
     keep: &mut [bool],
 ) {
-    visible_from_all_impl::<true>(pts, first, poses, cam, img, invalid, keep);
+    visible_from_all_impl::<true, true>(pts, first, poses, cam, img, invalid, keep);
 }
 
 /// The body of [`visible_from_all`].
 #[inline(always)]
-fn visible_from_all_impl<const NEON: bool>(
+fn visible_from_all_impl<const NEON: bool, const FMA: bool>(
     pts: &PreparedPoints,
     first: usize,
     poses: &[PoseF32],
@@ -872,7 +895,7 @@ fn visible_from_all_impl<const NEON: bool>(
         let (a, b) = (first + start, first + end);
         let k = &mut keep[start..end];
         for pose in poses {
-            project_range::<NEON>(pts, a, b, pose, cam, img, &mut idx[..len]);
+            project_range::<NEON, FMA>(pts, a, b, pose, cam, img, &mut idx[..len]);
             let mut any = false;
             for (o, &i) in k.iter_mut().zip(&idx[..len]) {
                 *o &= img.data[i as usize] != invalid;
@@ -921,7 +944,7 @@ pub(crate) fn surely_visible_block(
         unsafe { surely_visible_block_avx2(pts, first, b, sure) };
         return;
     }
-    surely_visible_block_impl(pts, first, b, sure);
+    surely_visible_block_impl::<BASELINE_FMA>(pts, first, b, sure);
 }
 
 /// [`surely_visible_block`] compiled for AVX2 + FMA.
@@ -936,7 +959,7 @@ unsafe fn surely_visible_block_avx2(
     b: &BoxView<'_>,
     sure: &mut [bool],
 ) {
-    surely_visible_block_impl(pts, first, b, sure);
+    surely_visible_block_impl::<true>(pts, first, b, sure);
 }
 
 /// Project the points (`xs`, `ys`, `zs`: origin-shifted as [`PoseF32`] expects) with the kernel's
@@ -959,7 +982,7 @@ pub(crate) fn project_points(
         unsafe { project_points_avx2((xs, ys, zs), pose, cam, (width, height), (us, vs, oks)) };
         return;
     }
-    project_points_impl((xs, ys, zs), pose, cam, (width, height), (us, vs, oks));
+    project_points_impl::<BASELINE_FMA>((xs, ys, zs), pose, cam, (width, height), (us, vs, oks));
 }
 
 /// [`project_points`] compiled for AVX2 + FMA.
@@ -975,12 +998,12 @@ unsafe fn project_points_avx2(
     size: (usize, usize),
     out: (&mut [f32], &mut [f32], &mut [bool]),
 ) {
-    project_points_impl(pts, pose, cam, size, out);
+    project_points_impl::<true>(pts, pose, cam, size, out);
 }
 
 /// The body of [`project_points`].
 #[inline(always)]
-fn project_points_impl(
+fn project_points_impl<const FMA: bool>(
     (xs, ys, zs): (&[f32], &[f32], &[f32]),
     pose: &PoseF32,
     cam: &FastCamera,
@@ -988,7 +1011,7 @@ fn project_points_impl(
     (us, vs, oks): (&mut [f32], &mut [f32], &mut [bool]),
 ) {
     let raster = (width.min(MAX_SIDE) as f32, height.min(MAX_SIDE) as f32);
-    uv_chunk(
+    uv_chunk::<FMA>(
         xs,
         ys,
         zs,
@@ -1006,7 +1029,7 @@ fn project_points_impl(
 
 /// Pixel positions and in-view flags of a chunk of points (see [`mei_uv`]).
 #[inline(always)]
-fn uv_chunk(
+fn uv_chunk<const FMA: bool>(
     xs: &[f32],
     ys: &[f32],
     zs: &[f32],
@@ -1025,7 +1048,7 @@ fn uv_chunk(
     match *cam {
         FastCamera::Mei(m) => {
             for i in 0..n {
-                (us[i], vs[i], oks[i]) = mei_uv(xs[i], ys[i], zs[i], pose, m, wf, hf);
+                (us[i], vs[i], oks[i]) = mei_uv::<FMA>(xs[i], ys[i], zs[i], pose, m, wf, hf);
             }
         }
         FastCamera::Equidistant(e) => {
@@ -1038,7 +1061,7 @@ fn uv_chunk(
 
 /// The body of [`surely_visible_block`].
 #[inline(always)]
-fn surely_visible_block_impl(
+fn surely_visible_block_impl<const FMA: bool>(
     pts: &PreparedPoints,
     first: usize,
     b: &BoxView<'_>,
@@ -1063,7 +1086,7 @@ fn surely_visible_block_impl(
         let len = end - start;
         let (a, b) = (first + start, first + end);
         let (xs, ys, zs) = (&pts.x[a..b], &pts.y[a..b], &pts.z[a..b]);
-        uv_chunk(
+        uv_chunk::<FMA>(
             xs,
             ys,
             zs,
@@ -1076,7 +1099,7 @@ fn surely_visible_block_impl(
         for pair in extremes.chunks(2) {
             far[..len].fill(0.0);
             for e in pair {
-                uv_chunk(
+                uv_chunk::<FMA>(
                     xs,
                     ys,
                     zs,
@@ -1236,7 +1259,11 @@ pub(crate) fn self_test(poses: usize) -> std::result::Result<SelfTest, String> {
             ));
         }
         visible(&pts, p, &fc, &img, 32, &mut v1);
-        visible_impl::<false>(&pts, p, &fc, &img, 32, &mut v2);
+        if fused() {
+            visible_impl::<false, true>(&pts, p, &fc, &img, 32, &mut v2);
+        } else {
+            visible_impl::<false, false>(&pts, p, &fc, &img, 32, &mut v2);
+        }
         if v1 != v2 {
             return Err(format!(
                 "pose {j}: {} visibility differs from the reference",
@@ -1376,14 +1403,23 @@ mod tests {
             slow.invalid_count()
         );
         assert!(slow.valid_count() > n / 4 && slow.invalid_count() > n / 20);
+        // How many counts two histograms place differently.
+        let moved = |a: &JointHist, b: &JointHist| -> u64 {
+            a.counts
+                .iter()
+                .zip(&b.counts)
+                .map(|(&x, &y)| (x as i64 - y as i64).unsigned_abs())
+                .sum()
+        };
         // f32 vs f64 may round a point to the neighbouring pixel at pixel borders; allow 0.5 %.
-        let diff: u64 = fast
-            .counts
-            .iter()
-            .zip(&slow.counts)
-            .map(|(&a, &b)| (a as i64 - b as i64).unsigned_abs())
-            .sum();
+        let diff = moved(&fast, &slow);
         assert!(diff * 200 <= n, "{diff} of {n} differ");
+        // The baseline copy of an x86-64 CPU without FMA rounds each product and sum separately:
+        // other bits, but the same pixel for all but a few points at pixel borders.
+        let unfused = hist_of(|p, q, c, i, h, s| accumulate_impl::<false, false>(p, q, c, i, h, s));
+        let diff = moved(&fast, &unfused);
+        eprintln!("unfused: {diff} of {n} counts moved");
+        assert!(diff * 2000 <= n, "unfused: {diff} of {n} differ");
         // Visibility agrees with the histogram's valid count.
         let mut vis = vec![false; prepared.len()];
         visible(
@@ -1417,6 +1453,13 @@ mod tests {
             want.iter_mut().zip(&vis).for_each(|(w, &v)| *w &= v);
         }
         assert!(want.iter().any(|&v| v) && want.iter().any(|&v| !v));
+        type VisibleFromAll =
+            fn(&PreparedPoints, usize, &[PoseF32], &FastCamera, &BinnedImage, u8, &mut [bool]);
+        let reference: VisibleFromAll = if fused() {
+            visible_from_all_impl::<false, true>
+        } else {
+            visible_from_all_impl::<false, false>
+        };
         for block in [prepared.len(), 1000, 300] {
             let mut got = vec![true; prepared.len()];
             let mut generic = vec![true; prepared.len()];
@@ -1426,7 +1469,7 @@ mod tests {
                 .enumerate()
             {
                 visible_from_all(&prepared, b * block, &poses, &fc, &img, 16, g);
-                visible_from_all_impl::<false>(&prepared, b * block, &poses, &fc, &img, 16, q);
+                reference(&prepared, b * block, &poses, &fc, &img, 16, q);
             }
             assert_eq!(got, want, "block {block}");
             assert_eq!(generic, want, "block {block}");
@@ -1518,7 +1561,11 @@ mod tests {
                 width: w,
             };
             surely_visible_block(&pts, first, &b, &mut fast);
-            surely_visible_block_impl(&pts, first, &b, &mut plain);
+            if fused() {
+                surely_visible_block_impl::<true>(&pts, first, &b, &mut plain);
+            } else {
+                surely_visible_block_impl::<false>(&pts, first, &b, &mut plain);
+            }
             let sure = fast.iter().filter(|&&s| s).count();
             assert!(sure > n / 10 && sure < n, "{sure} of {n} sure");
             assert_eq!(fast, plain, "{cam:?}");
