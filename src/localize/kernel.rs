@@ -187,11 +187,15 @@ impl BinnedImage {
         lut: &[u8; 256],
         invalid: u8,
     ) -> Self {
-        let mut data: Vec<u8> = gray
-            .iter()
-            .zip(mask)
-            .map(|(&g, &m)| if m != 0 { lut[g as usize] } else { invalid })
-            .collect();
+        // In parallel (each pixel on its own): 5 MP of serial work in every refinement's set-up.
+        let mut data: Vec<u8> = Vec::with_capacity(gray.len().min(mask.len()) + 1);
+        data.par_extend(gray.par_iter().zip(mask).map(|(&g, &m)| {
+            if m != 0 {
+                lut[g as usize]
+            } else {
+                invalid
+            }
+        }));
         data.push(invalid);
         BinnedImage {
             width,

@@ -1,6 +1,7 @@
 //! Ground points (map CRS, f64) and their hot-loop form (origin-shifted f32, structure of arrays).
 
 use crate::error::{Error, Result};
+use rayon::prelude::*;
 
 /// One LiDAR ground point: map-CRS coordinates (f64 metres) and reflectivity (0–255). The same
 /// type the tile cache's `crate::map::ground_points` produces.
@@ -56,7 +57,9 @@ impl PreparedPoints {
     /// to nearby pixels (cache locality in the image gather) and a strided subsample is spatially
     /// uniform. Ordering makes the result independent of the input order.
     pub fn new(points: &[GroundPoint], origin: [f64; 3], lut: &[u8; 256]) -> Self {
-        let mut order: Vec<(u64, usize)> = Vec::with_capacity(points.len());
+        // Keys and the gather in parallel (each element computed on its own, so the result does
+        // not depend on the split): a serial stretch of every evaluator's set-up otherwise.
+        let mut order: Vec<(u64, usize)> = Vec::new();
         if !points.is_empty() {
             let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
             for p in points {
@@ -69,21 +72,40 @@ impl PreparedPoints {
             // 20 bits per axis: 1 µm cells on a 1 km tile, far below any point spacing.
             const MORTON_BITS: u32 = 20;
             let scale = ((1u64 << MORTON_BITS) - 1) as f64 / span;
-            for (i, p) in points.iter().enumerate() {
-                let ix = ((p.x - x0) * scale) as u64;
-                let iy = ((p.y - y0) * scale) as u64;
-                order.push((morton2(ix, iy), i));
-            }
+            order = points
+                .par_iter()
+                .enumerate()
+                .map(|(i, p)| {
+                    let ix = ((p.x - x0) * scale) as u64;
+                    let iy = ((p.y - y0) * scale) as u64;
+                    (morton2(ix, iy), i)
+                })
+                .collect();
             order = radix_sort_by_key(order);
         }
-        let mut out = PreparedPoints::default();
-        for &(_, i) in &order {
-            let p = &points[i];
-            out.x.push((p.x - origin[0]) as f32);
-            out.y.push((p.y - origin[1]) as f32);
-            out.z.push((p.z - origin[2]) as f32);
-            out.bin.push(lut[p.reflectivity as usize]);
-        }
+        let n = order.len();
+        let mut out = PreparedPoints {
+            x: vec![0.0; n],
+            y: vec![0.0; n],
+            z: vec![0.0; n],
+            bin: vec![0; n],
+        };
+        const BLOCK: usize = 4096;
+        out.x
+            .par_chunks_mut(BLOCK)
+            .zip(out.y.par_chunks_mut(BLOCK))
+            .zip(out.z.par_chunks_mut(BLOCK))
+            .zip(out.bin.par_chunks_mut(BLOCK))
+            .zip(order.par_chunks(BLOCK))
+            .for_each(|((((xs, ys), zs), bins), block)| {
+                for (j, &(_, i)) in block.iter().enumerate() {
+                    let p = &points[i];
+                    xs[j] = (p.x - origin[0]) as f32;
+                    ys[j] = (p.y - origin[1]) as f32;
+                    zs[j] = (p.z - origin[2]) as f32;
+                    bins[j] = lut[p.reflectivity as usize];
+                }
+            });
         out
     }
 

@@ -636,9 +636,11 @@ pub(crate) fn intrinsics_deltas(
         return Vec::new();
     }
     let (c0, a0) = (pose.center(), pose.yaw_pitch_roll());
+    // Each perturbed camera's refit on its own (results collected in order): a serial stretch
+    // at the end of every localization otherwise.
     sigma
         .perturbed(cam)
-        .iter()
+        .par_iter()
         .map(|pc| {
             let q = refine_lm(pc, pose, &corr, 30);
             let (c, a) = (q.center(), q.yaw_pitch_roll());
