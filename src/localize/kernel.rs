@@ -1420,7 +1420,7 @@ mod tests {
         assert!(diff * 200 <= n, "{diff} of {n} differ");
         // The baseline copy of an x86-64 CPU without FMA rounds each product and sum separately:
         // other bits, but the same pixel for all but a few points at pixel borders.
-        let unfused = hist_of(|p, q, c, i, h, s| accumulate_impl::<false, false>(p, q, c, i, h, s));
+        let unfused = hist_of(accumulate_impl::<false, false>);
         let diff = moved(&fast, &unfused);
         eprintln!("unfused: {diff} of {n} counts moved");
         assert!(diff * 2000 <= n, "unfused: {diff} of {n} differ");
