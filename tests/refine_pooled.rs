@@ -105,11 +105,17 @@ fn pooling_noisy_frames_under_different_light() {
         e4[0].hypot(e4[1]) < 0.05 && e4[2].abs() < 0.05 && e4[3].abs() < 0.1,
         "{e4:?}"
     );
-    // Pooling shrinks the uncertainty: four frames' σ at most one frame's on every axis (both
-    // may sit at the resolution floor, half a step) and below it on the sum.
+    // Pooling shrinks the uncertainty: four frames' σ at most one frame's on every axis and
+    // below it on the sum. Both may sit at the resolution floor (half a step, widened for the
+    // jackknife's degrees of freedom), where a spread a fraction of a percent above the floor is
+    // the pixel-scale objective's noise: 1 % of slack per axis.
     let (s1, s4) = (one.quality.sigma.unwrap(), four.quality.sigma.unwrap());
+    let at_most = |a: f64, b: f64| a <= 1.01 * b;
     assert!(
-        s4.x <= s1.x && s4.y <= s1.y && s4.z <= s1.z && s4.yaw <= s1.yaw,
+        at_most(s4.x, s1.x)
+            && at_most(s4.y, s1.y)
+            && at_most(s4.z, s1.z)
+            && at_most(s4.yaw, s1.yaw),
         "{s1:?} vs {s4:?}"
     );
     assert!(s4.x + s4.y + s4.z < s1.x + s1.y + s1.z, "{s1:?} vs {s4:?}");
