@@ -288,9 +288,9 @@ fn mei_uv<const FMA: bool>(
         r2max,
     } = m;
     let r = p.r;
-    // a·b + c, fused (one rounding) where the CPU has FMA; see [`BASELINE_FMA`]. The polynomials
-    // in Horner form: 32 floating-point operations per point where the earlier separate products
-    // and sums took 61. Fused, they are exact IEEE operations that the AVX2 and NEON copies
+    // a·b + c, fused (one rounding) where the CPU has FMA; see [`BASELINE_FMA`]. With the
+    // polynomials in Horner form that is 32 floating-point operations per point (61 term by
+    // term, unfused). Fused, they are exact IEEE operations that the AVX2 and NEON copies
     // reproduce bit for bit by fusing the same pairs.
     let fma = |a: f32, b: f32, c: f32| if FMA { a.mul_add(b, c) } else { a * b + c };
     let cx = fma(r[0], x, fma(r[1], y, fma(r[2], z, p.t[0])));
@@ -341,8 +341,9 @@ fn project_chunk_mei<const FMA: bool>(
 /// Why by hand: it keeps the loop's constants in registers where the compiler's vectorisation of
 /// the plain loop reloads some of them every iteration (fewer instructions per point,
 /// docs/benchmarks.md "aarch64"). It must stay bit-identical to the scalar loop, so every lane
-/// performs the scalar loop's IEEE operations in the same order and association: separate
-/// `vmulq`(`_laneq`)/`vaddq` (a fused `vfmaq` rounds once and would change results), a correctly
+/// performs the scalar loop's IEEE operations in the same order and association: `vfmaq`
+/// (`_laneq`) exactly where the scalar loop has a `mul_add`, `vmulq`/`vaddq` where it multiplies
+/// or adds alone, a correctly
 /// rounded `vsqrtq` and `vdivq` (no reciprocal estimates), the truncating `vcvtq_s32_f32` (what
 /// the in-range `to_int_unchecked` of [`pixel_index`] is), wrapping u32 index arithmetic as in
 /// the scalar code, and `vbslq` for the scalar `if`. Lanes past the last multiple of four go through
