@@ -57,32 +57,17 @@ impl PreparedPoints {
     /// to nearby pixels (cache locality in the image gather) and a strided subsample is spatially
     /// uniform. Ordering makes the result independent of the input order.
     pub fn new(points: &[GroundPoint], origin: [f64; 3], lut: &[u8; 256]) -> Self {
-        // Keys and the gather in parallel (each element computed on its own, so the result does
-        // not depend on the split): a serial stretch of every evaluator's set-up otherwise.
-        let mut order: Vec<(u64, usize)> = Vec::new();
-        if !points.is_empty() {
-            let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
-            for p in points {
-                x0 = x0.min(p.x);
-                y0 = y0.min(p.y);
-                x1 = x1.max(p.x);
-                y1 = y1.max(p.y);
-            }
-            let span = (x1 - x0).max(y1 - y0).max(1e-9);
-            // 20 bits per axis: 1 µm cells on a 1 km tile, far below any point spacing.
-            const MORTON_BITS: u32 = 20;
-            let scale = ((1u64 << MORTON_BITS) - 1) as f64 / span;
-            order = points
-                .par_iter()
-                .enumerate()
-                .map(|(i, p)| {
-                    let ix = ((p.x - x0) * scale) as u64;
-                    let iy = ((p.y - y0) * scale) as u64;
-                    (morton2(ix, iy), i)
-                })
-                .collect();
-            order = radix_sort_by_key(order);
-        }
+        Self::gather(points, &morton_order(points), origin, lut)
+    }
+
+    /// [`PreparedPoints::new`] with the points' Morton order already computed
+    /// ([`morton_order`] of the same `points`): evaluators built on one point set share it.
+    pub(crate) fn gather(
+        points: &[GroundPoint],
+        order: &[usize],
+        origin: [f64; 3],
+        lut: &[u8; 256],
+    ) -> Self {
         let n = order.len();
         let mut out = PreparedPoints {
             x: vec![0.0; n],
@@ -90,6 +75,8 @@ impl PreparedPoints {
             z: vec![0.0; n],
             bin: vec![0; n],
         };
+        // In parallel: each element is computed on its own, so the result does not depend on the
+        // split.
         const BLOCK: usize = 4096;
         out.x
             .par_chunks_mut(BLOCK)
@@ -98,7 +85,7 @@ impl PreparedPoints {
             .zip(out.bin.par_chunks_mut(BLOCK))
             .zip(order.par_chunks(BLOCK))
             .for_each(|((((xs, ys), zs), bins), block)| {
-                for (j, &(_, i)) in block.iter().enumerate() {
+                for (j, &i) in block.iter().enumerate() {
                     let p = &points[i];
                     xs[j] = (p.x - origin[0]) as f32;
                     ys[j] = (p.y - origin[1]) as f32;
@@ -134,6 +121,11 @@ impl PreparedPoints {
 
     /// The points whose flag is set.
     pub(crate) fn select(&self, keep: &[bool]) -> Self {
+        // Keeping every point is common (a fixed set that every lattice pose sees whole, the
+        // naive estimator): one copy per array instead of a push per point.
+        if keep.len() >= self.len() && keep[..self.len()].iter().all(|&k| k) {
+            return self.clone();
+        }
         let mut out = PreparedPoints::default();
         for (i, &k) in keep.iter().enumerate().take(self.len()) {
             if k {
@@ -145,6 +137,45 @@ impl PreparedPoints {
         }
         out
     }
+}
+
+/// The indices of `points` along a Morton (Z-order) curve over their bounding square, equal
+/// cells in index order: the order [`PreparedPoints::new`] lays the points out in. It depends on
+/// the points' x and y alone (not on an origin or a bin table), so one computation serves every
+/// evaluator of a refinement.
+pub(crate) fn morton_order(points: &[GroundPoint]) -> Vec<usize> {
+    if points.is_empty() {
+        return Vec::new();
+    }
+    // Bounds and keys on the thread pool: min/max and each key are exact, so neither depends on
+    // the split.
+    let (x0, y0, x1, y1) = points
+        .par_iter()
+        .fold(
+            || (f64::MAX, f64::MAX, f64::MIN, f64::MIN),
+            |(x0, y0, x1, y1), p| (x0.min(p.x), y0.min(p.y), x1.max(p.x), y1.max(p.y)),
+        )
+        .reduce(
+            || (f64::MAX, f64::MAX, f64::MIN, f64::MIN),
+            |a, b| (a.0.min(b.0), a.1.min(b.1), a.2.max(b.2), a.3.max(b.3)),
+        );
+    let span = (x1 - x0).max(y1 - y0).max(1e-9);
+    // 20 bits per axis: 1 µm cells on a 1 km tile, far below any point spacing.
+    const MORTON_BITS: u32 = 20;
+    let scale = ((1u64 << MORTON_BITS) - 1) as f64 / span;
+    let keyed: Vec<(u64, usize)> = points
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let ix = ((p.x - x0) * scale) as u64;
+            let iy = ((p.y - y0) * scale) as u64;
+            (morton2(ix, iy), i)
+        })
+        .collect();
+    radix_sort_by_key(keyed)
+        .into_iter()
+        .map(|(_, i)| i)
+        .collect()
 }
 
 /// `items` (built in index order) sorted by key, equal keys in index order: the order of sorting

@@ -34,7 +34,7 @@ use super::kernel::{
     Scratch,
 };
 use super::mi::{bin_lut, mutual_information, JointHist, MiConfig, MiValue};
-use super::points::{validate, GroundPoint, PreparedPoints};
+use super::points::{morton_order, validate, GroundPoint, PreparedPoints};
 use crate::camera::{Camera, CameraModel};
 use crate::error::{Error, Result};
 use crate::pose::CamFromMap;
@@ -560,13 +560,19 @@ impl ImageKey {
 /// Image preparations shared by the evaluators one refinement builds on the same frames (the
 /// search's, the polish's, the jackknife's and the region's): the blur, the gray binning, the
 /// erosion with its distance map and the pyramid are the same for all of them, only the point
-/// sets differ. An entry is found by the very slices it was made from (same address and
-/// length, borrowed for the cache's whole life so they cannot change) and the same settings;
-/// anything else is prepared afresh, so the cache can only save work, never change a result.
+/// sets differ. Likewise the Morton order of a point set ([`morton_order`]), which
+/// depends on the points alone while each evaluator's origin, bins and fixed set differ. An
+/// entry is found by the very slices it was made from (same address and length, borrowed for
+/// the cache's whole life so they cannot change) and the same settings; anything else is
+/// prepared afresh, so the cache can only save work, never change a result.
 #[derive(Default)]
 pub(crate) struct ImageCache<'a> {
     entries: Mutex<Vec<CachedImage<'a>>>,
+    orders: Mutex<Vec<CachedOrder<'a>>>,
 }
+
+/// A point set and its Morton order.
+type CachedOrder<'a> = (&'a [GroundPoint], Arc<Vec<usize>>);
 
 struct CachedImage<'a> {
     gray: &'a [u8],
@@ -602,6 +608,17 @@ impl<'a> ImageCache<'a> {
 
     fn lock(&self) -> std::sync::MutexGuard<'_, Vec<CachedImage<'a>>> {
         self.entries.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The Morton order of `points`, computed now or earlier.
+    fn order(&self, points: &'a [GroundPoint]) -> Arc<Vec<usize>> {
+        let lock = || self.orders.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, o)) = lock().iter().find(|(p, _)| std::ptr::eq(*p, points)) {
+            return Arc::clone(o);
+        }
+        let order = Arc::new(morton_order(points));
+        lock().push((points, Arc::clone(&order)));
+        order
     }
 }
 
@@ -673,7 +690,8 @@ impl Evaluator {
                 other => other,
             })?;
             let image = cache.get(cam, v, cfg).map_err(|m| name(i, m))?;
-            let pts0 = prepare_points(cam, v.points, &image, init, origin, &grid, cfg)
+            let order = cache.order(v.points);
+            let pts0 = prepare_points(cam, v.points, &order, &image, init, origin, &grid, cfg)
                 .map_err(|m| name(i, m))?;
             prepared.push((image.binned_levels(max_level, invalid), pts0));
         }
@@ -988,23 +1006,47 @@ fn prepare_image(
     }
     let invalid = cfg.mi.bins_gray as u8;
 
-    // Gray LUT from the valid pixels.
-    let mut gcounts = [0u64; 256];
-    for (&g, &m) in gray.iter().zip(mask) {
-        if m != 0 {
-            gcounts[g as usize] += 1;
-        }
-    }
+    // Gray LUT from the valid pixels: counts per block of rows on the pool (integer sums, the
+    // same in any order).
+    let gcounts = gray
+        .par_chunks(w.max(1) * 64)
+        .zip(mask.par_chunks(w.max(1) * 64))
+        .fold(
+            || [0u64; 256],
+            |mut c, (g, m)| {
+                for (&g, &m) in g.iter().zip(m) {
+                    c[g as usize] += u64::from(m != 0);
+                }
+                c
+            },
+        )
+        .reduce(
+            || [0u64; 256],
+            |mut a, b| {
+                a.iter_mut().zip(b).for_each(|(a, b)| *a += b);
+                a
+            },
+        );
     if gcounts.iter().sum::<u64>() == 0 {
         return Err("image: no valid pixel in the camera's image circle".into());
     }
     let lut_gray = bin_lut(cfg.mi.binning, cfg.mi.bins_gray, &gcounts);
 
     // Level 0 image (anti-aliased, see `blur3`), and the eroded one used to pick the fixed set.
-    let smooth = blur3(gray, mask, w, h);
-    let img0 = BinnedImage::new(w, h, &smooth, mask, &lut_gray, invalid);
-    let eroded = cfg.fixed_point_set.then(|| {
-        let (eroded, dist) = erode_with_distance(mask, w, h, cfg.visibility_margin_px);
+    // The erosion's distance transform is a sequential sweep that needs only the mask: it runs
+    // beside the blur and binning (which spread over the pool) rather than after them.
+    let ((smooth, img0), erosion) = rayon::join(
+        || {
+            let smooth = blur3(gray, mask, w, h);
+            let img0 = BinnedImage::new(w, h, &smooth, mask, &lut_gray, invalid);
+            (smooth, img0)
+        },
+        || {
+            cfg.fixed_point_set
+                .then(|| erode_with_distance(mask, w, h, cfg.visibility_margin_px))
+        },
+    );
+    let eroded = erosion.map(|(eroded, dist)| {
         let img_e = BinnedImage::new(w, h, &smooth, &eroded, &lut_gray, invalid);
         (img_e, dist)
     });
@@ -1023,9 +1065,11 @@ fn prepare_image(
 
 /// Pick one view's fixed point set on its prepared `image` and bin the points' reflectivity
 /// (see [`Evaluator::pooled`]). Errors are the message alone; the caller names the view.
+#[allow(clippy::too_many_arguments)]
 fn prepare_points(
     cam: &Camera,
     points: &[GroundPoint],
+    order: &[usize],
     image: &ViewImage,
     init: &CamFromMap,
     origin: [f64; 3],
@@ -1041,7 +1085,7 @@ fn prepare_points(
     for (i, v) in identity.iter_mut().enumerate() {
         *v = i as u8;
     }
-    let raw = PreparedPoints::new(points, origin, &identity);
+    let raw = PreparedPoints::gather(points, order, origin, &identity);
     let keep = if let Some((img_e, dist)) = &image.eroded {
         // A point is kept when every pose of the 3^d lattice sees it. Blocks of points in
         // parallel, each tested against all the poses at once (`visible_from_all`): the flags do
