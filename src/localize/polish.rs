@@ -476,20 +476,19 @@ where
     M: Fn() -> F + Sync,
     N: Fn() -> G + Sync,
 {
-    let screen = multi_start_ends(make_screen, p);
-    let screen_evaluations = screen.iter().map(|r| r.evaluations).sum();
     let single = PolishParams {
         tilt_starts_deg: 0.0,
         ..*p
     };
-    let winner = best_end(&screen);
     let run = |x0: [f64; 6]| nelder_mead_from(&mut make_full(), &single, x0);
-    let (own, other) = if winner == 0 {
-        (run([0.0; 6]), None)
-    } else {
-        let (a, b) = rayon::join(|| run([0.0; 6]), || run(screen[winner].offsets));
-        (a, Some(b))
-    };
+    // The origin's full run does not depend on the screening, so it runs beside it: the
+    // screening's starts are sequential simplexes of unequal length, and the full run's
+    // evaluations fill the pool while the last of them ends. Each run is deterministic, so the
+    // result is the same as one after the other.
+    let (screen, own) = rayon::join(|| multi_start_ends(&make_screen, p), || run([0.0; 6]));
+    let screen_evaluations = screen.iter().map(|r| r.evaluations).sum();
+    let winner = best_end(&screen);
+    let other = (winner != 0).then(|| run(screen[winner].offsets));
     let evaluations = own.evaluations + other.map_or(0, |r| r.evaluations);
     let end = match other {
         Some(o) if o.value > own.value => o,

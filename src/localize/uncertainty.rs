@@ -206,23 +206,48 @@ pub(crate) fn estimate_cached<'a>(
     let (first, first_hists) = (&first, &first_hists);
     // Group by group, each polish on the other groups' points (deterministic: no randomness,
     // results collected in group order).
-    let ends: Vec<([f64; 6], usize, bool)> = (0..k)
-        .into_par_iter()
-        .map(|left_out| {
-            let mut scratch = Scratch::default();
-            let mut f = |o: &[f64; 6]| match first.iter().position(|x| same(x, o)) {
-                Some(i) => value_without(&first_hists[i], Some(left_out), objective, parzen),
-                None => {
-                    let h = ev.histogram_without(folds, left_out, o, &mut scratch);
-                    mutual_information(&h, parzen).get(objective)
-                }
-            };
-            let end = nelder_mead(&mut f, &p);
-            let on_edge = (0..6).any(|i| p.is_free(i) && end.offsets[i].abs() >= 0.95 * p.bound[i]);
-            (end.offsets, end.evaluations, on_edge)
-        })
-        .collect();
+    let jackknife_ends = || -> Vec<([f64; 6], usize, bool)> {
+        (0..k)
+            .into_par_iter()
+            .map(|left_out| {
+                let mut scratch = Scratch::default();
+                let mut f = |o: &[f64; 6]| match first.iter().position(|x| same(x, o)) {
+                    Some(i) => value_without(&first_hists[i], Some(left_out), objective, parzen),
+                    None => {
+                        let h = ev.histogram_without(folds, left_out, o, &mut scratch);
+                        mutual_information(&h, parzen).get(objective)
+                    }
+                };
+                let end = nelder_mead(&mut f, &p);
+                let on_edge =
+                    (0..6).any(|i| p.is_free(i) && end.offsets[i].abs() >= 0.95 * p.bound[i]);
+                (end.offsets, end.evaluations, on_edge)
+            })
+            .collect()
+    };
+    // The groups' polishes are sequential simplexes of unequal length, so the pool runs out of
+    // groups before the last one ends; the region (below) does not depend on them and fills
+    // that tail. Both are deterministic, so running them side by side changes no result.
+    let mut rp = p;
+    for i in 0..6 {
+        if rp.is_free(i) {
+            rp.bound[i] = rp.bound[i].max(ucfg.region_bound[i]);
+        }
+    }
     let d = if tilt { 6 } else { 4 };
+    let unit = step_units(search, d);
+    let (ends, reg) = rayon::join(jackknife_ends, || -> Result<Region> {
+        // Its own fixed point set: the points every pose of its wider box sees.
+        let rev =
+            Evaluator::pooled_cached(cam, views, pose, &box_config(search, &rp, pivot), 0, cache)?;
+        // Its standard errors from more, smaller patches than the re-optimisations: every probe
+        // scores every patch in one pass, so more patches cost nothing, and the standard error
+        // has REGION_FOLDS − 1 degrees of freedom instead of K − 1 (with 7, its own noise opened
+        // the region along one of the rays on a quarter of the simulated scenes).
+        let rfolds = rev.folds(REGION_FOLDS.max(k));
+        Ok(region(&rev, &rfolds, objective, parzen, &rp, &unit, d))
+    });
+    let reg = reg?;
     // Each group's optimum as the change of the camera centre and of the angles it makes (a tilt
     // about a ground pivot also moves the centre).
     let (c0, a0) = (pose.center(), pose.yaw_pitch_roll());
@@ -259,7 +284,6 @@ pub(crate) fn estimate_cached<'a>(
     // The objective is rugged at the pixel scale (nearest-pixel sampling), and every group's
     // re-optimisation starts at the answer, so they can share one local bump and spread less than
     // the search resolves: the variance is floored at (half the finest step)² per axis.
-    let unit = step_units(search, d);
     for (a, row) in matrix.iter_mut().enumerate() {
         row[a] = row[a].max((0.5 * unit[a]).powi(2));
     }
@@ -278,22 +302,8 @@ pub(crate) fn estimate_cached<'a>(
     // it stays open to the gate's reach there is no peak. Its ellipsoid, where it closes, is
     // reported but not added: on simulated scenes it overstated the error several times along
     // the height (σ z 7 cm on an answer 0.2 cm from the oracle) and refused 2 of 100 results the
-    // jackknife's σ covered (docs/refine.md "Uncertainty").
-    let mut rp = p;
-    for i in 0..6 {
-        if rp.is_free(i) {
-            rp.bound[i] = rp.bound[i].max(ucfg.region_bound[i]);
-        }
-    }
-    // Its own fixed point set: the points every pose of its wider box sees.
-    let rev =
-        Evaluator::pooled_cached(cam, views, pose, &box_config(search, &rp, pivot), 0, cache)?;
-    // Its standard errors from more, smaller patches than the re-optimisations: every probe
-    // scores every patch in one pass, so more patches cost nothing, and the standard error has
-    // REGION_FOLDS − 1 degrees of freedom instead of K − 1 (with 7, its own noise opened the
-    // region along one of the rays on a quarter of the simulated scenes).
-    let rfolds = rev.folds(REGION_FOLDS.max(k));
-    let reg = region(&rev, &rfolds, objective, parzen, &rp, &unit, d);
+    // jackknife's σ covered (docs/refine.md "Uncertainty"). It was computed above, beside the
+    // groups' polishes.
     // A group that walked to its box's edge found no peak within reach, and a region that reaches
     // the edge has none either: the spread is at least that far, and the answer unbounded in truth.
     let peak = !ends.iter().any(|e| e.2) && reg.open.is_none();
