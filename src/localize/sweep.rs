@@ -110,39 +110,48 @@ impl Field {
 pub(crate) fn orientation_field(img: &GrayF32, valid: Option<&[bool]>) -> Field {
     let (w, h) = (img.width, img.height);
     let mut data = vec![Complex32::new(0.0, 0.0); w * h];
-    let mut mags = Vec::with_capacity(w * h / 4);
-    for y in 1..h.saturating_sub(1) {
-        for x in 1..w.saturating_sub(1) {
-            if let Some(v) = valid {
-                let ok = (y - 1..=y + 1).all(|yy| (x - 1..=x + 1).all(|xx| v[yy * w + xx]));
-                if !ok {
-                    continue;
+    // Rows on the thread pool: each pixel's value is its own, and the magnitudes' percentile
+    // below does not depend on their order.
+    let mut mags: Vec<f32> = data
+        .par_chunks_mut(w.max(1))
+        .enumerate()
+        .filter(|(y, _)| *y >= 1 && *y + 1 < h)
+        .flat_map_iter(|(y, row)| {
+            let mut mags = Vec::new();
+            let inner = row.iter_mut().enumerate().take(w.saturating_sub(1)).skip(1);
+            for (x, out) in inner {
+                if let Some(v) = valid {
+                    let ok = (y - 1..=y + 1).all(|yy| (x - 1..=x + 1).all(|xx| v[yy * w + xx]));
+                    if !ok {
+                        continue;
+                    }
+                }
+                // Sobel.
+                let gx = (img.at(x + 1, y - 1) + 2.0 * img.at(x + 1, y) + img.at(x + 1, y + 1))
+                    - (img.at(x - 1, y - 1) + 2.0 * img.at(x - 1, y) + img.at(x - 1, y + 1));
+                let gy = (img.at(x - 1, y + 1) + 2.0 * img.at(x, y + 1) + img.at(x + 1, y + 1))
+                    - (img.at(x - 1, y - 1) + 2.0 * img.at(x, y - 1) + img.at(x + 1, y - 1));
+                let g = Complex32::new(gx, gy);
+                let m = g.norm();
+                if m > 0.0 {
+                    *out = g * g / m; // |·| = m, arg = 2θ
+                    mags.push(m);
                 }
             }
-            // Sobel.
-            let gx = (img.at(x + 1, y - 1) + 2.0 * img.at(x + 1, y) + img.at(x + 1, y + 1))
-                - (img.at(x - 1, y - 1) + 2.0 * img.at(x - 1, y) + img.at(x - 1, y + 1));
-            let gy = (img.at(x - 1, y + 1) + 2.0 * img.at(x, y + 1) + img.at(x + 1, y + 1))
-                - (img.at(x - 1, y - 1) + 2.0 * img.at(x, y - 1) + img.at(x + 1, y - 1));
-            let g = Complex32::new(gx, gy);
-            let m = g.norm();
-            if m > 0.0 {
-                data[y * w + x] = g * g / m; // |·| = m, arg = 2θ
-                mags.push(m);
-            }
-        }
-    }
+            mags
+        })
+        .collect();
     // Soft saturation at a robust scale: s(m) = m / (m + k), k = 80th-percentile magnitude.
     if !mags.is_empty() {
         let idx = mags.len() * 4 / 5;
         let k = *mags.select_nth_unstable_by(idx, f32::total_cmp).1;
         if k > 0.0 {
-            for z in &mut data {
+            data.par_iter_mut().for_each(|z| {
                 let m = z.norm();
                 if m > 0.0 {
                     *z *= 1.0 / (m + k);
                 }
-            }
+            });
         }
     }
     Field {

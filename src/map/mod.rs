@@ -5,6 +5,7 @@
 //! `x = x0 + (col + 0.5)·res`, `y = y0 − (row + 0.5)·res`, where (x0, y0) is the outer corner of the
 //! top-left pixel (GeoTIFF "PixelIsArea" convention).
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 pub mod cache;
@@ -335,14 +336,18 @@ impl<'a> GroundIndex<'a> {
         let (r0, r1) = (d.r0, d.r1.max(d.r0));
         let w1 = c1 - c0 + 1;
         let mut prefix = vec![0u32; (r1 - r0) * w1];
-        for (j, p) in prefix.chunks_exact_mut(w1).enumerate() {
-            let mut n = 0u32;
-            for (col, v) in (c0..c1).zip(p.iter_mut()) {
-                *v = n;
-                n += u32::from(ground_point(tile, col, r0 + j).is_some());
-            }
-            p[w1 - 1] = n;
-        }
+        // Rows on the thread pool: each row's counts are its own.
+        prefix
+            .par_chunks_exact_mut(w1)
+            .enumerate()
+            .for_each(|(j, p)| {
+                let mut n = 0u32;
+                for (col, v) in (c0..c1).zip(p.iter_mut()) {
+                    *v = n;
+                    n += u32::from(ground_point(tile, col, r0 + j).is_some());
+                }
+                p[w1 - 1] = n;
+            });
         GroundIndex {
             tile,
             c0,
