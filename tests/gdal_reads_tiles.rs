@@ -283,4 +283,56 @@ fn we_read_gdal_written_files_onto_gdals_grid() {
     let h = geotiff::read_f32(&f).unwrap();
     assert_eq!(h.grid, t.height.grid);
     assert_eq!(h.nodata, Some(-9999.0));
+
+    // Layers in many chunks (decoded in parallel): 16-pixel tiles with partial ones at the right
+    // and bottom edges, and short strips; with the predictors GDAL offers.
+    let chunked = |name: &str, args: &[&str]| {
+        let out = dir.path().join(name);
+        gdal_translate(args, &td.join(name), &out);
+        out
+    };
+    let tiled = [
+        "-co",
+        "TILED=YES",
+        "-co",
+        "BLOCKXSIZE=16",
+        "-co",
+        "BLOCKYSIZE=16",
+    ];
+    let s = geotiff::read_rgb8(&chunked(
+        "satellite.tif",
+        &[
+            &tiled[..],
+            &["-co", "COMPRESS=DEFLATE", "-co", "PREDICTOR=2"],
+        ]
+        .concat(),
+    ))
+    .unwrap();
+    assert_eq!(s, t.satellite);
+    let h = geotiff::read_f32(&chunked(
+        "height.tif",
+        &[
+            &tiled[..],
+            &["-co", "COMPRESS=DEFLATE", "-co", "PREDICTOR=3"],
+        ]
+        .concat(),
+    ))
+    .unwrap();
+    assert_eq!(h.grid, t.height.grid);
+    assert!(h
+        .data
+        .iter()
+        .zip(&t.height.data)
+        .all(|(a, b)| a.to_bits() == b.to_bits()));
+    let r = geotiff::read_gray8(&chunked(
+        "reflectivity.tif",
+        &["-co", "BLOCKYSIZE=4", "-co", "COMPRESS=LZW"],
+    ))
+    .unwrap();
+    assert_eq!(r, t.reflectivity);
+    // GDAL wrote what was asked: tiles and strips of those sizes.
+    let info = gdalinfo(&dir.path().join("height.tif"));
+    assert_eq!(info["bands"][0]["block"], serde_json::json!([16, 16]));
+    let info = gdalinfo(&dir.path().join("reflectivity.tif"));
+    assert_eq!(info["bands"][0]["block"], serde_json::json!([21, 4]));
 }

@@ -14,9 +14,9 @@ use super::{Crs, GeoGrid, Raster};
 use crate::error::{Error, Result};
 use crate::geo;
 use std::fs::File;
-use std::io::{BufReader, BufWriter};
+use std::io::{BufWriter, Cursor};
 use std::path::Path;
-use tiff::decoder::{Decoder, DecodingResult, Limits};
+use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
 use tiff::encoder::{colortype, Compression, DeflateLevel, TiffEncoder};
 use tiff::tags::Tag;
 use tiff::ColorType;
@@ -204,13 +204,14 @@ pub fn write_f32(path: &Path, r: &Raster<f32>) -> Result<()> {
 
 /// Decode any supported TIFF (u8 gray, u8 RGB, f32 gray), with its georeference if tagged.
 pub fn read_image(path: &Path) -> Result<Image> {
-    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    // Read whole: the pixel data's chunks are then decoded in parallel, each by its own decoder.
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let rerr = tiff_err(path, "not a readable TIFF (truncated or corrupt)");
     let mut limits = Limits::default();
     limits.decoding_buffer_size = MAX_DECODE_BYTES;
-    let mut dec = Decoder::new(BufReader::new(file))
+    let mut dec = Decoder::new(Cursor::new(&bytes[..]))
         .map_err(&rerr)?
-        .with_limits(limits);
+        .with_limits(limits.clone());
     let (w, h) = dec.dimensions().map_err(&rerr)?;
     let color = dec.colortype().map_err(&rerr)?;
     let (width, height) = (w as usize, h as usize);
@@ -231,7 +232,11 @@ pub fn read_image(path: &Path) -> Result<Image> {
                 })?)
             }
         };
-    let data = dec.read_image().map_err(tiff_err(
+    let data = match read_chunks_parallel(&bytes, &limits, width, height, color) {
+        Some(r) => r,
+        None => dec.read_image(),
+    }
+    .map_err(tiff_err(
         path,
         "pixel data unreadable (truncated or corrupt)",
     ))?;
@@ -286,6 +291,114 @@ pub fn read_image(path: &Path) -> Result<Image> {
         grid,
         nodata,
     })
+}
+
+/// The first image's pixels as [`Decoder::read_image`] gives them, its strips or tiles decoded
+/// on the thread pool (a tile's f32 height layer is several megabytes of deflated data, and
+/// localization waits for it). `None` where that path does not apply — one chunk, planar
+/// samples, a sample type the tile layers do not use — and the caller reads the image whole.
+/// Every chunk is decompressed by its own decoder over the same bytes, so the pixels are the
+/// same as a serial read's.
+fn read_chunks_parallel(
+    bytes: &[u8],
+    limits: &Limits,
+    width: usize,
+    height: usize,
+    color: ColorType,
+) -> Option<tiff::TiffResult<DecodingResult>> {
+    use rayon::prelude::*;
+    let samples = match color {
+        ColorType::Gray(8) | ColorType::Gray(32) => 1,
+        ColorType::RGB(8) => 3,
+        _ => return None,
+    };
+    let open = || Decoder::new(Cursor::new(bytes)).map(|d| d.with_limits(limits.clone()));
+    let mut dec = open().ok()?;
+    match dec.find_tag(Tag::PlanarConfiguration) {
+        Ok(None) => {}
+        Ok(Some(v)) if v.clone().into_u16().ok() == Some(1) => {}
+        _ => return None,
+    }
+    let n = match dec.get_chunk_type() {
+        ChunkType::Strip => dec.strip_count().ok()?,
+        ChunkType::Tile => dec.tile_count().ok()?,
+    };
+    if n < 2 {
+        return None;
+    }
+    let (cw, ch) = dec.chunk_dimensions();
+    let (cw, ch) = (cw as usize, ch as usize);
+    if cw == 0 || ch == 0 {
+        return None;
+    }
+    let across = width.div_ceil(cw);
+    // Decoded chunks in index order (row-major over the chunk grid), with their data size.
+    let chunks: Vec<tiff::TiffResult<(DecodingResult, usize, usize)>> = (0..n)
+        .into_par_iter()
+        .map_init(
+            || None,
+            |slot: &mut Option<Decoder<Cursor<&[u8]>>>, i| {
+                let dec = match slot {
+                    Some(d) => d,
+                    None => slot.insert(open()?),
+                };
+                let (dw, dh) = dec.chunk_data_dimensions(i);
+                dec.read_chunk(i).map(|r| (r, dw as usize, dh as usize))
+            },
+        )
+        .collect();
+    let row = width * samples;
+    let mut out = match color {
+        ColorType::Gray(32) => DecodingResult::F32(vec![0.0; row * height]),
+        _ => DecodingResult::U8(vec![0; row * height]),
+    };
+    for (i, c) in chunks.into_iter().enumerate() {
+        let (data, dw, dh) = match c {
+            Ok(c) => c,
+            Err(e) => return Some(Err(e)),
+        };
+        let (x0, y0) = ((i % across) * cw, (i / across) * ch);
+        if x0 + dw > width || y0 + dh > height {
+            return None;
+        }
+        let placed = match (&mut out, &data) {
+            (DecodingResult::F32(o), DecodingResult::F32(d)) => {
+                place(o, d, row, x0, y0, dw, dh, samples)
+            }
+            (DecodingResult::U8(o), DecodingResult::U8(d)) => {
+                place(o, d, row, x0, y0, dw, dh, samples)
+            }
+            _ => false,
+        };
+        if !placed {
+            return None;
+        }
+    }
+    Some(Ok(out))
+}
+
+/// Copy a `dw`×`dh` chunk of `samples`-sample pixels into `out` (rows of `row` values) at pixel
+/// (`x0`, `y0`); false when the chunk holds fewer values than that.
+#[allow(clippy::too_many_arguments)]
+fn place<T: Copy>(
+    out: &mut [T],
+    chunk: &[T],
+    row: usize,
+    x0: usize,
+    y0: usize,
+    dw: usize,
+    dh: usize,
+    samples: usize,
+) -> bool {
+    let w = dw * samples;
+    if chunk.len() < w * dh {
+        return false;
+    }
+    for (r, src) in chunk.chunks_exact(w.max(1)).take(dh).enumerate() {
+        let at = (y0 + r) * row + x0 * samples;
+        out[at..at + w].copy_from_slice(src);
+    }
+    true
 }
 
 /// Georeference tags → a grid (width/height filled in by the caller); `None` if untagged.
@@ -627,6 +740,96 @@ mod tests {
         // Type checks name the file and the type.
         let e = read_gray8(&p).unwrap_err().to_string();
         assert!(e.contains("f.tif") && e.contains("expected u8 gray"), "{e}");
+    }
+
+    /// The whole image as one serial read gives it.
+    fn whole(bytes: &[u8]) -> DecodingResult {
+        Decoder::new(Cursor::new(bytes))
+            .unwrap()
+            .read_image()
+            .unwrap()
+    }
+
+    fn same(a: &DecodingResult, b: &DecodingResult) -> bool {
+        match (a, b) {
+            (DecodingResult::U8(a), DecodingResult::U8(b)) => a == b,
+            (DecodingResult::F32(a), DecodingResult::F32(b)) => {
+                a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+            }
+            _ => false,
+        }
+    }
+
+    #[test]
+    fn chunks_decoded_in_parallel_equal_a_whole_read() {
+        // Sizes past the writer's strip size (several strips each, the last one short); the
+        // values vary along rows and columns so that a misplaced strip shows.
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (1013, 1207);
+        let g = grid(w, h);
+        let val = |i: usize| ((i % w) * 7 + (i / w) * 13) as f32 * 0.25 - 100.0;
+        let mut f = Raster {
+            grid: g,
+            data: (0..w * h).map(val).collect(),
+            nodata: Some(-9999.0),
+        };
+        f.data[5] = f32::NAN;
+        let r8 = Raster {
+            grid: g,
+            data: (0..w * h).map(|i| val(i) as u8).collect(),
+            nodata: Some(0),
+        };
+        let rgb = Raster {
+            grid: g,
+            data: (0..w * h)
+                .map(|i| [i as u8, (i / w) as u8, (i % w) as u8])
+                .collect(),
+            nodata: None,
+        };
+        let files = [
+            (
+                "f.tif",
+                write_f32(&dir.path().join("f.tif"), &f),
+                ColorType::Gray(32),
+            ),
+            (
+                "g.tif",
+                write_gray8(&dir.path().join("g.tif"), &r8),
+                ColorType::Gray(8),
+            ),
+            (
+                "c.tif",
+                write_rgb8(&dir.path().join("c.tif"), &rgb),
+                ColorType::RGB(8),
+            ),
+        ];
+        let limits = Limits::default();
+        for (name, written, color) in files {
+            written.unwrap();
+            let bytes = std::fs::read(dir.path().join(name)).unwrap();
+            let mut dec = Decoder::new(Cursor::new(&bytes[..])).unwrap();
+            assert!(dec.strip_count().unwrap() > 1, "{name}: one strip");
+            let par = read_chunks_parallel(&bytes, &limits, w, h, color)
+                .unwrap_or_else(|| panic!("{name}: not read in chunks"))
+                .unwrap();
+            assert!(same(&par, &whole(&bytes)), "{name}");
+        }
+        // And through the public readers.
+        assert_eq!(read_gray8(&dir.path().join("g.tif")).unwrap(), r8);
+        assert_eq!(read_rgb8(&dir.path().join("c.tif")).unwrap(), rgb);
+        let back = read_f32(&dir.path().join("f.tif")).unwrap();
+        assert!(back.data[5].is_nan());
+        assert!(back
+            .data
+            .iter()
+            .zip(&f.data)
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
+        // A truncated file: the chunk that runs past the end is an error naming the file.
+        let bytes = std::fs::read(dir.path().join("f.tif")).unwrap();
+        let cut = dir.path().join("cut.tif");
+        std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
+        let e = read_f32(&cut).unwrap_err().to_string();
+        assert!(e.contains("cut.tif"), "{e}");
     }
 
     #[test]
