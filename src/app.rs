@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 use crate::localize::frame::Frame;
 use crate::localize::matcher::{MatchFile, Matcher};
 use crate::localize::pipeline::{localize, Outcome, Params};
-use crate::map::cache::{load_covering, SkippedTile};
+use crate::map::cache::{load_covering, SkippedTile, TileRef};
 use crate::map::{Crs, Tile};
 use crate::persist::write_atomic;
 use crate::posefile::{format_utc, PoseFile};
@@ -21,6 +21,7 @@ use crate::stage::StageName;
 use image::GrayImage;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -179,7 +180,7 @@ fn load_grays(paths: &[PathBuf]) -> Result<Vec<GrayImage>> {
 }
 
 /// The prior as (lat, lon, σ m) and a JSON description of where it came from.
-fn prior(ov: &Overrides, cfg: &Config) -> Result<((f64, f64, f64), Value)> {
+fn prior(ov: &Overrides, cfg: &Config, cancel: &AtomicBool) -> Result<((f64, f64, f64), Value)> {
     if let Some((lat, lon)) = ov.prior_wgs84 {
         let sigma = cfg.gps.fallback_sigma_m;
         return Ok((
@@ -192,7 +193,7 @@ fn prior(ov: &Overrides, cfg: &Config) -> Result<((f64, f64, f64), Value)> {
         g.source = GpsSourceKind::NmeaFile;
         g.path = Some(path.clone());
     }
-    let outcome = crate::gps_serial::acquire_prior(&g)?;
+    let outcome = crate::gps_serial::acquire_prior_unless(&g, cancel)?;
     let desc = serde_json::to_value(&outcome).unwrap_or(Value::Null);
     let pos = outcome.position().ok_or_else(|| {
         let why = match &outcome {
@@ -265,16 +266,68 @@ pub(crate) fn run(
     let t_start = Instant::now();
     // The matcher's file first: a missing or malformed one fails before the frames are captured.
     let matcher = matcher_from_config(cfg)?;
-    let (camera, image) = camera_and_frame(cfg, cfg_path, ov, progress)?;
-    progress(StageName::Prior);
-    let ((lat, lon, sigma), prior_desc) = prior(ov, cfg)?;
-    progress(StageName::Tile);
     let tiles = ov.tiles.clone().unwrap_or_else(|| cfg.map.tiles.clone());
-    // The camera file's stated intrinsics uncertainty goes into the pose's covariance.
-    let intrinsics_sigma = match (&ov.camera, &cfg.camera.intrinsics_file) {
-        (Some(p), _) | (None, Some(p)) => crate::camera::import::load_intrinsics_sigma(p)?,
-        (None, None) => None,
-    };
+    let mi_radius_m = Params::default().mi_radius_m;
+    // The prior and its tile do not depend on the frames, so they are acquired while the frames
+    // are captured: a receiver's averaging window and a camera's settle and frame intervals are
+    // each seconds, and the tile's decoding fills the pool while the last frames decode. This
+    // thread still reports the stages in their order and their errors in that order (capture,
+    // then prior, then tile); a failed capture cancels the acquisition.
+    let cancel = AtomicBool::new(false);
+    let (camera, image, located, intrinsics_sigma) = std::thread::scope(|s| {
+        let (tx, rx) = std::sync::mpsc::channel();
+        let (cancel, tiles) = (&cancel, &tiles);
+        let acquire = s.spawn(move || {
+            let prior = prior(ov, cfg, cancel);
+            let at = prior.as_ref().ok().map(|p| p.0);
+            // The receiver is gone only when the capture failed: nothing waits for the rest.
+            if tx.send(Located::Prior(prior)).is_err() || cancel.load(Ordering::Relaxed) {
+                return;
+            }
+            if let Some((lat, lon, _)) = at {
+                let tile = load_covering(tiles, lat, lon, cfg.map.search_margin_m, mi_radius_m)
+                    .map(Box::new);
+                let _ = tx.send(Located::Tile(tile));
+            }
+        });
+        let frame = camera_and_frame(cfg, cfg_path, ov, progress);
+        if frame.is_err() {
+            cancel.store(true, Ordering::Relaxed);
+        }
+        let (camera, image) = match frame {
+            Ok(f) => f,
+            Err(e) => {
+                drop(rx);
+                let _ = acquire.join();
+                return Err(e);
+            }
+        };
+        let lost = |stage: StageName| {
+            Error::stage(
+                stage.name(),
+                "the acquisition beside the capture ended early",
+            )
+        };
+        progress(StageName::Prior);
+        let prior = match rx.recv() {
+            Ok(Located::Prior(p)) => p?,
+            _ => return Err(lost(StageName::Prior)),
+        };
+        progress(StageName::Tile);
+        // The camera file's stated intrinsics uncertainty goes into the pose's covariance.
+        let intrinsics_sigma = match (&ov.camera, &cfg.camera.intrinsics_file) {
+            (Some(p), _) | (None, Some(p)) => crate::camera::import::load_intrinsics_sigma(p)?,
+            (None, None) => None,
+        };
+        let tile = match rx.recv() {
+            Ok(Located::Tile(t)) => t?,
+            _ => return Err(lost(StageName::Tile)),
+        };
+        let _ = acquire.join();
+        Ok((camera, image, (prior, tile), intrinsics_sigma))
+    })?;
+    let (((lat, lon, sigma), prior_desc), located_tile) = located;
+    let (tile, tref) = *located_tile;
     let params = Params {
         matcher,
         quality: crate::localize::quality::QualityConfig {
@@ -283,15 +336,6 @@ pub(crate) fn run(
         },
         ..Params::default()
     };
-    // The covering tile's LiDAR layers must hold data around the prior: a damaged layer is a
-    // map fault, not a PnP or MI failure. Unreadable tiles elsewhere are skipped and reported.
-    let (tile, tref) = load_covering(
-        &tiles,
-        lat,
-        lon,
-        cfg.map.search_margin_m,
-        params.mi_radius_m,
-    )?;
     let crs = tile.reflectivity.grid.crs;
     let (px, py) = match crs {
         Crs::Epsg(_) => crate::geo::wgs84_to_map(crs, lat, lon)?,
@@ -359,6 +403,14 @@ pub(crate) fn run(
         report,
         skipped_tiles: tref.skipped,
     })
+}
+
+/// What the acquisition beside the capture in [`run`] hands over, in this order.
+enum Located {
+    /// The prior as (lat, lon, σ m) and where it came from.
+    Prior(Result<((f64, f64, f64), Value)>),
+    /// The tile covering it, loaded.
+    Tile(Result<Box<(Tile, TileRef)>>),
 }
 
 /// The pose file's `quality` block as a localization writes it: the refinement's figures with

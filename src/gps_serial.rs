@@ -378,6 +378,14 @@ fn prior_settings(g: &GpsConfig) -> PriorSettings {
 /// take the fixed position. Without a usable fix the surveyed `fallback-wgs84` is returned with
 /// the reason. Only unusable configuration is an error.
 pub fn acquire_prior(g: &GpsConfig) -> Result<PriorOutcome> {
+    acquire_prior_unless(g, &AtomicBool::new(false))
+}
+
+/// [`acquire_prior`] that gives up once `cancel` is set: a serial receiver is read at most
+/// `READ_TIMEOUT` at a time and the flag checked between reads (the node acquires the prior
+/// while it captures, and a failed capture ends the attempt). What a cancelled acquisition
+/// returns is the outcome so far; the caller discards it.
+pub fn acquire_prior_unless(g: &GpsConfig, cancel: &AtomicBool) -> Result<PriorOutcome> {
     let fallback = g.fallback_wgs84.map(|p| (p, g.fallback_sigma_m));
     let mut est = PriorEstimator::new(prior_settings(g));
     match g.source {
@@ -417,7 +425,7 @@ pub fn acquire_prior(g: &GpsConfig) -> Result<PriorOutcome> {
             let timeout = secs("timeout-s", g.timeout_s)?;
             let window = secs("window-s", g.window_s)?;
             let mut first_kept: Option<Instant> = None;
-            while start.elapsed() < timeout {
+            while start.elapsed() < timeout && !cancel.load(Ordering::Relaxed) {
                 reader.poll(|f| {
                     if est.push(&f) && first_kept.is_none() {
                         first_kept = Some(Instant::now());

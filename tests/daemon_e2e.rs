@@ -727,21 +727,55 @@ fn absent_camera_keeps_the_pose() {
     );
 }
 
-#[test]
-fn silent_gps_keeps_the_pose() {
+/// `failing_case` with a serial receiver that sends nothing, waited on for `timeout_s`, and
+/// `edit`'s further settings; the error must name `want` and the receiver's device when
+/// `names_device`.
+fn silent_receiver_case(
+    timeout_s: f64,
+    edit: impl FnOnce(&mut toml::Table),
+    want: &[&str],
+    names_device: bool,
+) {
     if under_qemu() {
         eprintln!("skipped: INFRALOC_QEMU=1 (qemu-user lacks the TCGETS2 baud-rate ioctls)");
         return;
     }
     let gps = GpsFeeder::start(true);
+    let mut want = want.to_vec();
+    if names_device {
+        want.push(&gps.path);
+    }
     failing_case(
         |t| {
             set(t, "gps", "source", "serial");
             set(t, "gps", "device", gps.path.clone());
-            set(t, "gps", "timeout-s", 2.0);
+            set(t, "gps", "timeout-s", timeout_s);
+            edit(t);
         },
-        &["prior", &gps.path],
+        &want,
     );
+}
+
+#[test]
+fn absent_camera_fails_at_once_while_the_receiver_is_silent() {
+    // The prior is acquired while the frames are captured; a failed capture ends that wait. The
+    // receiver would be waited on for the hour of timeout-s, far past `failing_case`'s
+    // LOCALIZE_TIMEOUT, were the acquisition not cancelled; the error is the capture's alone.
+    silent_receiver_case(
+        3600.0,
+        |t| {
+            set(t, "camera", "source", "v4l2");
+            set(t, "camera", "device", "/dev/video-absent");
+            set(t, "camera", "retry-attempts", 1);
+        },
+        &["capture", "/dev/video-absent"],
+        false,
+    );
+}
+
+#[test]
+fn silent_gps_keeps_the_pose() {
+    silent_receiver_case(2.0, |_| {}, &["prior"], true);
 }
 
 #[test]
