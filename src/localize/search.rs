@@ -689,8 +689,10 @@ impl Evaluator {
                 Error::Invalid(m) => name(i, m),
                 other => other,
             })?;
-            let image = cache.get(cam, v, cfg).map_err(|m| name(i, m))?;
-            let order = cache.order(v.points);
+            // The image's preparation and the points' order are independent (and each serial in
+            // part: the erosion's sweep, the order's sort), so they run side by side.
+            let (image, order) = rayon::join(|| cache.get(cam, v, cfg), || cache.order(v.points));
+            let image = image.map_err(|m| name(i, m))?;
             let pts0 = prepare_points(cam, v.points, &order, &image, init, origin, &grid, cfg)
                 .map_err(|m| name(i, m))?;
             prepared.push((image.binned_levels(max_level, invalid), pts0));
