@@ -311,7 +311,12 @@ pub(crate) fn run(
         progress(StageName::Prior);
         let prior = match rx.recv() {
             Ok(Located::Prior(p)) => p?,
-            _ => return Err(lost(StageName::Prior)),
+            // Only a panic ends the thread without a send: joined here, so that the scope
+            // returns the error instead of re-raising the panic.
+            _ => {
+                let _ = acquire.join();
+                return Err(lost(StageName::Prior));
+            }
         };
         progress(StageName::Tile);
         // The camera file's stated intrinsics uncertainty goes into the pose's covariance.
@@ -321,7 +326,10 @@ pub(crate) fn run(
         };
         let tile = match rx.recv() {
             Ok(Located::Tile(t)) => t?,
-            _ => return Err(lost(StageName::Tile)),
+            _ => {
+                let _ = acquire.join();
+                return Err(lost(StageName::Tile));
+            }
         };
         let _ = acquire.join();
         Ok((camera, image, (prior, tile), intrinsics_sigma))
