@@ -6,7 +6,10 @@
 //! outputs (`Run::write_outputs`); the service calls it and offers the pose to its store. The
 //! CLI only turns flags into [`Overrides`] and prints; the service never imports the CLI.
 
-use crate::camera::{import::load_camera, Camera, CameraModel};
+use crate::camera::{
+    import::{load_camera, IntrinsicsSigma},
+    Camera, CameraModel,
+};
 use crate::capture::load_gray;
 use crate::config::{Config, FrameSourceKind, GpsSourceKind, MatcherKind};
 use crate::error::{Error, Result};
@@ -255,8 +258,9 @@ pub fn camera_and_frame(
 
 /// One localization under `cfg` (already loaded and validated from `cfg_path`) with `ov`
 /// applied, writing nothing: the caller decides where the pose goes (`localize` writes it, the
-/// service offers it to its pose store). `progress` is told each stage as it starts: `capture`,
-/// `prior`, `tile`, `pnp`, `mi`.
+/// service offers it to its pose store). `progress` is told each stage as the run reaches it:
+/// `capture`, `prior`, `tile`, `pnp`, `mi` (the prior and tile are acquired from the start,
+/// beside the capture; their stages are told once the frames are in).
 pub(crate) fn run(
     cfg: &Config,
     cfg_path: &Path,
@@ -272,7 +276,9 @@ pub(crate) fn run(
     // are captured: a receiver's averaging window and a camera's settle and frame intervals are
     // each seconds, and the tile's decoding fills the pool while the last frames decode. This
     // thread still reports the stages in their order and their errors in that order (capture,
-    // then prior, then tile); a failed capture cancels the acquisition.
+    // then prior, then tile). However this side ends (a result, an error, a panic) the
+    // acquisition is cancelled, and it is joined before the error or panic goes on: a receiver
+    // stops within one read; a tile already loading finishes its decode first.
     let cancel = AtomicBool::new(false);
     let (camera, image, located, intrinsics_sigma) = std::thread::scope(|s| {
         let (tx, rx) = std::sync::mpsc::channel();
@@ -280,7 +286,7 @@ pub(crate) fn run(
         let acquire = s.spawn(move || {
             let prior = prior(ov, cfg, cancel);
             let at = prior.as_ref().ok().map(|p| p.0);
-            // The receiver is gone only when the capture failed: nothing waits for the rest.
+            // The receiver is gone, or the flag set, only when the capture side ended early.
             if tx.send(Located::Prior(prior)).is_err() || cancel.load(Ordering::Relaxed) {
                 return;
             }
@@ -290,49 +296,14 @@ pub(crate) fn run(
                 let _ = tx.send(Located::Tile(tile));
             }
         });
-        let frame = camera_and_frame(cfg, cfg_path, ov, progress);
-        if frame.is_err() {
-            cancel.store(true, Ordering::Relaxed);
-        }
-        let (camera, image) = match frame {
-            Ok(f) => f,
-            Err(e) => {
-                drop(rx);
-                let _ = acquire.join();
-                return Err(e);
-            }
+        let received = {
+            let _cancel = CancelOnDrop(cancel);
+            capture_and_receive(cfg, cfg_path, ov, progress, rx)
         };
-        let lost = |stage: StageName| {
-            Error::stage(
-                stage.name(),
-                "the acquisition beside the capture ended early",
-            )
-        };
-        progress(StageName::Prior);
-        let prior = match rx.recv() {
-            Ok(Located::Prior(p)) => p?,
-            // Only a panic ends the thread without a send: joined here, so that the scope
-            // returns the error instead of re-raising the panic.
-            _ => {
-                let _ = acquire.join();
-                return Err(lost(StageName::Prior));
-            }
-        };
-        progress(StageName::Tile);
-        // The camera file's stated intrinsics uncertainty goes into the pose's covariance.
-        let intrinsics_sigma = match (&ov.camera, &cfg.camera.intrinsics_file) {
-            (Some(p), _) | (None, Some(p)) => crate::camera::import::load_intrinsics_sigma(p)?,
-            (None, None) => None,
-        };
-        let tile = match rx.recv() {
-            Ok(Located::Tile(t)) => t?,
-            _ => {
-                let _ = acquire.join();
-                return Err(lost(StageName::Tile));
-            }
-        };
+        // A panicked acquisition shows as a `lost` stage error above; joined here, the scope
+        // does not raise it again.
         let _ = acquire.join();
-        Ok((camera, image, (prior, tile), intrinsics_sigma))
+        received
     })?;
     let (((lat, lon, sigma), prior_desc), located_tile) = located;
     let (tile, tref) = *located_tile;
@@ -411,6 +382,55 @@ pub(crate) fn run(
         report,
         skipped_tiles: tref.skipped,
     })
+}
+
+/// The capture side of [`run`]: the camera and frame, then the prior and the tile as the
+/// acquisition beside it sends them (`rx`), the stages reported and errors returned in the order
+/// capture, prior, tile. Dropping `rx` on the way out tells the acquisition nobody waits.
+fn capture_and_receive(
+    cfg: &Config,
+    cfg_path: &Path,
+    ov: &Overrides,
+    progress: &dyn Fn(StageName),
+    rx: std::sync::mpsc::Receiver<Located>,
+) -> Result<(Camera, GrayImage, AcquiredPrior, Option<IntrinsicsSigma>)> {
+    let (camera, image) = camera_and_frame(cfg, cfg_path, ov, progress)?;
+    // Only a panic ends the acquisition without sending.
+    let lost = |stage: StageName| {
+        Error::stage(
+            stage.name(),
+            "the acquisition beside the capture ended early",
+        )
+    };
+    progress(StageName::Prior);
+    let prior = match rx.recv() {
+        Ok(Located::Prior(p)) => p?,
+        _ => return Err(lost(StageName::Prior)),
+    };
+    progress(StageName::Tile);
+    // The camera file's stated intrinsics uncertainty goes into the pose's covariance.
+    let intrinsics_sigma = match (&ov.camera, &cfg.camera.intrinsics_file) {
+        (Some(p), _) | (None, Some(p)) => crate::camera::import::load_intrinsics_sigma(p)?,
+        (None, None) => None,
+    };
+    let tile = match rx.recv() {
+        Ok(Located::Tile(t)) => t?,
+        _ => return Err(lost(StageName::Tile)),
+    };
+    Ok((camera, image, (prior, tile), intrinsics_sigma))
+}
+
+/// The prior (lat, lon, σ m; where it came from) and the tile covering it.
+type AcquiredPrior = (((f64, f64, f64), Value), Box<(Tile, TileRef)>);
+
+/// Sets its flag when dropped: every way out of the capture side, a panic included, ends the
+/// acquisition's wait.
+struct CancelOnDrop<'a>(&'a AtomicBool);
+
+impl Drop for CancelOnDrop<'_> {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
 }
 
 /// What the acquisition beside the capture in [`run`] hands over, in this order.

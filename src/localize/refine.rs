@@ -160,19 +160,31 @@ fn with_uncertainty<'a>(
         },
         None => super::polish::PolishParams::four_dof(),
     };
-    let mut u = estimate_cached(
-        cam,
-        views,
-        &r.pose,
-        cfg,
-        &polish,
-        tilt_pivot.flatten(),
-        &UncertaintyConfig {
-            folds: qcfg.jackknife_folds,
-            region_bound: UncertaintyConfig::region_bound_for(qcfg),
+    // The intrinsics' share depends on the pose alone, not on the jackknife: it runs beside it,
+    // filling the pool while the groups' last simplexes end.
+    let (u, intrinsics) = rayon::join(
+        || {
+            estimate_cached(
+                cam,
+                views,
+                &r.pose,
+                cfg,
+                &polish,
+                tilt_pivot.flatten(),
+                &UncertaintyConfig {
+                    folds: qcfg.jackknife_folds,
+                    region_bound: UncertaintyConfig::region_bound_for(qcfg),
+                },
+                cache,
+            )
         },
-        cache,
-    )?;
+        || {
+            qcfg.intrinsics_sigma
+                .as_ref()
+                .map(|s| super::uncertainty::intrinsics_deltas(cam, views, &r.pose, s))
+        },
+    );
+    let mut u = u?;
     r.stats.poses += u.poses as u64;
     // The groups' re-optimisations score (K − 1)/K of the jackknife's set per pose, the region's
     // probes all of its own set.
@@ -188,11 +200,8 @@ fn with_uncertainty<'a>(
     // reported σ and covariance (what the detection pipeline inherits) but refusing every run
     // for it would leave the node without a pose until someone re-calibrates.
     apply_uncertainty(&mut r.quality, u.clone(), qcfg);
-    if let Some(s) = &qcfg.intrinsics_sigma {
-        super::uncertainty::add_intrinsics(
-            &mut u,
-            &super::uncertainty::intrinsics_deltas(cam, views, &r.pose, s),
-        );
+    if let Some(deltas) = &intrinsics {
+        super::uncertainty::add_intrinsics(&mut u, deltas);
         r.quality.sigma = Some(super::quality::Sigma::of(&u));
         r.quality.covariance = Some(u);
     }

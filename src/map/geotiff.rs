@@ -298,7 +298,9 @@ pub fn read_image(path: &Path) -> Result<Image> {
 /// localization waits for it). `None` where that path does not apply — one chunk, planar
 /// samples, a sample type the tile layers do not use — and the caller reads the image whole.
 /// Every chunk is decompressed by its own decoder over the same bytes, so the pixels are the
-/// same as a serial read's.
+/// same as a serial read's. An image past the decoder's size limit, or whose chunk count does
+/// not match its grid, is left to the serial read (which refuses it as before); the decoded
+/// chunks are held until all are in, so a read peaks at twice the image.
 fn read_chunks_parallel(
     bytes: &[u8],
     limits: &Limits,
@@ -332,6 +334,21 @@ fn read_chunks_parallel(
         return None;
     }
     let across = width.div_ceil(cw);
+    // The whole image within the decoder's limit, and one chunk per cell of the chunk grid:
+    // anything else is left to the serial read, which refuses it as before (before any
+    // allocation here).
+    let sample_bytes = if matches!(color, ColorType::Gray(32)) {
+        4
+    } else {
+        1
+    };
+    let row = width.checked_mul(samples)?;
+    let values = row.checked_mul(height)?;
+    if values.checked_mul(sample_bytes)? > limits.decoding_buffer_size
+        || n as usize != across.checked_mul(height.div_ceil(ch))?
+    {
+        return None;
+    }
     // Decoded chunks in index order (row-major over the chunk grid), with their data size.
     let chunks: Vec<tiff::TiffResult<(DecodingResult, usize, usize)>> = (0..n)
         .into_par_iter()
@@ -347,16 +364,16 @@ fn read_chunks_parallel(
             },
         )
         .collect();
-    let row = width * samples;
-    let mut out = match color {
-        ColorType::Gray(32) => DecodingResult::F32(vec![0.0; row * height]),
-        _ => DecodingResult::U8(vec![0; row * height]),
+    // The first chunk's error, as the serial read would meet it, before the image is allocated.
+    let chunks = match chunks.into_iter().collect::<tiff::TiffResult<Vec<_>>>() {
+        Ok(c) => c,
+        Err(e) => return Some(Err(e)),
     };
-    for (i, c) in chunks.into_iter().enumerate() {
-        let (data, dw, dh) = match c {
-            Ok(c) => c,
-            Err(e) => return Some(Err(e)),
-        };
+    let mut out = match color {
+        ColorType::Gray(32) => DecodingResult::F32(vec![0.0; values]),
+        _ => DecodingResult::U8(vec![0; values]),
+    };
+    for (i, (data, dw, dh)) in chunks.into_iter().enumerate() {
         let (x0, y0) = ((i % across) * cw, (i / across) * ch);
         if x0 + dw > width || y0 + dh > height {
             return None;
@@ -830,6 +847,61 @@ mod tests {
         std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
         let e = read_f32(&cut).unwrap_err().to_string();
         assert!(e.contains("cut.tif"), "{e}");
+    }
+
+    /// A little-endian gray8 TIFF of two uncompressed strips whose header claims `w`×`h` pixels
+    /// but whose strips hold 16 bytes between them.
+    fn claimed_size_tiff(w: u32, h: u32) -> Vec<u8> {
+        let mut b: Vec<u8> = b"II".to_vec();
+        b.extend(42u16.to_le_bytes());
+        b.extend(8u32.to_le_bytes());
+        // (tag, type, count, value): 3 = SHORT, 4 = LONG; offsets 122 and 130 hold the arrays.
+        let entries: [(u16, u16, u32, u32); 9] = [
+            (256, 4, 1, w),
+            (257, 4, 1, h),
+            (258, 3, 1, 8),
+            (259, 3, 1, 1),
+            (262, 3, 1, 1),
+            (273, 4, 2, 122),
+            (277, 3, 1, 1),
+            (278, 4, 1, h.div_ceil(2)),
+            (279, 4, 2, 130),
+        ];
+        b.extend((entries.len() as u16).to_le_bytes());
+        for (tag, typ, count, value) in entries {
+            b.extend(tag.to_le_bytes());
+            b.extend(typ.to_le_bytes());
+            b.extend(count.to_le_bytes());
+            b.extend(value.to_le_bytes());
+        }
+        b.extend(0u32.to_le_bytes());
+        for v in [138u32, 146, 8, 8] {
+            b.extend(v.to_le_bytes());
+        }
+        b.extend([7u8; 16]);
+        b
+    }
+
+    #[test]
+    fn a_claimed_size_past_the_limit_is_an_error_not_an_allocation() {
+        let dir = tempfile::tempdir().unwrap();
+        // 200 000 × 240 000 = 48 GB claimed in two strips: refused (as a whole read refuses it),
+        // never allocated.
+        let p = dir.path().join("huge.tif");
+        std::fs::write(&p, claimed_size_tiff(200_000, 240_000)).unwrap();
+        let e = read_gray8(&p).unwrap_err().to_string();
+        assert!(e.contains("huge.tif"), "{e}");
+        let bytes = std::fs::read(&p).unwrap();
+        let limits = Limits::default();
+        assert!(
+            read_chunks_parallel(&bytes, &limits, 200_000, 240_000, ColorType::Gray(8)).is_none()
+        );
+        // The same file at its true size reads, in chunks, as a whole read does.
+        let bytes = claimed_size_tiff(4, 4);
+        let par = read_chunks_parallel(&bytes, &limits, 4, 4, ColorType::Gray(8))
+            .expect("read in chunks")
+            .unwrap();
+        assert!(same(&par, &whole(&bytes)));
     }
 
     #[test]
