@@ -291,33 +291,25 @@ fn we_read_gdal_written_files_onto_gdals_grid() {
         gdal_translate(args, &td.join(name), &out);
         out
     };
-    let tiled = [
-        "-co",
-        "TILED=YES",
-        "-co",
-        "BLOCKXSIZE=16",
-        "-co",
-        "BLOCKYSIZE=16",
-    ];
-    let s = geotiff::read_rgb8(&chunked(
-        "satellite.tif",
-        &[
-            &tiled[..],
-            &["-co", "COMPRESS=DEFLATE", "-co", "PREDICTOR=2"],
-        ]
-        .concat(),
-    ))
-    .unwrap();
+    // Deflated in 16-pixel tiles with a predictor: 2 (horizontal) for bytes, 3 (floating point).
+    let tiled = |name: &str, predictor: &str| {
+        let p = format!("PREDICTOR={predictor}");
+        let args = [
+            "-co",
+            "TILED=YES",
+            "-co",
+            "BLOCKXSIZE=16",
+            "-co",
+            "BLOCKYSIZE=16",
+        ];
+        chunked(
+            name,
+            &[&args[..], &["-co", "COMPRESS=DEFLATE", "-co", &p]].concat(),
+        )
+    };
+    let s = geotiff::read_rgb8(&tiled("satellite.tif", "2")).unwrap();
     assert_eq!(s, t.satellite);
-    let h = geotiff::read_f32(&chunked(
-        "height.tif",
-        &[
-            &tiled[..],
-            &["-co", "COMPRESS=DEFLATE", "-co", "PREDICTOR=3"],
-        ]
-        .concat(),
-    ))
-    .unwrap();
+    let h = geotiff::read_f32(&tiled("height.tif", "3")).unwrap();
     assert_eq!(h.grid, t.height.grid);
     assert!(h
         .data

@@ -232,7 +232,7 @@ pub fn read_image(path: &Path) -> Result<Image> {
                 })?)
             }
         };
-    let data = match read_chunks_parallel(&bytes, &limits, width, height, color) {
+    let data = match read_chunks_parallel(&bytes, &mut dec, &limits) {
         Some(r) => r,
         None => dec.read_image(),
     }
@@ -297,25 +297,27 @@ pub fn read_image(path: &Path) -> Result<Image> {
 /// on the thread pool (a tile's f32 height layer is several megabytes of deflated data, and
 /// localization waits for it). `None` where that path does not apply — one chunk, planar
 /// samples, a sample type the tile layers do not use — and the caller reads the image whole.
-/// Every chunk is decompressed by its own decoder over the same bytes, so the pixels are the
+/// `dec` is a decoder over `bytes` at their first image. Every chunk is decompressed by its own
+/// decoder over the same bytes, so the pixels are the
 /// same as a serial read's. An image past the decoder's size limit, or whose chunk count does
 /// not match its grid, is left to the serial read (which refuses it as before); the decoded
 /// chunks are held until all are in, so a read peaks at twice the image.
 fn read_chunks_parallel(
     bytes: &[u8],
+    dec: &mut Decoder<Cursor<&[u8]>>,
     limits: &Limits,
-    width: usize,
-    height: usize,
-    color: ColorType,
 ) -> Option<tiff::TiffResult<DecodingResult>> {
     use rayon::prelude::*;
+    let (w, h) = dec.dimensions().ok()?;
+    let (width, height) = (w as usize, h as usize);
+    let color = dec.colortype().ok()?;
     let samples = match color {
         ColorType::Gray(8) | ColorType::Gray(32) => 1,
         ColorType::RGB(8) => 3,
         _ => return None,
     };
+    // `dec` (the caller's, over the same bytes) answers the layout; each worker opens its own.
     let open = || Decoder::new(Cursor::new(bytes)).map(|d| d.with_limits(limits.clone()));
-    let mut dec = open().ok()?;
     match dec.find_tag(Tag::PlanarConfiguration) {
         Ok(None) => {}
         Ok(Some(v)) if v.clone().into_u16().ok() == Some(1) => {}
@@ -826,7 +828,8 @@ mod tests {
             let bytes = std::fs::read(dir.path().join(name)).unwrap();
             let mut dec = Decoder::new(Cursor::new(&bytes[..])).unwrap();
             assert!(dec.strip_count().unwrap() > 1, "{name}: one strip");
-            let par = read_chunks_parallel(&bytes, &limits, w, h, color)
+            assert_eq!(dec.colortype().unwrap(), color, "{name}");
+            let par = read_chunks_parallel(&bytes, &mut dec, &limits)
                 .unwrap_or_else(|| panic!("{name}: not read in chunks"))
                 .unwrap();
             assert!(same(&par, &whole(&bytes)), "{name}");
@@ -893,14 +896,14 @@ mod tests {
         assert!(e.contains("huge.tif"), "{e}");
         let bytes = std::fs::read(&p).unwrap();
         let limits = Limits::default();
-        assert!(
-            read_chunks_parallel(&bytes, &limits, 200_000, 240_000, ColorType::Gray(8)).is_none()
-        );
+        let chunked = |bytes: &[u8]| {
+            let mut dec = Decoder::new(Cursor::new(bytes)).unwrap();
+            read_chunks_parallel(bytes, &mut dec, &limits)
+        };
+        assert!(chunked(&bytes).is_none());
         // The same file at its true size reads, in chunks, as a whole read does.
         let bytes = claimed_size_tiff(4, 4);
-        let par = read_chunks_parallel(&bytes, &limits, 4, 4, ColorType::Gray(8))
-            .expect("read in chunks")
-            .unwrap();
+        let par = chunked(&bytes).expect("read in chunks").unwrap();
         assert!(same(&par, &whole(&bytes)));
     }
 
