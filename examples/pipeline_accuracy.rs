@@ -282,6 +282,9 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
             rec["init"] = json!(out.stages[1].detail);
             if let StageDetail::Mi(d) = &out.stages[2].detail {
                 rec["rounds"] = json!(d.rounds);
+                if let Some(h) = &d.other_hypothesis {
+                    rec["other_hypothesis"] = json!(h);
+                }
             }
             rec["mi_quality"] =
                 serde_json::to_value(&out.refinement.quality).unwrap_or(Value::Null);

@@ -64,6 +64,11 @@ pub struct VerifySchedule {
     /// sweep pose lacks, and MI is nearly flat over a few decimetres (`5mp` seed 4: PnP 0.35 m
     /// off at MI 0.437, its sweep pose 1.02 m off at 0.440).
     pub sweep_margin: f64,
+    /// The runner-up hypothesis is kept ([`InitResult::runner_up`]) when the best one's MI is
+    /// higher by less than this fraction: a margin that thin is within the verifier's own noise
+    /// (the same scale as [`Self::sweep_margin`]), so the LiDAR map has not decided between
+    /// them and the refinement's quality gate may (see [`super::pipeline`]).
+    pub runner_up_margin: f64,
     /// The verifier's own settings.
     pub mi: super::verify::VerifyParams,
 }
@@ -75,6 +80,7 @@ impl Default for VerifySchedule {
             shortlist: 60,
             max_fine: 10,
             sweep_margin: 0.1,
+            runner_up_margin: 0.1,
             mi: super::verify::VerifyParams::default(),
         }
     }
@@ -396,6 +402,9 @@ pub struct InitResult {
     /// The pose is the initializer's last resort: the PnP pose of a fine stage that stopped at a
     /// finer iteration ([`FineOutcome::partial`]).
     pub partial_fine_stage: bool,
+    /// With a verifier: the runner-up hypothesis when the verifier's margin between it and this
+    /// one is thin ([`VerifySchedule::runner_up_margin`]); its own `mi` is (its MI, this one's).
+    pub runner_up: Option<Box<InitResult>>,
 }
 
 impl InitResult {
@@ -411,6 +420,7 @@ impl InitResult {
             candidate_rank: rank,
             mi: mi.map(|m| (m, None)),
             partial_fine_stage: f.partial,
+            runner_up: None,
         }
     }
 }
@@ -773,17 +783,46 @@ fn initialize_verified<R: rand::Rng>(
             ),
         ));
     };
-    // The strongest competitor: another tried hypothesis, or the best untried screening.
-    let others = pool
+    // The strongest competitor: another tried hypothesis, or the best untried screening (ties go
+    // to the tried one, then to the earlier).
+    #[derive(Clone, Copy)]
+    enum Rival {
+        Tried(usize),
+        Untried(usize),
+    }
+    let rival = pool
         .iter()
         .enumerate()
         .filter(|&(i, _)| i != bi)
-        .map(|(_, p)| p.0)
-        .chain(order.iter().skip(tried).filter_map(|&i| screen_mi(i)))
-        .fold(None, |m: Option<f64>, x| Some(m.map_or(x, |m| m.max(x))));
+        .map(|(i, p)| (p.0, Rival::Tried(i)))
+        .chain(
+            order
+                .iter()
+                .skip(tried)
+                .filter_map(|&i| screen_mi(i).map(|m| (m, Rival::Untried(i)))),
+        )
+        .fold(None, |m: Option<(f64, Rival)>, x| match m {
+            Some(b) if b.0 >= x.0 => Some(b),
+            _ => Some(x),
+        });
+    let mi = pool[bi].0;
+    // A thin margin leaves the choice open: keep the rival as a hypothesis of its own (an untried
+    // candidate as its screening's best pose, which the refinement's search box covers).
+    let runner_up = rival
+        .filter(|&(r, _)| mi < r * (1.0 + fine.verify.runner_up_margin))
+        .and_then(|(r, which)| {
+            let mut h = match which {
+                Rival::Tried(i) => pool[i].1.clone(),
+                Rival::Untried(rank) => sweep_result(&cands[rank], rank, &screened[rank]?),
+            };
+            h.candidates_tried = tried;
+            h.mi = Some((r, Some(mi)));
+            Some(Box::new(h))
+        });
     let (mi, mut best) = pool.swap_remove(bi);
     best.candidates_tried = tried;
-    best.mi = Some((mi, others));
+    best.mi = Some((mi, rival.map(|r| r.0)));
+    best.runner_up = runner_up;
     Ok(best)
 }
 
@@ -816,6 +855,7 @@ fn sweep_result(cand: &Candidate, rank: usize, s: &super::verify::Verdict) -> In
         candidate_rank: rank,
         mi: Some((s.mi, None)),
         partial_fine_stage: false,
+        runner_up: None,
     }
 }
 

@@ -244,6 +244,7 @@ pub(crate) fn initialize_with<R: rand::Rng>(
         candidate_rank: 0,
         mi,
         partial_fine_stage: false,
+        runner_up: None,
     })
 }
 

@@ -152,6 +152,11 @@ pub struct PnpDetail {
     /// stage got through all its iterations, and this is the PnP pose of a coarser one.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub partial_fine_stage: bool,
+    /// Present (`true`) only when the pose is the verifier's runner-up: the refinement of its
+    /// first choice was refused (the `mi` stage's `other_hypothesis` says why) and this one's
+    /// passed the gate.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub runner_up: bool,
 }
 
 impl PriorDetail {
@@ -185,6 +190,7 @@ impl PnpDetail {
                 score: init.candidate.score,
             },
             partial_fine_stage: init.partial_fine_stage,
+            runner_up: false,
         }
     }
 }
@@ -210,6 +216,9 @@ pub struct MiDetail {
     pub report: Report,
     /// Each search and the polishes after it.
     pub rounds: Vec<Round>,
+    /// The other hypothesis refined, when there were two (see [`OtherHypothesis`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub other_hypothesis: Option<OtherHypothesis>,
 }
 
 impl Stage {
@@ -237,6 +246,8 @@ pub struct Outcome {
     pub refinement: Refinement,
     /// Per-stage records, in order.
     pub stages: Vec<Stage>,
+    /// The other hypothesis refined, when there were two (see [`OtherHypothesis`]).
+    pub other_hypothesis: Option<OtherHypothesis>,
 }
 
 /// The LiDAR ground points MI uses around `pose`: within [`Params::mi_radius_m`] of the nadir
@@ -272,12 +283,20 @@ pub fn quality_gate(o: &Outcome) -> Result<()> {
     if o.refinement.quality.accepted {
         return Ok(());
     }
+    // Both hypotheses refused: the first choice's reason, then the runner-up's.
+    let also = o
+        .other_hypothesis
+        .as_ref()
+        .map(|h| {
+            format!(
+                "; the runner-up hypothesis at ({:.1}, {:.1}), yaw {:.1}°, refused too: {}",
+                h.camera_center[0], h.camera_center[1], h.yaw_deg, h.refused
+            )
+        })
+        .unwrap_or_default();
     Err(Error::stage(
         StageName::Mi.name(),
-        format!(
-            "quality gate: {}",
-            o.refinement.quality.reason.clone().unwrap_or_default()
-        ),
+        format!("quality gate: {}{also}", refusal(&o.refinement)),
     ))
 }
 
@@ -355,6 +374,49 @@ pub fn localize_ungated(
     // The verifier holds its own image pyramid (≈ 20 MB at 5 MP); the MI stage does not use it.
     drop(verifier);
     let t1 = now();
+    progress(StageName::Mi);
+    // Pitch and roll pivot about the ground under the camera (the tile's height layer).
+    let pivot = |pose: &CamFromMap| {
+        let c = pose.center();
+        super::ground::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
+    };
+    let refine = |start: &CamFromMap| {
+        let points = mi_points(tile, start, p);
+        refine_polished(
+            camera,
+            &[View {
+                gray: image,
+                mask: frame.mask(),
+                points: &points,
+            }],
+            start,
+            &p.search,
+            &p.quality,
+            p.polish.as_ref(),
+            &pivot,
+        )
+    };
+    let mut init = init;
+    let (mut refinement, mut rounds) = refine(&init.pose)?;
+    // The verifier could not tell two hypotheses apart (see `VerifySchedule::runner_up_margin`)
+    // and the gate refused the one it preferred: where the runner-up lies outside that search's
+    // box, the refinement there is new evidence, and the gate chooses.
+    let mut other = None;
+    let runner_up = init.runner_up.take();
+    if let Some(alt) = runner_up.filter(|a| {
+        !refinement.quality.accepted && outside_box(&p.search.spec, &init.pose, &a.pose)
+    }) {
+        match refine(&alt.pose) {
+            Ok((second, second_rounds)) if second.quality.accepted => {
+                other = Some(OtherHypothesis::new(&init, refusal(&refinement), true));
+                (init, refinement, rounds) = (*alt, second, second_rounds);
+                init.runner_up = None;
+            }
+            Ok((second, _)) => other = Some(OtherHypothesis::new(&alt, refusal(&second), false)),
+            Err(e) => other = Some(OtherHypothesis::new(&alt, e.to_string(), false)),
+        }
+    }
+    let t2 = now();
     stages.push(Stage {
         name: StageName::Pnp,
         pose: Some(init.pose),
@@ -364,27 +426,9 @@ pub fn localize_ungated(
             p.matcher.as_ref().map_or("dense-sweep", |m| m.name()),
         )),
     });
-    progress(StageName::Mi);
-    let points = mi_points(tile, &init.pose, p);
-    // Pitch and roll pivot about the ground under the camera (the tile's height layer).
-    let pivot = |pose: &CamFromMap| {
-        let c = pose.center();
-        super::ground::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
-    };
-    let (refinement, rounds) = refine_polished(
-        camera,
-        &[View {
-            gray: image,
-            mask: frame.mask(),
-            points: &points,
-        }],
-        &init.pose,
-        &p.search,
-        &p.quality,
-        p.polish.as_ref(),
-        &pivot,
-    )?;
-    let t2 = now();
+    if let (StageDetail::Pnp(d), Some(o)) = (&mut stages[1].detail, &other) {
+        d.runner_up = o.accepted_instead;
+    }
     stages.push(Stage {
         name: StageName::Mi,
         pose: Some(refinement.pose),
@@ -392,6 +436,7 @@ pub fn localize_ungated(
         detail: StageDetail::Mi(Box::new(MiDetail {
             report: refinement.report(p.search.mode),
             rounds,
+            other_hypothesis: other.clone(),
         })),
     });
     Ok(Outcome {
@@ -399,7 +444,55 @@ pub fn localize_ungated(
         init,
         refinement,
         stages,
+        other_hypothesis: other,
     })
+}
+
+/// Why the gate refused `r` (its reason, as the gate's error says it).
+fn refusal(r: &Refinement) -> String {
+    r.quality.reason.clone().unwrap_or_default()
+}
+
+/// Whether `b`'s camera lies outside the search box `spec` around `a` (horizontally or in yaw):
+/// a refinement from `a` has not searched there.
+fn outside_box(spec: &super::search::SearchSpec, a: &CamFromMap, b: &CamFromMap) -> bool {
+    let (ca, cb) = (a.center(), b.center());
+    let dyaw = crate::pose::angle_difference(a.yaw_pitch_roll().0, b.yaw_pitch_roll().0);
+    (cb.x - ca.x).abs() > spec.x.half
+        || (cb.y - ca.y).abs() > spec.y.half
+        || (cb.z - ca.z).abs() > spec.z.half
+        || dyaw.abs().to_degrees() > spec.yaw.half
+}
+
+/// The hypothesis whose refinement the gate refused, when the initializer's verifier kept two
+/// (a thin MI margin between them, see [`super::init::VerifySchedule::runner_up_margin`]) and
+/// both were refined.
+#[derive(Debug, Clone, Serialize)]
+pub struct OtherHypothesis {
+    /// Its initial pose's camera centre, map CRS, metres.
+    pub camera_center: [f64; 3],
+    /// Its initial yaw, degrees.
+    pub yaw_deg: f64,
+    /// Its verifier MI, nats.
+    pub mi: Option<f64>,
+    /// Why its refinement was refused (the gate's reason, or the refinement's error).
+    pub refused: String,
+    /// `true`: it was the verifier's first choice, and the runner-up's refinement passed the gate
+    /// and is the result; `false`: it is the runner-up, refused as well as the first choice.
+    pub accepted_instead: bool,
+}
+
+impl OtherHypothesis {
+    fn new(h: &InitResult, refused: String, accepted_instead: bool) -> Self {
+        let (y, _, _) = h.pose.yaw_pitch_roll();
+        OtherHypothesis {
+            camera_center: h.pose.center().coords.into(),
+            yaw_deg: y.to_degrees(),
+            mi: h.mi.map(|m| m.0),
+            refused,
+            accepted_instead,
+        }
+    }
 }
 
 /// Errors of each stage against a simulator `truth.json` (its text; `origin` names it in errors):
@@ -480,4 +573,32 @@ pub(crate) fn pose_errors(
         "rotation_deg": crate::pose::rotation_angle_between(&p.rotation, &t.rotation).to_degrees(),
         "control_points_mean_px": mean,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::localize::search::SearchSpec;
+    use nalgebra::Point3;
+
+    fn pose(x: f64, y: f64, z: f64, yaw_deg: f64) -> CamFromMap {
+        CamFromMap::from_center_ypr(&Point3::new(x, y, z), yaw_deg.to_radians(), 0.0, 0.0)
+    }
+
+    #[test]
+    fn a_second_hypothesis_counts_only_outside_the_first_ones_search_box() {
+        let spec = SearchSpec::default();
+        let a = pose(100.0, 200.0, 10.0, 359.0);
+        // Inside on every axis, yaw across the wrap included: the first search has been there.
+        assert!(!outside_box(&spec, &a, &pose(100.9, 199.1, 10.4, 1.5)));
+        // Outside on one axis each.
+        for b in [
+            pose(101.1, 200.0, 10.0, 359.0),
+            pose(100.0, 198.9, 10.0, 359.0),
+            pose(100.0, 200.0, 10.6, 359.0),
+            pose(100.0, 200.0, 10.0, 2.5),
+        ] {
+            assert!(outside_box(&spec, &a, &b), "{:?}", b.center());
+        }
+    }
 }
