@@ -1,6 +1,8 @@
 //! The two-step pipeline (pure): prior → initialization (satellite matching + PnP) → MI refinement →
-//! quality gate. The shell (`infraloc localize`, `demo`, the daemon) gathers the inputs and writes
-//! the outputs; the clock for stage timings is injected.
+//! quality gate (and, when the gate refuses a hypothesis the initializer's verifier could not tell
+//! from its runner-up, the runner-up's refinement and the gate again). The shell (`infraloc
+//! localize`, `demo`, the daemon) gathers the inputs and writes the outputs; the clock for stage
+//! timings is injected.
 
 use super::coarse::CoarseParams;
 use super::frame::{Frame, MapLayers};
