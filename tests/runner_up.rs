@@ -1,6 +1,6 @@
 //! Two hypotheses the initializer's LiDAR verifier cannot tell apart (their MI within 10 % of each
 //! other), through the binary. `small` `hard` seed 69: the verifier prefers, by 2 %, a sweep pose
-//! 16 m and 190° from the camera; its refinement is refused (two peaks). The runner-up is refined
+//! 16 m and 169° from the camera; its refinement is refused (two peaks). The runner-up is refined
 //! in turn, passes the gate and is the answer, and the report names both. Seed 169: both
 //! hypotheses' refinements are refused; the error gives both reasons and nothing is written.
 

@@ -807,12 +807,17 @@ fn initialize_verified<R: rand::Rng>(
         });
     let mi = pool[bi].0;
     // A thin margin leaves the choice open: keep the rival as a hypothesis of its own (an untried
-    // candidate as its screening's best pose, which the refinement's search box covers).
+    // candidate as its screening's best pose, which the refinement's search box covers). A rival
+    // without positive MI has no evidence and is never kept; nor is an untried screening whose
+    // candidate is in the pool already (climbed: the same hypothesis, moved).
     let runner_up = rival
         .filter(|&(r, _)| mi < r * (1.0 + fine.verify.runner_up_margin))
         .and_then(|(r, which)| {
             let mut h = match which {
                 Rival::Tried(i) => pool[i].1.clone(),
+                Rival::Untried(rank) if pool.iter().any(|p| p.1.candidate_rank == rank) => {
+                    return None
+                }
                 Rival::Untried(rank) => sweep_result(&cands[rank], rank, &screened[rank]?),
             };
             h.candidates_tried = tried;

@@ -146,7 +146,8 @@ pub struct PnpDetail {
     pub matcher: String,
     /// With a verifier: the pose's MI with the LiDAR map, nats.
     pub mi: Option<f64>,
-    /// … and the runner-up hypothesis' MI.
+    /// … and the strongest competing hypothesis' MI (with `runner_up`, the verifier's first
+    /// choice's).
     pub mi_runner_up: Option<f64>,
     /// The coarse candidate the pose grew from.
     pub coarse: CoarseDetail,
@@ -402,7 +403,8 @@ pub fn localize_ungated(
     let (mut refinement, mut rounds) = refine(&init.pose)?;
     // The verifier could not tell two hypotheses apart (see `VerifySchedule::runner_up_margin`)
     // and the gate refused the one it preferred: where the runner-up lies outside that search's
-    // box, the refinement there is new evidence, and the gate chooses.
+    // box, the refinement there is new evidence, and the gate chooses. A first refinement that
+    // fails outright (an error, not a verdict) ends the run as before.
     let mut other = None;
     let runner_up = init.runner_up.take();
     if let Some(alt) = runner_up.filter(|a| {
@@ -455,7 +457,7 @@ fn refusal(r: &Refinement) -> String {
     r.quality.reason.clone().unwrap_or_default()
 }
 
-/// Whether `b`'s camera lies outside the search box `spec` around `a` (horizontally or in yaw):
+/// Whether `b`'s camera lies outside the search box `spec` around `a` (in x, y, height or yaw):
 /// a refinement from `a` has not searched there.
 fn outside_box(spec: &super::search::SearchSpec, a: &CamFromMap, b: &CamFromMap) -> bool {
     let (ca, cb) = (a.center(), b.center());
