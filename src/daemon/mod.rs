@@ -799,8 +799,10 @@ impl Daemon {
         s.summary = summary;
     }
 
-    /// `READY=1` the first time there is something to say; `STATUS=` every time.
+    /// `READY=1` the first time there is something to say; `STATUS=` every time. The metrics file
+    /// is rewritten first, so that whoever the notification wakes reads the state it announces.
     fn send_ready(&mut self) {
+        self.write_metrics();
         let summary = self.lock_status().summary.clone();
         if self.ready_sent {
             notify::notify(&format!("STATUS={summary}"));
