@@ -4,7 +4,7 @@
 //! 3° off, well inside the MI refinement's reach), which the LiDAR MI verifies and the
 //! refinement's gate judges: the node must localize, not stop at "< 12 required".
 
-use std::process::Command;
+mod common;
 
 const BIN: &str = env!("CARGO_BIN_EXE_infraloc");
 
@@ -12,35 +12,12 @@ const BIN: &str = env!("CARGO_BIN_EXE_infraloc");
 fn a_low_pole_localizes_from_a_coarser_fine_iteration() {
     let dir = std::env::temp_dir().join(format!("infraloc-low-pole-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let sim = Command::new(BIN)
-        .args([
-            "simulate",
-            "--preset",
-            "5mp",
-            "--difficulty",
-            "hard",
-            "--seed",
-            "99",
-        ])
-        .arg("--out")
-        .arg(&dir)
-        .output()
-        .unwrap();
-    assert!(
-        sim.status.success(),
-        "{}",
-        String::from_utf8_lossy(&sim.stderr)
+    common::simulate(
+        BIN,
+        &dir,
+        &["--preset", "5mp", "--difficulty", "hard", "--seed", "99"],
     );
-    let out = Command::new(BIN)
-        .arg("localize")
-        .arg("--config")
-        .arg(dir.join("infraloc.toml"))
-        .arg("--report")
-        .arg(dir.join("report.json"))
-        .arg("--out")
-        .arg(dir.join("pose.json"))
-        .output()
-        .unwrap();
+    let out = common::localize_scene(BIN, &dir);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     let report: serde_json::Value =

@@ -7,7 +7,6 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 const BIN: &str = env!("CARGO_BIN_EXE_infraloc");
 
@@ -21,19 +20,6 @@ fn scene(seed: u32) -> PathBuf {
     dir
 }
 
-fn localize(dir: &Path) -> Output {
-    Command::new(BIN)
-        .arg("localize")
-        .arg("--config")
-        .arg(dir.join("infraloc.toml"))
-        .arg("--report")
-        .arg(dir.join("report.json"))
-        .arg("--out")
-        .arg(dir.join("pose.json"))
-        .output()
-        .unwrap()
-}
-
 fn json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
@@ -41,7 +27,7 @@ fn json(path: &Path) -> serde_json::Value {
 #[test]
 fn the_runner_up_is_refined_when_the_first_choice_is_refused() {
     let dir = scene(69);
-    let out = localize(&dir);
+    let out = common::localize_scene(BIN, &dir);
     assert!(
         out.status.success(),
         "{}",
@@ -102,7 +88,7 @@ fn the_runner_up_is_refined_when_the_first_choice_is_refused() {
 #[test]
 fn two_refused_hypotheses_give_both_reasons_and_write_nothing() {
     let dir = scene(169);
-    let out = localize(&dir);
+    let out = common::localize_scene(BIN, &dir);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{stderr}");
     let line = stderr.trim();

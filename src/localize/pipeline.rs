@@ -249,8 +249,16 @@ pub struct Outcome {
     pub refinement: Refinement,
     /// Per-stage records, in order.
     pub stages: Vec<Stage>,
-    /// The other hypothesis refined, when there were two (see [`OtherHypothesis`]).
-    pub other_hypothesis: Option<OtherHypothesis>,
+}
+
+impl Outcome {
+    /// The other hypothesis refined, when there were two (the `mi` stage's record of it).
+    pub fn other_hypothesis(&self) -> Option<&OtherHypothesis> {
+        self.stages.iter().find_map(|s| match &s.detail {
+            StageDetail::Mi(d) => d.other_hypothesis.as_ref(),
+            _ => None,
+        })
+    }
 }
 
 /// The LiDAR ground points MI uses around `pose`: within [`Params::mi_radius_m`] of the nadir
@@ -288,8 +296,7 @@ pub fn quality_gate(o: &Outcome) -> Result<()> {
     }
     // Both hypotheses refused: the first choice's reason, then the runner-up's.
     let also = o
-        .other_hypothesis
-        .as_ref()
+        .other_hypothesis()
         .map(|h| {
             format!(
                 "; the runner-up hypothesis at ({:.1}, {:.1}), yaw {:.1}°, refused too: {}",
@@ -421,18 +428,17 @@ pub fn localize_ungated(
         }
     }
     let t2 = now();
+    let mut pnp = PnpDetail::new(
+        &init,
+        p.matcher.as_ref().map_or("dense-sweep", |m| m.name()),
+    );
+    pnp.runner_up = other.as_ref().is_some_and(|o| o.accepted_instead);
     stages.push(Stage {
         name: StageName::Pnp,
         pose: Some(init.pose),
         seconds: t1 - t0,
-        detail: StageDetail::Pnp(PnpDetail::new(
-            &init,
-            p.matcher.as_ref().map_or("dense-sweep", |m| m.name()),
-        )),
+        detail: StageDetail::Pnp(pnp),
     });
-    if let (StageDetail::Pnp(d), Some(o)) = (&mut stages[1].detail, &other) {
-        d.runner_up = o.accepted_instead;
-    }
     stages.push(Stage {
         name: StageName::Mi,
         pose: Some(refinement.pose),
@@ -440,7 +446,7 @@ pub fn localize_ungated(
         detail: StageDetail::Mi(Box::new(MiDetail {
             report: refinement.report(p.search.mode),
             rounds,
-            other_hypothesis: other.clone(),
+            other_hypothesis: other,
         })),
     });
     Ok(Outcome {
@@ -448,7 +454,6 @@ pub fn localize_ungated(
         init,
         refinement,
         stages,
-        other_hypothesis: other,
     })
 }
 
@@ -460,12 +465,11 @@ fn refusal(r: &Refinement) -> String {
 /// Whether `b`'s camera lies outside the search box `spec` around `a` (in x, y, height or yaw):
 /// a refinement from `a` has not searched there.
 fn outside_box(spec: &super::search::SearchSpec, a: &CamFromMap, b: &CamFromMap) -> bool {
-    let (ca, cb) = (a.center(), b.center());
-    let dyaw = crate::pose::angle_difference(a.yaw_pitch_roll().0, b.yaw_pitch_roll().0);
-    (cb.x - ca.x).abs() > spec.x.half
-        || (cb.y - ca.y).abs() > spec.y.half
-        || (cb.z - ca.z).abs() > spec.z.half
-        || dyaw.abs().to_degrees() > spec.yaw.half
+    let d = super::truth_eval::SignedError::between(b, a);
+    d.x.abs() > spec.x.half
+        || d.y.abs() > spec.y.half
+        || d.z.abs() > spec.z.half
+        || d.yaw.abs() > spec.yaw.half
 }
 
 /// The hypothesis whose refinement the gate refused, when the initializer's verifier kept two

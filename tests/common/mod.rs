@@ -99,6 +99,21 @@ pub fn simulate(bin: &str, dir: &Path, args: &[&str]) {
     );
 }
 
+/// Run `BIN localize` on a simulated scene in `dir` (its `infraloc.toml`), writing
+/// `report.json` and `pose.json` there.
+pub fn localize_scene(bin: &str, dir: &Path) -> std::process::Output {
+    std::process::Command::new(bin)
+        .arg("localize")
+        .arg("--config")
+        .arg(dir.join("infraloc.toml"))
+        .arg("--report")
+        .arg(dir.join("report.json"))
+        .arg("--out")
+        .arg(dir.join("pose.json"))
+        .output()
+        .expect("run infraloc localize")
+}
+
 /// Whether the tests run under CI (`CI` set to anything but empty, `0` or `false`), where every
 /// tool and data set a test needs must be present.
 pub fn under_ci() -> bool {
