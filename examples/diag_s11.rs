@@ -27,11 +27,13 @@ use infraloc::localize::search::{pose_at, AxisRange, Evaluator, SearchConfig, Se
 use infraloc::localize::truth_eval;
 use infraloc::pose::{offsets_between, CamFromMap};
 use infraloc::sim::{self, GivenIntrinsics, Preset};
-use nalgebra::Point3;
 
 #[path = "common/mod.rs"]
 mod common;
-use common::{hard_settings, parse_preset, scene_inputs, SceneInputs};
+use common::{
+    hard_settings, parse_preset, polish_box, pose_of, scene_inputs, scene_truth, tilt_pivot,
+    SceneInputs,
+};
 
 fn usage() -> ! {
     eprintln!(
@@ -39,22 +41,6 @@ fn usage() -> ! {
          [--offset-intrinsics | --true-intrinsics]"
     );
     std::process::exit(2)
-}
-
-fn pose_of(v: &serde_json::Value) -> Option<CamFromMap> {
-    let a: Vec<f64> = v
-        .as_array()?
-        .iter()
-        .map(|x| x.as_f64())
-        .collect::<Option<_>>()?;
-    (a.len() == 6).then(|| {
-        CamFromMap::from_center_ypr(
-            &Point3::new(a[0], a[1], a[2]),
-            a[3].to_radians(),
-            a[4].to_radians(),
-            a[5].to_radians(),
-        )
-    })
 }
 
 fn fmt_off(o: &[f64; 6]) -> String {
@@ -101,12 +87,10 @@ fn main() -> infraloc::Result<()> {
         camera,
         image,
         tile,
-        dir,
         ..
     } = scene_inputs(&scene, true_intr)?;
 
-    let truth_text = serde_json::to_string(&scene.truth_json()).expect("truth");
-    let truth = sim::truth::parse_truth(&truth_text, &dir.path().join("truth.json"))?;
+    let truth = scene_truth(&scene)?;
     let oracle = truth_eval::oracle_pose(&camera, &truth).expect("oracle");
     let params = Params::default();
     let points = pipeline::mi_points(&tile, &pnp, &params);
@@ -116,10 +100,6 @@ fn main() -> infraloc::Result<()> {
         mask: &mask,
         points: &points,
     }];
-    let pivot = |p: &CamFromMap| {
-        let c = p.center();
-        infraloc::localize::ground::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
-    };
     let ax = |half: f64| AxisRange {
         half,
         step: half / 2.0,
@@ -142,18 +122,7 @@ fn main() -> infraloc::Result<()> {
     );
 
     let pp = PolishParams::default();
-    let polish_cfg = SearchConfig {
-        spec: SearchSpec {
-            x: ax(pp.bound[0]),
-            y: ax(pp.bound[1]),
-            z: ax(pp.bound[2]),
-            yaw: ax(pp.bound[3]),
-            pitch: Some(ax(pp.bound[4])),
-            roll: Some(ax(pp.bound[5])),
-            tilt_pivot_m: pivot(&accepted),
-        },
-        ..params.search
-    };
+    let polish_cfg = polish_box(&pp, &params.search, tilt_pivot(&tile, &accepted));
     let half = |i: usize| {
         off_t[i].abs().max(off_o[i].abs()) * 1.1 + [0.01, 0.01, 0.01, 0.02, 0.02, 0.02][i]
     };
@@ -225,7 +194,14 @@ fn main() -> infraloc::Result<()> {
         ("truth", truth.pose),
         ("oracle", oracle),
     ] {
-        let (end, rec) = polish_pose(&camera, &views, &p, pivot(&p), &params.search, &pp)?;
+        let (end, rec) = polish_pose(
+            &camera,
+            &views,
+            &p,
+            tilt_pivot(&tile, &p),
+            &params.search,
+            &pp,
+        )?;
         let e = offsets_between(&truth.pose, &end);
         let (vu, _) = score(&sets[1].1, &end);
         println!(

@@ -1,5 +1,5 @@
 //! Helpers shared by the measuring examples (`drift_cost`, `scaling`, `drift_verdicts`,
-//! `diag_s11`, `pipeline_accuracy`, `frames_pooling`; `benches/refine.rs` uses the camera).
+//! `diag_s11`, `diag_ground`, `pipeline_accuracy`, `frames_pooling`; `benches/refine.rs` uses the camera).
 //! Included with `#[path]`, so each user compiles only what it calls.
 #![allow(dead_code, unreachable_pub)]
 
@@ -117,4 +117,62 @@ pub fn scene_inputs(
         prior_sigma_m,
         dir,
     })
+}
+
+/// A pose from `pipeline_accuracy`'s per-seed `poses` record: `[x, y, z, yaw, pitch, roll]`
+/// (map metres, degrees); `None` when it is not six numbers.
+pub fn pose_of(v: &serde_json::Value) -> Option<infraloc::pose::CamFromMap> {
+    let a: Vec<f64> = v
+        .as_array()?
+        .iter()
+        .map(|x| x.as_f64())
+        .collect::<Option<_>>()?;
+    (a.len() == 6).then(|| {
+        infraloc::pose::CamFromMap::from_center_ypr(
+            &nalgebra::Point3::new(a[0], a[1], a[2]),
+            a[3].to_radians(),
+            a[4].to_radians(),
+            a[5].to_radians(),
+        )
+    })
+}
+
+/// Depth of the ground below `pose`'s camera centre in `tile` (at least 1 m): the pivot the
+/// pipeline's polish tilts about.
+pub fn tilt_pivot(tile: &infraloc::map::Tile, pose: &infraloc::pose::CamFromMap) -> Option<f64> {
+    let c = pose.center();
+    infraloc::localize::ground::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
+}
+
+/// The search box of the pipeline's polish (`pp.bound` on each axis, pitch and roll free) about
+/// `pivot`, with `search`'s other settings: the fixed point set the polish scores on.
+pub fn polish_box(
+    pp: &infraloc::localize::polish::PolishParams,
+    search: &infraloc::localize::search::SearchConfig,
+    pivot: Option<f64>,
+) -> infraloc::localize::search::SearchConfig {
+    use infraloc::localize::search::{AxisRange, SearchConfig, SearchSpec};
+    let ax = |half: f64| AxisRange {
+        half,
+        step: half / 2.0,
+    };
+    SearchConfig {
+        spec: SearchSpec {
+            x: ax(pp.bound[0]),
+            y: ax(pp.bound[1]),
+            z: ax(pp.bound[2]),
+            yaw: ax(pp.bound[3]),
+            pitch: Some(ax(pp.bound[4])),
+            roll: Some(ax(pp.bound[5])),
+            tilt_pivot_m: pivot,
+        },
+        ..*search
+    }
+}
+
+/// The scene's truth as `localize --truth` reads it: its `truth.json` written and parsed back.
+pub fn scene_truth(scene: &infraloc::sim::Scene) -> infraloc::Result<infraloc::sim::truth::Truth> {
+    let text = serde_json::to_string(&scene.truth_json())
+        .map_err(|e| infraloc::Error::Invalid(format!("truth.json: {e}")))?;
+    infraloc::sim::truth::parse_truth(&text, std::path::Path::new("truth.json"))
 }
