@@ -17,7 +17,7 @@ fn a_low_pole_localizes_from_a_coarser_fine_iteration() {
         &dir,
         &["--preset", "5mp", "--difficulty", "hard", "--seed", "99"],
     );
-    let out = common::localize_scene(BIN, &dir);
+    let out = common::localize_scene(BIN, &dir, false);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     let report: serde_json::Value =

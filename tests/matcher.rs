@@ -9,7 +9,6 @@ mod common;
 use rand::{Rng, SeedableRng};
 use std::io::Write;
 use std::path::Path;
-use std::process::Command;
 
 const BIN: &str = env!("CARGO_BIN_EXE_infraloc");
 
@@ -70,19 +69,6 @@ fn use_match_file(dir: &Path) {
     std::fs::write(&path, toml::to_string(&cfg).unwrap()).unwrap();
 }
 
-fn localize(dir: &Path) -> std::process::Output {
-    Command::new(BIN)
-        .arg("localize")
-        .arg("--config")
-        .arg(dir.join("infraloc.toml"))
-        .arg("--truth")
-        .arg(dir.join("truth.json"))
-        .arg("--report")
-        .arg(dir.join("report.json"))
-        .output()
-        .unwrap()
-}
-
 #[test]
 fn a_match_file_replaces_the_satellite_matching() {
     let tmp = tempfile::tempdir().unwrap();
@@ -90,7 +76,7 @@ fn a_match_file_replaces_the_satellite_matching() {
     simulate(dir);
     write_matches(dir, 2);
     use_match_file(dir);
-    let out = localize(dir);
+    let out = common::localize_scene(BIN, dir, true);
     assert!(
         out.status.success(),
         "{}",
@@ -120,7 +106,7 @@ fn a_useless_or_broken_match_file_fails_in_one_line_and_keeps_the_pose() {
     let last_good = b"{\"last good\": true}\n";
     let fails = |what: &str| {
         std::fs::write(dir.join("pose.json"), last_good).unwrap();
-        let out = localize(dir);
+        let out = common::localize_scene(BIN, dir, true);
         let stderr = String::from_utf8_lossy(&out.stderr).trim().to_string();
         assert!(!out.status.success(), "{what}: succeeded");
         assert_eq!(stderr.lines().count(), 1, "{what}: {stderr}");

@@ -27,7 +27,7 @@ fn json(path: &Path) -> serde_json::Value {
 #[test]
 fn the_runner_up_is_refined_when_the_first_choice_is_refused() {
     let dir = scene(69);
-    let out = common::localize_scene(BIN, &dir);
+    let out = common::localize_scene(BIN, &dir, false);
     assert!(
         out.status.success(),
         "{}",
@@ -94,7 +94,7 @@ fn the_runner_up_is_refined_when_the_first_choice_is_refused() {
 #[test]
 fn two_refused_hypotheses_give_both_reasons_and_write_nothing() {
     let dir = scene(169);
-    let out = common::localize_scene(BIN, &dir);
+    let out = common::localize_scene(BIN, &dir, false);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{stderr}");
     let line = stderr.trim();

@@ -100,18 +100,21 @@ pub fn simulate(bin: &str, dir: &Path, args: &[&str]) {
 }
 
 /// Run `BIN localize` on a simulated scene in `dir` (its `infraloc.toml`), writing
-/// `report.json` and `pose.json` there.
-pub fn localize_scene(bin: &str, dir: &Path) -> std::process::Output {
-    std::process::Command::new(bin)
-        .arg("localize")
+/// `report.json` and `pose.json` there; with `truth`, the report also scores every stage against
+/// the scene's `truth.json`.
+pub fn localize_scene(bin: &str, dir: &Path, truth: bool) -> std::process::Output {
+    let mut cmd = std::process::Command::new(bin);
+    cmd.arg("localize")
         .arg("--config")
         .arg(dir.join("infraloc.toml"))
         .arg("--report")
         .arg(dir.join("report.json"))
         .arg("--out")
-        .arg(dir.join("pose.json"))
-        .output()
-        .expect("run infraloc localize")
+        .arg(dir.join("pose.json"));
+    if truth {
+        cmd.arg("--truth").arg(dir.join("truth.json"));
+    }
+    cmd.output().expect("run infraloc localize")
 }
 
 /// Whether the tests run under CI (`CI` set to anything but empty, `0` or `false`), where every
