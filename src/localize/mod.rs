@@ -14,6 +14,7 @@
 
 pub mod coarse;
 pub mod frame;
+pub mod gradient;
 pub mod ground;
 pub mod init;
 pub mod kernel;
@@ -28,6 +29,7 @@ pub(crate) mod poly;
 pub mod quality;
 pub mod refine;
 pub mod search;
+pub mod smooth;
 pub(crate) mod study;
 pub mod sweep;
 pub mod synth;
