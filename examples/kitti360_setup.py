@@ -72,7 +72,7 @@ def main():
         "%YAML:1.0\n---\nmodel: mei\n"
         f"image_width: {w}\nimage_height: {h}\n"
         "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
-        f"   data: [ {p[0,0]!r}, {p[0,1]!r}, {p[0,2]!r}, 0., {p[1,1]!r}, {p[1,2]!r}, 0., 0., 1. ]\n"
+        f"   data: [ {float(p[0,0])!r}, {float(p[0,1])!r}, {float(p[0,2])!r}, 0., {float(p[1,1])!r}, {float(p[1,2])!r}, 0., 0., 1. ]\n"
         "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 4\n   dt: d\n"
         "   data: [ 0., 0., 0., 0. ]\n"
         "xi: !!opencv-matrix\n   rows: 1\n   cols: 1\n   dt: d\n   data: [ 0. ]\n"
