@@ -249,7 +249,18 @@ pub fn information(
     pose: &CamFromMap,
     free: &[bool; 6],
 ) -> Result<Information, String> {
-    let h = est.hessian(pose, free, &HESSIAN_STEP);
+    information_with_step(est, pose, free, &HESSIAN_STEP)
+}
+
+/// [`information`] with the Hessian's central-difference steps `step` (m, rad) instead of
+/// [`HESSIAN_STEP`], for measuring the choice.
+pub fn information_with_step(
+    est: &Smooth<'_>,
+    pose: &CamFromMap,
+    free: &[bool; 6],
+    step: &[f64; 6],
+) -> Result<Information, String> {
+    let h = est.hessian(pose, free, step);
     let idx: Vec<usize> = (0..6).filter(|&k| free[k]).collect();
     let n = est.n();
     let d = idx.len();
@@ -276,13 +287,12 @@ pub fn information(
     // M: d θ / d(reported offsets), columns per reported axis, rows per θ index (all six).
     let mut m = DMatrix::<f64>::zeros(6, axes.len());
     for (c, _) in axes.iter().enumerate() {
-        let mut off = [0.0; 6];
         // Reported offsets: x, y, z (m), yaw, pitch, roll (deg) of pose_at.
-        let order = [0usize, 1, 2, 3, 4, 5];
-        let h = if c < 3 { 1e-6 } else { 1e-6 };
-        off[order[c]] = h;
+        let mut off = [0.0; 6];
+        let h = 1e-6;
+        off[c] = h;
         let plus = theta_between(pose, &super::search::pose_at(pose, &off));
-        off[order[c]] = -h;
+        off[c] = -h;
         let minus = theta_between(pose, &super::search::pose_at(pose, &off));
         for r in 0..6 {
             m[(r, c)] = (plus[r] - minus[r]) / (2.0 * h);
@@ -352,7 +362,17 @@ impl Information {
 pub fn theta_between(from: &CamFromMap, to: &CamFromMap) -> [f64; 6] {
     let d = to.center() - from.center();
     let q: Rotation3<f64> = to.rotation.inverse() * from.rotation;
-    let r: Vector3<f64> = q.scaled_axis();
+    // Angle from the skew part and the trace together (atan2): exact for tiny rotations, where
+    // the acos of the trace alone rounds to 0 (the axes' Jacobian takes 1e-6 steps).
+    let m = q.matrix();
+    let v = Vector3::new(
+        m[(2, 1)] - m[(1, 2)],
+        m[(0, 2)] - m[(2, 0)],
+        m[(1, 0)] - m[(0, 1)],
+    ) * 0.5;
+    let s = v.norm();
+    let angle = s.atan2(0.5 * (m.trace() - 1.0));
+    let r = if s > 0.0 { v * (angle / s) } else { v };
     [d.x, d.y, d.z, r.x, r.y, r.z]
 }
 
@@ -529,4 +549,39 @@ pub fn refine_smooth(
             grid_reason,
         },
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Point3;
+
+    #[test]
+    fn theta_between_inverts_step_down_to_tiny_rotations() {
+        let p = CamFromMap::from_center_ypr(&Point3::new(1.0, -2.0, 6.0), 0.7, 0.05, -0.1);
+        for th in [
+            [0.1, -0.2, 0.05, 0.01, -0.02, 0.03],
+            [0.0, 0.0, 0.0, 1e-8, 0.0, -2e-8],
+            [1e-7, 0.0, 0.0, 0.0, 3e-9, 0.0],
+        ] {
+            let back = theta_between(&p, &step(&p, &th));
+            for k in 0..6 {
+                assert!(
+                    (back[k] - th[k]).abs() < 1e-12 + 1e-9 * th[k].abs(),
+                    "{th:?} -> {back:?}"
+                );
+            }
+        }
+    }
+
+    /// The reported yaw is θ's rz in degrees (the covariance's axis mapping).
+    #[test]
+    fn reported_yaw_is_rz_in_degrees() {
+        let p = CamFromMap::from_center_ypr(&Point3::new(0.0, 0.0, 5.0), 0.3, 0.0, 0.0);
+        let mut off = [0.0; 6];
+        off[3] = 1e-6;
+        let th = theta_between(&p, &crate::localize::search::pose_at(&p, &off));
+        assert!((th[5] - 1e-6f64.to_radians()).abs() < 1e-15, "{th:?}");
+        assert!(th[..5].iter().all(|v| v.abs() < 1e-15), "{th:?}");
+    }
 }

@@ -369,7 +369,7 @@ impl<'a> Smooth<'a> {
 
     /// The estimator on `ev`'s level 0: the same binned (blurred) images, fixed point sets,
     /// bins and Parzen setting as the nearest-pixel search scores.
-    pub(crate) fn of_evaluator(
+    pub fn of_evaluator(
         cam: &Camera,
         ev: &'a super::search::Evaluator,
         pooling: Pooling,
