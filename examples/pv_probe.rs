@@ -69,7 +69,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             print!(" | {:+.2} along ({})", e.eigenvalues[k], dir.join(", "));
         }
         println!();
-        match infraloc::localize::gradient::information_with_step(&est, &pose, &free, &[m, m, m, r, r, r]) {
+        match infraloc::localize::gradient::information_with_step(
+            &est,
+            &pose,
+            &free,
+            &[m, m, m, r, r, r],
+        ) {
             Ok(i) => println!("  {}", i.describe()),
             Err(e) => println!("  {e}"),
         }

@@ -15,6 +15,9 @@
 //! gradient. A Hessian that is not negative definite over the free axes (no basin) or any
 //! non-finite entry is a one-line refusal, never a number.
 
+// Small fixed-size matrices (2×3, 6×6) indexed by row and column read as the formulas do.
+#![allow(clippy::needless_range_loop)]
+
 use super::smooth::{step, Smooth};
 use crate::pose::CamFromMap;
 use nalgebra::{DMatrix, Rotation3, Vector3};
@@ -422,8 +425,9 @@ fn local_spec(cfg: &AscentConfig) -> super::search::SearchSpec {
 /// jackknife σ), then the smooth estimator's gradient ascent from its cell, then the observed
 /// information at the answer. The gate: the grid's checks of the global basin (too few points,
 /// points lost, the optimum on the box's edge, a separate second peak) stand; its local-shape
-/// checks (basin width, curvature, the jackknife's σ) are replaced by the information's — a
-/// Hessian that is negative definite and finite, and the information σ within the limits.
+/// checks (basin width, curvature) are replaced by the information's — a Hessian that is
+/// negative definite and finite — and the σ limits judge the larger of the information σ and the
+/// jackknife σ per axis.
 pub fn refine_smooth(
     cam: &crate::camera::Camera,
     views: &[super::search::View<'_>],
@@ -516,17 +520,48 @@ pub fn refine_smooth(
                     "yaw" => (qcfg.max_sigma_yaw_deg, "yaw"),
                     _ => (qcfg.max_sigma_tilt_deg, "tilt"),
                 };
+                // The Cramér–Rao σ counts every point as independent; on real frames it was
+                // 40–90× smaller than the answers' scatter (docs/refine.md "Sampling"), so the
+                // gate judges the larger of it and the grid's jackknife σ (∞ where the
+                // jackknife found no peak).
+                let jack = |axis: &str| -> f64 {
+                    r.quality.sigma.as_ref().map_or(0.0, |s| match axis {
+                        "x" => s.x,
+                        "y" => s.y,
+                        "z" => s.z,
+                        "yaw" => s.yaw,
+                        "pitch" => s.pitch.unwrap_or(0.0),
+                        _ => s.roll.unwrap_or(0.0),
+                    })
+                };
+                let judged: Vec<f64> = info
+                    .axes
+                    .iter()
+                    .zip(&info.sigma)
+                    .map(|(a, s)| {
+                        let j = jack(a);
+                        if j.is_nan() {
+                            f64::INFINITY
+                        } else {
+                            s.max(j)
+                        }
+                    })
+                    .collect();
                 if let Some((i, (lim, key))) = info
                     .axes
                     .iter()
                     .enumerate()
                     .map(|(i, a)| (i, limit(a)))
-                    .find(|(i, (lim, _))| info.sigma[*i] > *lim)
+                    .find(|(i, (lim, _))| !(judged[*i] <= *lim))
                 {
                     r.quality.accepted = false;
                     r.quality.reason = Some(format!(
-                        "information σ {} {:.4} {} over the limit {key}={lim}",
-                        info.axes[i], info.sigma[i], info.units[i]
+                        "σ {} {:.4} {} over the limit {key}={lim} (information σ {:.4}, jackknife σ {:.4})",
+                        info.axes[i],
+                        judged[i],
+                        info.units[i],
+                        info.sigma[i],
+                        jack(&info.axes[i])
                     ));
                     r.quality.refused_by = Some(GateCheck::Uncertain);
                 }

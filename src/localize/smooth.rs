@@ -30,6 +30,9 @@
 //! Sums are deterministic: points are cut into fixed blocks, each block's partial sums are made on
 //! the pool and added up in block order, so the thread count cannot change a bit.
 
+// Small fixed-size matrices (2×3, 6×6) indexed by row and column read as the formulas do.
+#![allow(clippy::needless_range_loop)]
+
 use super::kernel::{BinnedImage, FastCamera};
 use super::points::PreparedPoints;
 use crate::camera::Camera;
@@ -369,11 +372,7 @@ impl<'a> Smooth<'a> {
 
     /// The estimator on `ev`'s level 0: the same binned (blurred) images, fixed point sets,
     /// bins and Parzen setting as the nearest-pixel search scores.
-    pub fn of_evaluator(
-        cam: &Camera,
-        ev: &'a super::search::Evaluator,
-        pooling: Pooling,
-    ) -> Self {
+    pub fn of_evaluator(cam: &Camera, ev: &'a super::search::Evaluator, pooling: Pooling) -> Self {
         let (parts, origin, mi) = ev.level0();
         let views = parts
             .into_iter()
