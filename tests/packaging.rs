@@ -311,7 +311,7 @@ fn package_and_cross_builds_enable_v4l() {
     assert!(deb_features.contains(&"v4l"), "{deb_features:?}");
     let cross = std::fs::read_to_string(root().join("cross/build.sh")).unwrap();
     assert!(
-        cross.contains("FEATURES=(--features v4l)")
+        cross.contains("FEATURES=(-p infraloc --features v4l)")
             && cross.contains(r#"build --release --target "$TARGET" "${FEATURES[@]}""#),
         "cross/build.sh no longer builds with --features v4l"
     );
