@@ -24,6 +24,7 @@ pub mod gnss;
 pub mod gps_serial;
 pub mod localize;
 pub mod map;
+pub mod orthonormal;
 pub mod persist;
 pub mod pose;
 pub mod posefile;

@@ -14,6 +14,8 @@
 
 mod common;
 
+use common::{infraloc, s};
+
 use infraloc::camera::{load_camera, CameraModel};
 use infraloc::localize::points_io::read_points;
 use infraloc::localize::search::pose_at;
@@ -57,17 +59,6 @@ fn scratch(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
-}
-
-fn infraloc(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_infraloc"))
-        .args(args)
-        .output()
-        .expect("run infraloc")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 /// KITTI's calibration read here independently of the crate: `key -> numbers`.
