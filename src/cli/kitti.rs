@@ -681,6 +681,38 @@ mod tests {
     use super::*;
 
     #[test]
+    fn camera_names_and_frame_lists() {
+        for (name, n) in [
+            ("P2", 2),
+            ("2", 2),
+            ("02", 2),
+            ("image_03", 3),
+            ("cam0", 0),
+            ("p1", 1),
+        ] {
+            assert_eq!(camera_index(name).unwrap(), n, "{name}");
+        }
+        for bad in ["P4", "image_", "left", "-1"] {
+            let e = camera_index(bad).unwrap_err().to_string();
+            assert!(e.starts_with("--camera") && e.contains("0–3"), "{e}");
+        }
+        assert_eq!(
+            frame_ranges("250, 360,500-900").unwrap(),
+            [(250, 250), (360, 360), (500, 900)]
+        );
+        for (bad, what) in [
+            ("9-3", "runs backwards"),
+            ("x", "not a frame number"),
+            (",", "no frame"),
+        ] {
+            let e = frame_ranges(bad).unwrap_err().to_string();
+            assert!(e.starts_with("--frames") && e.contains(what), "{e}");
+        }
+        assert_eq!(shell_word(Path::new("/a/b_c-1.png")), "/a/b_c-1.png");
+        assert_eq!(shell_word(Path::new("/a b/it's")), "'/a b/it'\\''s'");
+    }
+
+    #[test]
     fn perturbation_spec() {
         assert_eq!(
             parse_perturbation("x=0.1, yaw=-1.5,z=0.02").unwrap(),
