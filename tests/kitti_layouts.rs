@@ -144,7 +144,7 @@ fn kitti360_cameras_match_the_independent_chain_and_projections() {
         // The pose: the same 4×4 as numpy's chain, to round-off.
         let m = &want["cam_from_velo"];
         let at = |i: usize, j: usize| m[i][j].as_f64().unwrap();
-        let r = Matrix3::from_fn(|i, j| at(i, j));
+        let r = Matrix3::from_fn(at);
         let t = Vector3::new(at(0, 3), at(1, 3), at(2, 3));
         let dr = (pose.rotation.matrix() - r).amax();
         let dt = (pose.translation - t).amax();

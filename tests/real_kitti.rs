@@ -24,7 +24,6 @@ use infraloc::posefile::read_pose;
 use nalgebra::{Matrix3, Vector3};
 use rand::{Rng, SeedableRng};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 /// The three frames of the data set.
 const FRAMES: [&str; 3] = ["000000", "000001", "000002"];
