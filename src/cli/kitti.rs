@@ -577,7 +577,9 @@ fn import(a: ImportArgs) -> Result<()> {
             Some(drive_frames(&a, &d, n, size)?)
         }
     };
-    let pose = CamFromMap::new(rig.rotation, rig.translation);
+    let m = rig.rotation.matrix();
+    let rows = [0, 1, 2].map(|i| [m[(i, 0)], m[(i, 1)], m[(i, 2)]]);
+    let pose = CamFromMap::from_rows(rows, rig.translation.into());
     let cam_json = serde_json::to_value(&cam).unwrap_or_default();
     let source = |p: &Path| p.display().to_string();
     let stage = serde_json::json!({
@@ -621,7 +623,7 @@ fn import(a: ImportArgs) -> Result<()> {
         a.pose_out.display()
     );
     if let (Some(o), Some(path)) = (perturb, &a.start_out) {
-        let start = crate::localize::search::pose_at(&pose, &o);
+        let start = crate::localize::mi::space::pose_at(&pose, &o);
         let mut stage = stage;
         stage["perturbation"] = serde_json::json!({
             "x_m": o[0], "y_m": o[1], "z_m": o[2], "yaw_deg": o[3], "pitch_deg": o[4], "roll_deg": o[5],
