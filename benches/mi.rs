@@ -13,11 +13,11 @@
 use criterion::measurement::{Measurement, ValueFormatter};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use infraloc::camera::{Camera, CameraModel, Equidistant, Mei};
-use infraloc::localize::kernel::{
+use infraloc::localize::mi::kernel::{
     accumulate, accumulate_scalar, BinnedImage, FastCamera, PoseF32, Scratch,
 };
+use infraloc::localize::mi::points::PreparedPoints;
 use infraloc::localize::mi::{bin_lut, Binning, JointHist};
-use infraloc::localize::points::PreparedPoints;
 use infraloc::localize::synth::{ground_points, Texture};
 use infraloc::pose::CamFromMap;
 use nalgebra::Point3;

@@ -17,9 +17,10 @@
 //! Run: `cargo bench --bench pooled`. Figures: docs/benchmarks.md "Pooled refinement".
 
 use infraloc::camera::CameraModel;
-use infraloc::localize::quality::QualityConfig;
+use infraloc::localize::mi::objective::View;
+use infraloc::localize::mi::space::SearchConfig;
+use infraloc::localize::refine::quality::QualityConfig;
 use infraloc::localize::refine::{refine, refine_polished};
-use infraloc::localize::search::{SearchConfig, View};
 use infraloc::localize::synth::{ground_points, render, Texture};
 use infraloc::pose::CamFromMap;
 use nalgebra::{Point3, Vector3};

@@ -25,8 +25,10 @@
 //! docs/benchmarks.md "MI refinement".
 
 use infraloc::camera::CameraModel;
-use infraloc::localize::quality::{assess, QualityConfig};
-use infraloc::localize::search::{search, Evaluator, SearchConfig, MAX_LEVEL};
+use infraloc::localize::mi::objective::Evaluator;
+use infraloc::localize::mi::space::{SearchConfig, MAX_LEVEL};
+use infraloc::localize::refine::quality::{assess, QualityConfig};
+use infraloc::localize::refine::search::search;
 use infraloc::localize::synth::{ground_points, render, Texture};
 use infraloc::pose::CamFromMap;
 use nalgebra::{Point3, Vector3};

@@ -3,9 +3,9 @@
 //! `cargo run --release --example diag_candidates -- SEED [small|5mp]`
 use infraloc::camera::CameraModel;
 use infraloc::config::{Config, GpsSourceKind};
-use infraloc::localize::coarse::*;
 use infraloc::localize::frame::{Frame, MapLayers};
-use infraloc::localize::ground::*;
+use infraloc::localize::init::coarse::*;
+use infraloc::localize::init::ground::*;
 use infraloc::localize::init::*;
 use infraloc::localize::pipeline::Params;
 use infraloc::sim::{self, Difficulty, Lens, Preset, Settings};
@@ -89,9 +89,9 @@ fn main() {
     );
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(p.seed);
     // MI against the LiDAR map (the initializer's independent verifier), at the truth first.
-    let ver = infraloc::localize::verify::MiVerifier::new(cam, img.as_raw(), tile, {
+    let ver = infraloc::localize::init::verify::MiVerifier::new(cam, img.as_raw(), tile, {
         // DIAG_VERIFY="off_nadir_deg,max_radius_m,blur_m,bins,points" overrides for experiments.
-        let mut v = infraloc::localize::verify::VerifyParams::default();
+        let mut v = infraloc::localize::init::verify::VerifyParams::default();
         if let Ok(s) = std::env::var("DIAG_VERIFY") {
             let f: Vec<f64> = s.split(',').filter_map(|t| t.parse().ok()).collect();
             if f.len() == 5 {
@@ -123,11 +123,11 @@ fn main() {
     // DIAG_ORDER=mi: candidates in decreasing screening MI, as the verified initializer tries them.
     let mut cands = cands;
     if std::env::var("DIAG_ORDER").is_ok_and(|s| s == "mi") {
-        let key = |k: &infraloc::localize::sweep::Candidate| {
+        let key = |k: &infraloc::localize::init::sweep::Candidate| {
             ver.screen(&candidate_pose(&tile.height, prior, k))
                 .map_or(f64::NEG_INFINITY, |v| v.mi)
         };
-        let mut keyed: Vec<(f64, infraloc::localize::sweep::Candidate)> =
+        let mut keyed: Vec<(f64, infraloc::localize::init::sweep::Candidate)> =
             cands.iter().map(|k| (key(k), *k)).collect();
         keyed.sort_by(|a, b| b.0.total_cmp(&a.0));
         cands = keyed.into_iter().map(|(_, k)| k).collect();

@@ -4,7 +4,7 @@
 //! on one fixed point set and by the ground error of the control points.
 //!
 //! ```sh
-//! cargo run --release --example pipeline_accuracy -- --preset small --seeds 1..30 --json s.json
+//! cargo run --release --features __internal-test --example pipeline_accuracy -- --preset small --seeds 1..30 --json s.json
 //! cargo run --release --example diag_ground -- --preset small --json s.json
 //! ```
 //!
@@ -13,12 +13,12 @@
 //! objective's optimum itself is that far from the truth (estimator-limited).
 
 use infraloc::camera::CameraModel;
-use infraloc::localize::kernel::Scratch;
+use infraloc::eval::truth_eval;
+use infraloc::localize::mi::kernel::Scratch;
 use infraloc::localize::mi::mutual_information;
+use infraloc::localize::mi::objective::{Evaluator, View};
 use infraloc::localize::pipeline::{self, Params};
-use infraloc::localize::polish::{polish_pose, PolishParams};
-use infraloc::localize::search::{Evaluator, View};
-use infraloc::localize::truth_eval;
+use infraloc::localize::refine::polish::{polish_pose, PolishParams};
 use infraloc::pose::CamFromMap;
 use infraloc::sim::{self, GivenIntrinsics, Preset};
 

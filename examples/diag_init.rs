@@ -1,9 +1,9 @@
 //! Diagnostic: coarse candidates and fine-stage match counts of the initializer on a scene dir.
 //! `cargo run --release --example diag_init -- SCENE_DIR`
-use infraloc::camera::{import::load_camera, CameraModel};
-use infraloc::localize::coarse::*;
+use infraloc::camera::{load_camera, CameraModel};
 use infraloc::localize::frame::{Frame, MapLayers};
-use infraloc::localize::ground::*;
+use infraloc::localize::init::coarse::*;
+use infraloc::localize::init::ground::*;
 use infraloc::localize::init::*;
 fn main() {
     let dir = std::path::PathBuf::from(std::env::args().nth(1).expect("scene dir"));

@@ -3,7 +3,7 @@
 //! point set (`5mp` `hard` seed 11 was accepted 16 cm / 0.52° off, outside its 3σ).
 //!
 //! ```sh
-//! cargo run --release --example pipeline_accuracy -- --preset 5mp --seeds 11 --json s11.json
+//! cargo run --release --features __internal-test --example pipeline_accuracy -- --preset 5mp --seeds 11 --json s11.json
 //! cargo run --release --example diag_s11 -- --preset 5mp --seed 11 --json s11.json
 //! ```
 //!
@@ -19,12 +19,13 @@
 //! - `all`: every point, no fixed set (what each pose sees).
 
 use infraloc::camera::CameraModel;
-use infraloc::localize::kernel::Scratch;
+use infraloc::eval::truth_eval;
+use infraloc::localize::mi::kernel::Scratch;
 use infraloc::localize::mi::mutual_information;
+use infraloc::localize::mi::objective::{Evaluator, View};
+use infraloc::localize::mi::space::{pose_at, AxisRange, SearchConfig, SearchSpec};
 use infraloc::localize::pipeline::{self, Params};
-use infraloc::localize::polish::{polish_pose, PolishParams};
-use infraloc::localize::search::{pose_at, AxisRange, Evaluator, SearchConfig, SearchSpec, View};
-use infraloc::localize::truth_eval;
+use infraloc::localize::refine::polish::{polish_pose, PolishParams};
 use infraloc::pose::{offsets_between, CamFromMap};
 use infraloc::sim::{self, GivenIntrinsics, Preset};
 

@@ -12,12 +12,14 @@
 use infraloc::app::{camera_and_frame, Overrides};
 use infraloc::camera::CameraModel;
 use infraloc::config::Config;
-use infraloc::daemon::{drift_search, DriftParams, DRIFT_SPEC};
+use infraloc::localize::mi::objective::{Evaluator, View};
+use infraloc::localize::mi::space::{SearchConfig, MAX_LEVEL};
 use infraloc::localize::pipeline::{mi_points, Params};
-use infraloc::localize::polish::PolishParams;
-use infraloc::localize::quality::{assess, QualityConfig};
-use infraloc::localize::search::{search, Evaluator, SearchConfig, View, MAX_LEVEL};
-use infraloc::localize::uncertainty::{estimate, UncertaintyConfig};
+use infraloc::localize::refine::drift::{drift_search, DriftParams, DriftThresholds, DRIFT_SPEC};
+use infraloc::localize::refine::polish::PolishParams;
+use infraloc::localize::refine::quality::{assess, QualityConfig};
+use infraloc::localize::refine::search::search;
+use infraloc::localize::refine::uncertainty::{estimate, UncertaintyConfig};
 use infraloc::map::cache::load_tile;
 use infraloc::posefile::PoseFile;
 use std::path::Path;
@@ -43,7 +45,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let (c1, w1) = (cpu_s(), Instant::now());
         let tile = load_tile(&cfg.map.tiles.join(&served.tile_id))?;
         let (c2, w2) = (cpu_s(), Instant::now());
-        let d = drift_search(&camera, &image, &tile, &served.pose(), &cfg)?;
+        let thresholds = DriftThresholds {
+            shift_m: cfg.daemon.drift_threshold_m,
+            yaw_deg: cfg.daemon.drift_threshold_deg,
+        };
+        let d = drift_search(&camera, image.as_raw(), &tile, &served.pose(), &thresholds)?;
         let (c3, w3) = (cpu_s(), Instant::now());
         println!(
             "{run:>3}  {:.3}/{:.3}  {:.3}/{:.3}  {:.3}/{:.3}  {:.3}/{:.3}  moved={} shift={:.4} m yaw={:.4}°",

@@ -3,7 +3,7 @@
 //! cost — for the shipped thinning and for candidate ones, on the same inputs in the same run.
 //!
 //! ```sh
-//! RAYON_NUM_THREADS=2 cargo run --release --example drift_verdicts -- --preset small --seeds 1..20 \
+//! RAYON_NUM_THREADS=2 cargo run --release --features __internal-test --example drift_verdicts -- --preset small --seeds 1..20 \
 //!     [--variant THIN:COARSE_MIN_POINTS ...]
 //! ```
 //!
@@ -32,9 +32,9 @@
 //! cross-check's NMI comparison (docs/benchmarks.md "Drift check").
 
 use infraloc::config::Config;
-use infraloc::daemon::{drift_search_with, DriftParams};
 use infraloc::localize::frame::Frame;
 use infraloc::localize::pipeline::{self, Params};
+use infraloc::localize::refine::drift::{drift_search_with, DriftParams, DriftThresholds};
 use infraloc::pose::{angle_difference, CamFromMap};
 use infraloc::sim::{self, GivenIntrinsics, Preset};
 use nalgebra::Vector3;
@@ -177,7 +177,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         params.quality.intrinsics_sigma = scene.camera_sigma;
         let clock = Instant::now();
         let now = || clock.elapsed().as_secs_f64();
-        let (served, served_nmi) = match pipeline::localize_ungated(
+        let (served, served_nmi) = match infraloc::__internal::localize_ungated(
             &Frame::new(&camera, image.as_raw())?,
             &tile,
             xy,
@@ -215,7 +215,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             for (v, t) in variants.iter().zip(tallies.iter_mut()) {
                 let (c0, w0) = (cpu_s(), Instant::now());
-                let d = drift_search_with(&camera, &image, &tile, &knocked, &cfg, v)?;
+                let thresholds = DriftThresholds {
+                    shift_m: cfg.daemon.drift_threshold_m,
+                    yaw_deg: cfg.daemon.drift_threshold_deg,
+                };
+                let d =
+                    drift_search_with(&camera, image.as_raw(), &tile, &knocked, &thresholds, v)?;
                 t.cpu_s += cpu_s() - c0;
                 t.wall_s += w0.elapsed().as_secs_f64();
                 t.checks += 1;

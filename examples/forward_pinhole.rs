@@ -20,9 +20,10 @@
 //! verdict, then medians.
 
 use infraloc::camera::{Camera, CameraModel, Mei};
-use infraloc::localize::quality::QualityConfig;
+use infraloc::localize::mi::objective::View;
+use infraloc::localize::mi::space::SearchConfig;
+use infraloc::localize::refine::quality::QualityConfig;
 use infraloc::localize::refine::{refine_polished, PolishedSearch};
-use infraloc::localize::search::{SearchConfig, View};
 use infraloc::localize::synth::{forward_view, lidar_rings, render, Texture};
 use infraloc::pose::{offsets_between, CamFromMap};
 use rand::{Rng, SeedableRng};
@@ -89,7 +90,7 @@ fn main() {
         for k in 0..n_clutter {
             let s: f64 = rng.random_range(3.0..40.0);
             let side = if k % 2 == 0 { 8.0 } else { -8.0 };
-            points.push(infraloc::localize::points::GroundPoint {
+            points.push(infraloc::localize::mi::points::GroundPoint {
                 x: c.0 + s * sin + side * cos,
                 y: c.1 + s * cos - side * sin,
                 z: rng.random_range(0.2..4.0),
@@ -102,7 +103,8 @@ fn main() {
             rng.random_range(-0.4..0.4),
             rng.random_range(-2.5..2.5),
         ];
-        let init = infraloc::localize::search::pose_at(&truth, &[d[0], d[1], d[2], d[3], 0.0, 0.0]);
+        let init =
+            infraloc::localize::mi::space::pose_at(&truth, &[d[0], d[1], d[2], d[3], 0.0, 0.0]);
         let pivot = |_: &CamFromMap| None;
         let r = refine_polished(
             &cam,

@@ -16,10 +16,10 @@
 
 use infraloc::camera::import::{parse_camera, to_opencv_yaml};
 use infraloc::camera::CameraModel;
+use infraloc::eval::truth_eval::{oracle_pose, SignedError};
+use infraloc::localize::mi::objective::View;
 use infraloc::localize::pipeline::{mi_points, Params};
 use infraloc::localize::refine::refine_polished;
-use infraloc::localize::search::View;
-use infraloc::localize::truth_eval::{oracle_pose, SignedError};
 use infraloc::pose::CamFromMap;
 use infraloc::sim::{self, Difficulty, Lens, Preset, Settings};
 use rand::{Rng, SeedableRng};
@@ -134,7 +134,7 @@ fn run_seed(settings: &Settings, true_intrinsics: bool) -> infraloc::Result<Valu
     let median = infraloc::capture::temporal_median(&frames)?;
     let truth_text = serde_json::to_string(&scene.truth_json())
         .map_err(|e| infraloc::Error::Invalid(format!("truth: {e}")))?;
-    let truth = infraloc::sim::truth::parse_truth(&truth_text, Path::new("truth.json"))?;
+    let truth = infraloc::eval::truth::parse_truth(&truth_text, Path::new("truth.json"))?;
     let reference = if true_intrinsics {
         truth.pose
     } else {
@@ -161,7 +161,8 @@ fn run_seed(settings: &Settings, true_intrinsics: bool) -> infraloc::Result<Valu
     let mask = camera.valid_mask();
     let pivot = |pose: &CamFromMap| {
         let c = pose.center();
-        infraloc::localize::ground::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
+        infraloc::localize::init::ground::height_at(&tile.height, c.x, c.y)
+            .map(|g| (c.z - g).max(1.0))
     };
     let mut rec = json!({ "seed": settings.seed });
     for v in VARIANTS {
@@ -207,7 +208,7 @@ fn summary(recs: &[Value]) -> Value {
     let mut out = json!({ "seeds": recs.len() });
     for v in VARIANTS {
         let get = |k: &str| -> Vec<f64> { recs.iter().filter_map(|r| r[v][k].as_f64()).collect() };
-        let pct = |k: &str| infraloc::localize::truth_eval::median_p95(&get(k));
+        let pct = |k: &str| infraloc::eval::truth_eval::median_p95(&get(k));
         let count = |f: &dyn Fn(&Value) -> bool| recs.iter().filter(|r| f(&r[v])).count();
         out[v] = json!({
             "horizontal_m": pct("horizontal_m"), "height_m": pct("height_m"), "yaw_deg": pct("yaw_deg"),

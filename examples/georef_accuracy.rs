@@ -17,10 +17,10 @@
 //! pose's covariance propagated; `--sigma-px` adds pixel noise, default 0 since the pixels are
 //! exact).
 
+use infraloc::eval::truth_eval;
 use infraloc::geo::georef::{
     self, Ellipse, HeightSurface, Params, PoseWithCovariance, Status, Surface,
 };
-use infraloc::localize::truth_eval;
 use infraloc::posefile::pose_covariance_of;
 use infraloc::sim::GivenIntrinsics;
 use serde_json::{json, Value};

@@ -1,12 +1,13 @@
 //! Diagnostics: the argmax of MI over a lateral (y) × yaw grid through a pose, for several
 //! estimator settings, on pooled image/point pairs:
 //! `cargo run --release --example mi_profile -- CAMERA POSE.json IMAGE POINTS [IMAGE POINTS]…`.
-use infraloc::camera::import::load_camera;
+use infraloc::camera::load_camera;
 use infraloc::camera::CameraModel;
-use infraloc::localize::kernel::Scratch;
+use infraloc::localize::mi::kernel::Scratch;
+use infraloc::localize::mi::objective::{Evaluator, View};
+use infraloc::localize::mi::space::{AxisRange, SearchConfig, SearchSpec};
 use infraloc::localize::mi::{mutual_information, Binning, JointHist, MiConfig};
-use infraloc::localize::points_io::read_points;
-use infraloc::localize::search::{AxisRange, Evaluator, SearchConfig, SearchSpec, View};
+use infraloc::points_io::read_points;
 use infraloc::posefile::read_pose;
 use std::path::Path;
 

@@ -1,16 +1,16 @@
 //! Accuracy of the whole pipeline on seeded simulated scenes (issue 4's acceptance).
 //!
 //! ```sh
-//! cargo run --release --example pipeline_accuracy -- --preset small --seeds 1..100 --json out.json
+//! cargo run --release --features __internal-test --example pipeline_accuracy -- --preset small --seeds 1..100 --json out.json
 //! ```
 //!
 //! For each seed it generates the scene `infraloc simulate --seed N` writes (hard, Mei lens,
 //! 5 frames unless told otherwise), hands the localizer the same inputs `infraloc localize` reads
 //! from that scene directory (camera through its YAML, the temporal median of the frames, the
 //! tile through the GeoTIFF cache in a temporary directory, the prior from the NMEA log with the
-//! default `[gps]` settings), runs [`pipeline::localize_ungated`] with the default parameters and
+//! default `[gps]` settings), runs `localize_ungated` (`infraloc::__internal`) with the default parameters and
 //! applies [`pipeline::quality_gate`] — exactly `localize`, except that a run the gate rejects
-//! still shows its stages — and scores each stage with [`pipeline::truth_errors`], the function
+//! still shows its stages — and scores each stage with [`truth_eval::truth_errors`], the function
 //! behind `infraloc localize --truth`. A failing seed is reproduced with
 //! `infraloc simulate --seed N --preset P --out DIR` and `infraloc localize --config DIR/infraloc.toml`.
 //!
@@ -23,10 +23,10 @@
 //! drawn intrinsics offset, what `hard` was before the calibrator) instead of the default
 //! calibrated intrinsics.
 
+use infraloc::eval::truth_eval;
 use infraloc::localize::frame::{Frame, MapLayers};
 use infraloc::localize::init::SearchArea;
 use infraloc::localize::pipeline::{self, Params, PnpDetail, PriorDetail, StageDetail};
-use infraloc::localize::truth_eval;
 use infraloc::pose::CamFromMap;
 use infraloc::sim::{self, Difficulty, GivenIntrinsics, Lens, Preset, Settings};
 use infraloc::stage::StageName;
@@ -186,7 +186,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
         );
     }
     let now = || clock.elapsed().as_secs_f64();
-    let outcome = pipeline::localize_ungated(
+    let outcome = infraloc::__internal::localize_ungated(
         &Frame::new(&camera, image.as_raw())?,
         &tile,
         xy,
@@ -222,7 +222,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
                 detail: StageDetail::Prior(PriorDetail::new(xy, sigma, params)),
             };
             rec["errors"] =
-                pipeline::truth_errors(&truth_text, &truth_path, &camera, &[prior_stage])?;
+                truth_eval::truth_errors(&truth_text, &truth_path, &camera, &[prior_stage])?;
         }
         Ok(out) => {
             if let Err(e) = pipeline::quality_gate(&out) {
@@ -231,9 +231,9 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
             // The oracle: the 6-DoF least-squares fit of the truth's control points under the
             // given (in `hard`, wrong) intrinsics — the best pose these intrinsics allow.
             let stages = out.stages.clone();
-            let truth = infraloc::sim::truth::parse_truth(&truth_text, &truth_path)?;
+            let truth = infraloc::eval::truth::parse_truth(&truth_text, &truth_path)?;
             let floor = truth_eval::oracle_pose(&camera, &truth);
-            rec["errors"] = pipeline::truth_errors(&truth_text, &truth_path, &camera, &stages)?;
+            rec["errors"] = truth_eval::truth_errors(&truth_text, &truth_path, &camera, &stages)?;
             // Every control point's ground error, for figures pooled over all scenes.
             let hits = |p: &CamFromMap| -> Vec<[f64; 2]> {
                 truth_eval::ground_hits(&camera, &truth, p)
@@ -310,8 +310,13 @@ fn init_only(
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(p.seed);
     // As the pipeline does: the LiDAR map verifies the hypotheses.
     let verifier = p.fine.verify.enabled.then(|| {
-        infraloc::localize::verify::MiVerifier::new(camera, image, tile, p.fine.verify.mi.clone())
-            .for_search_area(xy, p.search_radius_m(sigma))
+        infraloc::localize::init::verify::MiVerifier::new(
+            camera,
+            image,
+            tile,
+            p.fine.verify.mi.clone(),
+        )
+        .for_search_area(xy, p.search_radius_m(sigma))
     });
     let init = infraloc::localize::init::initialize(
         frame,
@@ -359,7 +364,7 @@ fn init_only(
             vec![prior]
         }
     };
-    rec["errors"] = pipeline::truth_errors(
+    rec["errors"] = truth_eval::truth_errors(
         &truth_text,
         std::path::Path::new("truth.json"),
         camera,
@@ -587,7 +592,7 @@ fn coverage(recs: &[Value]) -> Value {
                 if accepted_only && r.get("failure").is_some() {
                     continue;
                 }
-                let sigma: Option<infraloc::localize::quality::Sigma> =
+                let sigma: Option<infraloc::localize::refine::quality::Sigma> =
                     serde_json::from_value(r["mi_quality"]["sigma"].clone()).ok();
                 let mut e = &r["errors"]["mi"];
                 for k in path {
@@ -620,7 +625,8 @@ fn objective_at(
     pose: &CamFromMap,
     params: &Params,
 ) -> Option<f64> {
-    use infraloc::localize::search::{AxisRange, Evaluator, SearchConfig, SearchSpec};
+    use infraloc::localize::mi::objective::Evaluator;
+    use infraloc::localize::mi::space::{AxisRange, SearchConfig, SearchSpec};
     let held = AxisRange {
         half: 0.0,
         step: 0.01,

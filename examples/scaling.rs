@@ -13,9 +13,9 @@
 //! the peak RSS of the refinement alone (the peak is reset after the scene is rendered, through
 //! `/proc/self/clear_refs`) and the process's peak, and the answer's error.
 
-use infraloc::localize::quality::QualityConfig;
+use infraloc::localize::mi::space::SearchConfig;
+use infraloc::localize::refine::quality::QualityConfig;
 use infraloc::localize::refine::refine;
-use infraloc::localize::search::SearchConfig;
 use infraloc::localize::synth::{ground_points, render, Texture};
 use infraloc::pose::CamFromMap;
 use nalgebra::{Point3, Vector3};

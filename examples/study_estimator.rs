@@ -7,9 +7,10 @@
 //! profile's noise: (peak − median) / MAD(second differences). Results: docs/refine.md.
 
 use infraloc::camera::{Camera, Mei};
-use infraloc::localize::kernel::Scratch;
+use infraloc::localize::mi::kernel::Scratch;
+use infraloc::localize::mi::objective::Evaluator;
+use infraloc::localize::mi::space::{AxisRange, SearchConfig, SearchSpec};
 use infraloc::localize::mi::{Binning, MiConfig, Objective};
-use infraloc::localize::search::{AxisRange, Evaluator, SearchConfig, SearchSpec};
 use infraloc::localize::synth::{ground_points, render, Texture};
 use infraloc::pose::CamFromMap;
 use nalgebra::Point3;
@@ -114,7 +115,7 @@ fn main() {
         &Camera,
         Vec<u8>,
         Vec<u8>,
-        Vec<infraloc::localize::points::GroundPoint>,
+        Vec<infraloc::localize::mi::points::GroundPoint>,
     )> = [
         ("fisheye", 1u64),
         ("fisheye", 2),

@@ -6,15 +6,12 @@
 //! outputs (`Run::write_outputs`); the service calls it and offers the pose to its store. The
 //! CLI only turns flags into [`Overrides`] and prints; the service never imports the CLI.
 
-use crate::camera::{
-    import::{load_camera, IntrinsicsSigma},
-    Camera, CameraModel,
-};
+use crate::camera::{import::IntrinsicsSigma, load_camera, Camera, CameraModel};
 use crate::capture::load_gray;
 use crate::config::{Config, FrameSourceKind, GpsSourceKind, MatcherKind};
 use crate::error::{Error, Result};
 use crate::localize::frame::Frame;
-use crate::localize::matcher::{MatchFile, Matcher};
+use crate::localize::init::matcher::{MatchFile, Matcher};
 use crate::localize::pipeline::{localize, Outcome, Params};
 use crate::map::cache::{load_covering, SkippedTile, TileRef};
 use crate::map::{Crs, Tile};
@@ -309,7 +306,7 @@ pub(crate) fn run(
     let (tile, tref) = *located_tile;
     let params = Params {
         matcher,
-        quality: crate::localize::quality::QualityConfig {
+        quality: crate::localize::refine::quality::QualityConfig {
             intrinsics_sigma,
             ..cfg.quality
         },
@@ -370,7 +367,7 @@ pub(crate) fn run(
     if let Some(t) = &ov.truth {
         let text = std::fs::read_to_string(t).map_err(|e| Error::io(t, e))?;
         report["truth"] =
-            crate::localize::pipeline::truth_errors(&text, t, &camera, &outcome.stages)?;
+            crate::eval::truth_eval::truth_errors(&text, t, &camera, &outcome.stages)?;
     }
     Ok(Run {
         outcome,
@@ -410,7 +407,7 @@ fn capture_and_receive(
     progress(StageName::Tile);
     // The camera file's stated intrinsics uncertainty goes into the pose's covariance.
     let intrinsics_sigma = match (&ov.camera, &cfg.camera.intrinsics_file) {
-        (Some(p), _) | (None, Some(p)) => crate::camera::import::load_intrinsics_sigma(p)?,
+        (Some(p), _) | (None, Some(p)) => crate::camera::load_intrinsics_sigma(p)?,
         (None, None) => None,
     };
     let tile = match rx.recv() {
@@ -446,7 +443,7 @@ enum Located {
 #[derive(serde::Serialize)]
 struct PoseQuality<'a> {
     #[serde(flatten)]
-    refinement: &'a crate::localize::quality::Quality,
+    refinement: &'a crate::localize::refine::quality::Quality,
     /// The pose store compares results by it: the MI optimum's NMI.
     score: f64,
     /// The final PnP's inliers.

@@ -28,7 +28,7 @@ pub struct Config {
     pub daemon: DaemonConfig,
     /// The MI result's gate: σ limits and how the uncertainty is estimated.
     #[serde(default)]
-    pub quality: crate::localize::quality::QualityConfig,
+    pub quality: crate::localize::refine::quality::QualityConfig,
     /// Initialization: which matcher pairs the frame with the map.
     #[serde(default)]
     pub init: InitConfig,

@@ -110,7 +110,7 @@ pub(crate) fn check(cfg: &Config, scope: Scope) -> Findings {
         if let Some(p) = &cfg.init.matcher_path {
             match std::fs::read_to_string(p) {
                 Ok(text) => {
-                    if let Err(e) = crate::localize::matcher::MatchFile::parse(&text, p) {
+                    if let Err(e) = crate::localize::init::matcher::MatchFile::parse(&text, p) {
                         f.problems
                             .push(format!("[init] matcher-path {}: {e}", p.display()));
                     }
@@ -267,7 +267,7 @@ fn camera(cfg: &Config, f: &mut Findings) {
                 file.display()
             )),
             Ok(_) => {
-                if let Err(e) = crate::camera::import::load_camera(p) {
+                if let Err(e) = crate::camera::load_camera(p) {
                     f.problems.push(format!("[camera] intrinsics-file: {e}"));
                 }
             }

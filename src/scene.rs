@@ -2,7 +2,7 @@
 //! docs/interfaces.md, "Scene directory"), for the commands that study a scene (`study`, `plot mi-surface`). The
 //! directory is written by `infraloc simulate`.
 
-use crate::camera::import::load_camera;
+use crate::camera::load_camera;
 use crate::camera::{Camera, CameraModel};
 use crate::error::{Error, Result};
 use crate::map::cache::{find_tile, load_tile};
@@ -32,7 +32,7 @@ pub(crate) fn load_scene(dir: &Path) -> Result<SceneFiles> {
         return Err(Error::input(dir, "scene directory not found"));
     }
     let tp = dir.join("truth.json");
-    let truth = crate::sim::truth::read_truth(&tp)?;
+    let truth = crate::eval::truth::read_truth(&tp)?;
     let control = truth
         .control_points
         .iter()

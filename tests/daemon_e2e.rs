@@ -428,7 +428,7 @@ fn boot_serve_relocalize_status_reload_stop() {
         .unwrap();
     assert!(out.status.success(), "{}", text(&out.stderr));
     let img = image::open(&png).unwrap();
-    let cam = infraloc::camera::import::load_camera(&scene().join("camera.yaml")).unwrap();
+    let cam = infraloc::camera::load_camera(&scene().join("camera.yaml")).unwrap();
     use infraloc::camera::CameraModel;
     // Two panels side by side: before (PnP pose) | after (final pose).
     assert_eq!((img.width(), img.height()), (2 * cam.width(), cam.height()));

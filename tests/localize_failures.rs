@@ -4,8 +4,8 @@
 //! exit non-zero with one line naming the stage and its numbers, and leave the existing pose
 //! file byte-identical.
 
-use infraloc::camera::import::{load_camera, to_opencv_yaml};
 use infraloc::camera::Camera;
+use infraloc::camera::{load_camera, to_opencv_yaml};
 use std::path::Path;
 use std::process::Command;
 

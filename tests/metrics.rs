@@ -10,7 +10,7 @@ use infraloc::daemon::status::{
     Running, Served, StageTime,
 };
 use infraloc::daemon::{State, Status};
-use infraloc::localize::quality::Sigma;
+use infraloc::localize::refine::quality::Sigma;
 use infraloc::map::cache::SkippedTile;
 use infraloc::stage::StageName;
 use std::path::Path;

@@ -4,8 +4,10 @@
 //! yaw error; the polish recovers the tilt and the position.
 
 use infraloc::camera::{Camera, Mei};
-use infraloc::localize::polish::{polish_pose, PolishParams};
-use infraloc::localize::search::{search, Evaluator, SearchConfig, View};
+use infraloc::localize::mi::objective::{Evaluator, View};
+use infraloc::localize::mi::space::SearchConfig;
+use infraloc::localize::refine::polish::{polish_pose, PolishParams};
+use infraloc::localize::refine::search::search;
 use infraloc::localize::synth::{ground_points, render, Texture};
 use infraloc::pose::{rotation_angle_between, CamFromMap};
 use nalgebra::Point3;

@@ -9,10 +9,10 @@
 //!   second peak is reported but stays below the contrast threshold, and the result is accepted.
 
 use infraloc::camera::{Camera, Mei};
-use infraloc::localize::quality::{assess, Quality, QualityConfig, MIN_BASIN_STEPS};
-use infraloc::localize::search::{
-    search, AxisRange, Evaluator, SearchConfig, SearchResult, SearchSpec,
-};
+use infraloc::localize::mi::objective::Evaluator;
+use infraloc::localize::mi::space::{AxisRange, SearchConfig, SearchSpec};
+use infraloc::localize::refine::quality::{assess, Quality, QualityConfig, MIN_BASIN_STEPS};
+use infraloc::localize::refine::search::{search, SearchResult};
 use infraloc::localize::synth::{ground_points, render, Texture};
 use infraloc::pose::CamFromMap;
 use nalgebra::{Point3, Vector3};

@@ -15,8 +15,8 @@
 mod common;
 
 use infraloc::camera::{load_camera, CameraModel};
-use infraloc::localize::points_io::read_points;
-use infraloc::localize::search::pose_at;
+use infraloc::localize::mi::space::pose_at;
+use infraloc::points_io::read_points;
 use infraloc::pose::{angle_difference, CamFromMap};
 use infraloc::posefile::read_pose;
 use nalgebra::{Matrix3, Vector3};

@@ -4,9 +4,10 @@
 //! (docs/refine.md "Forward-looking cameras").
 
 use infraloc::camera::{Camera, CameraModel, Mei};
-use infraloc::localize::quality::QualityConfig;
+use infraloc::localize::mi::objective::View;
+use infraloc::localize::mi::space::{pose_at, SearchConfig};
+use infraloc::localize::refine::quality::QualityConfig;
 use infraloc::localize::refine::{refine_polished, PolishedSearch, Refinement};
-use infraloc::localize::search::{pose_at, SearchConfig, View};
 use infraloc::localize::synth::{forward_view, lidar_rings, render, Texture};
 use infraloc::pose::{offsets_between, CamFromMap};
 
@@ -18,7 +19,7 @@ struct Scene {
     heading: f64,
     gray: Vec<u8>,
     mask: Vec<u8>,
-    points: Vec<infraloc::localize::points::GroundPoint>,
+    points: Vec<infraloc::localize::mi::points::GroundPoint>,
 }
 
 fn scene(seed: u64, heading_deg: f64) -> Scene {

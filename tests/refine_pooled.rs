@@ -3,9 +3,10 @@
 //! one joint histogram per pose, and the covariance's coverage of the true error.
 
 use infraloc::camera::{Camera, Mei};
-use infraloc::localize::quality::QualityConfig;
+use infraloc::localize::mi::objective::View;
+use infraloc::localize::mi::space::{pose_at, SearchConfig};
+use infraloc::localize::refine::quality::QualityConfig;
 use infraloc::localize::refine::{refine_polished, PolishedSearch, Refinement};
-use infraloc::localize::search::{pose_at, SearchConfig, View};
 use infraloc::localize::synth::{forward_view, lidar_rings, render, Texture};
 use infraloc::pose::{offsets_between, CamFromMap};
 use rand::{Rng, SeedableRng};
@@ -18,7 +19,7 @@ struct Scene {
     truth: CamFromMap,
     frames: Vec<Vec<u8>>,
     mask: Vec<u8>,
-    points: Vec<infraloc::localize::points::GroundPoint>,
+    points: Vec<infraloc::localize::mi::points::GroundPoint>,
 }
 
 fn scene(seed: u64, frames: usize, noise: f64) -> Scene {
@@ -129,7 +130,7 @@ fn pooling_noisy_frames_under_different_light() {
         }
     }
     // The report's pairs and points.
-    let rep = four.report(infraloc::localize::search::Mode::Tiled);
+    let rep = four.report(infraloc::localize::mi::space::Mode::Tiled);
     assert_eq!((rep.pairs, rep.pair_points.len()), (4, 4));
 }
 

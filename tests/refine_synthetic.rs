@@ -3,12 +3,12 @@
 //! pose; refinement starts from perturbed poses.
 
 use infraloc::camera::{Camera, Mei};
+use infraloc::localize::mi::objective::Evaluator;
+use infraloc::localize::mi::points::GroundPoint;
+use infraloc::localize::mi::space::{AxisRange, Mode, SearchConfig, SearchSpec};
 use infraloc::localize::mi::Objective;
-use infraloc::localize::points::GroundPoint;
-use infraloc::localize::quality::{assess, QualityConfig};
-use infraloc::localize::search::{
-    search, AxisRange, Evaluator, Mode, SearchConfig, SearchResult, SearchSpec,
-};
+use infraloc::localize::refine::quality::{assess, QualityConfig};
+use infraloc::localize::refine::search::{search, SearchResult};
 use infraloc::localize::synth::{ground_points, render, Texture};
 use infraloc::pose::{rotation_angle_between, CamFromMap};
 use nalgebra::{Point3, Vector3};

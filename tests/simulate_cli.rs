@@ -1,6 +1,6 @@
 //! `infraloc simulate` end to end through the binary: determinism and a loadable scene directory.
 
-use infraloc::camera::import::load_camera;
+use infraloc::camera::load_camera;
 use infraloc::config::Config;
 use infraloc::map::cache::{find_tile, load_tile};
 use std::collections::BTreeMap;

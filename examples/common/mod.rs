@@ -141,17 +141,17 @@ pub fn pose_of(v: &serde_json::Value) -> Option<infraloc::pose::CamFromMap> {
 /// pipeline's polish tilts about.
 pub fn tilt_pivot(tile: &infraloc::map::Tile, pose: &infraloc::pose::CamFromMap) -> Option<f64> {
     let c = pose.center();
-    infraloc::localize::ground::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
+    infraloc::localize::init::ground::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
 }
 
 /// The search box of the pipeline's polish (`pp.bound` on each axis, pitch and roll free) about
 /// `pivot`, with `search`'s other settings: the fixed point set the polish scores on.
 pub fn polish_box(
-    pp: &infraloc::localize::polish::PolishParams,
-    search: &infraloc::localize::search::SearchConfig,
+    pp: &infraloc::localize::refine::polish::PolishParams,
+    search: &infraloc::localize::mi::space::SearchConfig,
     pivot: Option<f64>,
-) -> infraloc::localize::search::SearchConfig {
-    use infraloc::localize::search::{AxisRange, SearchConfig, SearchSpec};
+) -> infraloc::localize::mi::space::SearchConfig {
+    use infraloc::localize::mi::space::{AxisRange, SearchConfig, SearchSpec};
     let ax = |half: f64| AxisRange {
         half,
         step: half / 2.0,
@@ -171,8 +171,8 @@ pub fn polish_box(
 }
 
 /// The scene's truth as `localize --truth` reads it: its `truth.json` written and parsed back.
-pub fn scene_truth(scene: &infraloc::sim::Scene) -> infraloc::Result<infraloc::sim::truth::Truth> {
+pub fn scene_truth(scene: &infraloc::sim::Scene) -> infraloc::Result<infraloc::eval::truth::Truth> {
     let text = serde_json::to_string(&scene.truth_json())
         .map_err(|e| infraloc::Error::Invalid(format!("truth.json: {e}")))?;
-    infraloc::sim::truth::parse_truth(&text, std::path::Path::new("truth.json"))
+    infraloc::eval::truth::parse_truth(&text, std::path::Path::new("truth.json"))
 }

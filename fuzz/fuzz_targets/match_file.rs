@@ -2,7 +2,7 @@
 //! and a file it accepts has at least one row, every value finite.
 #![no_main]
 
-use infraloc::localize::matcher::MatchFile;
+use infraloc::localize::init::matcher::MatchFile;
 use libfuzzer_sys::fuzz_target;
 use std::path::Path;
 

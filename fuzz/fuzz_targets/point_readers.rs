@@ -3,7 +3,7 @@
 //! reject non-finite ones with an error naming the point).
 #![no_main]
 
-use infraloc::localize::points_io::{parse_csv, parse_las, parse_pcd, parse_velodyne_bin};
+use infraloc::points_io::{parse_csv, parse_las, parse_pcd, parse_velodyne_bin};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

@@ -147,7 +147,7 @@ fn import(a: ImportArgs) -> Result<()> {
         a.pose_out.display()
     );
     if let (Some(o), Some(path)) = (perturb, &a.start_out) {
-        let start = crate::localize::search::pose_at(&pose, &o);
+        let start = crate::localize::mi::space::pose_at(&pose, &o);
         let mut stage = stage;
         stage["perturbation"] = serde_json::json!({
             "x_m": o[0], "y_m": o[1], "z_m": o[2], "yaw_deg": o[3], "pitch_deg": o[4], "roll_deg": o[5],

@@ -7,12 +7,12 @@
 
 use super::parse_size;
 use crate::error::{Error, Result};
-use crate::localize::points_io::read_points;
-use crate::localize::search::{SearchConfig, SearchSpec};
-use crate::localize::study::{
+use crate::eval::study::{
     mi_surface, mi_surface_pooled, offsets_from, Perturbation, PointSelection, Summary, Surface,
     Trial, SUCCESS_HEIGHT_M, SUCCESS_HORIZONTAL_M, SUCCESS_YAW_DEG,
 };
+use crate::localize::mi::space::{SearchConfig, SearchSpec};
+use crate::points_io::read_points;
 use crate::posefile::read_pose;
 use crate::scene::{load_scene, SceneFiles};
 use image::RgbImage;

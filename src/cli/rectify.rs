@@ -2,7 +2,7 @@
 //! `cv::omnidir::initUndistortRectifyMap(…, RECTIFY_PERSPECTIVE)` semantics (docs/interfaces.md, "Command line and exit codes").
 
 use super::parse_list;
-use crate::camera::import::load_camera;
+use crate::camera::load_camera;
 use crate::camera::rectify::{perspective_map, GrayView, RectifyMap, RemapTable};
 use crate::camera::CameraModel;
 use crate::error::{Error, Result};

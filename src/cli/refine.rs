@@ -1,15 +1,16 @@
 //! `infraloc refine`: MI refinement alone, from any initial pose (docs/interfaces.md, "Command line and exit codes").
 
-use crate::camera::import::load_camera;
+use crate::camera::load_camera;
 use crate::camera::CameraModel;
 use crate::error::{Error, Result};
+use crate::localize::mi::objective::View;
+use crate::localize::mi::points::GroundPoint;
+use crate::localize::mi::space::{Mode, SearchConfig, SearchSpec};
 use crate::localize::mi::MiValue;
-use crate::localize::points::GroundPoint;
-use crate::localize::points_io::read_points;
-use crate::localize::quality::QualityConfig;
+use crate::localize::refine::quality::QualityConfig;
 use crate::localize::refine::{finish_name, refine_polished, summed_offsets, PolishedSearch};
-use crate::localize::search::{Mode, SearchConfig, SearchSpec, View};
 use crate::map::{cache, Crs};
+use crate::points_io::read_points;
 use crate::posefile::{format_utc, read_pose, PoseFile};
 use std::path::{Path, PathBuf};
 
@@ -145,7 +146,7 @@ pub(super) fn run(a: Args) -> Result<()> {
     }
     let cam = load_camera(&a.camera)?;
     let qcfg = QualityConfig {
-        intrinsics_sigma: crate::camera::import::load_intrinsics_sigma(&a.camera)?,
+        intrinsics_sigma: crate::camera::load_intrinsics_sigma(&a.camera)?,
         ..qcfg
     };
     let mut grays = Vec::with_capacity(a.image.len());

@@ -5,7 +5,7 @@
 //! instruction counts in docs/benchmarks.md.
 
 use crate::error::{Error, Result};
-use crate::localize::kernel;
+use crate::localize::mi::kernel;
 
 /// Arguments of `self-test`.
 #[derive(Debug, clap::Args)]
@@ -24,16 +24,16 @@ pub struct Args {
 /// Run the check (or the workload); a difference is an error naming the pose.
 pub(crate) fn run(a: Args) -> Result<()> {
     if let Some(n) = a.workload {
-        let (points, sum) = kernel::workload(n, a.reference);
+        let (points, sum) = kernel::selftest::workload(n, a.reference);
         let path = if a.reference {
             "reference"
         } else {
-            kernel::kernel_path()
+            kernel::selftest::kernel_path()
         };
         println!("workload: {n} poses × {points} points, {path}, checksum {sum}");
         return Ok(());
     }
-    let r = kernel::self_test(a.poses).map_err(|m| Error::stage("self-test", m))?;
+    let r = kernel::selftest::self_test(a.poses).map_err(|m| Error::stage("self-test", m))?;
     println!(
         "self-test OK: MI kernel ({}) bit-identical to the reference loop, {} poses × {} points",
         r.path, r.poses, r.points

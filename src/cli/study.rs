@@ -1,17 +1,17 @@
 //! `infraloc study` (docs/interfaces.md, "Command line and exit codes"): the seed's robustness study on a simulated scene — MI
 //! refinement from seeded random initializations around the truth, a summary on stdout, a scatter
-//! plot PNG and a JSON file with every trial. The computation is [`crate::localize::study`]; this
+//! plot PNG and a JSON file with every trial. The computation is [`crate::eval::study`]; this
 //! file reads the scene and writes the outputs.
 
 use crate::camera::CameraModel;
 use crate::error::{Error, Result};
-use crate::localize::quality::QualityConfig;
-use crate::localize::refine::{finish_name, PolishedSearch};
-use crate::localize::search::{SearchConfig, SearchSpec};
-use crate::localize::study::{
+use crate::eval::study::{
     attitude_from_control_points, run_trial, Perturbation, PointSelection, Scene, Summary,
     SUCCESS_HEIGHT_M, SUCCESS_HORIZONTAL_M, SUCCESS_YAW_DEG,
 };
+use crate::localize::mi::space::{SearchConfig, SearchSpec};
+use crate::localize::refine::quality::QualityConfig;
+use crate::localize::refine::{finish_name, PolishedSearch};
 use crate::scene::load_scene;
 use serde_json::json;
 use std::path::PathBuf;
@@ -147,7 +147,7 @@ pub(super) fn run(a: Args) -> Result<()> {
         trials.push(t);
     }
     let sum = Summary::of(&trials);
-    let row = |name: &str, s: &crate::localize::study::Spread, scale: f64, unit: &str| {
+    let row = |name: &str, s: &crate::eval::study::Spread, scale: f64, unit: &str| {
         println!(
             "{name:<11} median {:>7.3} {unit}  p95 {:>7.3} {unit}  max {:>7.3} {unit}",
             s.median * scale,

@@ -8,7 +8,7 @@ use crate::daemon::status::{
     Status, Validated,
 };
 use crate::error::{Error, Result};
-use crate::localize::quality::Sigma;
+use crate::localize::refine::quality::Sigma;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Duration;

@@ -8,7 +8,7 @@
 //! `NaN`, so an alert on them can use `absent()`.
 
 use super::status::{DriftOutcome, RunOutcome, State, Status};
-use crate::localize::quality::Sigma;
+use crate::localize::refine::quality::Sigma;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 

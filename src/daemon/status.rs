@@ -7,7 +7,7 @@
 //! `infraloc status --json` keep working.
 
 use crate::control::{Accepted, Refusal};
-use crate::localize::quality::Sigma;
+use crate::localize::refine::quality::Sigma;
 use crate::map::cache::SkippedTile;
 use crate::posefile::PoseFile;
 use crate::stage::StageName;
@@ -436,41 +436,7 @@ impl TryFrom<RunResultWire> for RunResult {
     }
 }
 
-/// A drift search's judgement of the served pose against fresh frames.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct DriftVerdict {
-    /// Whether the camera counts as moved.
-    pub moved: bool,
-    /// Why it counts as moved (`None` when it does not).
-    pub reason: Option<String>,
-    /// Horizontal distance of the optimum from the served pose, metres.
-    pub shift_m: f64,
-    /// Height offset of the optimum, metres.
-    pub dz_m: f64,
-    /// Yaw offset of the optimum, degrees.
-    pub yaw_deg: f64,
-}
-
-/// The optimum a drift search found.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Optimum {
-    /// Camera centre, map CRS, metres.
-    pub camera_center: [f64; 3],
-    /// Yaw, pitch, roll, degrees.
-    pub yaw_pitch_roll_deg: [f64; 3],
-    /// Its NMI on the fresh frames.
-    pub nmi: f64,
-}
-
-/// A drift search's answer: the verdict and the optimum it is based on.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct DriftSearch {
-    /// The judgement.
-    #[serde(flatten)]
-    pub verdict: DriftVerdict,
-    /// The optimum.
-    pub optimum: Optimum,
-}
+pub use infraloc_core::localize::refine::drift::{DriftSearch, DriftVerdict, Optimum};
 
 /// The status's record of the latest drift check.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

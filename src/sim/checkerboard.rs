@@ -351,3 +351,87 @@ pub fn render(cam: &Camera, board: &Board, n: usize, seed: u64) -> Vec<BoardView
         })
         .collect()
 }
+
+/// The calibration's corner detector on boards this module renders (the core cannot depend on
+/// the simulator, so the detector's rendered-board tests live here).
+#[cfg(test)]
+mod detect_tests {
+    use super::{render, Board};
+    use crate::calib::detect::*;
+    use crate::camera::{Camera, Mei};
+
+    fn camera() -> Camera {
+        Camera::Mei(Mei {
+            width: 640,
+            height: 480,
+            fx: 400.0,
+            fy: 400.5,
+            cx: 321.0,
+            cy: 238.5,
+            skew: 0.0,
+            xi: 1.6,
+            k1: -0.02,
+            k2: 0.004,
+            p1: 0.0,
+            p2: 0.0,
+            fov_deg: Some(185.0),
+        })
+    }
+
+    /// Detected corners against the renderer's truth: every corner of the full boards, within
+    /// 0.25 px, 0.08 px RMS; the labels are a 9×6 grid of the square.
+    #[test]
+    fn finds_rendered_boards_to_a_tenth_of_a_pixel() {
+        let cam = camera();
+        let board = Board {
+            cols: 9,
+            rows: 6,
+            square: 0.03,
+        };
+        let views = render(&cam, &board, 4, 11);
+        let (mut ss, mut n) = (0.0, 0usize);
+        for (k, v) in views.iter().enumerate() {
+            let truth: Vec<[f64; 2]> = v.corners.iter().flatten().copied().collect();
+            let found = detect(&v.image, 640, 480, 9, 6, 0.03);
+            if k % 5 == 4 || truth.len() < 54 {
+                continue;
+            }
+            let f = found.unwrap_or_else(|e| panic!("view {k}: {e}"));
+            assert!(f.full && f.image.len() == 54, "view {k}: {}", f.image.len());
+            for o in &f.object {
+                let (i, j) = (o[0] / 0.03, o[1] / 0.03);
+                assert!((i - i.round()).abs() < 1e-9 && (j - j.round()).abs() < 1e-9);
+                assert!(i.round() < 9.0 && j.round() < 6.0);
+            }
+            for p in &f.image {
+                let d = truth
+                    .iter()
+                    .map(|t| (t[0] - p[0]).hypot(t[1] - p[1]))
+                    .fold(f64::MAX, f64::min);
+                assert!(d < 0.25, "view {k}: corner at {p:?} is {d} px off");
+                ss += d * d;
+                n += 1;
+            }
+        }
+        assert!(n >= 3 * 54, "{n} corners checked");
+        let rms = (ss / n as f64).sqrt();
+        assert!(rms < 0.08, "RMS {rms}");
+    }
+
+    #[test]
+    fn a_grid_larger_than_the_pattern_or_no_board_is_refused_with_a_reason() {
+        let cam = camera();
+        let board = Board {
+            cols: 9,
+            rows: 6,
+            square: 0.03,
+        };
+        let v = &render(&cam, &board, 1, 11)[0];
+        let err = detect(&v.image, 640, 480, 6, 4, 0.03).unwrap_err();
+        assert!(err.contains("larger than the 6×4 pattern"), "{err}");
+        let grey = vec![100u8; 640 * 480];
+        let err = detect(&grey, 640, 480, 9, 6, 0.03).unwrap_err();
+        assert_eq!(err, "no corner-like points");
+        assert!(detect(&grey, 640, 10, 9, 6, 0.03).is_err());
+    }
+}

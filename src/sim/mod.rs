@@ -14,7 +14,7 @@ pub(crate) mod layers;
 pub(crate) mod noise;
 pub(crate) mod render;
 pub(crate) mod solids;
-pub mod truth;
+
 pub(crate) mod world;
 
 use crate::camera::{Camera, CameraModel, Equidistant, Mei};

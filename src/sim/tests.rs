@@ -27,7 +27,7 @@ fn truth_control_points_reproject_within_a_hundredth_of_a_pixel() {
     let v: serde_json::Value = serde_json::from_str(&text).unwrap();
     // Read back only through the file's own keys: pose and control points (via the truth.json
     // reader) and intrinsics.
-    let truth = super::truth::parse_truth(&text, std::path::Path::new("truth.json")).unwrap();
+    let truth = crate::eval::truth::parse_truth(&text, std::path::Path::new("truth.json")).unwrap();
     let pose = truth.pose;
     let cam: Camera = serde_json::from_value(v["intrinsics"].clone()).unwrap();
     let pts: Vec<TruthPoint> = truth.control_points;

@@ -1,0 +1,289 @@
+//! Geodesy: WGS84 ↔ projected map CRS (UTM). Pure computation, no I/O.
+//!
+//! The map frame of a tile is a WGS84 UTM zone (EPSG 32601–32660 north, 32701–32760 south). The
+//! projection maths is `proj4rs` (a Rust port of PROJ.4's extended transverse Mercator, `etmerc`,
+//! which PROJ ≥ 6 also uses for `+proj=utm`); `tests/geo_reference.rs` checks it against pyproj on
+//! a global grid to ≤ 1 mm, including zone edges, the equator and points far into the neighbour
+//! zone. Projection objects are built once per zone and cached, because parsing a proj string
+//! costs far more than projecting a point.
+
+pub mod georef;
+
+use crate::error::{Error, Result};
+use proj4rs::proj::Proj;
+use proj4rs::transform::{transform, Transform, TransformClosure};
+use serde::{Deserialize, Serialize};
+use std::sync::OnceLock;
+
+/// Base of the EPSG codes of WGS84 / UTM north zones (zone N → 32600 + N).
+pub(crate) const UTM_NORTH_BASE: u32 = 32600;
+/// Base of the EPSG codes of WGS84 / UTM south zones (zone N → 32700 + N).
+pub(crate) const UTM_SOUTH_BASE: u32 = 32700;
+/// Number of UTM zones.
+pub(crate) const UTM_ZONES: u32 = 60;
+/// Width of a UTM zone, degrees of longitude.
+const ZONE_WIDTH_DEG: f64 = 6.0;
+
+/// The "supported" part of every unknown-CRS message, so all callers say the same thing.
+pub const SUPPORTED_CRS: &str = "supported: WGS84 UTM 326xx/327xx";
+
+/// UTM zone (1..=60) and hemisphere of a WGS84 UTM EPSG code; `None` for any other code.
+pub(crate) fn utm_zone_of(epsg: u32) -> Option<(u32, Hemisphere)> {
+    let zone_in = |base: u32| {
+        epsg.checked_sub(base)
+            .filter(|z| (1..=UTM_ZONES).contains(z))
+    };
+    if let Some(z) = zone_in(UTM_NORTH_BASE) {
+        Some((z, Hemisphere::North))
+    } else {
+        zone_in(UTM_SOUTH_BASE).map(|z| (z, Hemisphere::South))
+    }
+}
+
+/// Hemisphere of a UTM zone (south zones use a 10 000 km false northing).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Hemisphere {
+    /// EPSG 326zz.
+    North,
+    /// EPSG 327zz.
+    South,
+}
+
+/// Check that `crs` is a CRS this crate can relate to WGS84 (a WGS84 UTM zone).
+pub fn check_crs(crs: Crs) -> Result<(u32, Hemisphere)> {
+    match crs {
+        Crs::Epsg(code) => utm_zone_of(code)
+            .ok_or_else(|| Error::Invalid(format!("unknown EPSG:{code} ({SUPPORTED_CRS})"))),
+        Crs::Local => Err(Error::Invalid(format!(
+            "CRS LOCAL has no relation to WGS84 ({SUPPORTED_CRS})"
+        ))),
+    }
+}
+
+/// Standard UTM zone number (1..=60) of a WGS84 position, including the Norway (32V) and Svalbard
+/// (31X–37X) exceptions of the UTM definition. Longitude is wrapped to [−180, 180).
+pub(crate) fn utm_zone_for(lat: f64, lon: f64) -> u32 {
+    let lon = (lon + 180.0).rem_euclid(360.0) - 180.0;
+    let mut zone = (((lon + 180.0) / ZONE_WIDTH_DEG).floor() as u32 + 1).clamp(1, UTM_ZONES);
+    // Norway: band V (56°..64°N) zone 32 is widened west to 3°E.
+    if (56.0..64.0).contains(&lat) && (3.0..12.0).contains(&lon) {
+        zone = 32;
+    }
+    // Svalbard: band X (72°..84°N) has only the odd zones 31, 33, 35, 37 between 0° and 42°E.
+    if (72.0..=84.0).contains(&lat) {
+        zone = match lon {
+            l if (0.0..9.0).contains(&l) => 31,
+            l if (9.0..21.0).contains(&l) => 33,
+            l if (21.0..33.0).contains(&l) => 35,
+            l if (33.0..42.0).contains(&l) => 37,
+            _ => zone,
+        };
+    }
+    zone
+}
+
+/// EPSG code of the WGS84 UTM zone of a position: 326zz north of the equator (latitude ≥ 0),
+/// 327zz south of it.
+pub fn utm_epsg_for(lat: f64, lon: f64) -> u32 {
+    let base = if lat >= 0.0 {
+        UTM_NORTH_BASE
+    } else {
+        UTM_SOUTH_BASE
+    };
+    base + utm_zone_for(lat, lon)
+}
+
+/// Longitude of the central meridian of UTM zone `zone` (1..=60), degrees.
+pub fn central_meridian(zone: u32) -> f64 {
+    -183.0 + ZONE_WIDTH_DEG * f64::from(zone)
+}
+
+/// Mean Earth radius (IUGG), metres.
+const MEAN_EARTH_RADIUS_M: f64 = 6_371_008.8;
+
+/// Great-circle distance between two WGS84 positions on the mean sphere, metres (haversine;
+/// within 0.5 % of the ellipsoidal distance). For coarse "how far away" messages only.
+pub fn great_circle_m(lat1: f64, lon1: f64, lat2: f64, lon2: f64) -> f64 {
+    let (p1, p2) = (lat1.to_radians(), lat2.to_radians());
+    let dp = p2 - p1;
+    let dl = (lon2 - lon1).to_radians();
+    let h = (dp / 2.0).sin().powi(2) + p1.cos() * p2.cos() * (dl / 2.0).sin().powi(2);
+    2.0 * MEAN_EARTH_RADIUS_M * h.sqrt().min(1.0).asin()
+}
+
+/// One point handed to `proj4rs::transform` (it wants a type implementing its `Transform`).
+struct Pt(f64, f64);
+
+impl Transform for Pt {
+    fn transform_coordinates<F: TransformClosure>(
+        &mut self,
+        f: &mut F,
+    ) -> proj4rs::errors::Result<()> {
+        let (x, y, _) = f(self.0, self.1, 0.0)?;
+        self.0 = x;
+        self.1 = y;
+        Ok(())
+    }
+}
+
+/// Number of cached projections: 60 north + 60 south zones.
+const N_CACHED: usize = 2 * UTM_ZONES as usize;
+
+/// Lazily built WGS84 geographic and UTM zone projections.
+static LONGLAT: OnceLock<std::result::Result<Proj, String>> = OnceLock::new();
+static UTM: [OnceLock<std::result::Result<Proj, String>>; N_CACHED] =
+    [const { OnceLock::new() }; N_CACHED];
+
+fn longlat() -> Result<&'static Proj> {
+    LONGLAT
+        .get_or_init(|| {
+            Proj::from_proj_string("+proj=longlat +datum=WGS84 +no_defs").map_err(|e| e.to_string())
+        })
+        .as_ref()
+        .map_err(|e| Error::Invalid(format!("WGS84 projection: {e}")))
+}
+
+fn utm_proj(zone: u32, hemi: Hemisphere) -> Result<&'static Proj> {
+    let (slot, south) = match hemi {
+        Hemisphere::North => (zone as usize - 1, ""),
+        Hemisphere::South => (UTM_ZONES as usize + zone as usize - 1, " +south"),
+    };
+    UTM[slot]
+        .get_or_init(|| {
+            Proj::from_proj_string(&format!(
+                "+proj=utm +zone={zone}{south} +datum=WGS84 +units=m +no_defs"
+            ))
+            .map_err(|e| e.to_string())
+        })
+        .as_ref()
+        .map_err(|e| Error::Invalid(format!("UTM zone {zone}{south} projection: {e}")))
+}
+
+/// WGS84 latitude/longitude (degrees) → map coordinates (easting, northing in metres) of `crs`.
+pub fn wgs84_to_map(crs: Crs, lat: f64, lon: f64) -> Result<(f64, f64)> {
+    let (zone, hemi) = check_crs(crs)?;
+    if !(lat.abs() <= 90.0) || !lon.is_finite() {
+        return Err(Error::Invalid(format!(
+            "WGS84 position lat={lat}, lon={lon}: latitude must be in [-90, 90], longitude finite"
+        )));
+    }
+    let mut p = Pt(lon.to_radians(), lat.to_radians());
+    transform(longlat()?, utm_proj(zone, hemi)?, &mut p)
+        .map_err(|e| Error::Invalid(format!("WGS84 lat={lat}, lon={lon} → {crs}: {e}")))?;
+    finite_or_err(p.0, p.1, || format!("WGS84 lat={lat}, lon={lon} → {crs}"))
+}
+
+/// Map coordinates of `crs` (easting, northing in metres) → WGS84 (latitude, longitude) degrees.
+pub fn map_to_wgs84(crs: Crs, x: f64, y: f64) -> Result<(f64, f64)> {
+    let (zone, hemi) = check_crs(crs)?;
+    if !x.is_finite() || !y.is_finite() {
+        return Err(Error::Invalid(format!(
+            "{crs} position x={x}, y={y}: coordinates must be finite"
+        )));
+    }
+    let mut p = Pt(x, y);
+    transform(utm_proj(zone, hemi)?, longlat()?, &mut p)
+        .map_err(|e| Error::Invalid(format!("{crs} x={x}, y={y} → WGS84: {e}")))?;
+    let (lon, lat) = finite_or_err(p.0.to_degrees(), p.1.to_degrees(), || {
+        format!("{crs} x={x}, y={y} → WGS84")
+    })?;
+    Ok((lat, lon))
+}
+
+fn finite_or_err(a: f64, b: f64, what: impl FnOnce() -> String) -> Result<(f64, f64)> {
+    if a.is_finite() && b.is_finite() {
+        Ok((a, b))
+    } else {
+        Err(Error::Invalid(format!("{}: no finite result", what())))
+    }
+}
+
+/// A coordinate reference system of map data.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Crs {
+    /// An EPSG code (e.g. 32617 = WGS84 / UTM 17N).
+    Epsg(u32),
+    /// A local metric right-handed frame with z up; no WGS84 lookups.
+    Local,
+}
+
+impl std::fmt::Display for Crs {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Crs::Epsg(c) => write!(f, "EPSG:{c}"),
+            Crs::Local => write!(f, "LOCAL"),
+        }
+    }
+}
+
+impl std::str::FromStr for Crs {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let t = s.trim();
+        if t.eq_ignore_ascii_case("LOCAL") {
+            return Ok(Crs::Local);
+        }
+        let code = t
+            .strip_prefix("EPSG:")
+            .or_else(|| t.strip_prefix("epsg:"))
+            .ok_or_else(|| format!("CRS {s:?}: expected EPSG:<code> or LOCAL"))?;
+        code.parse::<u32>()
+            .map(Crs::Epsg)
+            .map_err(|_| format!("CRS {s:?}: EPSG code is not a number"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn zone_selection() {
+        assert_eq!(utm_epsg_for(40.0, -81.0), 32617);
+        assert_eq!(utm_epsg_for(-33.9, 151.2), 32756);
+        assert_eq!(utm_epsg_for(0.0, 0.0), 32631);
+        assert_eq!(utm_epsg_for(-0.0001, -180.0), 32701);
+        assert_eq!(utm_epsg_for(10.0, 180.0), 32601); // wraps
+        assert_eq!(utm_epsg_for(10.0, 179.999), 32660);
+        assert_eq!(utm_epsg_for(60.0, 5.0), 32632); // Norway
+        assert_eq!(utm_epsg_for(78.0, 15.0), 32633); // Svalbard
+    }
+
+    #[test]
+    fn unknown_epsg_is_rejected() {
+        for code in [4326, 32600, 32661, 32700, 32761, 3857, 25832] {
+            let e = wgs84_to_map(Crs::Epsg(code), 10.0, 10.0)
+                .unwrap_err()
+                .to_string();
+            assert_eq!(
+                e,
+                format!("unknown EPSG:{code} (supported: WGS84 UTM 326xx/327xx)")
+            );
+        }
+        assert!(map_to_wgs84(Crs::Local, 0.0, 0.0).is_err());
+        assert!(wgs84_to_map(Crs::Epsg(32617), f64::NAN, 0.0).is_err());
+        assert!(wgs84_to_map(Crs::Epsg(32617), 91.0, 0.0).is_err());
+    }
+
+    #[test]
+    fn great_circle_against_pyproj_geod() {
+        // pyproj.Geod(ellps="WGS84").inv: 6 438 731.6 m and 14 102 659.7 m; the sphere is within
+        // 0.5 % of the ellipsoid.
+        let d = great_circle_m(45.146322013640194, 13.728070378524817, 45.0, 100.0);
+        assert!((d / 6_438_731.6 - 1.0).abs() < 5e-3, "{d}");
+        let d = great_circle_m(45.146322013640194, 13.728070378524817, -30.0, -100.0);
+        assert!((d / 14_102_659.7 - 1.0).abs() < 5e-3, "{d}");
+        assert_eq!(central_meridian(31), 3.0);
+        assert_eq!(central_meridian(1), -177.0);
+    }
+
+    #[test]
+    fn central_meridian_on_equator_is_false_easting() {
+        // Definition of UTM: the central meridian maps to E = 500 000 m, the equator to N = 0
+        // (north) or 10 000 000 m (south).
+        let (x, y) = wgs84_to_map(Crs::Epsg(32631), 0.0, 3.0).unwrap();
+        assert!((x - 500_000.0).abs() < 1e-6 && y.abs() < 1e-6, "{x} {y}");
+        let (x, y) = wgs84_to_map(Crs::Epsg(32731), 0.0, 3.0).unwrap();
+        assert!((x - 500_000.0).abs() < 1e-6 && (y - 10_000_000.0).abs() < 1e-6);
+    }
+}

@@ -1,0 +1,496 @@
+//! Pose from 2D–3D correspondences on *bearing vectors*: works over the whole fisheye field (rays
+//! beyond 90° included) because nothing is undistorted to a pinhole plane.
+//!
+//! Minimal solver: Grunert's P3P (as reviewed by Haralick et al. 1991, the seed's reference), real
+//! roots by isolation; RANSAC with an injected seeded RNG scores hypotheses by pixel reprojection
+//! error; Levenberg–Marquardt then polishes the inliers' reprojection error.
+
+use super::poly::real_roots;
+use crate::camera::CameraModel;
+use crate::error::{Error, Result};
+use crate::pose::CamFromMap;
+use crate::stage::StageName;
+use nalgebra::{DMatrix, DVector, Matrix3, Point2, Point3, Rotation3, Vector3};
+use rand::Rng;
+
+/// One correspondence: a fisheye pixel and the map point it shows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Correspondence {
+    /// Observed pixel.
+    pub pixel: Point2<f64>,
+    /// Map point (map frame; the solver re-centres internally for conditioning).
+    pub world: Point3<f64>,
+}
+
+/// RANSAC and refinement settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PnpParams {
+    /// Inlier threshold on reprojection error, pixels.
+    pub threshold_px: f64,
+    /// Upper bound on RANSAC iterations.
+    pub max_iterations: usize,
+    /// Stop when the probability of having drawn an all-inlier sample reaches this.
+    pub confidence: f64,
+    /// Fewer inliers than this is a failure.
+    pub min_inliers: usize,
+    /// Levenberg–Marquardt iterations on the inliers.
+    pub lm_iterations: usize,
+}
+
+impl Default for PnpParams {
+    fn default() -> Self {
+        PnpParams {
+            threshold_px: 4.0,
+            max_iterations: 5000,
+            confidence: 0.9999,
+            min_inliers: 12,
+            lm_iterations: 50,
+        }
+    }
+}
+
+/// Result of [`solve_pnp_ransac`].
+#[derive(Debug, Clone)]
+pub(crate) struct PnpResult {
+    /// World→camera pose.
+    pub pose: CamFromMap,
+    /// Indices of the inlier correspondences.
+    pub inliers: Vec<usize>,
+    /// RMS reprojection error over the inliers after refinement, pixels.
+    pub rms_px: f64,
+}
+
+/// Grunert's P3P: up to four poses mapping the three world points onto the three bearings.
+pub(crate) fn p3p(f: [Vector3<f64>; 3], x: [Point3<f64>; 3]) -> Vec<CamFromMap> {
+    let f = f.map(|v| v.normalize());
+    let a2 = (x[1] - x[2]).norm_squared();
+    let b2 = (x[0] - x[2]).norm_squared();
+    let c2 = (x[0] - x[1]).norm_squared();
+    if a2 < 1e-12 || b2 < 1e-12 || c2 < 1e-12 {
+        return Vec::new();
+    }
+    let ca = f[1].dot(&f[2]);
+    let cb = f[0].dot(&f[2]);
+    let cg = f[0].dot(&f[1]);
+    let k1 = (a2 - c2) / b2;
+    let k2 = (a2 + c2) / b2;
+    let a4 = (k1 - 1.0).powi(2) - 4.0 * c2 / b2 * ca * ca;
+    let a3 = 4.0 * (k1 * (1.0 - k1) * cb - (1.0 - k2) * ca * cg + 2.0 * c2 / b2 * ca * ca * cb);
+    let a2c = 2.0
+        * (k1 * k1 - 1.0 + 2.0 * k1 * k1 * cb * cb + 2.0 * (b2 - c2) / b2 * ca * ca
+            - 4.0 * k2 * ca * cb * cg
+            + 2.0 * (b2 - a2) / b2 * cg * cg);
+    let a1 = 4.0 * (-k1 * (1.0 + k1) * cb + 2.0 * a2 / b2 * cg * cg * cb - (1.0 - k2) * ca * cg);
+    let a0 = (1.0 + k1).powi(2) - 4.0 * a2 / b2 * cg * cg;
+    let mut out = Vec::new();
+    for v in real_roots(&[a0, a1, a2c, a3, a4]) {
+        let den = 2.0 * (cg - v * ca);
+        if den.abs() < 1e-12 {
+            continue;
+        }
+        let u = ((k1 - 1.0) * v * v - 2.0 * k1 * cb * v + 1.0 + k1) / den;
+        let q = 1.0 + v * v - 2.0 * v * cb;
+        if q <= 0.0 || u <= 0.0 || v <= 0.0 {
+            continue;
+        }
+        let s1 = (b2 / q).sqrt();
+        let p = [f[0] * s1, f[1] * (u * s1), f[2] * (v * s1)];
+        if let Some(pose) = align(&x, &p) {
+            out.push(pose);
+        }
+    }
+    out
+}
+
+/// Rigid transform with `p_i = R·x_i + t` (Kabsch/Horn by SVD).
+fn align(x: &[Point3<f64>], p: &[Vector3<f64>]) -> Option<CamFromMap> {
+    let n = x.len() as f64;
+    let cx = x.iter().fold(Vector3::zeros(), |a, v| a + v.coords) / n;
+    let cp = p.iter().fold(Vector3::zeros(), |a, v| a + v) / n;
+    let mut h = Matrix3::zeros();
+    for (xi, pi) in x.iter().zip(p) {
+        h += (pi - cp) * (xi.coords - cx).transpose();
+    }
+    let svd = h.svd(true, true);
+    let (u, vt) = (svd.u?, svd.v_t?);
+    let mut d = Matrix3::identity();
+    if (u * vt).determinant() < 0.0 {
+        d[(2, 2)] = -1.0;
+    }
+    let r = u * d * vt;
+    if !r.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let rot = Rotation3::from_matrix_unchecked(r);
+    Some(CamFromMap::new(rot, cp - rot * cx))
+}
+
+/// Squared reprojection error of one correspondence, `None` if it does not project.
+fn reproj2(cam: &dyn CameraModel, pose: &CamFromMap, c: &Correspondence) -> Option<f64> {
+    let pc = pose.transform(&c.world).coords;
+    cam.project(&pc)
+        .ok()
+        .map(|px| (px - c.pixel).norm_squared())
+}
+
+/// RANSAC P3P on bearings + LM refinement. World points are re-centred internally.
+pub(crate) fn solve_pnp_ransac<R: Rng>(
+    cam: &dyn CameraModel,
+    corr: &[Correspondence],
+    params: &PnpParams,
+    rng: &mut R,
+) -> Result<PnpResult> {
+    if corr.len() < params.min_inliers.max(4) {
+        return Err(Error::stage(
+            StageName::Pnp.name(),
+            format!(
+                "{} correspondences < {} required",
+                corr.len(),
+                params.min_inliers.max(4)
+            ),
+        ));
+    }
+    // Re-centre: UTM-sized coordinates would cost P3P and LM most of their precision.
+    let origin = corr
+        .iter()
+        .fold(Vector3::zeros(), |a, c| a + c.world.coords)
+        / corr.len() as f64;
+    let local: Vec<Correspondence> = corr
+        .iter()
+        .map(|c| Correspondence {
+            pixel: c.pixel,
+            world: c.world - origin,
+        })
+        .collect();
+    let bearings: Vec<Option<Vector3<f64>>> = local
+        .iter()
+        .map(|c| cam.unproject(&c.pixel).ok().map(|b| b.into_inner()))
+        .collect();
+    let usable: Vec<usize> = (0..local.len())
+        .filter(|&i| bearings[i].is_some())
+        .collect();
+    if usable.len() < 4 {
+        return Err(Error::stage(
+            StageName::Pnp.name(),
+            format!("{} unprojectable-free correspondences < 4", usable.len()),
+        ));
+    }
+    let thr2 = params.threshold_px * params.threshold_px;
+    let mut best: Option<(usize, f64, CamFromMap)> = None;
+    let mut needed = params.max_iterations;
+    let mut it = 0;
+    while it < needed.min(params.max_iterations) {
+        it += 1;
+        let mut idx = [0usize; 3];
+        for k in 0..3 {
+            loop {
+                let c = usable[rng.random_range(0..usable.len())];
+                if !idx[..k].contains(&c) {
+                    idx[k] = c;
+                    break;
+                }
+            }
+        }
+        let f = idx.map(|i| bearings[i].unwrap_or_else(Vector3::z));
+        let x = idx.map(|i| local[i].world);
+        for pose in p3p(f, x) {
+            let mut count = 0;
+            let mut cost = 0.0;
+            for c in &local {
+                match reproj2(cam, &pose, c) {
+                    Some(e) if e < thr2 => {
+                        count += 1;
+                        cost += e;
+                    }
+                    _ => cost += thr2,
+                }
+            }
+            // MSAC-style tie-break: more inliers first, then lower truncated cost.
+            let better = match &best {
+                None => true,
+                Some((n, bc, _)) => count > *n || (count == *n && cost < *bc),
+            };
+            if better {
+                best = Some((count, cost, pose));
+                let w = count as f64 / local.len() as f64;
+                let p_fail = 1.0 - w.powi(3);
+                if p_fail <= 1e-12 {
+                    needed = it;
+                } else {
+                    let n = ((1.0 - params.confidence).ln() / p_fail.ln()).ceil();
+                    needed = if n.is_finite() {
+                        n as usize
+                    } else {
+                        params.max_iterations
+                    };
+                }
+            }
+        }
+    }
+    let (_, _, mut pose) =
+        best.ok_or_else(|| Error::stage(StageName::Pnp.name(), "no P3P hypothesis"))?;
+    // Refine, re-select inliers, refine again: the first LM often recruits more inliers.
+    for _ in 0..3 {
+        let inliers: Vec<usize> = (0..local.len())
+            .filter(|&i| reproj2(cam, &pose, &local[i]).is_some_and(|e| e < thr2))
+            .collect();
+        if inliers.len() < 4 {
+            break;
+        }
+        let sel: Vec<Correspondence> = inliers.iter().map(|&i| local[i]).collect();
+        pose = refine_lm(cam, &pose, &sel, params.lm_iterations);
+    }
+    let inliers: Vec<usize> = (0..local.len())
+        .filter(|&i| reproj2(cam, &pose, &local[i]).is_some_and(|e| e < thr2))
+        .collect();
+    if inliers.len() < params.min_inliers {
+        return Err(Error::stage(
+            StageName::Pnp.name(),
+            format!(
+                "{} inliers < {} required",
+                inliers.len(),
+                params.min_inliers
+            ),
+        ));
+    }
+    let sse: f64 = inliers
+        .iter()
+        .filter_map(|&i| reproj2(cam, &pose, &local[i]))
+        .sum();
+    let rms_px = (sse / inliers.len() as f64).sqrt();
+    // Undo the re-centring: X_c = R(X − o) + t = R X + (t − R o).
+    let pose = CamFromMap::new(pose.rotation, pose.translation - pose.rotation * origin);
+    Ok(PnpResult {
+        pose,
+        inliers,
+        rms_px,
+    })
+}
+
+/// Levenberg–Marquardt on pixel reprojection error; parameters are a left rotation increment
+/// (axis-angle) and a translation increment. Forward-difference Jacobian: six parameters and
+/// a cheap residual make analytic derivatives per lens model not worth their code.
+pub fn refine_lm(
+    cam: &dyn CameraModel,
+    init: &CamFromMap,
+    corr: &[Correspondence],
+    iterations: usize,
+) -> CamFromMap {
+    // A correspondence that stops projecting keeps a fixed residual (and zero gradient).
+    const UNPROJECTABLE_RESIDUAL: f64 = 1e3;
+    let residuals = |p: &CamFromMap| -> DVector<f64> {
+        let mut r = DVector::zeros(2 * corr.len());
+        for (i, c) in corr.iter().enumerate() {
+            match cam.project(&p.transform(&c.world).coords) {
+                Ok(px) => {
+                    r[2 * i] = px.x - c.pixel.x;
+                    r[2 * i + 1] = px.y - c.pixel.y;
+                }
+                Err(_) => {
+                    r[2 * i] = UNPROJECTABLE_RESIDUAL;
+                    r[2 * i + 1] = UNPROJECTABLE_RESIDUAL;
+                }
+            }
+        }
+        r
+    };
+    let apply = |p: &CamFromMap, d: &DVector<f64>| -> CamFromMap {
+        let dr = Rotation3::new(Vector3::new(d[0], d[1], d[2]));
+        CamFromMap::new(
+            dr * p.rotation,
+            dr * p.translation + Vector3::new(d[3], d[4], d[5]),
+        )
+    };
+    let mut pose = *init;
+    let mut r = residuals(&pose);
+    let mut cost = r.norm_squared();
+    let mut lambda = 1e-3;
+    for _ in 0..iterations {
+        let mut j = DMatrix::zeros(r.len(), 6);
+        for k in 0..6 {
+            let h = if k < 3 { 1e-7 } else { 1e-6 };
+            let mut d = DVector::zeros(6);
+            d[k] = h;
+            let rk = residuals(&apply(&pose, &d));
+            j.set_column(k, &((rk - &r) / h));
+        }
+        let jt = j.transpose();
+        let jtj = &jt * &j;
+        let g = &jt * &r;
+        let mut improved = false;
+        for _ in 0..10 {
+            let mut a = jtj.clone();
+            for k in 0..6 {
+                a[(k, k)] += lambda * (1.0 + jtj[(k, k)]);
+            }
+            let Some(step) = a.lu().solve(&(-&g)) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let cand = apply(&pose, &step);
+            let rc = residuals(&cand);
+            let c = rc.norm_squared();
+            if c < cost {
+                let rel = (cost - c) / cost.max(1e-300);
+                pose = cand;
+                r = rc;
+                cost = c;
+                lambda = (lambda * 0.3).max(1e-12);
+                improved = rel > 1e-12;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    pose
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Mei;
+    use crate::pose::rotation_angle_between;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    fn fisheye() -> Mei {
+        Mei {
+            width: 1024,
+            height: 1024,
+            fx: 300.0,
+            fy: 300.0,
+            cx: 512.0,
+            cy: 512.0,
+            skew: 0.0,
+            xi: 1.1,
+            k1: -0.05,
+            k2: 0.01,
+            p1: 0.0,
+            p2: 0.0,
+            fov_deg: Some(185.0),
+        }
+    }
+
+    #[test]
+    fn p3p_recovers_random_poses() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut worst: f64 = 0.0;
+        for _ in 0..200 {
+            let truth = CamFromMap::from_center_ypr(
+                &Point3::new(
+                    rng.random_range(-5.0..5.0),
+                    rng.random_range(-5.0..5.0),
+                    rng.random_range(3.0..12.0),
+                ),
+                rng.random_range(-3.1..3.1),
+                rng.random_range(-0.3..0.3),
+                rng.random_range(-0.3..0.3),
+            );
+            let x: [Point3<f64>; 3] = std::array::from_fn(|_| {
+                Point3::new(
+                    rng.random_range(-20.0..20.0),
+                    rng.random_range(-20.0..20.0),
+                    rng.random_range(-0.5..0.5),
+                )
+            });
+            let f = x.map(|p| truth.transform(&p).coords.normalize());
+            let sols = p3p(f, x);
+            let best = sols
+                .iter()
+                .map(|s| {
+                    (s.center() - truth.center()).norm()
+                        + rotation_angle_between(&s.rotation, &truth.rotation)
+                })
+                .fold(f64::INFINITY, f64::min);
+            worst = worst.max(best);
+        }
+        assert!(worst < 1e-6, "worst P3P error {worst}");
+    }
+
+    #[test]
+    fn ransac_with_outliers_and_wide_field() {
+        let cam = fisheye();
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let center = Point3::new(500_010.0, 4_700_020.0, 208.0);
+        let truth = CamFromMap::from_center_ypr(&center, 2.1, 0.02, -0.015);
+        let mut corr = Vec::new();
+        let mut n_wide = 0;
+        while corr.len() < 200 {
+            let w = Point3::new(
+                center.x + rng.random_range(-60.0..60.0),
+                center.y + rng.random_range(-60.0..60.0),
+                // Every 5th point on a facade above the camera: rays beyond 90° off-axis.
+                if corr.len() % 5 == 1 {
+                    209.0 + rng.random_range(0.0..6.0)
+                } else {
+                    200.0 + rng.random_range(-0.2..0.2)
+                },
+            );
+            let Ok(px) = cam.project_visible(&truth.transform(&w).coords) else {
+                continue;
+            };
+            let outlier = corr.len() % 3 == 0; // 33 % outliers
+            let pixel = if outlier {
+                Point2::new(rng.random_range(0.0..1024.0), rng.random_range(0.0..1024.0))
+            } else {
+                px + nalgebra::Vector2::new(
+                    rng.random_range(-0.5..0.5),
+                    rng.random_range(-0.5..0.5),
+                )
+            };
+            if !outlier && truth.transform(&w).z < 0.0 {
+                n_wide += 1;
+            }
+            corr.push(Correspondence { pixel, world: w });
+        }
+        assert!(n_wide > 0, "the test must include rays beyond 90°");
+        let res = solve_pnp_ransac(
+            &cam,
+            &corr,
+            &PnpParams::default(),
+            &mut ChaCha8Rng::seed_from_u64(5),
+        )
+        .unwrap();
+        assert!(
+            (res.pose.center() - truth.center()).norm() < 0.05,
+            "{:?}",
+            res.pose.center() - truth.center()
+        );
+        assert!(rotation_angle_between(&res.pose.rotation, &truth.rotation) < 0.002);
+        assert!(
+            res.inliers.len() >= 120 && res.rms_px < 0.6,
+            "{} {}",
+            res.inliers.len(),
+            res.rms_px
+        );
+        // Deterministic given the seed.
+        let again = solve_pnp_ransac(
+            &cam,
+            &corr,
+            &PnpParams::default(),
+            &mut ChaCha8Rng::seed_from_u64(5),
+        )
+        .unwrap();
+        assert_eq!(again.pose, res.pose);
+        assert_eq!(again.inliers, res.inliers);
+    }
+
+    #[test]
+    fn too_few_inliers_is_a_named_failure() {
+        let cam = fisheye();
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let corr: Vec<Correspondence> = (0..30)
+            .map(|i| Correspondence {
+                pixel: Point2::new(rng.random_range(0.0..1024.0), rng.random_range(0.0..1024.0)),
+                world: Point3::new(i as f64, (i * 7 % 13) as f64, 0.0),
+            })
+            .collect();
+        let e = solve_pnp_ransac(&cam, &corr, &PnpParams::default(), &mut rng)
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("pnp: ") && e.contains("required"), "{e}");
+    }
+}

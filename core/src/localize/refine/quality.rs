@@ -1,0 +1,625 @@
+//! Quality of a refinement: the statistics reported with every result, and the gate that rejects
+//! ambiguous ones.
+//!
+//! Per enabled axis, the objective is profiled through the optimum at the finest step
+//! (±`profile-half-steps` cells, level 0: full image, all points):
+//! - **curvature**: a least-squares parabola over ±`fit-half-steps` cells gives the MI
+//!   curvature κ = −d²MI/dθ² (nats per unit²). `fisher_sigma` = 1/√(N·κ) treats N·MI as a
+//!   log-likelihood ratio of N independent points; neighbouring pixels are correlated and the
+//!   axes couple, so it is a lower bound, often 10–100× too small. The uncertainty the gate and
+//!   the pose file use is [`crate::localize::refine::uncertainty`]'s (`sigma`, `covariance`).
+//! - **basin width**: the profile is followed outwards from the optimum while it keeps falling; the
+//!   width is the distance between the first rises on both sides (`basin_open` when it reaches the
+//!   profile's end on a side).
+//!
+//! The **second peak** is the best other local maximum found by the search that lies outside the
+//! main peak's basin on at least one axis. Its height is reported as a ratio to the optimum and as
+//! a *contrast* above the background (the lowest profile value): (s₂ − bg)/(s₁ − bg). Raw MI ratios
+//! are close to 1 for any textured scene because misaligned views still share low-frequency
+//! structure, so the gate uses the contrast.
+
+// Axis-indexed loops over parallel fixed-size arrays ([_; 6]) read clearer with the index.
+#![allow(clippy::needless_range_loop)]
+
+use crate::localize::mi::objective::Evaluator;
+use crate::localize::mi::space::AXES;
+use crate::localize::refine::search::SearchResult;
+use crate::localize::refine::uncertainty::{Uncertainty, UncertaintyConfig, REGION_Z};
+pub use crate::pose::Sigma;
+use serde::{Deserialize, Serialize};
+
+/// Gate and profile settings.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
+pub struct QualityConfig {
+    /// Profile half length, finest cells.
+    pub profile_half_steps: i64,
+    /// Parabola-fit half length, finest cells.
+    pub fit_half_steps: i64,
+    /// Smallest accepted fixed point set.
+    pub min_points: usize,
+    /// Largest accepted second-peak contrast.
+    pub max_second_peak_contrast: f64,
+    /// Largest accepted fraction of the fixed set lost at some pose.
+    pub max_lost_fraction: f64,
+    /// Narrowest accepted basin along any axis, finest cells (both sides together). A genuine
+    /// alignment peak falls off over the scale of the image's texture and blur; a peak only one
+    /// or two cells wide is a spike of the estimator's noise on a wrong pose.
+    pub min_basin_steps: i64,
+    /// Two peaks are one hill when the objective along the straight path between them never
+    /// falls further below the lower one than this fraction of the optimum's height above
+    /// background: a valley floor (axes trading against each other) is one answer with a large
+    /// σ, not two answers. 0 (the default) keeps the earlier rule, every peak outside the basin
+    /// counts: at 0.2 a 30 %-wrong focal length was accepted (tests/localize_failures.rs), so the
+    /// value waits for a measurement.
+    pub max_saddle_dip: f64,
+    /// Largest accepted σ of x and y (m).
+    pub max_sigma_xy_m: f64,
+    /// Largest accepted σ of z (m).
+    pub max_sigma_z_m: f64,
+    /// Largest accepted σ of yaw (deg).
+    pub max_sigma_yaw_deg: f64,
+    /// Largest accepted σ of pitch and roll when they are estimated (deg).
+    pub max_sigma_tilt_deg: f64,
+    /// Jackknife groups of the uncertainty estimate ([`crate::localize::refine::uncertainty`]).
+    pub jackknife_folds: usize,
+    /// The camera file's stated intrinsics uncertainty, carried into the covariance
+    /// ([`crate::localize::refine::uncertainty::intrinsics_deltas`]); set from the camera file, not a config key.
+    #[serde(skip)]
+    pub intrinsics_sigma: Option<crate::camera::import::IntrinsicsSigma>,
+}
+
+impl Default for QualityConfig {
+    fn default() -> Self {
+        QualityConfig {
+            profile_half_steps: 15,
+            fit_half_steps: 3,
+            min_points: 1000,
+            max_second_peak_contrast: 0.8,
+            max_lost_fraction: 0.02,
+            min_basin_steps: MIN_BASIN_STEPS,
+            max_saddle_dip: 0.0,
+            max_sigma_xy_m: 0.05,
+            max_sigma_z_m: 0.05,
+            max_sigma_yaw_deg: 0.15,
+            max_sigma_tilt_deg: 0.5,
+            jackknife_folds: 8,
+            intrinsics_sigma: None,
+        }
+    }
+}
+
+impl QualityConfig {
+    /// Check the values a config file may set; the message names the key.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        let positive = [
+            ("max-sigma-xy-m", self.max_sigma_xy_m),
+            ("max-sigma-z-m", self.max_sigma_z_m),
+            ("max-sigma-yaw-deg", self.max_sigma_yaw_deg),
+            ("max-sigma-tilt-deg", self.max_sigma_tilt_deg),
+        ];
+        for (key, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{key} = {v}: must be a positive finite number"));
+            }
+        }
+        let fractions = [
+            ("max-second-peak-contrast", self.max_second_peak_contrast),
+            ("max-lost-fraction", self.max_lost_fraction),
+            ("max-saddle-dip", self.max_saddle_dip),
+        ];
+        for (key, v) in fractions {
+            if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
+                return Err(format!("{key} = {v}: must lie in 0..1"));
+            }
+        }
+        if !(2..=64).contains(&self.jackknife_folds) {
+            return Err(format!(
+                "jackknife-folds = {}: must lie in 2..64",
+                self.jackknife_folds
+            ));
+        }
+        if !(1..=1000).contains(&self.profile_half_steps)
+            || !(1..=self.profile_half_steps).contains(&self.fit_half_steps)
+        {
+            return Err(format!(
+                "profile-half-steps = {} / fit-half-steps = {}: need 1 <= fit <= profile <= 1000",
+                self.profile_half_steps, self.fit_half_steps
+            ));
+        }
+        if !(0..=1000).contains(&self.min_basin_steps) {
+            return Err(format!(
+                "min-basin-steps = {}: must lie in 0..1000",
+                self.min_basin_steps
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Default of [`QualityConfig::min_basin_steps`]. Measured on the simulator (pipeline
+/// `small` 1–40 twice, `5mp` 1–10): every result within 0.1 m of the truth had basins of ≥ 15
+/// cells on every axis (0.3 m, 0.75°) except `5mp` seed 6 (x: 17 cells); the wrong results the
+/// other checks accepted had a 2-cell yaw basin (`small` 29, 16.6 m off) and 3-, 4- and 5-cell
+/// z, y, x basins (`5mp` 3, 11 m off); a biased but nearby one (`5mp` 4, 0.21 m) had 6 cells.
+/// One good result has since been refused by it (`small` 86 on main 6de2e75: 5.9 cm off, a
+/// 4-cell z basin; CHANGELOG.md "Quality gate: basin rule"). A refused good pose costs a retry and the node keeps its last pose; a published wrong one
+/// sends every detection metres astray, so the margin sits on the refusing side.
+pub const MIN_BASIN_STEPS: i64 = 5;
+
+/// Per-axis statistics.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AxisQuality {
+    /// Axis name (x, y, z, yaw, pitch, roll).
+    pub axis: String,
+    /// Unit of the values below (m or deg).
+    pub unit: String,
+    /// MI curvature κ at the peak, nats per unit².
+    pub curvature: f64,
+    /// 1/√(N·κ) (∞ when κ ≤ 0): the σ N independent points would give along this axis alone.
+    /// A lower bound, not the uncertainty: see [`Quality::sigma`].
+    pub fisher_sigma: f64,
+    /// Vertex offset of the fitted parabola from the optimum (sub-step peak estimate).
+    pub vertex_offset: f64,
+    /// Basin width along the axis.
+    pub basin_width: f64,
+    /// The profile reached its end on a side while still falling.
+    pub basin_open: bool,
+    /// Whether the optimum sits on the search box's edge on this axis.
+    pub on_edge: bool,
+}
+
+/// Which of the gate's checks refused a result ([`Quality::reason`] says it in words). The
+/// checks run in this order and the first failing one refuses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GateCheck {
+    /// Too few points seen from every pose of the box.
+    TooFewPoints,
+    /// Too much of the fixed point set left the image at some pose.
+    PointsLost,
+    /// The optimum sits on the box's edge.
+    OnEdge,
+    /// The objective rises again too close to the optimum along an axis.
+    NoBasin,
+    /// No negative curvature along an axis.
+    NoPeak,
+    /// A separate second peak reaches too close to the optimum's height: every other check
+    /// passed, so the optimum itself is a clear peak.
+    Ambiguous,
+    /// The marginal uncertainty (applied after the checks above passed): no peak over all free
+    /// axes together, a covariance that is not finite, or a σ over its limit.
+    Uncertain,
+}
+
+/// Quality of one result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Quality {
+    /// MI at the optimum (nats).
+    pub mi: f64,
+    /// NMI at the optimum.
+    pub nmi: f64,
+    /// Points that counted at the optimum.
+    pub points: u64,
+    /// Lowest profile value of the objective (background).
+    pub background: f64,
+    /// Objective of the best separated second peak over the optimum's (None: no such peak found).
+    pub second_peak_ratio: Option<f64>,
+    /// (s₂ − bg)/(s₁ − bg) (None: no separated peak).
+    pub second_peak_contrast: Option<f64>,
+    /// Offsets of the second peak from the optimum (m, m, m, deg, deg, deg).
+    pub second_peak_offset: Option<[f64; 6]>,
+    /// Per-axis statistics.
+    pub axes: Vec<AxisQuality>,
+    /// Poses scored for these statistics.
+    pub poses: u64,
+    /// Marginal σ per axis (m, deg) from [`crate::localize::refine::uncertainty`]; `None` until estimated.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma: Option<Sigma>,
+    /// The marginal covariance and how it was estimated; `None` until estimated.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub covariance: Option<Uncertainty>,
+    /// Gate verdict.
+    pub accepted: bool,
+    /// Why the gate rejected (None when accepted).
+    pub reason: Option<String>,
+    /// Which check rejected (None when accepted); not serialized, `reason` is its words.
+    #[serde(skip)]
+    pub refused_by: Option<GateCheck>,
+}
+
+impl Sigma {
+    /// From an estimate (axes it did not estimate are 0 for x..yaw, absent for the tilts).
+    pub(crate) fn of(u: &Uncertainty) -> Self {
+        Self::by_axis(|a| u.sigma_of(a))
+    }
+
+    /// The σ the gate judges ([`Uncertainty::gate_sigma`]); the reported σ when the estimate
+    /// has none.
+    pub(crate) fn judged(u: &Uncertainty) -> Self {
+        if u.gate_sigma.len() != u.axes.len() {
+            return Self::of(u);
+        }
+        Self::by_axis(|a| u.axes.iter().position(|x| x == a).map(|i| u.gate_sigma[i]))
+    }
+}
+
+/// Attach the uncertainty estimate to `q` and apply the σ part of the gate: a result the other
+/// checks accepted is refused when the objective has no peak over all free axes together, when
+/// the covariance is not finite, or when an axis's σ exceeds its limit. The reason names the axis,
+/// its σ and the limit's key.
+pub(crate) fn apply_uncertainty(q: &mut Quality, u: Uncertainty, cfg: &QualityConfig) {
+    let reported = Sigma::of(&u);
+    let sigma = Sigma::judged(&u);
+    if q.accepted {
+        let limits = [
+            ("x", sigma.x, cfg.max_sigma_xy_m, "max-sigma-xy-m"),
+            ("y", sigma.y, cfg.max_sigma_xy_m, "max-sigma-xy-m"),
+            ("z", sigma.z, cfg.max_sigma_z_m, "max-sigma-z-m"),
+            ("yaw", sigma.yaw, cfg.max_sigma_yaw_deg, "max-sigma-yaw-deg"),
+            (
+                "pitch",
+                sigma.pitch.unwrap_or(0.0),
+                cfg.max_sigma_tilt_deg,
+                "max-sigma-tilt-deg",
+            ),
+            (
+                "roll",
+                sigma.roll.unwrap_or(0.0),
+                cfg.max_sigma_tilt_deg,
+                "max-sigma-tilt-deg",
+            ),
+        ];
+        let open = u
+            .region
+            .as_ref()
+            .and_then(|r| Some((r.open.clone()?, r.open_reach.clone()?, r.z)));
+        let reason = if let Some((ray, reach, z)) = open {
+            // The σ each axis of the ray has at least: its reach over 2z.
+            let bounds: Vec<String> = reach
+                .iter()
+                .zip(&u.axes)
+                .filter(|(v, _)| **v != 0.0)
+                .map(|(v, axis)| format!("σ {axis} ≥ {}", axis_value(axis, v.abs() / (2.0 * z), 1)))
+                .collect();
+            Some(format!(
+                "no peak: along {ray} the MI cannot tell the answer from a pose {} away within its noise (a flat valley): {}, unbounded",
+                describe_offset(&reach, &u.axes),
+                bounds.join(", ")
+            ))
+        } else if !u.peak {
+            Some(
+                "no peak: without one patch of the points the MI optimum walks to the edge of its ±15 cm / ±0.5° box (a flat valley); σ is unbounded"
+                    .to_string(),
+            )
+        } else if !u.is_finite() {
+            Some("uncertainty: the covariance is not finite".to_string())
+        } else {
+            limits
+                .iter()
+                .find(|(_, s, lim, _)| *s > *lim)
+                .map(|(axis, s, lim, key)| {
+                    let (v, l, unit) = if *axis == "yaw" || *axis == "pitch" || *axis == "roll" {
+                        (*s, *lim, "°")
+                    } else {
+                        (100.0 * s, 100.0 * lim, " cm")
+                    };
+                    format!(
+                        "uncertain: σ {axis} {v:.2}{unit} exceeds the limit {l:.2}{unit} ([quality] {key}); {}",
+                        sigma.describe()
+                    )
+                })
+        };
+        if let Some(r) = reason {
+            q.accepted = false;
+            q.reason = Some(r);
+            q.refused_by = Some(GateCheck::Uncertain);
+        }
+    }
+    q.sigma = Some(reported);
+    q.covariance = Some(u);
+}
+
+/// An offset as "30 cm, 0.90°" (its non-zero components, lengths in cm, angles in degrees).
+fn describe_offset(v: &[f64], axes: &[String]) -> String {
+    v.iter()
+        .zip(axes)
+        .filter(|(v, _)| **v != 0.0)
+        .map(|(v, axis)| axis_value(axis, v.abs(), 0))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// A value of `axis` for people: x, y, z (m) in centimetres with `cm_decimals`, angles in degrees
+/// with two decimals.
+fn axis_value(axis: &str, v: f64, cm_decimals: usize) -> String {
+    if axis == "x" || axis == "y" || axis == "z" {
+        format!("{:.*} cm", cm_decimals, 100.0 * v)
+    } else {
+        format!("{v:.2}°")
+    }
+}
+
+/// The lowest objective on the straight path between two cells (level 0, continuous offsets),
+/// sampled at about one finest step (at most 32 samples, ends excluded), and the poses scored.
+fn path_minimum(
+    ev: &Evaluator,
+    a: &[f64; 6],
+    b: &[f64; 6],
+    ca: &[i64; 6],
+    cb: &[i64; 6],
+) -> (f64, u64) {
+    let cells = (0..6)
+        .map(|i| (cb[i] - ca[i]).abs())
+        .max()
+        .unwrap_or(0)
+        .clamp(1, 32);
+    let objective = ev.objective();
+    let mut scratch = crate::localize::mi::kernel::Scratch::default();
+    let mut low = f64::INFINITY;
+    for j in 1..cells {
+        let t = j as f64 / cells as f64;
+        let mut o = [0.0; 6];
+        for i in 0..6 {
+            o[i] = a[i] + t * (b[i] - a[i]);
+        }
+        low = low.min(ev.value_at(0, &o, &mut scratch).get(objective));
+    }
+    (low, cells.saturating_sub(1) as u64)
+}
+
+/// Least-squares parabola y = a x² + b x + c; returns (a, b).
+fn fit_parabola(pts: &[(f64, f64)]) -> Option<(f64, f64)> {
+    if pts.len() < 3 {
+        return None;
+    }
+    // Normal equations of [x², x, 1].
+    let mut s = [0f64; 5];
+    let mut t = [0f64; 3];
+    for &(x, y) in pts {
+        let mut p = 1.0;
+        for v in s.iter_mut() {
+            *v += p;
+            p *= x;
+        }
+        t[0] += y * x * x;
+        t[1] += y * x;
+        t[2] += y;
+    }
+    // [s4 s3 s2; s3 s2 s1; s2 s1 s0] [a b c] = t
+    let m = nalgebra::Matrix3::new(s[4], s[3], s[2], s[3], s[2], s[1], s[2], s[1], s[0]);
+    let r = m.lu().solve(&nalgebra::Vector3::new(t[0], t[1], t[2]))?;
+    Some((r[0], r[1]))
+}
+
+/// Compute the quality statistics and apply the gate.
+pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Quality {
+    let g = *ev.grid();
+    let best_cell = g.cell(res.best.idx);
+    let n = res.best.value.n.max(1) as f64;
+    let mut poses = 0u64;
+    let mut axes = Vec::new();
+    let mut background = res.best.score;
+    // Basin half widths in cells per axis and side (for the second-peak separation).
+    let mut basin_cells = [[0i64; 2]; 6];
+    for i in 0..6 {
+        if g.m[i] == 0 {
+            continue;
+        }
+        // The profile's cells (k ≠ 0 inside the grid), scored in parallel.
+        let ks: Vec<i64> = (-cfg.profile_half_steps..=cfg.profile_half_steps)
+            .filter(|&k| {
+                let mut c = best_cell;
+                c[i] += k;
+                k != 0 && g.contains(&c)
+            })
+            .collect();
+        let idxs: Vec<u64> = ks
+            .iter()
+            .map(|&k| {
+                let mut c = best_cell;
+                c[i] += k;
+                g.index(&c)
+            })
+            .collect();
+        poses += idxs.len() as u64;
+        let mut prof: Vec<(i64, f64, f64)> = ks
+            .iter()
+            .zip(ev.score_cells(0, &idxs))
+            .map(|(&k, s)| (k, s.score, s.value.mi))
+            .collect(); // (k, objective, mi)
+        let at = prof.partition_point(|p| p.0 < 0);
+        prof.insert(at, (0, res.best.score, res.best.value.mi));
+        background = prof.iter().map(|p| p.1).fold(background, f64::min);
+        let step = g.step[i];
+        let fit: Vec<(f64, f64)> = prof
+            .iter()
+            .filter(|p| p.0.abs() <= cfg.fit_half_steps)
+            .map(|p| (p.0 as f64 * step, p.2))
+            .collect();
+        let (a, b) = fit_parabola(&fit).unwrap_or((0.0, 0.0));
+        let curvature = -2.0 * a;
+        let sigma = if curvature > 0.0 {
+            1.0 / (n * curvature).sqrt()
+        } else {
+            f64::INFINITY
+        };
+        let vertex_offset = if a != 0.0 { -b / (2.0 * a) } else { 0.0 };
+        let zero = prof.iter().position(|p| p.0 == 0).unwrap_or(0);
+        let mut open = false;
+        let mut walk = |dir: i64| -> i64 {
+            let mut j = zero as i64;
+            loop {
+                let nxt = j + dir;
+                if nxt < 0 || nxt >= prof.len() as i64 {
+                    open = true;
+                    break;
+                }
+                if prof[nxt as usize].1 > prof[j as usize].1 {
+                    break;
+                }
+                j = nxt;
+            }
+            (j - zero as i64).abs()
+        };
+        let (lo, hi) = (walk(-1), walk(1));
+        basin_cells[i] = [lo, hi];
+        axes.push(AxisQuality {
+            axis: AXES[i].into(),
+            unit: if i < 3 { "m" } else { "deg" }.into(),
+            curvature,
+            fisher_sigma: sigma,
+            vertex_offset,
+            basin_width: (lo + hi) as f64 * step,
+            basin_open: open,
+            on_edge: best_cell[i].abs() == g.m[i],
+        });
+    }
+    // Second peak: the best other local maximum outside the basin on some axis that is a hill
+    // of its own: the objective dips between it and the optimum. One on the same valley floor
+    // (axes trading against each other) is the same answer, whose spread the σ reports.
+    let s1 = res.best.score;
+    let height = s1 - background;
+    let mut path_poses = 0u64;
+    let second = res.other_peaks.iter().find(|p| {
+        let c = g.cell(p.idx);
+        let outside = (0..6).any(|i| {
+            let d = c[i] - best_cell[i];
+            (d < 0 && -d > basin_cells[i][0].max(1)) || (d > 0 && d > basin_cells[i][1].max(1))
+        });
+        if !outside {
+            return false;
+        }
+        if cfg.max_saddle_dip <= 0.0 {
+            return true;
+        }
+        let (saddle, n) = path_minimum(ev, &g.offsets(&best_cell), &g.offsets(&c), &best_cell, &c);
+        path_poses += n;
+        height <= 0.0 || p.score.min(s1) - saddle > cfg.max_saddle_dip * height
+    });
+    poses += path_poses;
+    let (ratio, contrast, offset) = match second {
+        Some(p) => {
+            let c = g.cell(p.idx);
+            let mut off = [0.0; 6];
+            for i in 0..6 {
+                off[i] = (c[i] - best_cell[i]) as f64 * g.step[i];
+            }
+            let denom = s1 - background;
+            let contrast = if denom > 0.0 {
+                (p.score - background) / denom
+            } else {
+                1.0
+            };
+            (Some(p.score / s1), Some(contrast), Some(off))
+        }
+        None => (None, None, None),
+    };
+
+    // The gate: first failing check wins.
+    let mut reason = None;
+    let mut refused_by = None;
+    if ev.n_points < cfg.min_points {
+        refused_by = Some(GateCheck::TooFewPoints);
+        reason = Some(format!(
+            "only {} points seen from every pose of the search box (< {})",
+            ev.n_points, cfg.min_points
+        ));
+    } else if res.stats.max_lost_fraction > cfg.max_lost_fraction {
+        refused_by = Some(GateCheck::PointsLost);
+        reason = Some(format!(
+            "{:.1}% of the fixed point set left the image at some pose (> {:.1}%)",
+            100.0 * res.stats.max_lost_fraction,
+            100.0 * cfg.max_lost_fraction
+        ));
+    } else if let Some(a) = axes.iter().find(|a| a.on_edge) {
+        refused_by = Some(GateCheck::OnEdge);
+        reason = Some(format!(
+            "optimum on the search box's {} edge: the true optimum may lie outside; widen --search",
+            a.axis
+        ));
+    } else if let Some((a, cells)) = axes
+        .iter()
+        .filter_map(|a| {
+            let i = AXES.iter().position(|n| *n == a.axis)?;
+            Some((a, basin_cells[i][0] + basin_cells[i][1]))
+        })
+        .find(|(_, cells)| *cells < cfg.min_basin_steps)
+    {
+        refused_by = Some(GateCheck::NoBasin);
+        reason = Some(format!(
+            "no basin along {}: the objective rises again {cells} step(s) from the optimum (< {}), a spike rather than an alignment peak",
+            a.axis, cfg.min_basin_steps
+        ));
+    } else if let Some(a) = axes.iter().find(|a| !(a.curvature > 0.0)) {
+        refused_by = Some(GateCheck::NoPeak);
+        reason = Some(format!(
+            "no peak along {}: MI curvature {:.3e} nats/{}² is not negative-definite",
+            a.axis, a.curvature, a.unit
+        ));
+    } else if let (Some(c), Some(o)) = (contrast, offset) {
+        if c > cfg.max_second_peak_contrast {
+            let a = res.offsets;
+            refused_by = Some(GateCheck::Ambiguous);
+            reason = Some(format!(
+                "ambiguous: two separate peaks, the optimum at ({:+.2} m, {:+.2} m, {:+.2} m, {:+.2}°) from the start and a second at ({:+.2} m, {:+.2} m, {:+.2} m, {:+.2}°), offset ({:.2} m, {:.2} m, {:.2} m, {:.2}°) from it, reaching {:.0}% of the optimum's height above background (> {:.0}%)",
+                a[0], a[1], a[2], a[3],
+                a[0] + o[0], a[1] + o[1], a[2] + o[2], a[3] + o[3],
+                o[0], o[1], o[2], o[3], 100.0 * c, 100.0 * cfg.max_second_peak_contrast
+            ));
+        }
+    }
+    Quality {
+        mi: res.best.value.mi,
+        nmi: res.best.value.nmi,
+        points: res.best.value.n,
+        background,
+        second_peak_ratio: ratio,
+        second_peak_contrast: contrast,
+        second_peak_offset: offset,
+        axes,
+        poses,
+        sigma: None,
+        covariance: None,
+        accepted: reason.is_none(),
+        reason,
+        refused_by,
+    }
+}
+
+impl QualityConfig {
+    /// The uncertainty region's reach for this gate's σ limits, as
+    /// [`UncertaintyConfig::region_bound`] explains.
+    pub(crate) fn region_bound(&self) -> [f64; 6] {
+        let f = 2.0 * REGION_Z * 1.5;
+        let (xy, z) = (self.max_sigma_xy_m, self.max_sigma_z_m);
+        let (yaw, tilt) = (self.max_sigma_yaw_deg, self.max_sigma_tilt_deg);
+        [f * xy, f * xy, f * z, f * yaw, f * tilt, f * tilt]
+    }
+}
+
+impl Default for UncertaintyConfig {
+    fn default() -> Self {
+        UncertaintyConfig {
+            folds: 8,
+            region_bound: QualityConfig::default().region_bound(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parabola_fit_recovers_coefficients() {
+        let pts: Vec<(f64, f64)> = (-3..=3)
+            .map(|k| {
+                let x = k as f64 * 0.02;
+                (x, -50.0 * x * x + 0.7 * x + 1.3)
+            })
+            .collect();
+        let (a, b) = fit_parabola(&pts).unwrap();
+        assert!((a + 50.0).abs() < 1e-6 && (b - 0.7).abs() < 1e-9, "{a} {b}");
+        assert!(fit_parabola(&pts[..2]).is_none());
+    }
+}

@@ -1,0 +1,303 @@
+//! The pose file read by the detection pipeline: `infraloc.pose.v1` JSON (docs/interfaces.md, "Pose file").
+//!
+//! Writing always emits every required key in every representation (matrix, rvec, quaternion,
+//! yaw/pitch/roll) derived from one [`CamFromMap`], so they cannot disagree. Reading needs only
+//! `rotation_cam_from_map` + `translation_cam_from_map`, so a simulator `truth.json` or a
+//! hand-written initial pose is accepted too.
+
+use crate::error::{Error, Result};
+use crate::geo::georef::PoseCovariance;
+use crate::geo::Crs;
+use crate::pose::CamFromMap;
+use crate::pose::Sigma;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use std::path::Path;
+
+/// Schema identifier of the pose file.
+pub const SCHEMA_V1: &str = "infraloc.pose.v1";
+
+/// Software block of the pose file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Software {
+    /// Crate version that wrote the file.
+    pub version: String,
+}
+
+impl Default for Software {
+    fn default() -> Self {
+        Software {
+            version: env!("CARGO_PKG_VERSION").to_string(),
+        }
+    }
+}
+
+/// The full `infraloc.pose.v1` document.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PoseFile {
+    /// Always `SCHEMA_V1`.
+    pub schema: String,
+    /// `"ok"` for a pose the pipeline may use; other values say why not.
+    pub status: String,
+    /// When the pose was computed, ISO 8601 UTC.
+    pub timestamp_utc: String,
+    /// Map CRS (`EPSG:N` or `LOCAL`).
+    pub crs: String,
+    /// Tile the pose was computed against.
+    pub tile_id: String,
+    /// Camera centre in the map frame.
+    pub camera_center: [f64; 3],
+    /// `R` of `X_c = R·X_w + t`, row-major.
+    pub rotation_cam_from_map: [[f64; 3]; 3],
+    /// `t` of `X_c = R·X_w + t`.
+    pub translation_cam_from_map: [f64; 3],
+    /// OpenCV rotation vector of `R`.
+    pub rvec_cam_from_map: [f64; 3],
+    /// Quaternion of `Rᵀ` (map ← camera), x y z w.
+    pub quaternion_map_from_cam_xyzw: [f64; 4],
+    /// Yaw, pitch, roll in degrees (convention in [`crate::pose`]).
+    pub yaw_pitch_roll_deg: [f64; 3],
+    /// Camera intrinsics used (the native table, `model` first).
+    pub intrinsics: Value,
+    /// Quality figures of the result.
+    pub quality: Value,
+    /// Per-stage records (`prior`, `pnp`, `mi`, …).
+    pub stages: Vec<Value>,
+    /// Who wrote it.
+    pub software: Software,
+    /// Any further keys (kept on read-modify-write).
+    #[serde(flatten)]
+    pub extra: serde_json::Map<String, Value>,
+}
+
+impl PoseFile {
+    /// Build a document from a pose; representation keys are all derived from `pose`.
+    pub fn new(pose: &CamFromMap, crs: Crs, tile_id: &str, timestamp_utc: String) -> Self {
+        let (y, p, r) = pose.yaw_pitch_roll();
+        PoseFile {
+            schema: SCHEMA_V1.into(),
+            status: "ok".into(),
+            timestamp_utc,
+            crs: crs.to_string(),
+            tile_id: tile_id.into(),
+            camera_center: pose.center().coords.into(),
+            rotation_cam_from_map: pose.rotation_rows(),
+            translation_cam_from_map: pose.translation.into(),
+            rvec_cam_from_map: pose.rvec().into(),
+            quaternion_map_from_cam_xyzw: pose.quaternion_map_from_cam_xyzw(),
+            yaw_pitch_roll_deg: [y.to_degrees(), p.to_degrees(), r.to_degrees()],
+            intrinsics: Value::Null,
+            quality: Value::Object(Default::default()),
+            stages: Vec::new(),
+            software: Software::default(),
+            extra: Default::default(),
+        }
+    }
+
+    /// The pose this document describes.
+    pub fn pose(&self) -> CamFromMap {
+        CamFromMap::from_rows(self.rotation_cam_from_map, self.translation_cam_from_map)
+    }
+
+    /// The marginal σ per axis of `quality.sigma`, if the file has a well-formed one.
+    pub fn sigma(&self) -> Option<Sigma> {
+        self.quality_figure("sigma")
+    }
+
+    /// The pose's covariance from `quality.covariance` (`axes` and `matrix`, docs/pose.md
+    /// "Uncertainty"): `Ok(None)` when the file has none, an error naming the problem when it is
+    /// malformed.
+    pub fn pose_covariance(&self) -> std::result::Result<Option<PoseCovariance>, String> {
+        pose_covariance_of(&self.quality)
+    }
+
+    /// The pose store's comparison score, `quality.score`, if the file has a numeric one.
+    pub fn score(&self) -> Option<f64> {
+        self.quality_figure("score")
+    }
+
+    /// The `quality` block's figure `key` as a `T`. Each figure is read on its own, so a
+    /// malformed one (a hand-made file, an older writer) is absent rather than spoiling the rest.
+    fn quality_figure<T: serde::de::DeserializeOwned>(&self, key: &str) -> Option<T> {
+        self.quality.get(key).and_then(|v| T::deserialize(v).ok())
+    }
+
+    /// Pretty JSON text with a trailing newline.
+    pub fn to_json(&self) -> String {
+        // Serialising plain data cannot fail; fall back to an empty object rather than panic.
+        let mut s = serde_json::to_string_pretty(self).unwrap_or_else(|_| "{}".into());
+        s.push('\n');
+        s
+    }
+}
+
+/// [`PoseFile::pose_covariance`] of a `quality` block.
+pub fn pose_covariance_of(quality: &Value) -> std::result::Result<Option<PoseCovariance>, String> {
+    let Some(c) = quality.get("covariance") else {
+        return Ok(None);
+    };
+    #[derive(Deserialize)]
+    struct Cov {
+        axes: Vec<String>,
+        matrix: Vec<Vec<f64>>,
+    }
+    let c = Cov::deserialize(c).map_err(|e| format!("quality.covariance: {e}"))?;
+    PoseCovariance::from_axes(&c.axes, &c.matrix)
+        .map(Some)
+        .map_err(|e| format!("quality.covariance: {e}"))
+}
+
+/// The minimal pose content any pose-like JSON must carry.
+#[derive(Debug, Clone, Deserialize)]
+struct MinimalPose {
+    rotation_cam_from_map: [[f64; 3]; 3],
+    translation_cam_from_map: [f64; 3],
+    crs: Option<String>,
+}
+
+/// A pose read from a pose-like JSON (pose file, truth.json, hand-written initial pose).
+#[derive(Debug, Clone)]
+pub struct ReadPose {
+    /// World→camera pose.
+    pub pose: CamFromMap,
+    /// The file's CRS, if it states one.
+    pub crs: Option<Crs>,
+}
+
+/// Parse pose-like JSON text. `origin` names the source in errors.
+pub fn parse_pose(text: &str, origin: &Path) -> Result<ReadPose> {
+    let m: MinimalPose = serde_json::from_str(text)
+        .map_err(|e| Error::input(origin, format!("not a pose file: {e}")))?;
+    let finite = m
+        .rotation_cam_from_map
+        .iter()
+        .flatten()
+        .all(|v| v.is_finite())
+        && m.translation_cam_from_map.iter().all(|v| v.is_finite());
+    if !finite {
+        return Err(Error::input(
+            origin,
+            "rotation/translation contain non-finite values",
+        ));
+    }
+    let r = nalgebra::Matrix3::from_row_slice(&m.rotation_cam_from_map.concat());
+    let orth = (r.transpose() * r - nalgebra::Matrix3::identity()).norm();
+    if orth > 1e-6 || r.determinant() < 0.0 {
+        return Err(Error::input(
+            origin,
+            format!(
+                "rotation_cam_from_map is not a rotation (|RᵀR−I| = {orth:.2e}, det = {:.4})",
+                r.determinant()
+            ),
+        ));
+    }
+    let crs = match m.crs {
+        Some(s) => Some(
+            s.parse::<Crs>()
+                .map_err(|e| Error::input(origin, format!("crs: {e}")))?,
+        ),
+        None => None,
+    };
+    Ok(ReadPose {
+        pose: CamFromMap::from_rows(m.rotation_cam_from_map, m.translation_cam_from_map),
+        crs,
+    })
+}
+
+/// Format seconds since the Unix epoch (+ milliseconds) as `YYYY-MM-DDTHH:MM:SS[.mmm]Z`.
+/// Pure: the caller supplies the clock reading. A time chrono cannot represent (beyond
+/// ±262,000 years) is written as the epoch.
+pub fn format_utc(unix_secs: i64, millis: Option<u32>) -> String {
+    use chrono::{DateTime, SecondsFormat};
+    let nanos = millis.map_or(0, |ms| ms.min(999) * 1_000_000);
+    let t = DateTime::from_timestamp(unix_secs, nanos).unwrap_or_default();
+    let precision = if millis.is_some() {
+        SecondsFormat::Millis
+    } else {
+        SecondsFormat::Secs
+    };
+    t.to_rfc3339_opts(precision, true)
+}
+
+/// Seconds since the Unix epoch of an RFC 3339 timestamp (as `format_utc` writes them, or with
+/// an offset); `None` if it is not one.
+pub fn parse_utc(s: &str) -> Option<f64> {
+    let t = chrono::DateTime::parse_from_rfc3339(s).ok()?;
+    Some(t.timestamp() as f64 + f64::from(t.timestamp_subsec_nanos()) * 1e-9)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Point3;
+
+    #[test]
+    fn round_trip_and_representations_agree() {
+        let pose = CamFromMap::from_center_ypr(
+            &Point3::new(500_100.5, 4_700_200.25, 207.0),
+            2.0,
+            0.02,
+            -0.01,
+        );
+        let f = PoseFile::new(
+            &pose,
+            Crs::Epsg(32617),
+            "t1",
+            format_utc(1_795_262_400, None),
+        );
+        let text = f.to_json();
+        let back: PoseFile = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, f);
+        let p = parse_pose(&text, Path::new("p.json")).unwrap();
+        assert_eq!(p.crs, Some(Crs::Epsg(32617)));
+        assert!((p.pose.center() - pose.center()).norm() < 1e-6);
+        // rvec and quaternion describe the same rotation as the matrix.
+        let rv = nalgebra::Rotation3::new(nalgebra::Vector3::from(f.rvec_cam_from_map));
+        assert!(crate::pose::rotation_angle_between(&rv, &pose.rotation) < 1e-12);
+        let [x, y, z, w] = f.quaternion_map_from_cam_xyzw;
+        let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+        assert!(
+            crate::pose::rotation_angle_between(&q.to_rotation_matrix(), &pose.rotation.inverse())
+                < 1e-12
+        );
+    }
+
+    #[test]
+    fn rejects_non_rotation_and_garbage() {
+        let bad = r#"{"rotation_cam_from_map":[[2,0,0],[0,1,0],[0,0,1]],"translation_cam_from_map":[0,0,0]}"#;
+        let e = parse_pose(bad, Path::new("init.json"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("init.json: ") && e.contains("not a rotation"),
+            "{e}"
+        );
+        let e = parse_pose("{", Path::new("x.json"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("x.json: not a pose file"), "{e}");
+    }
+
+    #[test]
+    fn utc_formatting() {
+        assert_eq!(format_utc(0, None), "1970-01-01T00:00:00Z");
+        assert_eq!(
+            format_utc(1_795_262_400, Some(5)),
+            "2026-11-21T12:00:00.005Z"
+        );
+        assert_eq!(format_utc(951_782_400, None), "2000-02-29T00:00:00Z");
+        for d in [-700_000i64, -1, 0, 59, 11_016, 20_000, 2_000_000] {
+            assert_eq!(
+                parse_utc(&format_utc(d * 86_400, None)),
+                Some((d * 86_400) as f64)
+            );
+        }
+        let t = parse_utc("2026-11-21T12:00:00.005Z").unwrap();
+        assert!((t - 1_795_262_400.005).abs() < 1e-6, "{t}");
+        assert_eq!(
+            parse_utc("2026-11-21T13:00:00+01:00"),
+            Some(1_795_262_400.0)
+        );
+        assert_eq!(parse_utc("yesterday"), None);
+    }
+}
