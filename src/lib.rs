@@ -13,7 +13,7 @@
 // `!(x > 0.0)` is how this crate rejects NaN together with out-of-range values; keep it.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-pub use infraloc_core::{calib, error, geo, gnss, imageops, localize, pose, stage};
+pub use infraloc_core::{calib, error, geo, gnss, imageops, localize, orthonormal, pose, stage};
 
 pub mod app;
 pub mod camera;

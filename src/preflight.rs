@@ -137,6 +137,9 @@ pub(crate) fn check(cfg: &Config, scope: Scope) -> Findings {
             output_path(key, p, may_be_created, &mut f);
         }
     }
+    if !o.pose.as_os_str().is_empty() {
+        stored_pose(&o.pose, &mut f);
+    }
     if scope == Scope::Service && !cfg.daemon.socket.as_os_str().is_empty() {
         socket(&cfg.daemon.socket, &mut f);
     }
@@ -146,6 +149,24 @@ pub(crate) fn check(cfg: &Config, scope: Scope) -> Findings {
         }
     }
     f
+}
+
+/// `[output] pose`, when a pose is stored there already: its rotation as the readers take it
+/// ([`crate::orthonormal`]). A re-orthonormalised rotation is said once, and a pose file the
+/// readers refuse is named, both as warnings: the file is the service's own state, which the
+/// next localization replaces, not something the config asks for.
+fn stored_pose(p: &Path, f: &mut Findings) {
+    let Ok(text) = std::fs::read_to_string(p) else {
+        return;
+    };
+    match crate::posefile::parse_pose(&text, p) {
+        Ok(r) => {
+            if let Some(n) = r.note {
+                f.warnings.push(format!("[output] pose: {n}"));
+            }
+        }
+        Err(e) => f.warnings.push(format!("[output] pose: {e}")),
+    }
 }
 
 /// `[daemon] metrics-dir`: node_exporter's textfile directory, which must exist (the service
@@ -493,6 +514,50 @@ mod tests {
         let f = check(&cfg_in(d.path(), ""), Scope::Localize);
         assert!(
             f.problems.iter().any(|p| p.starts_with("[output] pose")),
+            "{f:?}"
+        );
+    }
+
+    #[test]
+    fn a_stored_pose_with_a_six_decimal_rotation_is_one_warning() {
+        let d = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(d.path().join("state")).unwrap();
+        let pose = d.path().join("state/pose.json");
+        let rot = "[[0.999974,-0.007141,-0.000089],[0.007141,0.999969,-0.003247],[0.000112,0.003247,0.999995]]";
+        std::fs::write(
+            &pose,
+            format!(r#"{{"rotation_cam_from_map":{rot},"translation_cam_from_map":[0,0,5]}}"#),
+        )
+        .unwrap();
+        let f = check(&cfg_in(d.path(), ""), Scope::Service);
+        let notes: Vec<&String> = f
+            .warnings
+            .iter()
+            .filter(|w| w.contains("re-orthonormalised"))
+            .collect();
+        assert_eq!(notes.len(), 1, "{f:?}");
+        assert!(
+            notes[0].starts_with(&format!(
+                "[output] pose: {}: rotation_cam_from_map re-orthonormalised",
+                pose.display()
+            )),
+            "{f:?}"
+        );
+        assert!(!f.problems.iter().any(|p| p.contains("pose")), "{f:?}");
+        // Off by 1e-3: still only a warning (the service's own state), naming the field.
+        std::fs::write(
+            &pose,
+            format!(
+                r#"{{"rotation_cam_from_map":{},"translation_cam_from_map":[0,0,5]}}"#,
+                rot.replace("0.999974", "0.998974")
+            ),
+        )
+        .unwrap();
+        let f = check(&cfg_in(d.path(), ""), Scope::Service);
+        assert!(
+            f.warnings
+                .iter()
+                .any(|w| w.contains("rotation_cam_from_map is not a rotation")),
             "{f:?}"
         );
     }

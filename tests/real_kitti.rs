@@ -14,6 +14,8 @@
 
 mod common;
 
+use common::{infraloc, s};
+
 use infraloc::camera::{load_camera, CameraModel};
 use infraloc::localize::mi::space::pose_at;
 use infraloc::points_io::read_points;
@@ -22,7 +24,6 @@ use infraloc::posefile::read_pose;
 use nalgebra::{Matrix3, Vector3};
 use rand::{Rng, SeedableRng};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 /// The three frames of the data set.
 const FRAMES: [&str; 3] = ["000000", "000001", "000002"];
@@ -57,17 +58,6 @@ fn scratch(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
-}
-
-fn infraloc(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_infraloc"))
-        .args(args)
-        .output()
-        .expect("run infraloc")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 /// KITTI's calibration read here independently of the crate: `key -> numbers`.

@@ -25,6 +25,7 @@ pub mod gnss;
 pub mod imageops;
 pub mod localize;
 pub mod map;
+pub mod orthonormal;
 pub mod pose;
 pub mod posefile;
 pub mod stage;

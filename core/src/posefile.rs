@@ -138,6 +138,9 @@ pub struct ReadPose {
     pub pose: CamFromMap,
     /// The file's CRS, if it states one.
     pub crs: Option<Crs>,
+    /// The one line to show when the file's rotation was re-orthonormalised (|RᵀR − I| between
+    /// 1e-6 and 1e-4, [`crate::orthonormal`]), naming the file and field.
+    pub note: Option<String>,
 }
 
 /// Parse pose-like JSON text. `origin` names the source in errors.
@@ -157,16 +160,8 @@ pub fn parse_pose(text: &str, origin: &Path) -> Result<ReadPose> {
         ));
     }
     let r = nalgebra::Matrix3::from_row_slice(&m.rotation_cam_from_map.concat());
-    let orth = (r.transpose() * r - nalgebra::Matrix3::identity()).norm();
-    if orth > 1e-6 || r.determinant() < 0.0 {
-        return Err(Error::input(
-            origin,
-            format!(
-                "rotation_cam_from_map is not a rotation (|RᵀR−I| = {orth:.2e}, det = {:.4})",
-                r.determinant()
-            ),
-        ));
-    }
+    let rot = crate::orthonormal::rotation_from_file(&r)
+        .map_err(|e| Error::input(origin, format!("rotation_cam_from_map is {e}")))?;
     let crs = match m.crs {
         Some(s) => Some(
             s.parse::<Crs>()
@@ -174,9 +169,11 @@ pub fn parse_pose(text: &str, origin: &Path) -> Result<ReadPose> {
         ),
         None => None,
     };
+    let t = m.translation_cam_from_map;
     Ok(ReadPose {
-        pose: CamFromMap::from_rows(m.rotation_cam_from_map, m.translation_cam_from_map),
+        pose: CamFromMap::new(rot.rotation, nalgebra::Vector3::new(t[0], t[1], t[2])),
         crs,
+        note: rot.note(origin, "rotation_cam_from_map"),
     })
 }
 
@@ -236,6 +233,34 @@ mod tests {
             crate::pose::rotation_angle_between(&q.to_rotation_matrix(), &pose.rotation.inverse())
                 < 1e-12
         );
+    }
+
+    #[test]
+    fn a_six_decimal_rotation_is_accepted_once_noted_and_1e_3_is_refused() {
+        // KITTI-360's R_rect_00 as printed, a rotation to 1.7e-6.
+        let text = r#"{"rotation_cam_from_map":[[0.999974,-0.007141,-0.000089],[0.007141,0.999969,-0.003247],[0.000112,0.003247,0.999995]],"translation_cam_from_map":[1,2,3]}"#;
+        let p = parse_pose(text, Path::new("start.json")).unwrap();
+        let note = p.note.unwrap();
+        assert!(
+            note.starts_with("start.json: rotation_cam_from_map re-orthonormalised (|RᵀR−I| = 1.")
+                && !note.contains('\n'),
+            "{note}"
+        );
+        let r = p.pose.rotation.matrix();
+        assert!((r.transpose() * r - nalgebra::Matrix3::identity()).norm() < 1e-14);
+        assert_eq!(p.pose.translation, nalgebra::Vector3::new(1.0, 2.0, 3.0));
+        let off = text.replace("0.999974", "0.998974");
+        let e = parse_pose(&off, Path::new("start.json"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("start.json: rotation_cam_from_map is not a rotation (|RᵀR−I| = 2.0")
+                && !e.contains('\n'),
+            "{e}"
+        );
+        // A pose file written by infraloc holds an exact rotation: nothing to say.
+        let exact = PoseFile::new(&p.pose, Crs::Local, "", "t".into()).to_json();
+        assert_eq!(parse_pose(&exact, Path::new("p.json")).unwrap().note, None);
     }
 
     #[test]

@@ -8,6 +8,7 @@ mod gps;
 mod kitti;
 mod localize;
 pub mod man;
+mod pairs;
 mod plot;
 mod progress;
 mod project;
@@ -171,3 +172,9 @@ pub(crate) fn parse_size(s: &str) -> Result<(u32, u32), Error> {
 
 /// Default config path of the installed service.
 pub(crate) const DEFAULT_CONFIG: &str = "/etc/infraloc/infraloc.toml";
+
+/// Say once, on stderr, what an input reader adjusted (a re-orthonormalised rotation,
+/// [`crate::orthonormal`]): `infraloc: note: FILE: FIELD …`.
+pub(crate) fn note(line: &str) {
+    eprintln!("infraloc: note: {line}");
+}

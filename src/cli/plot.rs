@@ -225,17 +225,20 @@ fn mi_surface_cmd(a: MiSurfaceArgs) -> Result<()> {
     let read_doc = |p: &Path| -> Result<(crate::posefile::ReadPose, Option<[[f64; 3]; 3]>)> {
         let text = std::fs::read_to_string(p).map_err(|e| Error::io(p, e))?;
         let read = crate::posefile::parse_pose(&text, p)?;
+        if let Some(n) = &read.note {
+            super::note(n);
+        }
         let doc: serde_json::Value =
             serde_json::from_str(&text).map_err(|e| Error::input(p, e.to_string()))?;
         let cov = pose_covariance(&doc).map_err(|m| Error::input(p, m))?;
         Ok((read, cov))
     };
-    let reference = a
-        .truth
-        .as_deref()
-        .map(read_pose)
-        .transpose()?
-        .map(|r| r.pose);
+    let reference = a.truth.as_deref().map(read_pose).transpose()?.map(|r| {
+        if let Some(n) = &r.note {
+            super::note(n);
+        }
+        r.pose
+    });
     let (surf, pose, cov, out) = if let Some(dir) = &a.scene {
         let scene: SceneFiles = load_scene(dir)?;
         let (pose, cov) = match &a.pose {

@@ -34,12 +34,12 @@ pub struct Args {
 pub(super) fn run(a: Args) -> Result<()> {
     let cam = load_camera(&a.camera)?;
     // Pose file (docs/interfaces.md, "Pose file") or a simulator truth.json: only the rotation and translation are used.
-    let pose = a
-        .pose
-        .as_deref()
-        .map(read_pose)
-        .transpose()?
-        .map(|p| p.pose);
+    let pose = a.pose.as_deref().map(read_pose).transpose()?.map(|p| {
+        if let Some(n) = &p.note {
+            super::note(n);
+        }
+        p.pose
+    });
     let text = std::fs::read_to_string(&a.points).map_err(|e| Error::io(&a.points, e))?;
     let points = parse_points(&text, &a.points)?;
     let mut out = String::with_capacity(points.len() * 40);

@@ -20,7 +20,7 @@ pub(crate) const DEFAULT_RADIUS_M: f64 = 25.0;
 
 /// Arguments of `refine`.
 #[derive(Debug, clap::Args)]
-#[command(group(clap::ArgGroup::new("source").required(true).multiple(false).args(["tiles", "points"])))]
+#[command(group(clap::ArgGroup::new("source").required(true).multiple(true).args(["tiles", "points", "pairs"])))]
 pub struct Args {
     /// Camera intrinsics (OpenCV/Kalibr/KITTI-360 YAML or TOML).
     #[arg(long)]
@@ -28,16 +28,21 @@ pub struct Args {
     /// The image (any format `image` reads; converted to gray). Repeat it to pool several frames
     /// that share the pose: with --points, each --image pairs with the --points at the same
     /// position; with --tiles, every image sees the one tile.
-    #[arg(long, required = true)]
+    #[arg(long, required_unless_present = "pairs")]
     pub image: Vec<PathBuf>,
     /// Tile cache: ground points within --radius of the camera come from the tile covering it.
-    #[arg(long)]
+    #[arg(long, conflicts_with_all = ["points", "pairs"])]
     pub tiles: Option<PathBuf>,
     /// Point file: CSV (x,y,z,reflectivity header; reflectivity 0–255, or 0–1 normalised), PCD,
     /// LAS or a Velodyne .bin sweep; all points used as given. Repeat it, once per --image, to pool
     /// image/point-set pairs.
     #[arg(long)]
     pub points: Vec<PathBuf>,
+    /// Pairs file: more image/point-file pairs to pool, one `IMAGE<TAB>POINTS` a line (relative
+    /// paths from the file's directory), after any --image/--points given; `kitti import
+    /// --drive … --pairs-out` writes one for a drive's frames.
+    #[arg(long)]
+    pub pairs: Option<PathBuf>,
     /// Initial pose (pose-like JSON: rotation_cam_from_map + translation_cam_from_map).
     #[arg(long)]
     pub init: PathBuf,
@@ -132,7 +137,13 @@ fn quality_config(spec: Option<&str>) -> Result<QualityConfig> {
 }
 
 /// Run `refine`.
-pub(super) fn run(a: Args) -> Result<()> {
+pub(super) fn run(mut a: Args) -> Result<()> {
+    if let Some(file) = &a.pairs {
+        for (image, points) in super::pairs::read(file)? {
+            a.image.push(image);
+            a.points.push(points);
+        }
+    }
     let spec: SearchSpec = a.search.parse()?;
     let qcfg = quality_config(a.max_sigma.as_deref())?;
     let mode: Mode = a.mode.parse()?;
@@ -167,6 +178,9 @@ pub(super) fn run(a: Args) -> Result<()> {
     }
     let (w, h) = (cam.width(), cam.height());
     let init = read_pose(&a.init)?;
+    if let Some(n) = &init.note {
+        super::note(n);
+    }
     let c = init.pose.center();
     // One point set per image (--points), or the tile's one set shared by every image.
     let (point_sets, crs, tile_id): (Vec<Vec<GroundPoint>>, Crs, String) = match &a.tiles {
@@ -257,6 +271,9 @@ pub(super) fn run(a: Args) -> Result<()> {
             "objective": mi.objective,
             "value": MiValue { mi: r.quality.mi, nmi: r.quality.nmi, n: r.quality.points }.get(mi.objective),
         });
+        if let Some(n) = &init.note {
+            report["notes"] = serde_json::json!([n]);
+        }
         if finish.is_some() {
             report["rounds"] = serde_json::to_value(&rounds).unwrap_or_default();
         }

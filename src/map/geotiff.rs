@@ -206,10 +206,16 @@ pub fn write_f32(path: &Path, r: &Raster<f32>) -> Result<()> {
 pub fn read_image(path: &Path) -> Result<Image> {
     // Read whole: the pixel data's chunks are then decoded in parallel, each by its own decoder.
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    decode_image(&bytes, path)
+}
+
+/// [`read_image`] on a file's bytes already in memory; `path` names the file in errors. Every
+/// problem with the bytes is an [`Error::Input`], never a panic (`fuzz/fuzz_targets/geotiff_tile.rs`).
+pub fn decode_image(bytes: &[u8], path: &Path) -> Result<Image> {
     let rerr = tiff_err(path, "not a readable TIFF (truncated or corrupt)");
     let mut limits = Limits::default();
     limits.decoding_buffer_size = MAX_DECODE_BYTES;
-    let mut dec = Decoder::new(Cursor::new(&bytes[..]))
+    let mut dec = Decoder::new(Cursor::new(bytes))
         .map_err(&rerr)?
         .with_limits(limits.clone());
     let (w, h) = dec.dimensions().map_err(&rerr)?;
@@ -232,7 +238,7 @@ pub fn read_image(path: &Path) -> Result<Image> {
                 })?)
             }
         };
-    let data = match read_chunks_parallel(&bytes, &mut dec, &limits) {
+    let data = match read_chunks_parallel(bytes, &mut dec, &limits) {
         Some(r) => r,
         None => dec.read_image(),
     }

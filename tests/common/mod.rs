@@ -178,3 +178,16 @@ pub fn promtool_check(text: &str) -> Result<bool, String> {
         ))
     }
 }
+
+/// Run the crate's `infraloc` binary with `args`; its output (a failure to start panics).
+pub fn infraloc(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_infraloc"))
+        .args(args)
+        .output()
+        .expect("run infraloc")
+}
+
+/// A path as an argument (the tests' paths are UTF-8).
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}

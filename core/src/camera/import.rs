@@ -856,7 +856,7 @@ const KITTI_EXTRINSIC_KEYS: [&str; 2] = ["R0_rect", "Tr_velo_to_cam"];
 
 /// Whether `text` is a KITTI object-benchmark calibration (`calib/NNNNNN.txt`): `key: numbers`
 /// lines with a projection `P0:`..`P3:` and `R0_rect:` or `Tr_velo_to_cam:`.
-pub(crate) fn is_kitti_calib(text: &str) -> bool {
+pub fn is_kitti_calib(text: &str) -> bool {
     let keys: Vec<&str> = text
         .lines()
         .filter_map(|l| l.trim_start_matches('\u{feff}').split_once(':'))

@@ -6,6 +6,7 @@
 
 mod equidistant;
 pub mod import;
+pub mod kitti_rigs;
 mod mei;
 pub mod rectify;
 
