@@ -6,6 +6,7 @@
 //! hand-written initial pose is accepted too.
 
 use crate::error::{Error, Result};
+use crate::geo::georef::PoseCovariance;
 use crate::geo::Crs;
 use crate::pose::CamFromMap;
 use crate::pose::Sigma;
@@ -103,6 +104,13 @@ impl PoseFile {
         self.quality_figure("sigma")
     }
 
+    /// The pose's covariance from `quality.covariance` (`axes` and `matrix`, docs/pose.md
+    /// "Uncertainty"): `Ok(None)` when the file has none, an error naming the problem when it is
+    /// malformed.
+    pub fn pose_covariance(&self) -> std::result::Result<Option<PoseCovariance>, String> {
+        pose_covariance_of(&self.quality)
+    }
+
     /// The pose store's comparison score, `quality.score`, if the file has a numeric one.
     pub fn score(&self) -> Option<f64> {
         self.quality_figure("score")
@@ -121,6 +129,22 @@ impl PoseFile {
         s.push('\n');
         s
     }
+}
+
+/// [`PoseFile::pose_covariance`] of a `quality` block.
+pub fn pose_covariance_of(quality: &Value) -> std::result::Result<Option<PoseCovariance>, String> {
+    let Some(c) = quality.get("covariance") else {
+        return Ok(None);
+    };
+    #[derive(Deserialize)]
+    struct Cov {
+        axes: Vec<String>,
+        matrix: Vec<Vec<f64>>,
+    }
+    let c = Cov::deserialize(c).map_err(|e| format!("quality.covariance: {e}"))?;
+    PoseCovariance::from_axes(&c.axes, &c.matrix)
+        .map(Some)
+        .map_err(|e| format!("quality.covariance: {e}"))
 }
 
 /// The minimal pose content any pose-like JSON must carry.

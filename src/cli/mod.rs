@@ -4,6 +4,7 @@
 mod calibrate;
 mod demo;
 mod estimator;
+mod georef;
 mod gps;
 mod kitti;
 mod localize;
@@ -46,6 +47,9 @@ pub enum Command {
     Simulate(simulate::Args),
     /// Project points through a camera model: CSV x,y,z → CSV u,v on stdout.
     Project(project::Args),
+    /// Map pixels to the ground through the served pose: CSV u,v → E, N, h, lat, lon, error
+    /// ellipse and status per pixel (docs/georef.md).
+    Georef(georef::Args),
     /// Perspective rectification with cv::omnidir RECTIFY_PERSPECTIVE semantics.
     Rectify(rectify::Args),
     /// MI refinement alone, from any initial pose.
@@ -121,6 +125,7 @@ pub(crate) fn run(cli: Cli) -> Result<(), Error> {
         Command::Localize(a) => localize::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Project(a) => project::run(a),
+        Command::Georef(a) => georef::run(a),
         Command::Rectify(a) => rectify::run(a),
         Command::Refine(a) => refine::run(a),
         Command::Calibrate(a) => calibrate::run(a),

@@ -70,7 +70,21 @@ pub(crate) fn format_uv(cam: &dyn CameraModel, p_cam: &Vector3<f64>) -> String {
 /// Parse CSV rows `x,y,z[,…]`. The first non-blank line is a header if any of its first three
 /// fields is not a number; blank lines are skipped. Errors name the file and the 1-based line.
 pub(crate) fn parse_points(text: &str, origin: &Path) -> Result<Vec<Vector3<f64>>> {
-    let mut pts = Vec::new();
+    Ok(parse_rows(text, origin, ["x", "y", "z"])?
+        .into_iter()
+        .map(Vector3::from)
+        .collect())
+}
+
+/// Parse CSV rows of `N` leading numbers named `names` (further columns ignored). The first
+/// non-blank line is a header if any of its first `N` fields is not a number (`nan` and `inf`
+/// are numbers); blank lines are skipped. Errors name the file and the 1-based line.
+pub(crate) fn parse_rows<const N: usize>(
+    text: &str,
+    origin: &Path,
+    names: [&str; N],
+) -> Result<Vec<[f64; N]>> {
+    let mut rows = Vec::new();
     let mut first = true;
     for (i, line) in text.lines().enumerate() {
         let line = line.trim();
@@ -80,34 +94,31 @@ pub(crate) fn parse_points(text: &str, origin: &Path) -> Result<Vec<Vector3<f64>
         let fields: Vec<&str> = line.split(',').map(str::trim).collect();
         let nums: Vec<Option<f64>> = fields.iter().map(|f| f.parse::<f64>().ok()).collect();
         let is_first = std::mem::replace(&mut first, false);
-        if is_first && fields.len() >= 3 && nums[..3].iter().any(Option::is_none) {
+        if is_first && fields.len() >= N && nums[..N].iter().any(Option::is_none) {
             continue; // header
         }
-        if fields.len() < 3 {
+        if fields.len() < N {
             return Err(Error::input(
                 origin,
                 format!(
-                    "line {}: expected x,y,z, found {} field(s)",
+                    "line {}: expected {}, found {} field(s)",
                     i + 1,
+                    names.join(","),
                     fields.len()
                 ),
             ));
         }
-        match (nums[0], nums[1], nums[2]) {
-            (Some(x), Some(y), Some(z)) => pts.push(Vector3::new(x, y, z)),
-            _ => {
-                let bad = (0..3)
-                    .find(|&k| nums[k].is_none())
-                    .map(|k| ["x", "y", "z"][k])
-                    .unwrap_or("x");
+        match nums[..N].iter().position(Option::is_none) {
+            None => rows.push(std::array::from_fn(|k| nums[k].unwrap_or_default())),
+            Some(k) => {
                 return Err(Error::input(
                     origin,
-                    format!("line {}: {bad} is not a number in {line:?}", i + 1),
+                    format!("line {}: {} is not a number in {line:?}", i + 1, names[k]),
                 ));
             }
         }
     }
-    Ok(pts)
+    Ok(rows)
 }
 
 #[cfg(test)]

@@ -7,6 +7,8 @@
 //! zone. Projection objects are built once per zone and cached, because parsing a proj string
 //! costs far more than projecting a point.
 
+pub mod georef;
+
 use crate::error::{Error, Result};
 use proj4rs::proj::Proj;
 use proj4rs::transform::{transform, Transform, TransformClosure};
