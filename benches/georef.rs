@@ -1,14 +1,15 @@
 //! Georeferencing throughput (docs/benchmarks.md "Georeferencing"): every 4th pixel of a 5 MP
 //! 185° fisheye (2448 × 2048, a 6 m pole, 5° tilt) met with a 60 m × 60 m height layer at 0.1 m
 //! (camber, a 3 % ramp and ripples), with the pose covariance propagated — on one thread (the
-//! per-core rate) and on two (the lookup table's case).
+//! per-core rate) and on two (the lookup table's case), as a batch and as the service's lookup
+//! table (`lut_*`: the table's cells and its NPY bytes).
 //!
 //! Run: `cargo bench --bench georef`
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use infraloc::camera::Mei;
 use infraloc::geo::georef::{
-    georef_batch, HeightSurface, Params, PoseCovariance, PoseWithCovariance, Surface,
+    georef_batch, lookup_table, HeightSurface, Params, PoseCovariance, PoseWithCovariance, Surface,
 };
 use infraloc::map::{Crs, GeoGrid, Raster};
 use infraloc::pose::CamFromMap;
@@ -95,6 +96,16 @@ fn bench_georef(c: &mut Criterion) {
             b.iter(|| {
                 pool.install(|| {
                     black_box(georef_batch(&cam, &pose, &surface, crs, &pixels, &params))
+                })
+            })
+        });
+        // The service's lookup table itself: the same pixels, the table's cells and the NPY
+        // bytes it writes.
+        g.bench_function(format!("lut_{threads}_thread"), |b| {
+            b.iter(|| {
+                pool.install(|| {
+                    let lut = lookup_table(&cam, &pose, &surface, 4, &params);
+                    black_box(infraloc::georef::npy_bytes(&lut))
                 })
             })
         });

@@ -208,6 +208,20 @@ fn prior(ov: &Overrides, cfg: &Config, cancel: &AtomicBool) -> Result<((f64, f64
     Ok((pos, desc))
 }
 
+/// The camera intrinsics: `camera` when given, else the config's `intrinsics-file` or its
+/// inline `[camera.intrinsics]` (`cfg_path` names the config in the error when it has neither).
+pub fn config_camera(cfg: &Config, cfg_path: &Path, camera: Option<&Path>) -> Result<Camera> {
+    match (camera, &cfg.camera.intrinsics_file, &cfg.camera.intrinsics) {
+        (Some(p), _, _) => load_camera(p),
+        (None, Some(p), _) => load_camera(p),
+        (None, None, Some(c)) => Ok(c.clone()),
+        (None, None, None) => Err(Error::config(
+            cfg_path,
+            "[camera]: no intrinsics-file or [camera.intrinsics]",
+        )),
+    }
+}
+
 /// The camera intrinsics and the (temporally median-filtered) frame under `cfg` (read from
 /// `cfg_path`, which errors name) and `ov`, checked to agree in size. `progress(Capture)` is
 /// called before frames are taken.
@@ -217,20 +231,7 @@ pub fn camera_and_frame(
     ov: &Overrides,
     progress: &dyn Fn(StageName),
 ) -> Result<(Camera, GrayImage)> {
-    let camera = match (
-        &ov.camera,
-        &cfg.camera.intrinsics_file,
-        &cfg.camera.intrinsics,
-    ) {
-        (Some(p), _, _) | (None, Some(p), _) => load_camera(p)?,
-        (None, None, Some(c)) => c.clone(),
-        (None, None, None) => {
-            return Err(Error::config(
-                cfg_path,
-                "[camera]: no intrinsics-file or [camera.intrinsics]",
-            ))
-        }
-    };
+    let camera = config_camera(cfg, cfg_path, ov.camera.as_deref())?;
     progress(StageName::Capture);
     let frames = frames(ov, cfg, cfg_path)?;
     let image = if frames.len() == 1 {

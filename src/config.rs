@@ -272,6 +272,9 @@ pub struct OutputConfig {
     pub report: Option<PathBuf>,
     /// Optional overlay PNG.
     pub overlay: Option<PathBuf>,
+    /// Pixel step of the georeferencing lookup table the service keeps beside the pose file
+    /// (docs/georef.md "Lookup table"); 0: no table.
+    pub georef_lut_step_px: u32,
 }
 
 impl Default for OutputConfig {
@@ -280,6 +283,7 @@ impl Default for OutputConfig {
             pose: PathBuf::from("pose.json"),
             report: None,
             overlay: None,
+            georef_lut_step_px: 4,
         }
     }
 }
@@ -366,6 +370,9 @@ pub(crate) mod limits {
     pub(crate) const MARGIN_M: f64 = 10_000.0;
     /// `[daemon] history-len`.
     pub(crate) const HISTORY_LEN: u64 = 10_000;
+    /// `[output] georef-lut-step-px`: beyond 64 px a cell spans more than a car at the image's
+    /// edge, and the table is no lookup table any more.
+    pub(crate) const LUT_STEP_PX: u64 = 64;
     /// `[daemon] relocalize-interval-h` (one year).
     pub(crate) const RELOCALIZE_INTERVAL_H: f64 = 8_760.0;
     /// `[daemon] drift-check-interval-min` (one week).
@@ -697,6 +704,12 @@ impl Config {
         p.path("[output] pose", Some(&o.pose));
         p.path("[output] report", o.report.as_deref());
         p.path("[output] overlay", o.overlay.as_deref());
+        p.int(
+            "[output] georef-lut-step-px",
+            o.georef_lut_step_px.into(),
+            0,
+            limits::LUT_STEP_PX,
+        );
         p.path("[init] matcher-path", self.init.matcher_path.as_deref());
     }
 

@@ -20,8 +20,15 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-/// Largest request the server reads; a longer length prefix closes the connection.
-pub const MAX_REQUEST_BYTES: u32 = 64 * 1024;
+/// Largest request the server reads; a longer length prefix closes the connection. Sized for a
+/// `georef` batch of [`MAX_GEOREF_PIXELS`] pixels written with full f64 precision (about 40
+/// bytes a pixel, 400 kB), with room to spare.
+pub const MAX_REQUEST_BYTES: u32 = 1024 * 1024;
+/// Most pixels one `georef` request may carry. A detector's frame has tens to hundreds of
+/// ground-contact points; 10 000 is a whole frame's worth of dense keypoints, answered in about
+/// 10 ms of one core and a 4 MB answer, so one client cannot hold a slot or the pose lock for
+/// long, and a larger job is split or uses the lookup table.
+pub const MAX_GEOREF_PIXELS: usize = 10_000;
 /// Largest response frame a client accepts (an overlay PNG of a 5 MP frame is a few MB).
 pub(crate) const MAX_RESPONSE_BYTES: u32 = 256 * 1024 * 1024;
 /// Clients served at once; the next one gets a `busy` answer.
@@ -34,7 +41,7 @@ pub(crate) const WRITE_TIMEOUT: Duration = Duration::from_secs(30);
 pub(crate) const SOCKET_MODE: u32 = 0o660;
 
 /// A request from a technician command.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "request", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum Request {
     /// The service's state, served pose, last run, schedules.
@@ -56,6 +63,35 @@ pub enum Request {
     DumpOverlay {},
     /// Validate the daemon's config file as a reload would read it.
     Validate {},
+    /// Georeference pixels through the served pose on the tile's height layer
+    /// (docs/georef.md "The service's `georef` request"): at most [`MAX_GEOREF_PIXELS`].
+    Georef {
+        /// Pixels (u, v), OpenCV convention; JSON has no NaN, so a non-finite coordinate is
+        /// `null` (the pixel gets the status `non_finite`).
+        pixels: Vec<[Option<f64>; 2]>,
+        /// Pixel noise σ (px) added to each point's covariance.
+        #[serde(default)]
+        sigma_px: f64,
+    },
+}
+
+impl Request {
+    /// Requests answered from what the service holds, at once and without changing anything:
+    /// they are also served by an overflow reader when every slot is taken.
+    pub fn is_quick_read(&self) -> bool {
+        matches!(self, Request::Status {} | Request::Georef { .. })
+    }
+
+    /// The request as the log names it: its `Debug` form, except that a `georef` batch is
+    /// counted rather than listed.
+    pub fn name(&self) -> String {
+        match self {
+            Request::Georef { pixels, sigma_px } => {
+                format!("Georef {{ {} pixels, sigma_px: {sigma_px} }}", pixels.len())
+            }
+            r => format!("{r:?}"),
+        }
+    }
 }
 
 /// Write one frame.
@@ -637,7 +673,7 @@ fn serve_one<A: Serialize>(
             return;
         }
     };
-    tracing::info!("control: {req:?} from {who}");
+    tracing::info!("control: {} from {who}", req.name());
     match handle(handler, req, &mut StreamReply(stream)) {
         Ok((answer, payload)) => {
             if write_json(stream, &answer).is_ok() {
@@ -659,13 +695,14 @@ fn serve_overflow<A: Serialize>(stream: &mut UnixStream, handler: &Handler<A>, l
     let req = read_request(stream, limits.overflow_timeout);
     let refusal = match req {
         Ok(Some(b)) => match serde_json::from_slice::<Request>(&b) {
-            Ok(Request::Status {}) => {
+            Ok(req) if req.is_quick_read() => {
                 tracing::info!(
-                    "control: Status from {} (every slot taken: answered on the overflow reader)",
+                    "control: {} from {} (every slot taken: answered on the overflow reader)",
+                    req.name(),
                     peer(stream)
                 );
                 let mut sink = NoProgress;
-                match handle(handler, Request::Status {}, &mut sink) {
+                match handle(handler, req, &mut sink) {
                     Ok((answer, _)) => {
                         let _ = write_json(stream, &answer);
                         return;
@@ -828,6 +865,10 @@ mod tests {
             },
             Request::DumpOverlay {},
             Request::Validate {},
+            Request::Georef {
+                pixels: vec![[Some(1.5), None]],
+                sigma_px: 0.5,
+            },
         ] {
             let s = serde_json::to_string(&r).unwrap();
             assert_eq!(serde_json::from_str::<Request>(&s).unwrap(), r, "{s}");
@@ -841,6 +882,26 @@ mod tests {
         );
         assert!(serde_json::from_str::<Request>(r#"{"request":"status","x":1}"#).is_err());
         assert!(serde_json::from_str::<Request>(r#"{"request":"reboot"}"#).is_err());
+        // A georef batch: null is a non-finite coordinate; a string is not a pixel.
+        assert_eq!(
+            serde_json::from_str::<Request>(r#"{"request":"georef","pixels":[[1,null]]}"#).unwrap(),
+            Request::Georef {
+                pixels: vec![[Some(1.0), None]],
+                sigma_px: 0.0
+            }
+        );
+        assert!(
+            serde_json::from_str::<Request>(r#"{"request":"georef","pixels":[["a",1]]}"#).is_err()
+        );
+        assert!(serde_json::from_str::<Request>(r#"{"request":"georef","pixels":[[1]]}"#).is_err());
+        let big = Request::Georef {
+            pixels: vec![
+                [Some(1_234.567_890_123_456_7), Some(-987.654_321_098_765_4)];
+                MAX_GEOREF_PIXELS
+            ],
+            sigma_px: 0.0,
+        };
+        assert!(serde_json::to_vec(&big).unwrap().len() < MAX_REQUEST_BYTES as usize);
     }
 
     #[test]

@@ -7,10 +7,10 @@
 
 use crate::camera::{load_camera, Camera};
 use crate::config::Config;
+use crate::control::Request;
 use crate::error::{Error, Result};
-use crate::geo::georef::{
-    self, Ellipse, HeightSurface, MapPoint, Params, PoseWithCovariance, Status, Surface,
-};
+use crate::geo::georef::{self, HeightSurface, Params, PoseWithCovariance, Surface};
+use crate::georef::{describe_pose, point_of_record, record, to_csv, SCHEMA};
 use crate::map::cache::load_tile;
 use crate::map::Crs;
 use crate::posefile::{parse_pose, pose_covariance_of};
@@ -31,9 +31,17 @@ pub enum Format {
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Configuration file: its `[output] pose`, camera and `[map] tiles` are used for whatever
-    /// --pose, --camera and --tiles do not give (not read when all three are given).
+    /// --pose, --camera and --tiles do not give (not read when all three are given); with
+    /// --running, its `[daemon] socket`.
     #[arg(long, default_value = super::DEFAULT_CONFIG)]
     pub config: PathBuf,
+    /// Ask the running service (its `georef` request: the pose it serves and the tile it holds,
+    /// at most 10 000 pixels) instead of reading the files.
+    #[arg(long, conflicts_with_all = ["pose", "camera", "tiles", "plane", "max_off_nadir"])]
+    pub running: bool,
+    /// With --running: the control socket (default: `[daemon] socket` of --config).
+    #[arg(long, requires = "running")]
+    pub socket: Option<PathBuf>,
     /// Pose file (default: the config's `[output] pose`, the served pose).
     #[arg(long)]
     pub pose: Option<PathBuf>,
@@ -57,9 +65,9 @@ pub struct Args {
     /// Pixel noise σ (px) added to each point's covariance (a detector's box centre).
     #[arg(long, default_value_t = 0.0)]
     pub sigma_px: f64,
-    /// Largest angle of a ray from nadir, degrees; beyond it a pixel is `grazing`.
-    #[arg(long, default_value_t = georef::DEFAULT_MAX_OFF_NADIR_DEG)]
-    pub max_off_nadir: f64,
+    /// Largest angle of a ray from nadir, degrees; beyond it a pixel is `grazing` (default 85).
+    #[arg(long)]
+    pub max_off_nadir: Option<f64>,
 }
 
 /// The pose `georef` works through and what names it.
@@ -91,14 +99,7 @@ pub(crate) fn read_used_pose(path: &Path) -> Result<UsedPose> {
     }
     let quality = v.get("quality").cloned().unwrap_or(Value::Null);
     let covariance = pose_covariance_of(&quality).map_err(|e| Error::input(path, e))?;
-    let describe = json!({
-        "file": path.display().to_string(),
-        "timestamp_utc": v.get("timestamp_utc"),
-        "tile_id": v.get("tile_id"),
-        "crs": v.get("crs"),
-        "sigma": quality.get("sigma"),
-        "covariance": covariance.is_some(),
-    });
+    let describe = describe_pose(path, &v, covariance.is_some());
     Ok(UsedPose {
         pose: PoseWithCovariance {
             pose: read.pose,
@@ -118,11 +119,14 @@ pub(super) fn run(a: Args) -> Result<()> {
             a.sigma_px
         )));
     }
-    if !(a.max_off_nadir > 0.0 && a.max_off_nadir < 90.0) {
+    let max_off_nadir = a.max_off_nadir.unwrap_or(georef::DEFAULT_MAX_OFF_NADIR_DEG);
+    if !(max_off_nadir > 0.0 && max_off_nadir < 90.0) {
         return Err(Error::Invalid(format!(
-            "--max-off-nadir {}: must be in (0, 90) degrees",
-            a.max_off_nadir
+            "--max-off-nadir {max_off_nadir}: must be in (0, 90) degrees"
         )));
+    }
+    if a.running {
+        return run_on_service(&a);
     }
     if a.plane.is_some_and(|h| !h.is_finite()) {
         return Err(Error::Invalid("--plane: must be a finite height".into()));
@@ -142,21 +146,12 @@ pub(super) fn run(a: Args) -> Result<()> {
     let used = read_used_pose(&pose_path)?;
     let camera: Camera = match (&a.camera, &cfg) {
         (Some(p), _) => load_camera(p)?,
-        (None, Some(c)) => match (&c.camera.intrinsics_file, &c.camera.intrinsics) {
-            (Some(p), _) => load_camera(p)?,
-            (None, Some(cam)) => cam.clone(),
-            (None, None) => {
-                return Err(Error::config(
-                    &a.config,
-                    "[camera]: no intrinsics-file or [camera.intrinsics]",
-                ))
-            }
-        },
+        (None, Some(c)) => crate::app::config_camera(c, &a.config, None)?,
         (None, None) => unreachable_config()?,
     };
     let pixels = read_pixels(a.pixels.as_deref())?;
     let params = Params {
-        max_off_nadir_deg: a.max_off_nadir,
+        max_off_nadir_deg: max_off_nadir,
         sigma_px: a.sigma_px,
         wgs84: true,
     };
@@ -194,7 +189,7 @@ pub(super) fn run(a: Args) -> Result<()> {
         Format::Csv => to_csv(&pixels, &points),
         Format::Json => {
             let doc = json!({
-                "schema": "infraloc.georef.v1",
+                "schema": SCHEMA,
                 "pose": used.describe,
                 "surface": tile_desc,
                 "crs": crs.to_string(),
@@ -205,11 +200,55 @@ pub(super) fn run(a: Args) -> Result<()> {
             s
         }
     };
+    write_stdout(&text)
+}
+
+fn write_stdout(text: &str) -> Result<()> {
     let stdout = std::io::stdout();
     let mut lock = stdout.lock();
     lock.write_all(text.as_bytes())
         .and_then(|_| lock.flush())
         .map_err(|e| Error::io("<stdout>", e))
+}
+
+/// `georef --running`: the pixels to the service's `georef` request, its answer printed as the
+/// local command prints its own (the JSON as the service sent it, less `ok`).
+fn run_on_service(a: &Args) -> Result<()> {
+    let pixels = read_pixels(a.pixels.as_deref())?;
+    let req = Request::Georef {
+        pixels: pixels
+            .iter()
+            .map(|p| p.map(|c| c.is_finite().then_some(c)))
+            .collect(),
+        sigma_px: a.sigma_px,
+    };
+    let answer = super::tech::georef_running(a.socket.as_deref(), &a.config, req)?;
+    let mut doc: Value = answer.parse("georef answer")?;
+    let bad = |e: String| Error::Invalid(format!("the daemon's georef answer: {e}"));
+    if let Some(o) = doc.as_object_mut() {
+        o.remove("ok");
+    }
+    let text = match a.format {
+        Format::Json => {
+            let mut s = serde_json::to_string_pretty(&doc).unwrap_or_default();
+            s.push('\n');
+            s
+        }
+        Format::Csv => {
+            let records = doc["points"]
+                .as_array()
+                .ok_or_else(|| bad("no points".into()))?;
+            let (px, points): (Vec<_>, Vec<_>) = records
+                .iter()
+                .map(point_of_record)
+                .collect::<std::result::Result<Vec<_>, _>>()
+                .map_err(bad)?
+                .into_iter()
+                .unzip();
+            to_csv(&px, &points)
+        }
+    };
+    write_stdout(&text)
 }
 
 /// Not reached: the config is loaded whenever a flag is missing.
@@ -253,60 +292,6 @@ fn read_pixels(path: Option<&Path>) -> Result<Vec<[f64; 2]>> {
 /// read, and gets the status `non_finite`.
 pub(crate) fn parse_pixels(text: &str, origin: &Path) -> Result<Vec<[f64; 2]>> {
     super::project::parse_rows(text, origin, ["u", "v"])
-}
-
-/// The CSV header of [`to_csv`].
-pub(crate) const CSV_HEADER: &str =
-    "u,v,status,e,n,h,lat,lon,sigma_major_m,sigma_minor_m,angle_deg";
-
-/// CSV text: the header, then one line per pixel (empty fields where the status is not ok).
-pub(crate) fn to_csv(pixels: &[[f64; 2]], points: &[MapPoint]) -> String {
-    let mut s = String::with_capacity(64 + 120 * points.len());
-    s.push_str(CSV_HEADER);
-    s.push('\n');
-    for (p, m) in pixels.iter().zip(points) {
-        s.push_str(&format!("{},{},{}", p[0], p[1], m.status.name()));
-        if m.status == Status::Ok {
-            let e = m.ellipse();
-            let (lat, lon) = m.lat_lon.map_or((String::new(), String::new()), |[a, b]| {
-                (format!("{a:.9}"), format!("{b:.9}"))
-            });
-            s.push_str(&format!(
-                ",{:.4},{:.4},{:.4},{lat},{lon},{:.4},{:.4},{:.2}\n",
-                m.enh[0], m.enh[1], m.enh[2], e.sigma_major_m, e.sigma_minor_m, e.angle_deg
-            ));
-        } else {
-            s.push_str(",,,,,,,,\n");
-        }
-    }
-    s
-}
-
-/// One pixel's JSON record (docs/georef.md).
-pub(crate) fn record(px: [f64; 2], m: &MapPoint) -> Value {
-    let num = |v: f64| if v.is_finite() { json!(v) } else { Value::Null };
-    let mut r = json!({"u": num(px[0]), "v": num(px[1]), "status": m.status.name()});
-    if m.status == Status::Ok {
-        let Ellipse {
-            sigma_major_m,
-            sigma_minor_m,
-            angle_deg,
-        } = m.ellipse();
-        r["e"] = json!(m.enh[0]);
-        r["n"] = json!(m.enh[1]);
-        r["h"] = json!(m.enh[2]);
-        if let Some([lat, lon]) = m.lat_lon {
-            r["lat"] = json!(lat);
-            r["lon"] = json!(lon);
-        }
-        r["sigma_major_m"] = json!(sigma_major_m);
-        r["sigma_minor_m"] = json!(sigma_minor_m);
-        r["angle_deg"] = json!(angle_deg);
-        r["covariance_enh"] = json!(m.covariance);
-        r["range_m"] = json!(m.range_m);
-        r["off_nadir_deg"] = json!(m.off_nadir_deg);
-    }
-    r
 }
 
 #[cfg(test)]

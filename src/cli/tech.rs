@@ -404,6 +404,18 @@ pub(crate) fn overlay(a: OverlayArgs) -> Result<()> {
     Ok(())
 }
 
+/// `georef --running`: the daemon's georef answer (its refusal as the error).
+pub(crate) fn georef_running(socket: Option<&Path>, config: &Path, req: Request) -> Result<Answer> {
+    let t = Target {
+        socket: socket.map(Path::to_path_buf),
+        config: config.to_path_buf(),
+        json: true,
+    };
+    let answer = t.call(req)?;
+    served(&answer)?;
+    Ok(answer)
+}
+
 /// `validate --running`: ask the daemon to validate its config file as a reload would.
 pub(crate) fn validate_running(socket: Option<&Path>, config: &Path, json: bool) -> Result<()> {
     let t = Target {

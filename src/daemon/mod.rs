@@ -76,11 +76,24 @@ enum Event {
     DriftDone(Result<DriftSearch>),
 }
 
+/// The served pose's georeferencing as the `georef` request finds it.
+#[derive(Clone)]
+enum GeorefState {
+    /// No pose served.
+    NoPose,
+    /// Ready: the pose, its camera and its tile's height layer in memory.
+    Ready(Arc<crate::georef::ServedGeoref>),
+    /// A pose is served but its tile or camera could not be read: why.
+    Unavailable(String),
+}
+
 /// State shared with the control socket's threads.
 struct Shared {
     status: Mutex<Status>,
     /// The latest successful pipeline run (for `dump-overlay`).
     last_run: Mutex<Option<Arc<Run>>>,
+    /// What the `georef` request answers from.
+    georef: Mutex<GeorefState>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -113,9 +126,13 @@ pub(crate) fn run(config_path: &Path) -> Result<()> {
     // Temp files of writes a kill -9 interrupted are removed before anything is written.
     let history = cfg.output.pose.with_file_name(crate::store::HISTORY_FILE);
     let metrics_file = cfg.daemon.metrics_dir.as_deref().map(metrics::file_in);
+    let lut = cfg.output.pose.with_file_name(crate::georef::LUT_FILE);
+    let lut_meta = cfg.output.pose.with_file_name(crate::georef::LUT_META_FILE);
     for target in [
         Some(&cfg.output.pose),
         Some(&history),
+        Some(&lut),
+        Some(&lut_meta),
         cfg.output.report.as_ref(),
         cfg.output.overlay.as_ref(),
         metrics_file.as_ref(),
@@ -167,6 +184,7 @@ pub(crate) fn run(config_path: &Path) -> Result<()> {
     let shared = Arc::new(Shared {
         status: Mutex::new(status),
         last_run: Mutex::new(None),
+        georef: Mutex::new(GeorefState::NoPose),
     });
     let (tx, rx) = channel::<Event>();
     let (listener, note) = control::bind(&cfg.daemon.socket)
@@ -197,6 +215,7 @@ pub(crate) fn run(config_path: &Path) -> Result<()> {
         metrics_error: None,
     };
     if d.served.is_some() {
+        d.serve_georef(None);
         // The stored pose is served already: the service is useful from this moment.
         d.send_ready();
     }
@@ -248,6 +267,14 @@ fn make_handler(
             let s = lock(&shared.status).clone();
             (DaemonAnswer::Status(Accepted::new(Box::new(s))), None)
         }
+        Request::Georef { pixels, sigma_px } => match lock(&shared.georef).clone() {
+            GeorefState::Ready(g) => match g.answer(&pixels, sigma_px) {
+                Ok(doc) => (DaemonAnswer::Georef(Accepted::new(doc)), None),
+                Err(e) => refused(e),
+            },
+            GeorefState::NoPose => refused("no pose served yet".into()),
+            GeorefState::Unavailable(e) => refused(format!("georef: {e}")),
+        },
         Request::GetPose {} => match store.current() {
             Ok(Some(pose)) => (
                 DaemonAnswer::Pose(Accepted::new(Box::new(PoseAnswer { pose }))),
@@ -541,6 +568,7 @@ impl Daemon {
                         if accepted { "served" } else { "not served" });
                 if accepted {
                     self.served = Some(run.pose_file.clone());
+                    self.serve_georef(Some(&run));
                     // A pose served after the drift alarm answers it.
                     if let Some(d) = self.lock_status().last_drift_check.as_mut() {
                         if matches!(&d.outcome, DriftOutcome::Ran(s) if s.verdict.moved) {
@@ -730,6 +758,55 @@ impl Daemon {
             }
         }
         self.update_state();
+    }
+
+    /// Make the served pose's georeferencing ready for the `georef` request, and write its lookup
+    /// table beside the pose file (`[output] georef-lut-step-px`, 0: none). The camera and the
+    /// height layer come from `run` when it produced the pose, else from the config and the tile
+    /// cache. A failure is logged, and the request answers with it; the pose stays served.
+    fn serve_georef(&mut self, run: Option<&Run>) {
+        let Some(pose) = self.served.clone() else {
+            *lock(&self.shared.georef) = GeorefState::NoPose;
+            return;
+        };
+        let pose_path = self.store.pose_path();
+        let built = (|| {
+            let (camera, height) = match run {
+                Some(r) => (r.camera.clone(), r.tile.height.clone()),
+                None => {
+                    let camera = crate::app::config_camera(&self.cfg, &self.config_path, None)?;
+                    let tile = load_tile(&self.cfg.map.tiles.join(&pose.tile_id))?;
+                    (camera, tile.height)
+                }
+            };
+            crate::georef::ServedGeoref::new(&pose, &pose_path, camera, height, &pose.tile_id)
+        })();
+        let g = match built {
+            Ok(g) => Arc::new(g),
+            Err(e) => {
+                tracing::warn!(
+                    "georef unavailable for the pose from {}: {e}",
+                    pose.timestamp_utc
+                );
+                *lock(&self.shared.georef) = GeorefState::Unavailable(e.to_string());
+                return;
+            }
+        };
+        *lock(&self.shared.georef) = GeorefState::Ready(g.clone());
+        let step = self.cfg.output.georef_lut_step_px;
+        if step == 0 {
+            return;
+        }
+        let start = Instant::now();
+        match g.write_lookup_table(&pose_path, step) {
+            Ok(p) => tracing::info!(
+                "georef lookup table {} written for the pose from {} ({step} px step, {:.2} s)",
+                p.display(),
+                g.timestamp_utc(),
+                start.elapsed().as_secs_f64()
+            ),
+            Err(e) => tracing::warn!("georef lookup table not written: {e}"),
+        }
     }
 
     /// Derive the state and summary line from what is known.

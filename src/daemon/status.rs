@@ -206,6 +206,8 @@ pub(crate) enum DaemonAnswer {
     Queued(Accepted<Queued>),
     /// `relocalize` with `wait`: the run's result (`"ok"` inside).
     Result(Box<RunResult>),
+    /// `georef`: the `infraloc.georef.v1` document (docs/georef.md).
+    Georef(Accepted<serde_json::Value>),
     /// Any request not served.
     Refused(Refusal),
 }

@@ -80,6 +80,11 @@ impl Status {
         Status::NoHeight,
         Status::NonFinite,
     ];
+
+    /// The status of a [`Status::name`], `None` for any other text.
+    pub fn from_name(name: &str) -> Option<Status> {
+        Status::ALL.into_iter().find(|s| s.name() == name)
+    }
 }
 
 /// The pose's covariance over the axes of the pose file's `quality.covariance`: camera centre
@@ -552,7 +557,8 @@ pub struct MapPoint {
 }
 
 impl MapPoint {
-    fn invalid(status: Status) -> Self {
+    /// A pixel without a map point: `status`, every number NaN.
+    pub fn invalid(status: Status) -> Self {
         MapPoint {
             status,
             enh: [f64::NAN; 3],
@@ -598,6 +604,66 @@ pub fn georef_batch(
         .with_min_len(256)
         .map(|&px| pre.point(camera, pose, surface, crs, px, params))
         .collect()
+}
+
+/// Channels of a [`LookupTable`] cell, in order.
+pub const LUT_CHANNELS: [&str; 4] = ["e", "n", "h", "sigma_major_m"];
+
+/// A per-pixel map of one pose: cell (row, col) holds the georeference of pixel
+/// (col·step, row·step), so the cells cover the image from its top-left pixel to within one step
+/// of its right and bottom edges.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LookupTable {
+    /// Pixel step between neighbouring cells.
+    pub step: u32,
+    /// Rows: `⌈image height / step⌉`.
+    pub rows: usize,
+    /// Columns: `⌈image width / step⌉`.
+    pub cols: usize,
+    /// Row-major cells, [`LUT_CHANNELS`] each: E, N, h (map frame, m) and the 1σ error ellipse's
+    /// major semi-axis (m); all four NaN where the pixel's status is not [`Status::Ok`].
+    pub cells: Vec<[f64; 4]>,
+}
+
+/// The [`LookupTable`] of `pose` at every `step`-th pixel of the camera's image (`step` ≥ 1; 0 is
+/// taken as 1), with `params` (its `wgs84` is not used: the table holds map coordinates).
+pub fn lookup_table(
+    camera: &dyn CameraModel,
+    pose: &PoseWithCovariance,
+    surface: &Surface<'_>,
+    step: u32,
+    params: &Params,
+) -> LookupTable {
+    let step = step.max(1);
+    let (w, h) = (camera.width(), camera.height());
+    let (cols, rows) = (w.div_ceil(step) as usize, h.div_ceil(step) as usize);
+    let params = Params {
+        wgs84: false,
+        ..*params
+    };
+    let pre = Prepared::new(camera, pose, &params);
+    let cells = (0..rows * cols)
+        .into_par_iter()
+        .with_min_len(256)
+        .map(|k| {
+            let px = [
+                ((k % cols) as u32 * step) as f64,
+                ((k / cols) as u32 * step) as f64,
+            ];
+            let m = pre.point(camera, pose, surface, Crs::Local, px, &params);
+            if m.status == Status::Ok {
+                [m.enh[0], m.enh[1], m.enh[2], m.ellipse().sigma_major_m]
+            } else {
+                [f64::NAN; 4]
+            }
+        })
+        .collect();
+    LookupTable {
+        step,
+        rows,
+        cols,
+        cells,
+    }
 }
 
 /// What every pixel of one pose shares.

@@ -1,0 +1,560 @@
+//! The service's georeferencing, for real: the `infraloc daemon` binary on a simulated scene,
+//! asked through `infraloc georef --running` and the raw control socket, its lookup table read
+//! back by numpy (python3 with numpy is required, as for the other reference tests: .ci/setup).
+//!
+//! The served pose is the scene's truth stored as the pose file, with a covariance; the camera is
+//! an absent v4l2 device, so the boot localization fails at once and the stored pose stays
+//! served. The lookup table's rewrite is then checked by serving a new pose (a working camera,
+//! SIGHUP, `relocalize --wait --force`): one real localization.
+
+use infraloc::control::{Client, Request, MAX_GEOREF_PIXELS};
+use infraloc::posefile::{read_pose, PoseFile};
+use serde_json::{json, Value};
+use std::io::Write;
+use std::os::unix::fs::MetadataExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_infraloc");
+const STORED_AT: &str = "2026-11-01T00:00:00Z";
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+fn simulate(dir: &Path) {
+    let out = Command::new(BIN)
+        .args(["simulate", "--seed", "3", "--preset", "small"])
+        .args(["--difficulty", "hard", "--out"])
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+}
+
+fn set(t: &mut toml::Table, sec: &str, k: &str, v: impl Into<toml::Value>) {
+    t.entry(sec.to_string())
+        .or_insert_with(|| toml::Value::Table(Default::default()))
+        .as_table_mut()
+        .unwrap()
+        .insert(k.into(), v.into());
+}
+
+/// The scene's config with absolute scene paths, the pose and socket in `work`; with
+/// `camera_ok` false the camera is an absent v4l2 device (localization fails at once).
+fn write_config(scene: &Path, work: &Path, camera_ok: bool) -> PathBuf {
+    let mut t: toml::Table =
+        toml::from_str(&std::fs::read_to_string(scene.join("infraloc.toml")).unwrap()).unwrap();
+    let abs = |p: &str| scene.join(p).display().to_string();
+    set(&mut t, "camera", "intrinsics-file", abs("camera.yaml"));
+    set(&mut t, "camera", "frames", abs("frames"));
+    if !camera_ok {
+        set(&mut t, "camera", "source", "v4l2");
+        set(&mut t, "camera", "device", "/dev/video-absent");
+        set(&mut t, "camera", "retry-attempts", 1);
+    }
+    set(&mut t, "gps", "path", abs("gps.nmea"));
+    set(&mut t, "map", "tiles", abs("tiles"));
+    set(&mut t, "output", "pose", "pose.json");
+    set(&mut t, "daemon", "socket", "run/control.sock");
+    set(&mut t, "daemon", "retry-initial-s", 600.0);
+    set(&mut t, "daemon", "drift-check-interval-min", 0.0);
+    let cfg = work.join("infraloc.toml");
+    std::fs::write(&cfg, toml::to_string(&t).unwrap()).unwrap();
+    cfg
+}
+
+/// The truth as a served pose file, with a 4-axis covariance (σ 1 cm, 1 cm, 1 cm, 0.05°).
+fn store_truth(scene: &Path, work: &Path) {
+    let t = read_pose(&scene.join("truth.json")).unwrap();
+    let tile = std::fs::read_dir(scene.join("tiles"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .file_name();
+    let mut f = PoseFile::new(
+        &t.pose,
+        t.crs.unwrap(),
+        &tile.to_string_lossy(),
+        STORED_AT.into(),
+    );
+    f.quality = json!({
+        "score": 1.0,
+        "sigma": {"x": 0.01, "y": 0.01, "z": 0.01, "yaw": 0.05},
+        "covariance": {
+            "axes": ["x", "y", "z", "yaw"],
+            "units": ["m", "m", "m", "deg"],
+            "matrix": [[1e-4, 0.0, 0.0, 0.0], [0.0, 1e-4, 0.0, 0.0],
+                       [0.0, 0.0, 1e-4, 0.0], [0.0, 0.0, 0.0, 0.0025]],
+        },
+    });
+    std::fs::write(work.join("pose.json"), f.to_json()).unwrap();
+}
+
+struct Daemon {
+    child: Child,
+    log: PathBuf,
+}
+
+impl Daemon {
+    fn start(cfg: &Path) -> Daemon {
+        let log = cfg.with_file_name("daemon.log");
+        let child = Command::new(BIN)
+            .arg("daemon")
+            .arg("--config")
+            .arg(cfg)
+            .env_remove("NOTIFY_SOCKET")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap();
+        Daemon { child, log }
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    /// Poll `status --json` until `cond` holds (two minutes at most).
+    fn wait_status(&mut self, cfg: &Path, cond: impl Fn(&Value) -> bool) -> Value {
+        let start = Instant::now();
+        loop {
+            if let Ok(Some(st)) = self.child.try_wait() {
+                panic!("daemon exited ({st}): {}", self.log());
+            }
+            let out = cli(cfg, &["status", "--json"], "");
+            if let Ok(v) = serde_json::from_slice::<Value>(&out.stdout) {
+                if cond(&v) {
+                    return v;
+                }
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(120),
+                "status never got there: {}; {}",
+                text(&out.stdout),
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// `infraloc ARGS --config CFG` with `stdin`.
+fn cli(cfg: &Path, args: &[&str], stdin: &str) -> Output {
+    let mut c = Command::new(BIN)
+        .args(args)
+        .arg("--config")
+        .arg(cfg)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    c.stdin.take().unwrap().write_all(stdin.as_bytes()).unwrap();
+    c.wait_with_output().unwrap()
+}
+
+fn json_of(out: &Output) -> Value {
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// A one-line error and exit 1 that contains `want`.
+fn fails_with(out: &Output, want: &str) {
+    let e = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{e}");
+    assert!(e.contains(want) && e.trim_end().lines().count() == 1, "{e}");
+    assert!(out.stdout.is_empty());
+}
+
+/// A raw request over the socket, as a pipeline without infraloc's client would send it.
+fn raw(socket: &Path, req: &Value) -> Value {
+    use infraloc::control::{read_frame, write_frame};
+    let mut s = std::os::unix::net::UnixStream::connect(socket).unwrap();
+    write_frame(&mut s, req.to_string().as_bytes()).unwrap();
+    serde_json::from_slice(&read_frame(&mut s, 64 << 20).unwrap().unwrap()).unwrap()
+}
+
+fn lut_meta(work: &Path) -> Option<Value> {
+    let t = std::fs::read_to_string(work.join("georef_lut.json")).ok()?;
+    serde_json::from_str(&t).ok()
+}
+
+/// Wait until the lookup table's description names the pose from `at`.
+fn wait_lut(d: &mut Daemon, work: &Path, at: &str) -> Value {
+    let start = Instant::now();
+    loop {
+        if let Some(m) = lut_meta(work) {
+            if m["pose"]["timestamp_utc"] == at {
+                return m;
+            }
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "no lookup table for the pose from {at}: {:?}; {}",
+            lut_meta(work),
+            d.log()
+        );
+        if let Ok(Some(st)) = d.child.try_wait() {
+            panic!("daemon exited ({st}): {}", d.log());
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// numpy's view of the table: its shape, then the four channels of each cell (row, col).
+fn numpy_cells(npy: &Path, cells: &[(usize, usize)]) -> (Vec<usize>, Vec<[f64; 4]>) {
+    const READ: &str = r#"
+import sys, numpy as np
+a = np.load(sys.argv[1])
+assert a.dtype == np.float64, a.dtype
+print(*a.shape)
+for line in sys.stdin:
+    r, c = map(int, line.split())
+    print(*(repr(float(x)) for x in a[r, c]))
+"#;
+    let mut child = Command::new("python3")
+        .args(["-c", READ])
+        .arg(npy)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("python3 with numpy is needed: see .ci/setup");
+    let q: String = cells.iter().map(|(r, c)| format!("{r} {c}\n")).collect();
+    child.stdin.take().unwrap().write_all(q.as_bytes()).unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "numpy: {}", text(&out.stderr));
+    let t = text(&out.stdout);
+    let mut lines = t.lines();
+    let shape = lines
+        .next()
+        .unwrap()
+        .split(' ')
+        .map(|s| s.parse().unwrap())
+        .collect();
+    let vals = lines
+        .map(|l| {
+            let v: Vec<f64> = l.split(' ').map(|s| s.parse().unwrap()).collect();
+            [v[0], v[1], v[2], v[3]]
+        })
+        .collect();
+    (shape, vals)
+}
+
+fn csv(pixels: &[[f64; 2]]) -> String {
+    pixels
+        .iter()
+        .map(|p| format!("{},{}\n", p[0], p[1]))
+        .collect()
+}
+
+#[test]
+fn georef_request_and_lookup_table_follow_the_served_pose() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (scene, work) = (tmp.path().join("scene"), tmp.path().join("work"));
+    simulate(&scene);
+    std::fs::create_dir(&work).unwrap();
+    let cfg = write_config(&scene, &work, false);
+    store_truth(&scene, &work);
+    let socket = work.join("run/control.sock");
+    let mut d = Daemon::start(&cfg);
+    // The boot localization fails (no camera); the stored pose stays served.
+    d.wait_status(&cfg, |v| !v["last_result"].is_null());
+    let meta = wait_lut(&mut d, &work, STORED_AT);
+
+    // The control points' true pixels, a NaN pixel and one off the sensor.
+    let truth: Value =
+        serde_json::from_str(&std::fs::read_to_string(scene.join("truth.json")).unwrap()).unwrap();
+    let cps = truth["control_points"].as_array().unwrap();
+    let mut pixels: Vec<[f64; 2]> = cps
+        .iter()
+        .map(|c| {
+            [
+                c["pixel"][0].as_f64().unwrap(),
+                c["pixel"][1].as_f64().unwrap(),
+            ]
+        })
+        .collect();
+    let n_cp = pixels.len();
+    assert!(n_cp > 20, "{n_cp} control points");
+    pixels.push([f64::NAN, 5.0]);
+    pixels.push([-10.0, -10.0]);
+
+    let served = json_of(&cli(
+        &cfg,
+        &["georef", "--running", "--format", "json"],
+        &csv(&pixels),
+    ));
+    assert_eq!(served["schema"], "infraloc.georef.v1");
+    assert_eq!(
+        served["pose"]["timestamp_utc"], STORED_AT,
+        "{}",
+        served["pose"]
+    );
+    assert_eq!(served["pose"]["sigma"]["yaw"], 0.05);
+    assert_eq!(served["pose"]["covariance"], true);
+    let pts = served["points"].as_array().unwrap();
+    assert_eq!(pts.len(), pixels.len());
+    assert_eq!(pts[n_cp]["status"], "non_finite");
+    assert!(pts[n_cp]["u"].is_null());
+    assert_eq!(pts[n_cp + 1]["status"], "outside_image");
+    // The same pixels through the files (the served pose file, the tile on disk) agree, and the
+    // ground points lie where the control points are.
+    let local = json_of(&cli(&cfg, &["georef", "--format", "json"], &csv(&pixels)));
+    let (mut ok, mut errs) = (0, Vec::new());
+    for (k, (a, b)) in pts
+        .iter()
+        .zip(local["points"].as_array().unwrap())
+        .enumerate()
+    {
+        assert_eq!(a["status"], b["status"], "pixel {k}");
+        if a["status"] != "ok" {
+            continue;
+        }
+        ok += 1;
+        for key in ["e", "n", "h", "sigma_major_m"] {
+            let (x, y) = (a[key].as_f64().unwrap(), b[key].as_f64().unwrap());
+            assert!((x - y).abs() < 1e-6, "pixel {k} {key}: {x} vs {y}");
+        }
+        if k < n_cp {
+            let m = &cps[k]["map"];
+            let de = a["e"].as_f64().unwrap() - m[0].as_f64().unwrap();
+            let dn = a["n"].as_f64().unwrap() - m[1].as_f64().unwrap();
+            // The truth pose with the scene's calibrated (slightly wrong) intrinsics: a few cm
+            // near the pole, growing with the range.
+            let range = a["range_m"].as_f64().unwrap();
+            assert!(
+                de.hypot(dn) < 0.05 + 0.02 * range,
+                "control point {k} at {range:.1} m: {de:.3}, {dn:.3} m"
+            );
+            errs.push(de.hypot(dn));
+            assert!(a["sigma_major_m"].as_f64().unwrap() > 0.009);
+        }
+    }
+    assert!(ok > n_cp / 2, "{ok} of {n_cp} control points ok");
+    errs.sort_by(f64::total_cmp);
+    assert!(
+        errs[errs.len() / 2] < 0.05,
+        "median error {:.3} m",
+        errs[errs.len() / 2]
+    );
+    // CSV through the service reads as the local CSV.
+    let a = cli(&cfg, &["georef", "--running"], &csv(&pixels));
+    let b = cli(&cfg, &["georef"], &csv(&pixels));
+    assert!(a.status.success(), "{}", text(&a.stderr));
+    let (a, b) = (text(&a.stdout), text(&b.stdout));
+    assert_eq!(a.lines().count(), pixels.len() + 1);
+    for (la, lb) in a.lines().zip(b.lines()) {
+        let fa: Vec<&str> = la.split(',').collect();
+        let fb: Vec<&str> = lb.split(',').collect();
+        assert_eq!(fa[..3], fb[..3]);
+        for i in 3..6 {
+            if let (Ok(x), Ok(y)) = (fa[i].parse::<f64>(), fb[i].parse::<f64>()) {
+                assert!((x - y).abs() <= 1e-4 + 1e-9, "{la} vs {lb}");
+            }
+        }
+    }
+
+    // Bad batches: one-line refusals; the service keeps serving.
+    fails_with(
+        &cli(&cfg, &["georef", "--running"], ""),
+        "the batch has no pixels",
+    );
+    let over = csv(&vec![[500.0, 500.0]; MAX_GEOREF_PIXELS + 1]);
+    fails_with(
+        &cli(&cfg, &["georef", "--running"], &over),
+        "10001 pixels, more than the 10000 one request may carry",
+    );
+    fails_with(
+        &cli(&cfg, &["georef", "--running"], "1,2\n1,x\n"),
+        "line 2: v is not a number",
+    );
+    fails_with(
+        &cli(&cfg, &["georef", "--running", "--sigma-px=-1"], "1,2\n"),
+        "--sigma-px",
+    );
+    let v = raw(&socket, &json!({"request": "georef", "pixels": [["a", 1]]}));
+    assert_eq!(v["ok"], false);
+    assert!(
+        v["error"].as_str().unwrap().starts_with("bad request"),
+        "{v}"
+    );
+    let v = raw(
+        &socket,
+        &json!({"request": "georef", "pixels": [[500, 500]], "sigma_px": -1}),
+    );
+    assert_eq!(v["ok"], false);
+    assert!(v["error"].as_str().unwrap().contains("sigma_px"), "{v}");
+    let v = raw(
+        &socket,
+        &json!({"request": "georef", "pixels": [[1e300, null]]}),
+    );
+    assert_eq!(v["ok"], true, "{v}");
+    assert_eq!(v["points"][0]["status"], "non_finite");
+    let v = raw(&socket, &json!({"request": "status"}));
+    assert_eq!(v["ok"], true, "the service stopped serving: {v}");
+
+    // Latency of a 1,000-pixel request (docs/benchmarks.md): a 40 × 25 grid over the image.
+    let (w, h) = (
+        meta["image_width"].as_f64().unwrap(),
+        meta["image_height"].as_f64().unwrap(),
+    );
+    let grid: Vec<[Option<f64>; 2]> = (0..1000)
+        .map(|k| {
+            let (i, j) = ((k % 40) as f64, (k / 40) as f64);
+            [Some((i + 0.5) * w / 40.0), Some((j + 0.5) * h / 25.0)]
+        })
+        .collect();
+    let req = Request::Georef {
+        pixels: grid,
+        sigma_px: 0.0,
+    };
+    let mut times = Vec::new();
+    for _ in 0..30 {
+        let t = Instant::now();
+        let a = Client::connect(&socket)
+            .unwrap()
+            .call(&req, Duration::from_secs(30), |_| {})
+            .unwrap();
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+        assert_eq!(a.refusal(), None);
+    }
+    times.sort_by(f64::total_cmp);
+    eprintln!(
+        "georef over the socket, 1000 pixels: median {:.1} ms, max {:.1} ms (30 requests)",
+        times[15], times[29]
+    );
+    assert!(times[15] < 1000.0, "{times:?}");
+
+    // The lookup table: its layout, numpy's reading, and each cell = the pixel's georeference.
+    let step = meta["step_px"].as_u64().unwrap() as usize;
+    assert_eq!(step, 4);
+    let (rows, cols) = ((h as usize).div_ceil(4), (w as usize).div_ceil(4));
+    assert_eq!(meta["shape"], json!([rows, cols, 4]));
+    assert_eq!(meta["channels"], json!(["e", "n", "h", "sigma_major_m"]));
+    let cells: Vec<(usize, usize)> = (0..60)
+        .map(|k| (rows / 2 + k % 7 * 5 - 15, cols / 2 + k * 3 - 90))
+        .collect();
+    let npy = work.join("georef_lut.npy");
+    let (shape, vals) = numpy_cells(&npy, &cells);
+    assert_eq!(shape, vec![rows, cols, 4]);
+    let px: Vec<[f64; 2]> = cells
+        .iter()
+        .map(|&(r, c)| [(c * 4) as f64, (r * 4) as f64])
+        .collect();
+    let want = json_of(&cli(
+        &cfg,
+        &["georef", "--running", "--format", "json"],
+        &csv(&px),
+    ));
+    let mut ok = 0;
+    for (k, (got, w)) in vals
+        .iter()
+        .zip(want["points"].as_array().unwrap())
+        .enumerate()
+    {
+        if w["status"] == "ok" {
+            ok += 1;
+            for (i, key) in ["e", "n", "h", "sigma_major_m"].iter().enumerate() {
+                let x = w[key].as_f64().unwrap();
+                assert!(
+                    (got[i] - x).abs() < 1e-9,
+                    "cell {:?} {key}: {} vs {x}",
+                    cells[k],
+                    got[i]
+                );
+            }
+        } else {
+            assert!(
+                got.iter().all(|v| v.is_nan()),
+                "cell {:?}: {got:?}",
+                cells[k]
+            );
+        }
+    }
+    assert!(ok > 40, "{ok} of 60 cells near the image centre ok");
+    let ino = std::fs::metadata(&npy).unwrap().ino();
+
+    // A new served pose rewrites the table (atomically: a new file renamed over the old) and is
+    // the one the request names.
+    let cfg = write_config(&scene, &work, true);
+    let hup = Command::new("kill")
+        .args(["-HUP", &d.child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(hup.success());
+    d.wait_status(&cfg, |_| d_log_has(&work, "config reloaded"));
+    let out = cli(&cfg, &["relocalize", "--wait", "--force"], "");
+    assert!(out.status.success(), "{}; {}", text(&out.stderr), d.log());
+    let new: PoseFile =
+        serde_json::from_str(&std::fs::read_to_string(work.join("pose.json")).unwrap()).unwrap();
+    assert_ne!(new.timestamp_utc, STORED_AT);
+    wait_lut(&mut d, &work, &new.timestamp_utc);
+    assert_ne!(
+        std::fs::metadata(&npy).unwrap().ino(),
+        ino,
+        "rewritten in place"
+    );
+    let (shape, _) = numpy_cells(&npy, &[]);
+    assert_eq!(shape, vec![rows, cols, 4]);
+    let again = json_of(&cli(
+        &cfg,
+        &["georef", "--running", "--format", "json"],
+        &csv(&pixels[..3]),
+    ));
+    assert_eq!(again["pose"]["timestamp_utc"], new.timestamp_utc.as_str());
+    let leftovers: Vec<String> = std::fs::read_dir(&work)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".tmp."))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+}
+
+fn d_log_has(work: &Path, what: &str) -> bool {
+    std::fs::read_to_string(work.join("daemon.log")).is_ok_and(|l| l.contains(what))
+}
+
+#[test]
+fn without_a_served_pose_georef_is_refused_and_no_table_written() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (scene, work) = (tmp.path().join("scene"), tmp.path().join("work"));
+    simulate(&scene);
+    std::fs::create_dir(&work).unwrap();
+    let cfg = write_config(&scene, &work, false);
+    let mut d = Daemon::start(&cfg);
+    d.wait_status(&cfg, |v| v["state"] == "failed");
+    fails_with(
+        &cli(&cfg, &["georef", "--running"], "500,500\n"),
+        "no pose served yet",
+    );
+    assert!(!work.join("georef_lut.npy").exists());
+    assert!(!work.join("georef_lut.json").exists());
+
+    // A lookup-table step out of range is a config error (78) naming the key.
+    let mut t: toml::Table = toml::from_str(&std::fs::read_to_string(&cfg).unwrap()).unwrap();
+    set(&mut t, "output", "georef-lut-step-px", 65);
+    std::fs::write(&cfg, toml::to_string(&t).unwrap()).unwrap();
+    let out = Command::new(BIN)
+        .args(["validate", "--keys-only", "--config"])
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(78), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stderr).contains("[output] georef-lut-step-px = 65 is out of range: use 0 to 64"),
+        "{}",
+        text(&out.stderr)
+    );
+}
