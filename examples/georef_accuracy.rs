@@ -2,7 +2,7 @@
 //! `pipeline_accuracy` accepted.
 //!
 //! ```sh
-//! cargo run --release --example pipeline_accuracy -- --preset small --seeds 1..50 --json small.json
+//! cargo run --release --features __internal-test --example pipeline_accuracy -- --preset small --seeds 1..50 --json small.json
 //! cargo run --release --example georef_accuracy -- --preset small --runs small.json [--json out.json]
 //! ```
 //!
