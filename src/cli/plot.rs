@@ -81,6 +81,13 @@ pub struct MiSurfaceArgs {
     /// The MI estimator (bins, objective, binning, Parzen smoothing), as `refine`'s.
     #[command(flatten)]
     pub estimator: super::estimator::EstimatorArgs,
+    /// How a point samples the image: `nearest` (the search's nearest pixel) or `pv` (the
+    /// partial-volume histogram of `refine --sampling pv`).
+    #[arg(long, value_name = "nearest|pv", default_value = "nearest")]
+    pub sampling: String,
+    /// With `--sampling pv` and several pairs: `joint` or `per-pair` (as `refine --pooling`).
+    #[arg(long, value_name = "joint|per-pair", default_value = "joint")]
+    pub pooling: String,
 }
 
 /// Run a `plot` subcommand.
@@ -217,6 +224,14 @@ fn mi_surface_cmd(a: MiSurfaceArgs) -> Result<()> {
     let spec: SearchSpec = a.search.parse()?;
     let size = parse_size(&a.size)?;
     let mi = a.estimator.config()?;
+    let pooling: crate::localize::mi::smooth::Pooling = a.pooling.parse()?;
+    let pv = match a
+        .sampling
+        .parse::<crate::localize::mi::smooth::Sampling>()?
+    {
+        crate::localize::mi::smooth::Sampling::Nearest => None,
+        crate::localize::mi::smooth::Sampling::Pv => Some(pooling),
+    };
     let cfg = SearchConfig {
         spec,
         mi,
@@ -256,6 +271,7 @@ fn mi_surface_cmd(a: MiSurfaceArgs) -> Result<()> {
             &pose,
             &cfg,
             a.xy_stride,
+            pv,
         )
         .map_err(|e| Error::input(dir, e.to_string()))?;
         let out = a.out.clone().unwrap_or_else(|| dir.join("mi-surface.png"));
@@ -316,7 +332,7 @@ fn mi_surface_cmd(a: MiSurfaceArgs) -> Result<()> {
                 )
             })
             .collect();
-        let surf = mi_surface_pooled(&cam, &pairs, &pose, &cfg, a.xy_stride)?;
+        let surf = mi_surface_pooled(&cam, &pairs, &pose, &cfg, a.xy_stride, pv)?;
         (surf, pose, cov, (out, reference))
     };
     let (out, reference) = out;

@@ -5,8 +5,10 @@ use crate::camera::CameraModel;
 use crate::error::{Error, Result};
 use crate::localize::mi::objective::View;
 use crate::localize::mi::points::GroundPoint;
+use crate::localize::mi::smooth::{Pooling, Sampling};
 use crate::localize::mi::space::{Mode, SearchConfig, SearchSpec};
 use crate::localize::mi::MiValue;
+use crate::localize::refine::gradient::refine_smooth;
 use crate::localize::refine::quality::QualityConfig;
 use crate::localize::refine::{finish_name, refine_polished, summed_offsets, PolishedSearch};
 use crate::map::{cache, Crs};
@@ -87,6 +89,15 @@ pub struct Args {
     /// The MI estimator (bins, objective, binning, Parzen smoothing).
     #[command(flatten)]
     pub estimator: super::estimator::EstimatorArgs,
+    /// How the local stage samples the image: `nearest` (the nearest pixel, Nelder–Mead polish,
+    /// jackknife σ) or `pv` (partial-volume histogram: gradient ascent after the grid search and
+    /// the information covariance beside the jackknife's, docs/refine.md "Estimator").
+    #[arg(long, value_name = "nearest|pv", default_value = "nearest")]
+    pub sampling: String,
+    /// With `--sampling pv` and several pairs: `joint` (one histogram of all pairs) or `per-pair`
+    /// (each pair its own histogram, the objective the point-weighted sum of their MI).
+    #[arg(long, value_name = "joint|per-pair", default_value = "joint")]
+    pub pooling: String,
 }
 
 impl Args {
@@ -148,6 +159,13 @@ pub(super) fn run(mut a: Args) -> Result<()> {
     let qcfg = quality_config(a.max_sigma.as_deref())?;
     let mode: Mode = a.mode.parse()?;
     let mi = a.estimator.config()?;
+    let sampling: Sampling = a.sampling.parse()?;
+    let pooling: Pooling = a.pooling.parse()?;
+    if sampling == Sampling::Pv && a.grid_only {
+        return Err(Error::Invalid(
+            "--sampling pv with --grid-only: the grid search samples the nearest pixel; pv is its local stage".into(),
+        ));
+    }
     if !a.points.is_empty() && a.points.len() != a.image.len() {
         return Err(Error::Invalid(format!(
             "--image given {} times but --points {} times: pooled pairs need one point file per image, paired in order",
@@ -251,19 +269,40 @@ pub(super) fn run(mut a: Args) -> Result<()> {
             points: &point_sets[i.min(point_sets.len() - 1)],
         })
         .collect();
-    let (r, rounds) = refine_polished(
-        &cam,
-        &views,
-        &init.pose,
-        &cfg,
-        &qcfg,
-        finish.as_ref(),
-        &pivot,
-    )?;
+    let (r, rounds, smooth) = match sampling {
+        Sampling::Nearest => {
+            let (r, rounds) = refine_polished(
+                &cam,
+                &views,
+                &init.pose,
+                &cfg,
+                &qcfg,
+                finish.as_ref(),
+                &pivot,
+            )?;
+            (r, rounds, None)
+        }
+        Sampling::Pv => {
+            let (r, s) = refine_smooth(&cam, &views, &init.pose, &cfg, &qcfg, a.polish, pooling)?;
+            (r, Vec::new(), Some(s))
+        }
+    };
+    let finish_label = if smooth.is_some() {
+        if a.polish {
+            "6-dof-gradient"
+        } else {
+            "4-dof-gradient"
+        }
+    } else {
+        finish_name(finish.as_ref())
+    };
     if let Some(path) = &a.report {
         let mut report = serde_json::to_value(r.report(mode))
             .map_err(|e| Error::Invalid(format!("report: {e}")))?;
-        report["finish"] = finish_name(finish.as_ref()).into();
+        report["finish"] = finish_label.into();
+        if let Some(sm) = &smooth {
+            report["smooth"] = serde_json::to_value(sm).unwrap_or_default();
+        }
         report["estimator"] = serde_json::to_value(mi).unwrap_or_default();
         // The value the search maximised, named: quality.mi and quality.nmi are both reported
         // whatever the objective, so a reader cannot tell from them which one was optimised.
@@ -324,6 +363,22 @@ pub(super) fn run(mut a: Args) -> Result<()> {
     if let Some(sig) = &r.quality.sigma {
         println!("uncertainty: {}", sig.describe());
     }
+    if let Some(sm) = &smooth {
+        if let Ok(info) = &sm.information {
+            println!("information: {}", info.describe());
+        }
+        for (i, asc) in sm.ascents.iter().enumerate() {
+            println!(
+                "gradient ascent {}: {} iterations, {} evaluations, stopped on {}, objective {:.5} -> {:.5}",
+                i + 1,
+                asc.iterations,
+                asc.evaluations,
+                asc.stop,
+                asc.value_start,
+                asc.value
+            );
+        }
+    }
     for round in &rounds {
         let o = summed_offsets(&round.polish);
         println!(
@@ -338,9 +393,22 @@ pub(super) fn run(mut a: Args) -> Result<()> {
             .unwrap_or(0);
         let mut pf = PoseFile::new(&r.pose, crs, &tile_id, format_utc(now, None));
         pf.quality = serde_json::to_value(&r.quality).unwrap_or_default();
+        if let (Some(Ok(info)), Some(q)) = (
+            smooth.as_ref().map(|s| &s.information),
+            pf.quality.as_object_mut(),
+        ) {
+            q.insert(
+                "information".into(),
+                serde_json::to_value(info).unwrap_or_default(),
+            );
+        }
         pf.stages = vec![
-            serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.polish, "finish": finish_name(finish.as_ref()) }),
+            serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.polish, "finish": finish_label }),
         ];
+        if smooth.is_some() {
+            pf.stages[0]["sampling"] = sampling.name().into();
+            pf.stages[0]["pooling"] = pooling.name().into();
+        }
         crate::persist::write_atomic(path, pf.to_json().as_bytes())?;
     }
     Ok(())

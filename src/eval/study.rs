@@ -379,10 +379,11 @@ pub(crate) fn mi_surface(
     pose: &CamFromMap,
     cfg: &SearchConfig,
     xy_stride: i64,
+    pv: Option<crate::localize::mi::smooth::Pooling>,
 ) -> Result<Surface> {
     let mask = crate::camera::CameraModel::valid_mask(camera);
     let ev = Evaluator::new(camera, gray, &mask, points, pose, cfg, 0)?;
-    surface_of(&ev, pose, xy_stride)
+    surface_of(&ev, pose, xy_stride, pv.map(|p| (camera, p)))
 }
 
 /// [`mi_surface`] on several image/point-set pairs that share the pose, pooled into one joint
@@ -393,6 +394,7 @@ pub(crate) fn mi_surface_pooled(
     pose: &CamFromMap,
     cfg: &SearchConfig,
     xy_stride: i64,
+    pv: Option<crate::localize::mi::smooth::Pooling>,
 ) -> Result<Surface> {
     let mask = crate::camera::CameraModel::valid_mask(camera);
     let views: Vec<crate::localize::mi::objective::View> = pairs
@@ -404,7 +406,7 @@ pub(crate) fn mi_surface_pooled(
         })
         .collect();
     let ev = Evaluator::pooled(camera, &views, pose, cfg, 0)?;
-    surface_of(&ev, pose, xy_stride)
+    surface_of(&ev, pose, xy_stride, pv.map(|p| (camera, p)))
 }
 
 /// The horizontal unit vector (map x, y) to the *left* of the camera's view: perpendicular to
@@ -427,8 +429,14 @@ pub(crate) fn lateral_direction(pose: &CamFromMap) -> [f64; 2] {
 /// [`mi_surface`] on a prepared evaluator (its box and fixed point set; one view or several
 /// pooled): profiles at the finest step, the x–y plane (z and yaw fixed) and the yaw–lateral
 /// plane (z fixed; lateral along [`lateral_direction`], over the smaller of the x and y half
-/// ranges) every `xy_stride` finest cells.
-pub(crate) fn surface_of(ev: &Evaluator, pose: &CamFromMap, xy_stride: i64) -> Result<Surface> {
+/// ranges) every `xy_stride` finest cells. With `pv`, the values are the partial-volume
+/// estimator's ([`crate::localize::mi::smooth`]) on the same images and point sets, pooled as it says.
+pub(crate) fn surface_of(
+    ev: &Evaluator,
+    pose: &CamFromMap,
+    xy_stride: i64,
+    pv: Option<(&Camera, crate::localize::mi::smooth::Pooling)>,
+) -> Result<Surface> {
     if xy_stride < 1 {
         return Err(Error::Invalid(format!(
             "surface stride {xy_stride}: must be ≥ 1"
@@ -436,7 +444,17 @@ pub(crate) fn surface_of(ev: &Evaluator, pose: &CamFromMap, xy_stride: i64) -> R
     }
     let g = *ev.grid();
     let objective = ev.objective();
+    let smooth = pv.map(|(cam, p)| crate::localize::mi::smooth::Smooth::of_evaluator(cam, ev, p));
     let score = |offsets: &[[f64; 6]]| -> Vec<f64> {
+        if let Some(est) = &smooth {
+            return offsets
+                .par_iter()
+                .map(|o| {
+                    est.evaluate(&crate::localize::mi::space::pose_at(pose, o), false)
+                        .value
+                })
+                .collect();
+        }
         // Chunks keep one scratch buffer per task; collect keeps the input order.
         offsets
             .par_chunks(16)

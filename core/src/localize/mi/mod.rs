@@ -11,6 +11,7 @@
 pub mod kernel;
 pub mod objective;
 pub mod points;
+pub mod smooth;
 pub mod space;
 
 use crate::error::{Error, Result};

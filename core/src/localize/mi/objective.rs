@@ -522,6 +522,17 @@ impl Evaluator {
         h
     }
 
+    /// Level 0 of every view (its binned image and fixed point set), the points' origin and the
+    /// estimator's settings: what the smooth estimator ([`super::smooth`]) scores.
+    pub(crate) fn level0(&self) -> (Vec<(&BinnedImage, &PreparedPoints)>, [f64; 3], MiConfig) {
+        let parts = self.levels[0]
+            .parts
+            .iter()
+            .map(|p| (p.img.as_ref(), &p.pts))
+            .collect();
+        (parts, self.origin, self.mi)
+    }
+
     /// The objective the search maximises (MI or NMI, per the configuration).
     pub fn objective(&self) -> crate::localize::mi::Objective {
         self.mi.objective

@@ -3,6 +3,7 @@
 //! answer, and the [`rounds`] that alternate search and polish, and the service's [`drift`] check.
 
 pub mod drift;
+pub mod gradient;
 pub mod polish;
 pub mod quality;
 pub mod rounds;

@@ -1,0 +1,1149 @@
+//! A smooth MI estimator: partial-volume (PV) joint histogram with the analytic gradient of MI
+//! with respect to the 6-DoF pose, and the observed information (the Hessian of the total
+//! log-likelihood) for the Cramér–Rao covariance.
+//!
+//! The nearest-pixel kernel ([`super::kernel`]) puts each point's whole unit of mass in one
+//! histogram cell, so the histogram, and MI, jumps whenever a projection crosses a pixel
+//! boundary. Here a point projected to the sub-pixel position (u, v) spreads its unit of mass
+//! over the four surrounding pixel centres with the bilinear weights (Maes et al. 1997,
+//! partial-volume interpolation): cell (reflectivity bin of the point, gray bin of pixel k)
+//! receives w_k. The histogram is then continuous in the pose and piecewise differentiable:
+//!
+//! dMI/dθ = Σ_cells ∂MI/∂h_ij · dh_ij/dθ, dh_ij/dθ = Σ_points Σ_k [cell] ∇_uv w_k · J_proj · dX_c/dθ
+//!
+//! with ∂MI/∂h_ij = (ln(h_ij·T / (h_i·h_j)) − MI) / T for un-normalised masses h (T their sum),
+//! chained through the binomial Parzen smoothing (a symmetric convolution, its own adjoint).
+//! J_proj is the camera's analytic 2×3 Jacobian (Mei/omnidir with radial and tangential
+//! distortion and skew, or equidistant with atan2 and α), checked against central differences in
+//! the tests.
+//!
+//! Pose parameters θ = (dx, dy, dz, rx, ry, rz): the camera centre moves by (dx, dy, dz) in the
+//! map frame and the camera body rotates by Exp(r) about the map axes through its centre
+//! ([`step`]); rz is exactly the yaw of [`super::space::pose_at`].
+//!
+//! Pooling: one joint histogram over every view ([`Pooling::Joint`], what the nearest-pixel
+//! search does), or one histogram per view and the objective Σ_v (n_v/n)·MI_v, each frame's MI
+//! weighted by its share of the points ([`Pooling::PerPair`]): frames under different light then
+//! need not share one gray–reflectivity relation. Either way n · objective is the total
+//! log-likelihood whose negative Hessian is the observed information.
+//!
+//! Sums are deterministic: points are cut into fixed blocks, each block's partial sums are made on
+//! the pool and added up in block order, so the thread count cannot change a bit.
+
+// Small fixed-size matrices (2×3, 6×6) indexed by row and column read as the formulas do.
+#![allow(clippy::needless_range_loop)]
+
+use super::kernel::{BinnedImage, FastCamera};
+use super::points::PreparedPoints;
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::pose::CamFromMap;
+use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Points per parallel block (fixed, so the sums do not depend on the thread count).
+const BLOCK: usize = 4096;
+
+/// How a projected point samples the image: the local refinement's and the surface plots'
+/// estimator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Sampling {
+    /// Nearest-pixel joint histogram (the grid search's kernel), Nelder–Mead polish.
+    #[default]
+    Nearest,
+    /// Partial-volume joint histogram ([`Smooth`]), gradient ascent, information covariance.
+    Pv,
+}
+
+impl Sampling {
+    /// The command-line name (`nearest`, `pv`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Sampling::Nearest => "nearest",
+            Sampling::Pv => "pv",
+        }
+    }
+}
+
+impl std::fmt::Display for Sampling {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Sampling {
+    type Err = Error;
+    /// `nearest` or `pv`; anything else is a one-line error naming `--sampling`.
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "nearest" => Ok(Sampling::Nearest),
+            "pv" => Ok(Sampling::Pv),
+            _ => Err(Error::Invalid(format!(
+                "--sampling {s:?}: expected nearest or pv"
+            ))),
+        }
+    }
+}
+
+/// How several image/point-set pairs are pooled into one objective.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Pooling {
+    /// One joint histogram summed over the pairs.
+    #[default]
+    Joint,
+    /// One histogram per pair; the objective is the point-weighted sum of the pairs' MI.
+    PerPair,
+}
+
+impl Pooling {
+    /// The command-line name (`joint`, `per-pair`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Pooling::Joint => "joint",
+            Pooling::PerPair => "per-pair",
+        }
+    }
+}
+
+impl std::fmt::Display for Pooling {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Pooling {
+    type Err = Error;
+    /// `joint` or `per-pair`; anything else is a one-line error naming `--pooling`.
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "joint" => Ok(Pooling::Joint),
+            "per-pair" => Ok(Pooling::PerPair),
+            _ => Err(Error::Invalid(format!(
+                "--pooling {s:?}: expected joint or per-pair"
+            ))),
+        }
+    }
+}
+
+/// The pose at local parameters θ = (dx, dy, dz, rx, ry, rz) from `pose`: centre + (dx, dy, dz)
+/// (map frame, m), body rotated by Exp(rx, ry, rz) (rad) about the map axes through the centre.
+pub fn step(pose: &CamFromMap, theta: &[f64; 6]) -> CamFromMap {
+    let c = pose.center() + Vector3::new(theta[0], theta[1], theta[2]);
+    let q = Rotation3::new(Vector3::new(theta[3], theta[4], theta[5]));
+    let map_from_cam = q * pose.rotation.inverse();
+    CamFromMap::from_center(map_from_cam.inverse(), &c)
+}
+
+/// The camera's projection with its analytic Jacobian, in f64.
+#[derive(Debug, Clone, Copy)]
+enum Proj {
+    Mei {
+        /// fx, fy, skew, cx, cy.
+        k: [f64; 5],
+        xi: f64,
+        /// k1, k2, p1, p2.
+        d: [f64; 4],
+        zmin: f64,
+        r2max: f64,
+    },
+    Equidistant {
+        /// fx, fy, alpha, cx, cy.
+        k: [f64; 5],
+        /// k1..k4.
+        d: [f64; 4],
+        theta_max: f64,
+    },
+}
+
+/// On the forward axis the equidistant model's θ_d/ρ tends to 1/z (the camera's own branch).
+const AXIS_EPS: f64 = 1e-12;
+
+impl Proj {
+    fn new(cam: &Camera) -> Self {
+        // The validity limits are the fast kernel's (the same model limits, computed once).
+        match (cam, FastCamera::new(cam, 0)) {
+            (Camera::Mei(m), FastCamera::Mei(f)) => Proj::Mei {
+                k: [m.fx, m.fy, m.skew, m.cx, m.cy],
+                xi: m.xi,
+                d: [m.k1, m.k2, m.p1, m.p2],
+                zmin: f.zmin as f64,
+                r2max: f.r2max as f64,
+            },
+            (Camera::Equidistant(e), FastCamera::Equidistant(f)) => Proj::Equidistant {
+                k: [e.fx, e.fy, e.alpha, e.cx, e.cy],
+                d: [e.k1, e.k2, e.k3, e.k4],
+                theta_max: f.theta_max as f64,
+            },
+            // `FastCamera::new` keeps the model: unreachable, but answered as "not visible".
+            _ => Proj::Equidistant {
+                k: [0.0; 5],
+                d: [0.0; 4],
+                theta_max: -1.0,
+            },
+        }
+    }
+
+    /// Pixel (u, v) of camera-frame point `p` and ∂(u, v)/∂p (rows), or `None` when the model
+    /// does not see it.
+    #[inline]
+    fn project(&self, p: [f64; 3]) -> Option<([f64; 2], [[f64; 3]; 2])> {
+        match *self {
+            Proj::Mei {
+                k,
+                xi,
+                d,
+                zmin,
+                r2max,
+            } => {
+                let n = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                if !(n > 0.0 && n.is_finite()) {
+                    return None;
+                }
+                let s = [p[0] / n, p[1] / n, p[2] / n];
+                if s[2] <= zmin {
+                    return None;
+                }
+                let den = s[2] + xi;
+                let (x, y) = (s[0] / den, s[1] / den);
+                let r2 = x * x + y * y;
+                if r2 >= r2max {
+                    return None;
+                }
+                let [k1, k2, p1, p2] = d;
+                let radial = 1.0 + k1 * r2 + k2 * r2 * r2;
+                let xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
+                let yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
+                let u = k[0] * xd + k[2] * yd + k[3];
+                let v = k[1] * yd + k[4];
+                // ∂(xd, yd)/∂(x, y).
+                let dr = k1 + 2.0 * k2 * r2; // ∂radial/∂r² / 1
+                let (drx, dry) = (2.0 * x * dr, 2.0 * y * dr);
+                let a = radial + x * drx + 2.0 * p1 * y + 6.0 * p2 * x;
+                let b = x * dry + 2.0 * p1 * x + 2.0 * p2 * y;
+                let c = y * drx + 2.0 * p1 * x + 2.0 * p2 * y;
+                let e = radial + y * dry + 6.0 * p1 * y + 2.0 * p2 * x;
+                // ∂(x, y)/∂s, then ∂s/∂p = (I − s sᵀ)/n.
+                let dxs = [1.0 / den, 0.0, -x / den];
+                let dys = [0.0, 1.0 / den, -y / den];
+                let mut dxp = [0.0; 3];
+                let mut dyp = [0.0; 3];
+                for j in 0..3 {
+                    let mut gx = 0.0;
+                    let mut gy = 0.0;
+                    for i in 0..3 {
+                        let m = (if i == j { 1.0 } else { 0.0 } - s[i] * s[j]) / n;
+                        gx += dxs[i] * m;
+                        gy += dys[i] * m;
+                    }
+                    dxp[j] = gx;
+                    dyp[j] = gy;
+                }
+                let mut ju = [0.0; 3];
+                let mut jv = [0.0; 3];
+                for j in 0..3 {
+                    let dxd = a * dxp[j] + b * dyp[j];
+                    let dyd = c * dxp[j] + e * dyp[j];
+                    ju[j] = k[0] * dxd + k[2] * dyd;
+                    jv[j] = k[1] * dyd;
+                }
+                Some(([u, v], [ju, jv]))
+            }
+            Proj::Equidistant { k, d, theta_max } => {
+                if !(p.iter().all(|v| v.is_finite())) {
+                    return None;
+                }
+                let rho2 = p[0] * p[0] + p[1] * p[1];
+                let rho = rho2.sqrt();
+                if rho2 + p[2] * p[2] == 0.0 {
+                    return None;
+                }
+                let t = rho.atan2(p[2]);
+                if t >= theta_max {
+                    return None;
+                }
+                let (x, y, jx, jy);
+                if p[2] > 0.0 && rho < AXIS_EPS * p[2] {
+                    x = p[0] / p[2];
+                    y = p[1] / p[2];
+                    jx = [1.0 / p[2], 0.0, -x / p[2]];
+                    jy = [0.0, 1.0 / p[2], -y / p[2]];
+                } else {
+                    let [k1, k2, k3, k4] = d;
+                    let t2 = t * t;
+                    let td = t * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))));
+                    let dtd =
+                        1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)));
+                    let s = td / rho;
+                    x = p[0] * s;
+                    y = p[1] * s;
+                    // θ = atan2(ρ, z): ∂θ/∂p = (z·p_x/ρ, z·p_y/ρ, −ρ) / (ρ² + z²).
+                    let q = rho2 + p[2] * p[2];
+                    let dt = [p[2] * p[0] / rho / q, p[2] * p[1] / rho / q, -rho / q];
+                    let drho = [p[0] / rho, p[1] / rho, 0.0];
+                    // s = θ_d(θ)/ρ.
+                    let mut ds = [0.0; 3];
+                    for j in 0..3 {
+                        ds[j] = (dtd * dt[j] * rho - td * drho[j]) / rho2;
+                    }
+                    jx = [s + p[0] * ds[0], p[0] * ds[1], p[0] * ds[2]];
+                    jy = [p[1] * ds[0], s + p[1] * ds[1], p[1] * ds[2]];
+                }
+                let u = k[0] * (x + k[2] * y) + k[3];
+                let v = k[1] * y + k[4];
+                let ju = [
+                    k[0] * (jx[0] + k[2] * jy[0]),
+                    k[0] * (jx[1] + k[2] * jy[1]),
+                    k[0] * (jx[2] + k[2] * jy[2]),
+                ];
+                let jv = [k[1] * jy[0], k[1] * jy[1], k[1] * jy[2]];
+                Some(([u, v], [ju, jv]))
+            }
+        }
+    }
+}
+
+/// One view: its binned level-0 image and its fixed point set.
+#[derive(Debug, Clone, Copy)]
+pub struct SmoothView<'a> {
+    /// Gray bins per pixel (invalid pixels hold the invalid bin, `cols`).
+    pub img: &'a BinnedImage,
+    /// Origin-shifted points with their reflectivity bins.
+    pub pts: &'a PreparedPoints,
+}
+
+/// The PV estimator over a set of views sharing one pose.
+#[derive(Debug, Clone)]
+pub struct Smooth<'a> {
+    proj: Proj,
+    origin: [f64; 3],
+    rows: usize,
+    cols: usize,
+    parzen: bool,
+    pooling: Pooling,
+    views: Vec<SmoothView<'a>>,
+}
+
+/// The objective at one pose.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SmoothValue {
+    /// The objective: MI of the joint histogram, or Σ_v (n_v/n)·MI_v.
+    pub value: f64,
+    /// MI per histogram (one, or one per view).
+    pub mi: Vec<f64>,
+    /// Points in the fixed sets, all views.
+    pub n: usize,
+    /// Mass that landed on valid pixels, all views (≤ n).
+    pub valid: f64,
+    /// d(value)/dθ at the pose, θ as in [`step`]; `None` when not asked for.
+    pub grad: Option<[f64; 6]>,
+}
+
+/// A joint histogram of f64 masses, `rows × cols` (invalid mass is counted apart).
+#[derive(Debug, Clone)]
+struct Hist {
+    h: Vec<f64>,
+    invalid: f64,
+}
+
+impl<'a> Smooth<'a> {
+    /// The estimator on `views` (points shifted by `origin`), `rows × cols` bins.
+    pub fn new(
+        cam: &Camera,
+        views: Vec<SmoothView<'a>>,
+        origin: [f64; 3],
+        rows: usize,
+        cols: usize,
+        parzen: bool,
+        pooling: Pooling,
+    ) -> Self {
+        Smooth {
+            proj: Proj::new(cam),
+            origin,
+            rows,
+            cols,
+            parzen,
+            pooling,
+            views,
+        }
+    }
+
+    /// The estimator on `ev`'s level 0: the same binned (blurred) images, fixed point sets,
+    /// bins and Parzen setting as the nearest-pixel search scores.
+    pub fn of_evaluator(
+        cam: &Camera,
+        ev: &'a super::objective::Evaluator,
+        pooling: Pooling,
+    ) -> Self {
+        let (parts, origin, mi) = ev.level0();
+        let views = parts
+            .into_iter()
+            .map(|(img, pts)| SmoothView { img, pts })
+            .collect();
+        Self::new(
+            cam,
+            views,
+            origin,
+            mi.bins_reflectivity,
+            mi.bins_gray,
+            mi.parzen,
+            pooling,
+        )
+    }
+
+    /// Points in all views.
+    pub fn n(&self) -> usize {
+        self.views.iter().map(|v| v.pts.len()).sum()
+    }
+
+    /// The pooling rule.
+    pub fn pooling(&self) -> Pooling {
+        self.pooling
+    }
+
+    /// R (row-major) and t of `X_c = R·p + t` for origin-shifted points p.
+    fn rt(&self, pose: &CamFromMap) -> (Matrix3<f64>, Vector3<f64>) {
+        let o = Point3::new(self.origin[0], self.origin[1], self.origin[2]);
+        (*pose.rotation.matrix(), pose.transform(&o).coords)
+    }
+
+    /// The four PV samples of a projection: (pixel bin or `None` when off the image or invalid,
+    /// weight, ∂weight/∂(u, v)).
+    #[inline]
+    fn samples(
+        img: &BinnedImage,
+        cols: usize,
+        uv: [f64; 2],
+    ) -> [(Option<usize>, f64, [f64; 2]); 4] {
+        let (u0, v0) = (uv[0].floor(), uv[1].floor());
+        let (fu, fv) = (uv[0] - u0, uv[1] - v0);
+        let bin = |du: f64, dv: f64| -> Option<usize> {
+            let (x, y) = (u0 + du, v0 + dv);
+            if x < 0.0 || y < 0.0 || x >= img.width as f64 || y >= img.height as f64 {
+                return None;
+            }
+            let b = img.data[y as usize * img.width + x as usize] as usize;
+            (b < cols).then_some(b)
+        };
+        [
+            (
+                bin(0.0, 0.0),
+                (1.0 - fu) * (1.0 - fv),
+                [-(1.0 - fv), -(1.0 - fu)],
+            ),
+            (bin(1.0, 0.0), fu * (1.0 - fv), [1.0 - fv, -fu]),
+            (bin(0.0, 1.0), (1.0 - fu) * fv, [-fv, 1.0 - fu]),
+            (bin(1.0, 1.0), fu * fv, [fv, fu]),
+        ]
+    }
+
+    /// The camera-frame point of `view`'s point `i`.
+    #[inline]
+    fn cam_point(r: &Matrix3<f64>, t: &Vector3<f64>, pts: &PreparedPoints, i: usize) -> [f64; 3] {
+        let p = Vector3::new(pts.x[i] as f64, pts.y[i] as f64, pts.z[i] as f64);
+        let c = r * p + t;
+        [c.x, c.y, c.z]
+    }
+
+    /// The PV histogram of one view at `pose`.
+    fn histogram(&self, v: &SmoothView<'_>, r: &Matrix3<f64>, t: &Vector3<f64>) -> Hist {
+        let (rows, cols) = (self.rows, self.cols);
+        let n = v.pts.len();
+        let blocks: Vec<Hist> = (0..n.div_ceil(BLOCK))
+            .into_par_iter()
+            .map(|b| {
+                let mut h = Hist {
+                    h: vec![0.0; rows * cols],
+                    invalid: 0.0,
+                };
+                for i in b * BLOCK..((b + 1) * BLOCK).min(n) {
+                    let row = v.pts.bin[i] as usize;
+                    let Some((uv, _)) = self.proj.project(Self::cam_point(r, t, v.pts, i)) else {
+                        h.invalid += 1.0;
+                        continue;
+                    };
+                    for (bin, w, _) in Self::samples(v.img, cols, uv) {
+                        match bin {
+                            Some(j) => h.h[row * cols + j] += w,
+                            None => h.invalid += w,
+                        }
+                    }
+                }
+                h
+            })
+            .collect();
+        let mut out = Hist {
+            h: vec![0.0; rows * cols],
+            invalid: 0.0,
+        };
+        for b in blocks {
+            out.h.iter_mut().zip(&b.h).for_each(|(a, x)| *a += x);
+            out.invalid += b.invalid;
+        }
+        out
+    }
+
+    /// Σ over `view`'s points of the pose gradient of Σ_cells g_ij·h_ij (g: `rows × cols`).
+    fn pull_back(
+        &self,
+        v: &SmoothView<'_>,
+        r: &Matrix3<f64>,
+        t: &Vector3<f64>,
+        g: &[f64],
+    ) -> [f64; 6] {
+        let n = v.pts.len();
+        let blocks: Vec<[f64; 6]> = (0..n.div_ceil(BLOCK))
+            .into_par_iter()
+            .map(|blk| self.pull_back_range(v, r, t, g, blk * BLOCK..((blk + 1) * BLOCK).min(n)))
+            .collect();
+        let mut s = [0.0; 6];
+        for b in blocks {
+            for k in 0..6 {
+                s[k] += b[k];
+            }
+        }
+        Self::to_theta(r, &s)
+    }
+
+    /// The camera-frame sums B = Σ b and C = Σ b × X_c over the points `range` of `v`, with b
+    /// = ∂/∂X_c of a point's contribution to Σ_cells g_ij·h_ij; [`Self::to_theta`] turns them
+    /// into the gradient over θ.
+    fn pull_back_range(
+        &self,
+        v: &SmoothView<'_>,
+        r: &Matrix3<f64>,
+        t: &Vector3<f64>,
+        g: &[f64],
+        range: std::ops::Range<usize>,
+    ) -> [f64; 6] {
+        let cols = self.cols;
+        let mut acc = [0.0; 6];
+        for i in range {
+            let row = v.pts.bin[i] as usize;
+            let xc = Self::cam_point(r, t, v.pts, i);
+            let Some((uv, j)) = self.proj.project(xc) else {
+                continue;
+            };
+            let mut a = [0.0; 2];
+            for (bin, _, dw) in Self::samples(v.img, cols, uv) {
+                if let Some(col) = bin {
+                    let gij = g[row * cols + col];
+                    a[0] += gij * dw[0];
+                    a[1] += gij * dw[1];
+                }
+            }
+            if a == [0.0, 0.0] {
+                continue;
+            }
+            let b = [
+                a[0] * j[0][0] + a[1] * j[1][0],
+                a[0] * j[0][1] + a[1] * j[1][1],
+                a[0] * j[0][2] + a[1] * j[1][2],
+            ];
+            acc[0] += b[0];
+            acc[1] += b[1];
+            acc[2] += b[2];
+            acc[3] += b[1] * xc[2] - b[2] * xc[1];
+            acc[4] += b[2] * xc[0] - b[0] * xc[2];
+            acc[5] += b[0] * xc[1] - b[1] * xc[0];
+        }
+        acc
+    }
+
+    /// The gradient over θ of camera-frame sums `s` = (B, C) of [`Self::pull_back_range`].
+    fn to_theta(r: &Matrix3<f64>, s: &[f64; 6]) -> [f64; 6] {
+        // dX_c/dd = −R, dX_c/dr = [X_c]× R: ∂/∂d = −Rᵀ B, ∂/∂r = Rᵀ (B × X_c summed) = Rᵀ C.
+        let rt = r.transpose();
+        let gd = -(rt * Vector3::new(s[0], s[1], s[2]));
+        let gr = rt * Vector3::new(s[3], s[4], s[5]);
+        [gd.x, gd.y, gd.z, gr.x, gr.y, gr.z]
+    }
+
+    /// The objective at `pose`, with its gradient when `grad`.
+    pub fn evaluate(&self, pose: &CamFromMap, grad: bool) -> SmoothValue {
+        let (r, t) = self.rt(pose);
+        let n = self.n();
+        let hists: Vec<Hist> = self
+            .views
+            .iter()
+            .map(|v| self.histogram(v, &r, &t))
+            .collect();
+        let valid = hists.iter().map(|h| h.h.iter().sum::<f64>()).sum::<f64>();
+        let mut out = SmoothValue {
+            value: 0.0,
+            mi: Vec::new(),
+            n,
+            valid,
+            grad: None,
+        };
+        let mut gsum = [0.0; 6];
+        match self.pooling {
+            Pooling::Joint => {
+                let mut h = vec![0.0; self.rows * self.cols];
+                for x in &hists {
+                    h.iter_mut().zip(&x.h).for_each(|(a, b)| *a += b);
+                }
+                let (mi, g) = mi_gradient(&h, self.rows, self.cols, self.parzen);
+                out.value = mi;
+                out.mi.push(mi);
+                if grad {
+                    for v in &self.views {
+                        let d = self.pull_back(v, &r, &t, &g);
+                        gsum.iter_mut().zip(d).for_each(|(a, b)| *a += b);
+                    }
+                }
+            }
+            Pooling::PerPair => {
+                for (v, h) in self.views.iter().zip(&hists) {
+                    let wv = v.pts.len() as f64 / n.max(1) as f64;
+                    let (mi, g) = mi_gradient(&h.h, self.rows, self.cols, self.parzen);
+                    out.value += wv * mi;
+                    out.mi.push(mi);
+                    if grad {
+                        let d = self.pull_back(v, &r, &t, &g);
+                        gsum.iter_mut().zip(d).for_each(|(a, b)| *a += wv * b);
+                    }
+                }
+            }
+        }
+        if grad {
+            out.grad = Some(gsum);
+        }
+        out
+    }
+
+    /// The gradient of the objective at `pose` cut into `k` clusters of points: cluster j holds
+    /// the j-th of `k` contiguous runs of every view's fixed set (Morton order, so a run is a
+    /// compact patch of ground, as the jackknife's groups). ∂MI/∂h is taken at the whole
+    /// histogram, so the clusters' gradients sum to [`Self::evaluate`]'s: each is a patch's
+    /// share of the score, whose scatter across patches measures how much the answer depends on
+    /// which ground it saw ([`crate::localize::refine::gradient::information`]'s sandwich).
+    pub fn cluster_gradients(&self, pose: &CamFromMap, k: usize) -> Vec<[f64; 6]> {
+        let k = k.max(1);
+        let (r, t) = self.rt(pose);
+        let n = self.n();
+        let hists: Vec<Hist> = self
+            .views
+            .iter()
+            .map(|v| self.histogram(v, &r, &t))
+            .collect();
+        // Per view: the cell weights g (∂objective/∂h) and the view's weight in the objective.
+        let weights: Vec<(Vec<f64>, f64)> = match self.pooling {
+            Pooling::Joint => {
+                let mut h = vec![0.0; self.rows * self.cols];
+                for x in &hists {
+                    h.iter_mut().zip(&x.h).for_each(|(a, b)| *a += b);
+                }
+                let (_, g) = mi_gradient(&h, self.rows, self.cols, self.parzen);
+                self.views.iter().map(|_| (g.clone(), 1.0)).collect()
+            }
+            Pooling::PerPair => self
+                .views
+                .iter()
+                .zip(&hists)
+                .map(|(v, h)| {
+                    let (_, g) = mi_gradient(&h.h, self.rows, self.cols, self.parzen);
+                    (g, v.pts.len() as f64 / n.max(1) as f64)
+                })
+                .collect(),
+        };
+        (0..k)
+            .into_par_iter()
+            .map(|j| {
+                let mut s = [0.0; 6];
+                for (v, (g, w)) in self.views.iter().zip(&weights) {
+                    let m = v.pts.len();
+                    let part = self.pull_back_range(v, &r, &t, g, j * m / k..(j + 1) * m / k);
+                    for (a, b) in s.iter_mut().zip(part) {
+                        *a += w * b;
+                    }
+                }
+                Self::to_theta(&r, &s)
+            })
+            .collect()
+    }
+
+    /// The objective's Hessian at `pose` over the free parameters (θ of [`step`]), by central
+    /// differences of the analytic gradient with steps `h` (m, rad); rows and columns of fixed
+    /// parameters are 0. Symmetrised.
+    pub fn hessian(&self, pose: &CamFromMap, free: &[bool; 6], h: &[f64; 6]) -> [[f64; 6]; 6] {
+        let mut m = [[0.0; 6]; 6];
+        for j in (0..6).filter(|&j| free[j]) {
+            let mut th = [0.0; 6];
+            th[j] = h[j];
+            let gp = self
+                .evaluate(&step(pose, &th), true)
+                .grad
+                .unwrap_or([0.0; 6]);
+            th[j] = -h[j];
+            let gm = self
+                .evaluate(&step(pose, &th), true)
+                .grad
+                .unwrap_or([0.0; 6]);
+            for i in (0..6).filter(|&i| free[i]) {
+                m[i][j] = (gp[i] - gm[i]) / (2.0 * h[j]);
+            }
+        }
+        for i in 0..6 {
+            for j in 0..i {
+                let s = 0.5 * (m[i][j] + m[j][i]);
+                m[i][j] = s;
+                m[j][i] = s;
+            }
+        }
+        m
+    }
+}
+
+/// MI of the `rows × cols` masses `h` (after the binomial Parzen smoothing when `parzen`) and
+/// ∂MI/∂h (chained back through the smoothing). Empty: MI 0, zero gradient.
+pub(crate) fn mi_gradient(h: &[f64], rows: usize, cols: usize, parzen: bool) -> (f64, Vec<f64>) {
+    let p = if parzen {
+        binomial3(h, rows, cols)
+    } else {
+        h.to_vec()
+    };
+    let total: f64 = p.iter().sum();
+    if total <= 0.0 {
+        return (0.0, vec![0.0; rows * cols]);
+    }
+    let mut px = vec![0.0; rows];
+    let mut py = vec![0.0; cols];
+    for i in 0..rows {
+        for j in 0..cols {
+            px[i] += p[i * cols + j];
+            py[j] += p[i * cols + j];
+        }
+    }
+    let xlx = |v: f64| if v > 0.0 { v * v.ln() } else { 0.0 };
+    let sxy: f64 = p.iter().map(|&v| xlx(v)).sum();
+    let sx: f64 = px.iter().map(|&v| xlx(v)).sum();
+    let sy: f64 = py.iter().map(|&v| xlx(v)).sum();
+    let mi = (sxy - sx - sy) / total + total.ln();
+    let mut g = vec![0.0; rows * cols];
+    for i in 0..rows {
+        for j in 0..cols {
+            let v = p[i * cols + j];
+            if v > 0.0 {
+                g[i * cols + j] = ((v * total / (px[i] * py[j])).ln() - mi) / total;
+            }
+        }
+    }
+    let g = if parzen { binomial3(&g, rows, cols) } else { g };
+    (mi, g)
+}
+
+/// The separable [1 2 1] ⊗ [1 2 1] convolution with zero padding (the nearest-pixel estimator's
+/// Parzen smoothing, [`super::mutual_information`]); symmetric, so it is its own adjoint.
+fn binomial3(h: &[f64], rows: usize, cols: usize) -> Vec<f64> {
+    let mut tmp = vec![0.0; rows * cols];
+    for i in 0..rows {
+        for j in 0..cols {
+            let l = if j > 0 { h[i * cols + j - 1] } else { 0.0 };
+            let r = if j + 1 < cols {
+                h[i * cols + j + 1]
+            } else {
+                0.0
+            };
+            tmp[i * cols + j] = l + 2.0 * h[i * cols + j] + r;
+        }
+    }
+    let mut out = vec![0.0; rows * cols];
+    for i in 0..rows {
+        for j in 0..cols {
+            let u = if i > 0 { tmp[(i - 1) * cols + j] } else { 0.0 };
+            let d = if i + 1 < rows {
+                tmp[(i + 1) * cols + j]
+            } else {
+                0.0
+            };
+            out[i * cols + j] = u + 2.0 * tmp[i * cols + j] + d;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::{CameraModel, Equidistant, Mei};
+    use crate::localize::mi::{mutual_information, JointHist};
+
+    fn mei() -> Camera {
+        Camera::Mei(Mei {
+            width: 320,
+            height: 240,
+            fx: 180.0,
+            fy: 175.0,
+            cx: 161.3,
+            cy: 118.7,
+            skew: 0.4,
+            xi: 1.2,
+            k1: -0.12,
+            k2: 0.03,
+            p1: 0.002,
+            p2: -0.001,
+            fov_deg: None,
+        })
+    }
+
+    fn equidistant() -> Camera {
+        Camera::Equidistant(Equidistant {
+            width: 320,
+            height: 240,
+            fx: 90.0,
+            fy: 91.0,
+            cx: 160.2,
+            cy: 119.5,
+            alpha: 0.001,
+            k1: 0.02,
+            k2: -0.01,
+            k3: 0.003,
+            k4: -0.0005,
+            fov_deg: None,
+            cache: Default::default(),
+        })
+    }
+
+    #[test]
+    fn projection_matches_the_camera_and_its_jacobian_central_differences() {
+        for cam in [mei(), equidistant()] {
+            let proj = Proj::new(&cam);
+            for p in [
+                [0.3, -0.2, 1.0],
+                [-1.5, 0.7, 0.4],
+                [2.0, 1.0, -0.3],
+                [0.01, 0.02, 3.0],
+            ] {
+                let pv = Vector3::new(p[0], p[1], p[2]);
+                let Ok(want) = cam.model().project(&pv) else {
+                    assert!(proj.project(p).is_none(), "{p:?}");
+                    continue;
+                };
+                let (uv, j) = proj.project(p).expect("visible");
+                assert!((uv[0] - want.x).abs() < 1e-9 && (uv[1] - want.y).abs() < 1e-9);
+                let h = 1e-6;
+                for c in 0..3 {
+                    let (mut a, mut b) = (p, p);
+                    a[c] += h;
+                    b[c] -= h;
+                    let (ua, _) = proj.project(a).unwrap();
+                    let (ub, _) = proj.project(b).unwrap();
+                    for r in 0..2 {
+                        let fd = (ua[r] - ub[r]) / (2.0 * h);
+                        assert!(
+                            (fd - j[r][c]).abs() < 1e-5 * (1.0 + fd.abs()),
+                            "{p:?} ∂{r}/∂{c}: {fd} vs {}",
+                            j[r][c]
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn names_round_trip_and_unknown_names_the_flag() {
+        for e in [Sampling::Nearest, Sampling::Pv] {
+            assert_eq!(e.to_string().parse::<Sampling>().unwrap(), e);
+        }
+        for p in [Pooling::Joint, Pooling::PerPair] {
+            assert_eq!(p.to_string().parse::<Pooling>().unwrap(), p);
+            assert_eq!(serde_json::to_value(p).unwrap(), p.name());
+        }
+        let e = "bspline".parse::<Sampling>().unwrap_err().to_string();
+        assert!(e.starts_with("--sampling \"bspline\"") && !e.contains('\n'));
+        assert!("joint-hist"
+            .parse::<Pooling>()
+            .unwrap_err()
+            .to_string()
+            .starts_with("--pooling"));
+    }
+
+    #[test]
+    fn mi_of_integer_masses_is_the_nearest_pixel_estimator_s() {
+        let (rows, cols) = (5, 6);
+        let mut jh = JointHist::new(rows, cols);
+        let mut h = vec![0.0; rows * cols];
+        for i in 0..997usize {
+            let (x, y) = ((i * 7) % 5, (i * i + 3 * i) % 6);
+            let s = jh.stride();
+            jh.counts[x * s + y] += 1;
+            h[x * cols + y] += 1.0;
+        }
+        for parzen in [false, true] {
+            let want = mutual_information(&jh, parzen).mi;
+            let (mi, _) = mi_gradient(&h, rows, cols, parzen);
+            assert!((mi - want).abs() < 1e-12, "{parzen}: {mi} vs {want}");
+        }
+    }
+
+    #[test]
+    fn mi_gradient_matches_central_differences() {
+        let (rows, cols) = (4, 5);
+        let h: Vec<f64> = (0..rows * cols)
+            .map(|k| 1.0 + ((k * 37) % 11) as f64 + 0.25 * (k % 3) as f64)
+            .collect();
+        for parzen in [false, true] {
+            let (_, g) = mi_gradient(&h, rows, cols, parzen);
+            for k in 0..rows * cols {
+                let (mut a, mut b) = (h.clone(), h.clone());
+                a[k] += 1e-6;
+                b[k] -= 1e-6;
+                let fd = (mi_gradient(&a, rows, cols, parzen).0
+                    - mi_gradient(&b, rows, cols, parzen).0)
+                    / 2e-6;
+                assert!(
+                    (fd - g[k]).abs() < 1e-7,
+                    "{parzen} cell {k}: {fd} vs {}",
+                    g[k]
+                );
+            }
+        }
+    }
+
+    /// A textured plane in front of the camera (points on z = 0 of the map, the camera 5 m above
+    /// looking down), its image rendered from a smooth pattern of the same reflectivity.
+    struct Scene {
+        img: BinnedImage,
+        pts: PreparedPoints,
+        pose: CamFromMap,
+        origin: [f64; 3],
+    }
+
+    fn pattern(x: f64, y: f64) -> f64 {
+        0.5 + 0.25 * (1.3 * x).sin() * (0.9 * y + 0.4).cos() + 0.2 * (0.37 * x * y).sin()
+    }
+
+    fn scene(cam: &Camera, bins: usize) -> Scene {
+        let c = Point3::new(0.3, -0.2, 5.0);
+        // Zero pitch and roll: looking straight down.
+        let pose = CamFromMap::from_center_ypr(&c, 0.3, 0.0, 0.0);
+        let (w, h) = (cam.width() as usize, cam.height() as usize);
+        let mut data = vec![bins as u8; w * h + 1];
+        for v in 0..h {
+            for u in 0..w {
+                let Ok(ray) = cam
+                    .model()
+                    .unproject(&nalgebra::Point2::new(u as f64, v as f64))
+                else {
+                    continue;
+                };
+                let d = pose.rotation.inverse() * ray.into_inner();
+                if d.z >= -0.05 {
+                    continue;
+                }
+                let s = -c.z / d.z;
+                let val = pattern(c.x + s * d.x, c.y + s * d.y);
+                data[v * w + u] = ((val * bins as f64) as usize).min(bins - 1) as u8;
+            }
+        }
+        let img = BinnedImage {
+            width: w,
+            height: h,
+            data,
+        };
+        let origin = [c.x, c.y, c.z];
+        let mut pts = PreparedPoints::default();
+        for i in 0..80 {
+            for j in 0..80 {
+                let (x, y) = (
+                    -4.0 + 0.1 * i as f64 + 0.013 * j as f64,
+                    -4.0 + 0.1 * j as f64,
+                );
+                pts.x.push((x - origin[0]) as f32);
+                pts.y.push((y - origin[1]) as f32);
+                pts.z.push((0.0 - origin[2]) as f32);
+                let val = pattern(x, y);
+                pts.bin
+                    .push(((val * bins as f64) as usize).min(bins - 1) as u8);
+            }
+        }
+        Scene {
+            img,
+            pts,
+            pose,
+            origin,
+        }
+    }
+
+    #[test]
+    fn pose_gradient_matches_central_differences_for_both_models_and_poolings() {
+        for cam in [mei(), equidistant()] {
+            let s = scene(&cam, 16);
+            let half = s.pts.range(0, s.pts.len() / 2);
+            let rest = s.pts.range(s.pts.len() / 2, s.pts.len());
+            for pooling in [Pooling::Joint, Pooling::PerPair] {
+                let views = vec![
+                    SmoothView {
+                        img: &s.img,
+                        pts: &half,
+                    },
+                    SmoothView {
+                        img: &s.img,
+                        pts: &rest,
+                    },
+                ];
+                let est = Smooth::new(&cam, views, s.origin, 16, 16, true, pooling);
+                // Off the optimum, so the gradient is not ~0.
+                let at = step(&s.pose, &[0.03, -0.02, 0.01, 0.004, -0.003, 0.01]);
+                let g = est.evaluate(&at, true).grad.unwrap();
+                let norm = g.iter().map(|v| v * v).sum::<f64>().sqrt();
+                assert!(norm > 1e-3, "{g:?}");
+                // PV's gradient is piecewise constant per point between pixel crossings; steps
+                // far below a pixel keep most points inside their cells.
+                for k in 0..6 {
+                    let h = if k < 3 { 1e-5 } else { 2e-6 };
+                    let mut th = [0.0; 6];
+                    th[k] = h;
+                    let a = est.evaluate(&step(&at, &th), false).value;
+                    th[k] = -h;
+                    let b = est.evaluate(&step(&at, &th), false).value;
+                    let fd = (a - b) / (2.0 * h);
+                    assert!(
+                        (fd - g[k]).abs() < 0.02 * norm,
+                        "{pooling} θ{k}: fd {fd} vs analytic {} (|g| {norm})",
+                        g[k]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn cluster_gradients_sum_to_the_gradient() {
+        let cam = mei();
+        let s = scene(&cam, 16);
+        let half = s.pts.range(0, s.pts.len() / 2);
+        let rest = s.pts.range(s.pts.len() / 2, s.pts.len());
+        for pooling in [Pooling::Joint, Pooling::PerPair] {
+            let views = vec![
+                SmoothView {
+                    img: &s.img,
+                    pts: &half,
+                },
+                SmoothView {
+                    img: &s.img,
+                    pts: &rest,
+                },
+            ];
+            let est = Smooth::new(&cam, views, s.origin, 16, 16, true, pooling);
+            let at = step(&s.pose, &[0.03, -0.02, 0.01, 0.004, -0.003, 0.01]);
+            let g = est.evaluate(&at, true).grad.unwrap();
+            let norm = g.iter().map(|v| v * v).sum::<f64>().sqrt();
+            for k in [1, 7, 32] {
+                let parts = est.cluster_gradients(&at, k);
+                assert_eq!(parts.len(), k);
+                for a in 0..6 {
+                    let sum: f64 = parts.iter().map(|p| p[a]).sum();
+                    assert!(
+                        (sum - g[a]).abs() <= 1e-9 * norm,
+                        "{pooling} k={k} θ{a}: {sum} vs {}",
+                        g[a]
+                    );
+                }
+            }
+            // The patches differ: the score is not spread evenly over the ground.
+            let parts = est.cluster_gradients(&at, 8);
+            assert!(parts.windows(2).any(|w| w[0] != w[1]));
+        }
+    }
+
+    #[test]
+    fn duplicated_points_shrink_the_bound_but_not_the_sandwich() {
+        use crate::localize::refine::gradient::{information, SANDWICH_CLUSTERS};
+        let cam = mei();
+        let s = scene(&cam, 16);
+        // Every point twice, side by side: the same patches, no new information.
+        let mut twice = PreparedPoints::default();
+        for i in 0..s.pts.len() {
+            for _ in 0..2 {
+                twice.x.push(s.pts.x[i]);
+                twice.y.push(s.pts.y[i]);
+                twice.z.push(s.pts.z[i]);
+                twice.bin.push(s.pts.bin[i]);
+            }
+        }
+        assert_eq!(s.pts.len() % SANDWICH_CLUSTERS, 0);
+        let free = [true, true, true, false, false, true];
+        let info_of = |pts: &PreparedPoints| {
+            let views = vec![SmoothView { img: &s.img, pts }];
+            let est = Smooth::new(&cam, views, s.origin, 16, 16, true, Pooling::Joint);
+            information(&est, &s.pose, &free).expect("a basin at the truth")
+        };
+        let (one, two) = (info_of(&s.pts), info_of(&twice));
+        for a in 0..one.axes.len() {
+            let bound = two.sigma[a] / one.sigma[a];
+            assert!(
+                (bound - std::f64::consts::FRAC_1_SQRT_2).abs() < 1e-6,
+                "{}: Cramér–Rao ratio {bound}",
+                one.axes[a]
+            );
+            let sw = two.sandwich_sigma[a] / one.sandwich_sigma[a];
+            assert!(
+                (sw - 1.0).abs() < 1e-6,
+                "{}: sandwich ratio {sw}",
+                one.axes[a]
+            );
+            assert!(one.sandwich_sigma[a].is_finite() && one.sandwich_sigma[a] > 0.0);
+        }
+    }
+
+    #[test]
+    fn value_is_continuous_in_sub_pixel_shifts_and_peaks_at_the_truth() {
+        let cam = mei();
+        let s = scene(&cam, 16);
+        let est = Smooth::new(
+            &cam,
+            vec![SmoothView {
+                img: &s.img,
+                pts: &s.pts,
+            }],
+            s.origin,
+            16,
+            16,
+            true,
+            Pooling::Joint,
+        );
+        // 1 mm steps (≈ a fifth of a pixel at the nadir, 5 m down): consecutive values differ
+        // by a small fraction of the curve's range, never a jump.
+        let vals: Vec<f64> = (-40..=40)
+            .map(|i| {
+                est.evaluate(
+                    &step(&s.pose, &[0.001 * i as f64, 0.0, 0.0, 0.0, 0.0, 0.0]),
+                    false,
+                )
+                .value
+            })
+            .collect();
+        let range = vals.iter().cloned().fold(f64::MIN, f64::max)
+            - vals.iter().cloned().fold(f64::MAX, f64::min);
+        let max_jump = vals
+            .windows(2)
+            .map(|w| (w[1] - w[0]).abs())
+            .fold(0.0, f64::max);
+        assert!(range > 0.01, "{range}");
+        assert!(max_jump < 0.08 * range, "{max_jump} of {range}");
+        let best = vals
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .map(|(i, _)| i as i64 - 40)
+            .unwrap();
+        assert!(best.abs() <= 3, "peak {best} mm from the truth");
+    }
+
+    #[test]
+    fn step_is_the_search_s_yaw_and_translation() {
+        let p = CamFromMap::from_center_ypr(&Point3::new(1.0, 2.0, 6.0), 0.4, 0.1, -0.05);
+        let a = step(&p, &[0.1, -0.2, 0.05, 0.0, 0.0, 0.02]);
+        let b = crate::localize::mi::space::pose_at(
+            &p,
+            &[0.1, -0.2, 0.05, 0.02f64.to_degrees(), 0.0, 0.0],
+        );
+        assert!((a.translation - b.translation).norm() < 1e-12);
+        assert!((a.rotation.matrix() - b.rotation.matrix()).norm() < 1e-12);
+    }
+}

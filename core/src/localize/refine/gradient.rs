@@ -1,0 +1,675 @@
+//! Gradient-based local refinement on the smooth estimator ([`crate::localize::mi::smooth`]), and the
+//! covariance from the observed information.
+//!
+//! [`ascend`]: L-BFGS ascent (two-loop recursion, memory [`MEMORY`], Armijo backtracking) over
+//! the free ones of θ = (dx, dy, dz, rx, ry, rz) of [`crate::localize::mi::smooth::step`], in scaled units
+//! ([`AscentConfig::scale`]) so one unit moves the image by a similar amount along every axis,
+//! inside a box around the start. It stops when the scaled gradient's norm falls below
+//! [`AscentConfig::grad_tol`], when a line search cannot gain any more (PV's gradient is
+//! piecewise smooth: at the optimum it can stall a step short of the tolerance), on the box's
+//! edge, or after [`AscentConfig::max_iter`] iterations; the stop's reason is reported.
+//!
+//! [`information`]: the Cramér–Rao covariance of Pandey et al.: MI estimates the expected
+//! log-likelihood ratio per point, so the observed information of N points is −N·∇²MI and its
+//! inverse bounds the estimate's covariance. ∇²MI is the central difference of the analytic
+//! gradient. A Hessian that is not negative definite over the free axes (no basin) or any
+//! non-finite entry is a one-line refusal, never a number.
+
+// Small fixed-size matrices (2×3, 6×6) indexed by row and column read as the formulas do.
+#![allow(clippy::needless_range_loop)]
+
+use crate::localize::mi::smooth::{step, Smooth};
+use crate::pose::CamFromMap;
+use nalgebra::{DMatrix, Rotation3, Vector3};
+use serde::Serialize;
+
+/// L-BFGS memory (pairs of steps and gradient changes kept).
+pub const MEMORY: usize = 6;
+
+/// Settings of [`ascend`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AscentConfig {
+    /// Which of θ's six parameters move.
+    pub free: [bool; 6],
+    /// One scaled unit per parameter (m, m, m, rad, rad, rad).
+    pub scale: [f64; 6],
+    /// Largest |θ| per parameter from the start (m, rad): the box whose fixed point set the
+    /// estimator holds.
+    pub bound: [f64; 6],
+    /// Stop when the scaled gradient's norm is below this (objective units per scaled unit):
+    /// 1e-6 nats per mm or per 0.01° is a few millimetres from the peak of a basin whose MI
+    /// falls by 0.002 nats over 10 cm (the KITTI frames), well inside any σ.
+    pub grad_tol: f64,
+    /// Iterations at most.
+    pub max_iter: usize,
+}
+
+impl AscentConfig {
+    /// x, y, z and yaw free (tilt held), units of 1 mm and 0.01°, box ±15 cm / ±0.5°.
+    pub fn four_dof() -> Self {
+        AscentConfig {
+            free: [true, true, true, false, false, true],
+            ..Self::six_dof()
+        }
+    }
+
+    /// All six free; tilts within ±1°.
+    pub fn six_dof() -> Self {
+        let deg = 1f64.to_radians();
+        AscentConfig {
+            free: [true; 6],
+            scale: [1e-3, 1e-3, 1e-3, 0.01 * deg, 0.01 * deg, 0.01 * deg],
+            bound: [0.15, 0.15, 0.15, deg, deg, 0.5 * deg],
+            grad_tol: 1e-6,
+            max_iter: 50,
+        }
+    }
+}
+
+/// The result of [`ascend`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Ascent {
+    /// The final pose.
+    #[serde(skip)]
+    pub pose: CamFromMap,
+    /// θ from the start (m, m, m, rad, rad, rad).
+    pub theta: [f64; 6],
+    /// Objective at the start and at the end.
+    pub value_start: f64,
+    /// Objective at the end.
+    pub value: f64,
+    /// Scaled gradient norm at the end (free axes).
+    pub grad_norm: f64,
+    /// Iterations done.
+    pub iterations: usize,
+    /// Objective evaluations (each with its gradient).
+    pub evaluations: usize,
+    /// Why it stopped: `gradient`, `no gain`, `edge`, `iterations` or `non-finite`.
+    pub stop: &'static str,
+}
+
+fn dot(a: &[f64; 6], b: &[f64; 6]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Maximise `est`'s objective from `start` (see the module docs).
+pub fn ascend(est: &Smooth<'_>, start: &CamFromMap, cfg: &AscentConfig) -> Ascent {
+    let mut evals = 0usize;
+    // f(y) = objective at θ = y ⊙ scale, and its gradient in y (free axes only).
+    let mut eval = |y: &[f64; 6]| -> (f64, [f64; 6]) {
+        evals += 1;
+        let th: [f64; 6] = std::array::from_fn(|k| y[k] * cfg.scale[k]);
+        let v = est.evaluate(&step(start, &th), true);
+        let g = v.grad.unwrap_or([f64::NAN; 6]);
+        let gy: [f64; 6] = std::array::from_fn(|k| {
+            if cfg.free[k] {
+                g[k] * cfg.scale[k]
+            } else {
+                0.0
+            }
+        });
+        (v.value, gy)
+    };
+    let lim: [f64; 6] = std::array::from_fn(|k| cfg.bound[k] / cfg.scale[k]);
+    let mut y = [0.0; 6];
+    let (f0, mut g) = eval(&y);
+    let mut f = f0;
+    let mut hist: Vec<([f64; 6], [f64; 6])> = Vec::new();
+    let mut stop = "iterations";
+    let mut it = 0;
+    while it < cfg.max_iter {
+        if !(f.is_finite() && g.iter().all(|v| v.is_finite())) {
+            stop = "non-finite";
+            break;
+        }
+        if dot(&g, &g).sqrt() < cfg.grad_tol {
+            stop = "gradient";
+            break;
+        }
+        it += 1;
+        // Two-loop recursion for the ascent direction d ≈ −H⁻¹ g (H the negative-definite
+        // Hessian): minimising −f.
+        let mut q: [f64; 6] = std::array::from_fn(|k| -g[k]);
+        let mut alphas = Vec::with_capacity(hist.len());
+        for (s, t) in hist.iter().rev() {
+            let rho = 1.0 / dot(t, s);
+            let a = rho * dot(s, &q);
+            q.iter_mut().zip(t).for_each(|(qi, ti)| *qi -= a * ti);
+            alphas.push((a, rho));
+        }
+        let gamma = hist
+            .last()
+            .map_or(1.0 / dot(&g, &g).sqrt().max(1e-300), |(s, t)| {
+                dot(s, t) / dot(t, t)
+            });
+        let mut d: [f64; 6] = std::array::from_fn(|k| gamma * q[k]);
+        for ((s, t), (a, rho)) in hist.iter().zip(alphas.iter().rev()) {
+            let b = rho * dot(t, &d);
+            d.iter_mut().zip(s).for_each(|(di, si)| *di += (a - b) * si);
+        }
+        // d is a descent direction of −f: ascent of f means dot(g, d) > 0 (g is ∇f).
+        let mut d: [f64; 6] = std::array::from_fn(|k| -d[k]);
+        if !(dot(&g, &d) > 0.0) {
+            hist.clear();
+            let n = dot(&g, &g).sqrt();
+            d = std::array::from_fn(|k| g[k] / n);
+        }
+        // Armijo backtracking inside the box.
+        let slope = dot(&g, &d);
+        let mut t = 1.0;
+        let mut accepted = None;
+        let mut hit_edge = false;
+        for _ in 0..30 {
+            let mut yn: [f64; 6] = std::array::from_fn(|k| y[k] + t * d[k]);
+            let mut clipped = false;
+            for k in 0..6 {
+                if yn[k].abs() > lim[k] {
+                    yn[k] = yn[k].clamp(-lim[k], lim[k]);
+                    clipped = true;
+                }
+            }
+            let (fnew, gnew) = eval(&yn);
+            if fnew.is_finite() && fnew >= f + 1e-4 * t * slope.min(dot(&g, &sub(&yn, &y)) / t) {
+                accepted = Some((yn, fnew, gnew));
+                hit_edge = clipped;
+                break;
+            }
+            t *= 0.5;
+        }
+        let Some((yn, fnew, gnew)) = accepted else {
+            stop = "no gain";
+            break;
+        };
+        let s = sub(&yn, &y);
+        // Curvature pair of −f: t = −(gnew − g).
+        let tv: [f64; 6] = std::array::from_fn(|k| -(gnew[k] - g[k]));
+        if dot(&s, &tv) > 1e-12 * dot(&s, &s).sqrt() * dot(&tv, &tv).sqrt() {
+            hist.push((s, tv));
+            if hist.len() > MEMORY {
+                hist.remove(0);
+            }
+        }
+        let gained = fnew - f;
+        y = yn;
+        f = fnew;
+        g = gnew;
+        if hit_edge && dot(&g, &g).sqrt() >= cfg.grad_tol {
+            stop = "edge";
+            break;
+        }
+        if gained <= 1e-13 * f.abs().max(1e-12) {
+            stop = "no gain";
+            break;
+        }
+    }
+    let th: [f64; 6] = std::array::from_fn(|k| y[k] * cfg.scale[k]);
+    Ascent {
+        pose: step(start, &th),
+        theta: th,
+        value_start: f0,
+        value: f,
+        grad_norm: dot(&g, &g).sqrt(),
+        iterations: it,
+        evaluations: evals,
+        stop,
+    }
+}
+
+fn sub(a: &[f64; 6], b: &[f64; 6]) -> [f64; 6] {
+    std::array::from_fn(|k| a[k] - b[k])
+}
+
+/// Central-difference steps of the Hessian: 2 cm and 0.1° (m, rad). PV's value is continuous
+/// but its gradient changes in steps as points cross pixels, and real images add texture bumps
+/// of a few centimetres; the curvature that bounds the answer is the basin's, a step of about a
+/// fifth of its width (±10 cm / ±0.5° on the KITTI frames) measures it.
+pub const HESSIAN_STEP: [f64; 6] = [0.02, 0.02, 0.02, 1.745e-3, 1.745e-3, 1.745e-3];
+
+/// The observed-information covariance ([`information`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Information {
+    /// Axis names (x, y, z, yaw, then pitch, roll when free), as the jackknife's.
+    pub axes: Vec<String>,
+    /// Units (m or deg).
+    pub units: Vec<String>,
+    /// Marginal σ per axis.
+    pub sigma: Vec<f64>,
+    /// Covariance (m, deg), row-major.
+    pub matrix: Vec<Vec<f64>>,
+    /// Points N (the fixed sets, all views).
+    pub points: usize,
+    /// Objective evaluations spent on the Hessian.
+    pub evaluations: usize,
+    /// The cluster-robust ("sandwich") σ per axis, same axes and units: see [`information`].
+    pub sandwich_sigma: Vec<f64>,
+    /// The cluster-robust covariance (m, deg), row-major.
+    pub sandwich_matrix: Vec<Vec<f64>>,
+    /// Clusters (compact patches of ground) the sandwich's score scatter is taken over.
+    pub clusters: usize,
+}
+
+/// Clusters of [`information`]'s sandwich: enough patches for a stable 6 × 6 scatter (≫ 6),
+/// few enough that each patch spans more ground than a texture's correlation length on the
+/// frames measured (docs/refine.md "Sampling").
+pub const SANDWICH_CLUSTERS: usize = 32;
+
+/// The Cramér–Rao covariance at `pose` over the free axes of `free` (θ of [`step`]): inverse of
+/// −N·∇²(objective), and beside it the cluster-robust ("sandwich", Huber–White) covariance
+/// A⁻¹·B·A⁻¹ with A = −∇²(objective) and B the scatter of the score over
+/// [`SANDWICH_CLUSTERS`] patches of ground ([`Smooth::cluster_gradients`], scaled by K/(K−1)).
+/// The Cramér–Rao bound holds when every point is an independent sample of a correct model;
+/// neighbouring points share pixels and a real frame's gray–reflectivity relation varies over
+/// the ground, and the sandwich counts that: it equals the bound when points are independent
+/// and grows with the correlation within a patch. Both are expressed over the axes the jackknife
+/// reports (x, y, z in m, yaw about the
+/// map's up axis in degrees, and pitch and roll as [`crate::localize::mi::space::pose_at`] adds them, in
+/// degrees). Errors (one line) when the Hessian or the covariance is not finite or the Hessian
+/// is not negative definite over the free axes.
+pub fn information(
+    est: &Smooth<'_>,
+    pose: &CamFromMap,
+    free: &[bool; 6],
+) -> Result<Information, String> {
+    information_with_step(est, pose, free, &HESSIAN_STEP)
+}
+
+/// [`information`] with the Hessian's central-difference steps `step` (m, rad) instead of
+/// [`HESSIAN_STEP`], for measuring the choice.
+pub fn information_with_step(
+    est: &Smooth<'_>,
+    pose: &CamFromMap,
+    free: &[bool; 6],
+    step: &[f64; 6],
+) -> Result<Information, String> {
+    let h = est.hessian(pose, free, step);
+    let idx: Vec<usize> = (0..6).filter(|&k| free[k]).collect();
+    let n = est.n();
+    let d = idx.len();
+    let info = DMatrix::from_fn(d, d, |i, j| -(n as f64) * h[idx[i]][idx[j]]);
+    if !info.iter().all(|v| v.is_finite()) {
+        return Err("information: the MI Hessian is not finite".into());
+    }
+    let Some(chol) = info.clone().cholesky() else {
+        let min_eig = info.clone().symmetric_eigenvalues().min();
+        return Err(format!(
+            "information: the MI Hessian is not negative definite over the free axes (no basin; largest curvature {:.3e})",
+            -min_eig
+        ));
+    };
+    let cov_theta = chol.inverse();
+    // The sandwich over θ: A⁻¹·B·A⁻¹ = (N·A)⁻¹ (N²·B) (N·A)⁻¹ with N·A the information above.
+    let scores = est.cluster_gradients(pose, SANDWICH_CLUSTERS);
+    let k = scores.len() as f64;
+    let mean: Vec<f64> = (0..d)
+        .map(|i| scores.iter().map(|g| g[idx[i]]).sum::<f64>() / k)
+        .collect();
+    let scatter = DMatrix::from_fn(d, d, |i, j| {
+        let nn = (n as f64).powi(2);
+        nn * k / (k - 1.0).max(1.0)
+            * scores
+                .iter()
+                .map(|g| (g[idx[i]] - mean[i]) * (g[idx[j]] - mean[j]))
+                .sum::<f64>()
+    });
+    let sandwich_theta = &cov_theta * scatter * &cov_theta;
+    // θ's axes → the reported axes: x, y, z (same), yaw = rz (rad → deg), pitch and roll through
+    // the Jacobian of pose_at's Euler increments.
+    let tilt = free[3] || free[4];
+    let axes: Vec<&str> = if tilt {
+        vec!["x", "y", "z", "yaw", "pitch", "roll"]
+    } else {
+        vec!["x", "y", "z", "yaw"]
+    };
+    // M: d θ / d(reported offsets), columns per reported axis, rows per θ index (all six).
+    let mut m = DMatrix::<f64>::zeros(6, axes.len());
+    for (c, _) in axes.iter().enumerate() {
+        // Reported offsets: x, y, z (m), yaw, pitch, roll (deg) of pose_at.
+        let mut off = [0.0; 6];
+        let h = 1e-6;
+        off[c] = h;
+        let plus = theta_between(pose, &crate::localize::mi::space::pose_at(pose, &off));
+        off[c] = -h;
+        let minus = theta_between(pose, &crate::localize::mi::space::pose_at(pose, &off));
+        for r in 0..6 {
+            m[(r, c)] = (plus[r] - minus[r]) / (2.0 * h);
+        }
+    }
+    let m_free = DMatrix::from_fn(d, axes.len(), |i, j| m[(idx[i], j)]);
+    if m_free.nrows() != m_free.ncols() {
+        return Err(format!(
+            "information: {} free parameters but {} reported axes",
+            d,
+            axes.len()
+        ));
+    }
+    let Some(minv) = m_free.clone().try_inverse() else {
+        return Err("information: the axes' Jacobian is singular".into());
+    };
+    let cov = &minv * cov_theta * minv.transpose();
+    if !cov.iter().all(|v| v.is_finite()) {
+        return Err("information: the covariance is not finite".into());
+    }
+    let sw = &minv * sandwich_theta * minv.transpose();
+    if !sw.iter().all(|v| v.is_finite()) {
+        return Err("information: the sandwich covariance is not finite".into());
+    }
+    let sigma_of = |m: &DMatrix<f64>| -> Vec<f64> {
+        (0..axes.len()).map(|i| m[(i, i)].max(0.0).sqrt()).collect()
+    };
+    let rows_of = |m: &DMatrix<f64>| -> Vec<Vec<f64>> {
+        (0..axes.len())
+            .map(|i| (0..axes.len()).map(|j| m[(i, j)]).collect())
+            .collect()
+    };
+    let units: Vec<String> = axes
+        .iter()
+        .map(|a| {
+            if ["x", "y", "z"].contains(a) {
+                "m"
+            } else {
+                "deg"
+            }
+            .to_string()
+        })
+        .collect();
+    Ok(Information {
+        axes: axes.iter().map(|s| s.to_string()).collect(),
+        units,
+        sigma: sigma_of(&cov),
+        matrix: rows_of(&cov),
+        points: n,
+        evaluations: 2 * d + 1,
+        sandwich_sigma: sigma_of(&sw),
+        sandwich_matrix: rows_of(&sw),
+        clusters: scores.len(),
+    })
+}
+
+impl Information {
+    /// One line for people: σ per axis in cm and degrees.
+    pub fn describe(&self) -> String {
+        let line = |sigma: &[f64]| -> String {
+            self.axes
+                .iter()
+                .zip(sigma)
+                .zip(&self.units)
+                .map(|((a, s), u)| {
+                    if u == "m" {
+                        format!("{a} {:.1} cm", 100.0 * s)
+                    } else {
+                        format!("{a} {s:.3}°")
+                    }
+                })
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        format!(
+            "σ {} (Cramér–Rao, N = {}); sandwich σ {} ({} patches)",
+            line(&self.sigma),
+            self.points,
+            line(&self.sandwich_sigma),
+            self.clusters
+        )
+    }
+}
+
+/// θ (of [`step`]) that takes `from` to `to`.
+pub fn theta_between(from: &CamFromMap, to: &CamFromMap) -> [f64; 6] {
+    let d = to.center() - from.center();
+    let q: Rotation3<f64> = to.rotation.inverse() * from.rotation;
+    // Angle from the skew part and the trace together (atan2): exact for tiny rotations, where
+    // the acos of the trace alone rounds to 0 (the axes' Jacobian takes 1e-6 steps).
+    let m = q.matrix();
+    let v = Vector3::new(
+        m[(2, 1)] - m[(1, 2)],
+        m[(0, 2)] - m[(2, 0)],
+        m[(1, 0)] - m[(0, 1)],
+    ) * 0.5;
+    let s = v.norm();
+    let angle = s.atan2(0.5 * (m.trace() - 1.0));
+    let r = if s > 0.0 { v * (angle / s) } else { v };
+    [d.x, d.y, d.z, r.x, r.y, r.z]
+}
+
+/// What [`refine_smooth`] answers beside the grid search's [`Refinement`].
+#[derive(Debug, Clone, Serialize)]
+pub struct SmoothRefinement {
+    /// Sampling (`pv`) and pooling of the local stage.
+    pub sampling: crate::localize::mi::smooth::Sampling,
+    /// Pooling of the pairs.
+    pub pooling: crate::localize::mi::smooth::Pooling,
+    /// The local ascents, one per round (a round that ended on its box's edge starts another,
+    /// centred on its end).
+    pub ascents: Vec<Ascent>,
+    /// MI per histogram at the answer (one, or one per pair).
+    pub mi: Vec<f64>,
+    /// The Cramér–Rao covariance at the answer, or why there is none.
+    pub information: std::result::Result<Information, String>,
+    /// The grid search's gate verdict (its reason when it refused).
+    pub grid_reason: Option<String>,
+}
+
+/// Rounds of [`refine_smooth`]'s local ascent at most.
+pub const ASCENT_ROUNDS: usize = 3;
+
+/// The local box of a round: the ascent's bound, with a search step for the fixed set's lattice.
+fn local_spec(cfg: &AscentConfig) -> crate::localize::mi::space::SearchSpec {
+    let deg = |r: f64| r.to_degrees();
+    let mut s = format!(
+        "x={}:0.01,y={}:0.01,z={}:0.01,yaw={}:0.05",
+        cfg.bound[0],
+        cfg.bound[1],
+        cfg.bound[2],
+        deg(cfg.bound[5])
+    );
+    if cfg.free[3] || cfg.free[4] {
+        s += &format!(
+            ",pitch={}:0.1,roll={}:0.1",
+            deg(cfg.bound[3]),
+            deg(cfg.bound[4])
+        );
+    }
+    // The bounds above are fixed constants that always parse.
+    s.parse().unwrap_or_default()
+}
+
+/// The tiled grid search for the global basin (nearest-pixel, as without `--sampling pv`, with its
+/// jackknife σ), then the smooth estimator's gradient ascent from its cell, then the observed
+/// information at the answer. The gate: the grid's checks of the global basin (too few points,
+/// points lost, the optimum on the box's edge, a separate second peak) stand; its local-shape
+/// checks (basin width, curvature) are replaced by the information's — a Hessian that is
+/// negative definite and finite — and the σ limits judge the larger of the information σ and the
+/// jackknife σ per axis.
+pub fn refine_smooth(
+    cam: &crate::camera::Camera,
+    views: &[crate::localize::mi::objective::View<'_>],
+    init: &CamFromMap,
+    cfg: &crate::localize::mi::space::SearchConfig,
+    qcfg: &super::quality::QualityConfig,
+    six_dof: bool,
+    pooling: crate::localize::mi::smooth::Pooling,
+) -> crate::error::Result<(super::rounds::Refinement, SmoothRefinement)> {
+    use super::quality::GateCheck;
+    let (mut r, _) = super::rounds::refine_polished(cam, views, init, cfg, qcfg, None, &|_| None)?;
+    let grid_reason = r.quality.reason.clone();
+    let acfg = if six_dof {
+        AscentConfig::six_dof()
+    } else {
+        AscentConfig::four_dof()
+    };
+    let local = crate::localize::mi::space::SearchConfig {
+        spec: local_spec(&acfg),
+        ..*cfg
+    };
+    let mut pose = r.pose;
+    let mut ascents = Vec::new();
+    let mut last = None;
+    for _ in 0..ASCENT_ROUNDS {
+        let ev = crate::localize::mi::objective::Evaluator::pooled(cam, views, &pose, &local, 0)?;
+        let est = Smooth::of_evaluator(cam, &ev, pooling);
+        let a = ascend(&est, &pose, &acfg);
+        r.stats.poses += a.evaluations as u64;
+        r.stats.point_evaluations += (a.evaluations * est.n()) as u64;
+        pose = a.pose;
+        let edge = a.stop == "edge";
+        ascents.push(a);
+        if !edge {
+            let info = information(&est, &pose, &acfg.free);
+            let v = est.evaluate(&pose, false);
+            last = Some((info, v.mi));
+            break;
+        }
+    }
+    let (information, mi) = last.unwrap_or_else(|| {
+        (
+            Err(format!(
+                "the gradient ascent still ended on its box's edge after {ASCENT_ROUNDS} rounds"
+            )),
+            Vec::new(),
+        )
+    });
+    if ascents.iter().any(|a| a.stop == "non-finite") {
+        return Err(crate::error::Error::stage(
+            "mi",
+            "the smooth estimator's value or gradient is not finite",
+        ));
+    }
+    r.pose = pose;
+    r.offsets = crate::pose::offsets_between(init, &pose);
+    // The gate: the grid's global checks stand, the local ones are the information's. A second
+    // peak inside the sandwich's 3σ ellipsoid is the same answer's long axis (a lateral–yaw
+    // valley), not a second answer.
+    let covered = |o: &[f64; 6]| -> bool {
+        let Ok(info) = &information else {
+            return false;
+        };
+        let d = info.axes.len();
+        let v = nalgebra::DVector::from_fn(d, |i, _| o[i]);
+        let cov = DMatrix::from_fn(d, d, |i, j| info.sandwich_matrix[i][j]);
+        cov.try_inverse()
+            .map(|inv| (v.transpose() * inv * &v)[(0, 0)].sqrt() <= 3.0)
+            .unwrap_or(false)
+    };
+    let global = match r.quality.refused_by {
+        Some(GateCheck::TooFewPoints | GateCheck::PointsLost | GateCheck::OnEdge) => true,
+        Some(GateCheck::Ambiguous) => !r.quality.second_peak_offset.is_some_and(|o| covered(&o)),
+        _ => false,
+    };
+    if !global {
+        r.quality.accepted = true;
+        r.quality.reason = None;
+        r.quality.refused_by = None;
+        match &information {
+            Err(m) => {
+                r.quality.accepted = false;
+                r.quality.reason = Some(m.clone());
+                r.quality.refused_by = Some(GateCheck::Uncertain);
+            }
+            Ok(info) => {
+                let limit = |axis: &str| match axis {
+                    "x" | "y" => (qcfg.max_sigma_xy_m, "xy"),
+                    "z" => (qcfg.max_sigma_z_m, "z"),
+                    "yaw" => (qcfg.max_sigma_yaw_deg, "yaw"),
+                    _ => (qcfg.max_sigma_tilt_deg, "tilt"),
+                };
+                // The Cramér–Rao σ counts every point as independent; on real frames it was
+                // 40–90× smaller than the answers' scatter (docs/refine.md "Sampling"). The gate
+                // judges the largest of it, the sandwich σ and the grid's jackknife σ (∞ where
+                // the jackknife found no peak).
+                let jack = |axis: &str| -> f64 {
+                    r.quality.sigma.as_ref().map_or(0.0, |s| match axis {
+                        "x" => s.x,
+                        "y" => s.y,
+                        "z" => s.z,
+                        "yaw" => s.yaw,
+                        "pitch" => s.pitch.unwrap_or(0.0),
+                        _ => s.roll.unwrap_or(0.0),
+                    })
+                };
+                let judged: Vec<f64> = info
+                    .axes
+                    .iter()
+                    .zip(info.sigma.iter().zip(&info.sandwich_sigma))
+                    .map(|(a, (s, w))| {
+                        let j = jack(a);
+                        if j.is_nan() {
+                            f64::INFINITY
+                        } else {
+                            s.max(*w).max(j)
+                        }
+                    })
+                    .collect();
+                if let Some((i, (lim, key))) = info
+                    .axes
+                    .iter()
+                    .enumerate()
+                    .map(|(i, a)| (i, limit(a)))
+                    .find(|(i, (lim, _))| !(judged[*i] <= *lim))
+                {
+                    r.quality.accepted = false;
+                    r.quality.reason = Some(format!(
+                        "σ {} {:.4} {} over the limit {key}={lim} (information σ {:.4}, sandwich σ {:.4}, jackknife σ {:.4})",
+                        info.axes[i],
+                        judged[i],
+                        info.units[i],
+                        info.sigma[i],
+                        info.sandwich_sigma[i],
+                        jack(&info.axes[i])
+                    ));
+                    r.quality.refused_by = Some(GateCheck::Uncertain);
+                }
+            }
+        }
+    }
+    if let Some(v) = mi.first() {
+        if pooling == crate::localize::mi::smooth::Pooling::Joint {
+            r.quality.mi = *v;
+        }
+    }
+    Ok((
+        r,
+        SmoothRefinement {
+            sampling: crate::localize::mi::smooth::Sampling::Pv,
+            pooling,
+            ascents,
+            mi,
+            information,
+            grid_reason,
+        },
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Point3;
+
+    #[test]
+    fn theta_between_inverts_step_down_to_tiny_rotations() {
+        let p = CamFromMap::from_center_ypr(&Point3::new(1.0, -2.0, 6.0), 0.7, 0.05, -0.1);
+        for th in [
+            [0.1, -0.2, 0.05, 0.01, -0.02, 0.03],
+            [0.0, 0.0, 0.0, 1e-8, 0.0, -2e-8],
+            [1e-7, 0.0, 0.0, 0.0, 3e-9, 0.0],
+        ] {
+            let back = theta_between(&p, &step(&p, &th));
+            for k in 0..6 {
+                assert!(
+                    (back[k] - th[k]).abs() < 1e-12 + 1e-9 * th[k].abs(),
+                    "{th:?} -> {back:?}"
+                );
+            }
+        }
+    }
+
+    /// The reported yaw is θ's rz in degrees (the covariance's axis mapping).
+    #[test]
+    fn reported_yaw_is_rz_in_degrees() {
+        let p = CamFromMap::from_center_ypr(&Point3::new(0.0, 0.0, 5.0), 0.3, 0.0, 0.0);
+        let mut off = [0.0; 6];
+        off[3] = 1e-6;
+        let th = theta_between(&p, &crate::localize::mi::space::pose_at(&p, &off));
+        assert!((th[5] - 1e-6f64.to_radians()).abs() < 1e-15, "{th:?}");
+        assert!(th[..5].iter().all(|v| v.abs() < 1e-15), "{th:?}");
+    }
+}
