@@ -195,7 +195,7 @@ pub(super) fn run(mut a: Args) -> Result<()> {
                 Error::input(&a.init, "no \"crs\": needed to find the tile in --tiles")
             })?;
             let (lat, lon) = crate::geo::map_to_wgs84(crs, c.x, c.y)?;
-            let tref = cache::find_tile(dir, lat, lon, a.radius)?;
+            let (tile, tref) = cache::load_covering(dir, lat, lon, a.radius, a.radius)?;
             if tref.crs != crs {
                 return Err(Error::input(
                     &a.init,
@@ -205,7 +205,6 @@ pub(super) fn run(mut a: Args) -> Result<()> {
                     ),
                 ));
             }
-            let tile = cache::load_tile(&tref.dir)?;
             let pts = crate::map::ground_points(&tile, (c.x, c.y), a.radius);
             if pts.is_empty() {
                 return Err(Error::input(

@@ -843,7 +843,7 @@ pub(crate) fn check_layers_near(
 /// that fails to load is skipped (and listed) in favour of the next one that covers the
 /// position. The error, when none is usable, is the first covering tile's (a `tile:` line naming
 /// its file and layer), or [`find_tile`]'s when none covers.
-pub(crate) fn load_covering(
+pub fn load_covering(
     cache_dir: &Path,
     lat: f64,
     lon: f64,
