@@ -213,8 +213,11 @@ fn reference(s: &Scene, pixels: &[[f64; 2]]) -> Vec<[f64; 3]> {
         .collect()
 }
 
-/// CSV rows of `georef`'s output as (status, [e, n, h], [σmaj, σmin, angle]).
-fn rows(out: &Output) -> Vec<(String, Option<[f64; 3]>, Option<[f64; 3]>)> {
+/// One CSV row of `georef`'s output: (status, [e, n, h], [σmaj, σmin, angle]).
+type Row = (String, Option<[f64; 3]>, Option<[f64; 3]>);
+
+/// CSV rows of `georef`'s output.
+fn rows(out: &Output) -> Vec<Row> {
     assert!(
         out.status.success(),
         "georef: {}",

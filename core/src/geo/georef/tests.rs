@@ -231,12 +231,12 @@ fn the_covariance_propagates_the_pose_jacobian() {
         // Finite-difference Jacobian, column per axis.
         let mut jac = [[0.0; 3]; 6];
         for (k, col) in jac.iter_mut().enumerate() {
-            let e = if k < 3 { 1e-4 } else { 1e-4 };
+            let e = 1e-4;
             let a = georef(&cam, &exact(at(k, e)), &surf, Crs::Local, px, &NO_WGS);
             let b = georef(&cam, &exact(at(k, -e)), &surf, Crs::Local, px, &NO_WGS);
             assert_eq!((a.status, b.status), (Status::Ok, Status::Ok));
-            for i in 0..3 {
-                col[i] = (a.enh[i] - b.enh[i]) / (2.0 * e);
+            for (i, v) in col.iter_mut().enumerate() {
+                *v = (a.enh[i] - b.enh[i]) / (2.0 * e);
             }
         }
         // One axis at a time: the analytic covariance of a unit variance is J·Jᵀ of its column.
