@@ -335,7 +335,7 @@ pub(super) fn run(mut a: Args) -> Result<()> {
     }
     if !r.quality.accepted {
         return Err(Error::stage(
-            "mi",
+            crate::stage::StageName::Mi,
             format!(
                 "result rejected: {}",
                 r.quality.reason.clone().unwrap_or_default()

@@ -565,7 +565,7 @@ pub fn initialize<R: rand::Rng>(
     };
     if cands.is_empty() {
         return Err(crate::Error::stage(
-            StageName::Pnp.name(),
+            StageName::Pnp,
             "satellite match: no hypothesis scored (featureless view or satellite?)",
         ));
     }
@@ -603,7 +603,7 @@ pub fn initialize<R: rand::Rng>(
     }
     best.ok_or_else(|| {
         crate::Error::stage(
-            StageName::Pnp.name(),
+            StageName::Pnp,
             format!(
                 "none of {} candidates gave a pose; last: {last_err}",
                 cands.len()
@@ -748,7 +748,7 @@ fn initialize_verified<R: rand::Rng>(
     }
     if !any_pnp {
         return Err(crate::Error::stage(
-            StageName::Pnp.name(),
+            StageName::Pnp,
             format!(
                 "none of the {tried} best-screened of {} candidates, nor {CLIMB_CANDIDATES} of them climbed on the LiDAR map, gave a PnP pose; last: {last_err}",
                 cands.len()
@@ -804,7 +804,7 @@ fn choose(
         })
     else {
         return Err(crate::Error::stage(
-            StageName::Pnp.name(),
+            StageName::Pnp,
             format!(
                 "no hypothesis of {tried} tried sees enough LiDAR points ({} needed) to verify",
                 verifier.params().min_points
