@@ -12,34 +12,7 @@ use infraloc::sim::{self, Difficulty, Lens, Preset, Settings};
 use rand::SeedableRng;
 
 fn main() {
-    let seed: u64 = std::env::args()
-        .nth(1)
-        .expect("seed")
-        .parse()
-        .expect("seed");
-    let preset = match std::env::args().nth(2).as_deref() {
-        Some("5mp") => Preset::FiveMp,
-        _ => Preset::Small,
-    };
-    let scene = sim::generate(&Settings {
-        seed,
-        preset,
-        difficulty: Difficulty::Hard,
-        lens: Lens::Mei,
-        frames: 5,
-        intrinsics: Default::default(),
-    })
-    .unwrap();
-    let tmp = tempfile::tempdir().unwrap();
-    let nmea = tmp.path().join("gps.nmea");
-    std::fs::write(&nmea, &scene.nmea).unwrap();
-    let mut g = Config::default().gps;
-    g.source = GpsSourceKind::NmeaFile;
-    g.path = Some(nmea);
-    let (lat, lon, sigma) = infraloc::gps_serial::acquire_prior(&g)
-        .unwrap()
-        .position()
-        .unwrap();
+    let (scene, (lat, lon, sigma)) = scene_and_prior();
     let tile = &scene.tile;
     let prior = infraloc::geo::wgs84_to_map(tile.reflectivity.grid.crs, lat, lon).unwrap();
     let cam = &scene.camera_given;
@@ -56,15 +29,9 @@ fn main() {
     if let Some(k) = std::env::var("DIAG_TOPK").ok().and_then(|s| s.parse().ok()) {
         p.coarse.top_k = k;
     }
-    let n_fine: usize = std::env::var("DIAG_FINE")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(usize::MAX);
+    let n_fine = env_count("DIAG_FINE", usize::MAX);
     // DIAG_CLIMB=N: the verifier's MI climb from the first N candidates' sweep poses.
-    let n_climb: usize = std::env::var("DIAG_CLIMB")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(0);
+    let n_climb = env_count("DIAG_CLIMB", 0);
     let radius =
         (p.prior_sigmas * sigma).clamp(p.search_radius_range_m.0, p.search_radius_range_m.1);
     let truth = scene.pose;
@@ -89,21 +56,8 @@ fn main() {
     );
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(p.seed);
     // MI against the LiDAR map (the initializer's independent verifier), at the truth first.
-    let ver = infraloc::localize::init::verify::MiVerifier::new(cam, img.as_raw(), tile, {
-        // DIAG_VERIFY="off_nadir_deg,max_radius_m,blur_m,bins,points" overrides for experiments.
-        let mut v = infraloc::localize::init::verify::VerifyParams::default();
-        if let Ok(s) = std::env::var("DIAG_VERIFY") {
-            let f: Vec<f64> = s.split(',').filter_map(|t| t.parse().ok()).collect();
-            if f.len() == 5 {
-                v.max_off_nadir_deg = f[0];
-                v.max_radius_m = f[1];
-                v.blur_m = f[2];
-                v.bins = f[3] as usize;
-                v.points = f[4] as usize;
-            }
-        }
-        v
-    });
+    let ver =
+        infraloc::localize::init::verify::MiVerifier::new(cam, img.as_raw(), tile, verify_params());
     let vs = |pose: &infraloc::pose::CamFromMap| {
         ver.verify(pose).map_or("mi –".to_string(), |v| {
             format!("mi {:.4} (n {})", v.mi, v.n)
@@ -121,17 +75,11 @@ fn main() {
         (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
     };
     // DIAG_ORDER=mi: candidates in decreasing screening MI, as the verified initializer tries them.
-    let mut cands = cands;
-    if std::env::var("DIAG_ORDER").is_ok_and(|s| s == "mi") {
-        let key = |k: &infraloc::localize::init::sweep::Candidate| {
-            ver.screen(&candidate_pose(&tile.height, prior, k))
-                .map_or(f64::NEG_INFINITY, |v| v.mi)
-        };
-        let mut keyed: Vec<(f64, infraloc::localize::init::sweep::Candidate)> =
-            cands.iter().map(|k| (key(k), *k)).collect();
-        keyed.sort_by(|a, b| b.0.total_cmp(&a.0));
-        cands = keyed.into_iter().map(|(_, k)| k).collect();
-    }
+    let cands = if std::env::var("DIAG_ORDER").is_ok_and(|s| s == "mi") {
+        mi_order(cands, &ver, tile, prior)
+    } else {
+        cands
+    };
     for (i, k) in cands.iter().enumerate() {
         let (ex, ey) = (prior.0 + k.offset[0] - c.x, prior.1 + k.offset[1] - c.y);
         print!(
@@ -208,4 +156,79 @@ fn main() {
         }
     }
     let _ = cam.width();
+}
+
+/// The hard scene of the command line's seed and preset, and the prior from its NMEA log.
+fn scene_and_prior() -> (sim::Scene, (f64, f64, f64)) {
+    let seed: u64 = std::env::args()
+        .nth(1)
+        .expect("seed")
+        .parse()
+        .expect("seed");
+    let preset = match std::env::args().nth(2).as_deref() {
+        Some("5mp") => Preset::FiveMp,
+        _ => Preset::Small,
+    };
+    let scene = sim::generate(&Settings {
+        seed,
+        preset,
+        difficulty: Difficulty::Hard,
+        lens: Lens::Mei,
+        frames: 5,
+        intrinsics: Default::default(),
+    })
+    .unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let nmea = tmp.path().join("gps.nmea");
+    std::fs::write(&nmea, &scene.nmea).unwrap();
+    let mut g = Config::default().gps;
+    g.source = GpsSourceKind::NmeaFile;
+    g.path = Some(nmea);
+    let prior = infraloc::gps_serial::acquire_prior(&g)
+        .unwrap()
+        .position()
+        .unwrap();
+    (scene, prior)
+}
+
+/// The verifier's settings, with DIAG_VERIFY="off_nadir_deg,max_radius_m,blur_m,bins,points"
+/// overriding them for experiments.
+fn verify_params() -> infraloc::localize::init::verify::VerifyParams {
+    let mut v = infraloc::localize::init::verify::VerifyParams::default();
+    if let Ok(s) = std::env::var("DIAG_VERIFY") {
+        let f: Vec<f64> = s.split(',').filter_map(|t| t.parse().ok()).collect();
+        if f.len() == 5 {
+            v.max_off_nadir_deg = f[0];
+            v.max_radius_m = f[1];
+            v.blur_m = f[2];
+            v.bins = f[3] as usize;
+            v.points = f[4] as usize;
+        }
+    }
+    v
+}
+
+/// The candidates in decreasing screening MI, as the verified initializer tries them.
+fn mi_order(
+    cands: Vec<infraloc::localize::init::sweep::Candidate>,
+    ver: &infraloc::localize::init::verify::MiVerifier,
+    tile: &infraloc::map::Tile,
+    prior: (f64, f64),
+) -> Vec<infraloc::localize::init::sweep::Candidate> {
+    let key = |k: &infraloc::localize::init::sweep::Candidate| {
+        ver.screen(&candidate_pose(&tile.height, prior, k))
+            .map_or(f64::NEG_INFINITY, |v| v.mi)
+    };
+    let mut keyed: Vec<(f64, infraloc::localize::init::sweep::Candidate)> =
+        cands.iter().map(|k| (key(k), *k)).collect();
+    keyed.sort_by(|a, b| b.0.total_cmp(&a.0));
+    keyed.into_iter().map(|(_, k)| k).collect()
+}
+
+/// The count in environment variable `name`, or `default`.
+fn env_count(name: &str, default: usize) -> usize {
+    std::env::var(name)
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(default)
 }

@@ -51,7 +51,17 @@ fn fmt_off(o: &[f64; 6]) -> String {
     )
 }
 
-fn main() -> infraloc::Result<()> {
+/// The command line.
+struct Args {
+    preset: Preset,
+    seed: u64,
+    json: String,
+    given: GivenIntrinsics,
+    true_intr: bool,
+}
+
+/// The command line, or the usage and exit 2.
+fn args() -> Args {
     let (mut preset, mut seed, mut json, mut given, mut true_intr) = (
         Preset::FiveMp,
         11u64,
@@ -72,8 +82,19 @@ fn main() -> infraloc::Result<()> {
         }
     }
     let json = json.unwrap_or_else(|| usage());
+    Args {
+        preset,
+        seed,
+        json,
+        given,
+        true_intr,
+    }
+}
+
+/// The accepted (MI) and PnP poses of `seed`'s record in a `pipeline_accuracy` JSON file.
+fn seed_poses(json: &str, seed: u64) -> infraloc::Result<(CamFromMap, CamFromMap)> {
     let doc: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(&json).map_err(|e| infraloc::Error::io(&json, e))?,
+        &std::fs::read_to_string(json).map_err(|e| infraloc::Error::io(json, e))?,
     )
     .map_err(|e| infraloc::Error::Invalid(format!("{json}: {e}")))?;
     let rec = doc["seeds"]
@@ -82,6 +103,18 @@ fn main() -> infraloc::Result<()> {
         .unwrap_or_else(|| usage());
     let accepted = pose_of(&rec["poses"]["mi"]).expect("poses.mi");
     let pnp = pose_of(&rec["poses"]["pnp"]).expect("poses.pnp");
+    Ok((accepted, pnp))
+}
+
+fn main() -> infraloc::Result<()> {
+    let Args {
+        preset,
+        seed,
+        json,
+        given,
+        true_intr,
+    } = args();
+    let (accepted, pnp) = seed_poses(&json, seed)?;
 
     let scene = sim::generate(&hard_settings(seed, preset, given))?;
     let SceneInputs {

@@ -271,8 +271,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             println!("{line}");
         }
     }
+    print_summary(&variants, &tallies);
+    Ok(())
+}
+
+/// Each variant's tally: verdicts right, false alarms, misses, the optimum's error and the cost.
+fn print_summary(variants: &[DriftParams], tallies: &[Tally]) {
     println!();
-    for (v, t) in variants.iter().zip(&tallies) {
+    for (v, t) in variants.iter().zip(tallies) {
         let (hm, hx) = median_max(&t.horiz_err_m);
         let (ym, yx) = median_max(&t.yaw_err_deg);
         println!(
@@ -295,5 +301,4 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             println!("    wrong: {f}");
         }
     }
-    Ok(())
 }

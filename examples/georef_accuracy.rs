@@ -153,25 +153,8 @@ fn main() {
             100.0 * inside as f64 / n.max(1) as f64
         );
     }
-    let band = |lo: f64, hi: f64| -> Value {
-        let sel: Vec<&Hit> = hits
-            .iter()
-            .filter(|h| h.range_m >= lo && h.range_m < hi)
-            .collect();
-        let pct = |xs: Vec<f64>| truth_eval::median_p95(&xs);
-        let inside = sel.iter().filter(|h| h.mahalanobis <= 3.0).count();
-        json!({
-            "band_m": [lo, hi],
-            "points": sel.len(),
-            "georef_m": pct(sel.iter().map(|h| h.georef_m).collect()),
-            "ground_error_m": pct(sel.iter().map(|h| h.ground_m).collect()),
-            "largest_difference_m": sel.iter().map(|h| (h.georef_m - h.ground_m).abs()).fold(0.0, f64::max),
-            "sigma_major_m": pct(sel.iter().map(|h| h.sigma_major_m).collect()),
-            "inside_3sigma": inside as f64 / sel.len().max(1) as f64,
-        })
-    };
-    let mut bands: Vec<Value> = BANDS.iter().map(|&(a, b)| band(a, b)).collect();
-    bands.push(band(0.0, f64::INFINITY));
+    let mut bands: Vec<Value> = BANDS.iter().map(|&(a, b)| band(&hits, a, b)).collect();
+    bands.push(band(&hits, 0.0, f64::INFINITY));
     let summary = json!({
         "runs": runs.display().to_string(),
         "scenes": used,
@@ -179,6 +162,37 @@ fn main() {
         "sigma_px": sigma_px,
         "bands": bands,
     });
+    print_bands(&summary);
+    println!("statuses: {}", summary["statuses"]);
+    if let Some(p) = out {
+        let text = serde_json::to_string_pretty(&summary).unwrap_or_default();
+        if let Err(e) = std::fs::write(&p, text) {
+            eprintln!("{}: {e}", p.display());
+        }
+    }
+}
+
+/// The figures of the control points of `hits` whose range is at least `lo` and below `hi` metres.
+fn band(hits: &[Hit], lo: f64, hi: f64) -> Value {
+    let sel: Vec<&Hit> = hits
+        .iter()
+        .filter(|h| h.range_m >= lo && h.range_m < hi)
+        .collect();
+    let pct = |xs: Vec<f64>| truth_eval::median_p95(&xs);
+    let inside = sel.iter().filter(|h| h.mahalanobis <= 3.0).count();
+    json!({
+        "band_m": [lo, hi],
+        "points": sel.len(),
+        "georef_m": pct(sel.iter().map(|h| h.georef_m).collect()),
+        "ground_error_m": pct(sel.iter().map(|h| h.ground_m).collect()),
+        "largest_difference_m": sel.iter().map(|h| (h.georef_m - h.ground_m).abs()).fold(0.0, f64::max),
+        "sigma_major_m": pct(sel.iter().map(|h| h.sigma_major_m).collect()),
+        "inside_3sigma": inside as f64 / sel.len().max(1) as f64,
+    })
+}
+
+/// The bands of `summary` as a table.
+fn print_bands(summary: &Value) {
     println!("\nband        pts  georef med/p95 cm   ground err med/p95 cm  |diff| max cm  σmaj med cm  in 3σ");
     for b in summary["bands"].as_array().into_iter().flatten() {
         let p = |k: &str, q: &str| 100.0 * b[k][q].as_f64().unwrap_or(f64::NAN);
@@ -196,12 +210,5 @@ fn main() {
             p("sigma_major_m", "median"),
             100.0 * b["inside_3sigma"].as_f64().unwrap_or(f64::NAN),
         );
-    }
-    println!("statuses: {}", summary["statuses"]);
-    if let Some(p) = out {
-        let text = serde_json::to_string_pretty(&summary).unwrap_or_default();
-        if let Err(e) = std::fs::write(&p, text) {
-            eprintln!("{}: {e}", p.display());
-        }
     }
 }

@@ -135,9 +135,9 @@ fn opts() -> Opts {
     o
 }
 
-/// One seed: simulate, localize as `infraloc localize` does, score against truth.
-fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
-    let settings = Settings {
+/// The scene settings of `seed` under the options.
+fn settings(o: &Opts, seed: u64) -> Settings {
+    Settings {
         seed,
         preset: o.preset,
         difficulty: o.difficulty,
@@ -148,9 +148,26 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
         } else {
             GivenIntrinsics::Calibrated
         },
-    };
+    }
+}
+
+/// A pose as the record's `poses` hold it: `[x, y, z, yaw, pitch, roll]` (map metres, degrees).
+fn pose_record(pose: &CamFromMap) -> Value {
+    let (y, p, r) = pose.yaw_pitch_roll();
+    json!([
+        pose.center().x,
+        pose.center().y,
+        pose.center().z,
+        y.to_degrees(),
+        p.to_degrees(),
+        r.to_degrees()
+    ])
+}
+
+/// One seed: simulate, localize as `infraloc localize` does, score against truth.
+fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
     let t0 = Instant::now();
-    let scene = sim::generate(&settings)?;
+    let scene = sim::generate(&settings(o, seed))?;
     let sim_s = t0.elapsed().as_secs_f64();
     // The scene directory's files `localize` reads, read back as it reads them (the frames are
     // PNG, lossless: kept in memory). `--true-intrinsics`: hand the localizer the camera's true
@@ -264,15 +281,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
                         pose,
                         params
                     ));
-                    let (y, p, r) = pose.yaw_pitch_roll();
-                    rec["poses"][name] = json!([
-                        pose.center().x,
-                        pose.center().y,
-                        pose.center().z,
-                        y.to_degrees(),
-                        p.to_degrees(),
-                        r.to_degrees()
-                    ]);
+                    rec["poses"][name] = pose_record(pose);
                 }
             }
             rec["seconds"]["init"] = json!(out.stages[1].seconds);

@@ -7,9 +7,10 @@
 //! ```
 
 use infraloc::camera::{load_camera, CameraModel};
+use infraloc::localize::mi::objective::{Evaluator, View};
 use infraloc::localize::mi::smooth::{Pooling, Smooth};
-use infraloc::localize::points_io::read_points;
-use infraloc::localize::search::{Evaluator, SearchConfig, View};
+use infraloc::localize::mi::space::SearchConfig;
+use infraloc::points_io::read_points;
 use infraloc::posefile::read_pose;
 use nalgebra::DMatrix;
 use std::path::Path;

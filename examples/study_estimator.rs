@@ -42,72 +42,7 @@ fn main() {
         fov_deg: Some(185.0),
     });
     let pinhole = Camera::Mei(Mei::pinhole(800, 600, 500.0, 500.0, 399.5, 299.5));
-    let settings: Vec<(&str, MiConfig)> = vec![
-        (
-            "256 uniform (seed)",
-            MiConfig {
-                bins_reflectivity: 256,
-                bins_gray: 255,
-                binning: Binning::Uniform,
-                objective: Objective::Mi,
-                parzen: false,
-            },
-        ),
-        (
-            "64 uniform",
-            MiConfig {
-                bins_reflectivity: 64,
-                bins_gray: 64,
-                binning: Binning::Uniform,
-                objective: Objective::Mi,
-                parzen: false,
-            },
-        ),
-        (
-            "32 uniform",
-            MiConfig {
-                bins_reflectivity: 32,
-                bins_gray: 32,
-                binning: Binning::Uniform,
-                objective: Objective::Mi,
-                parzen: false,
-            },
-        ),
-        (
-            "32 equalized",
-            MiConfig {
-                bins_reflectivity: 32,
-                bins_gray: 32,
-                binning: Binning::Equalized,
-                objective: Objective::Mi,
-                parzen: false,
-            },
-        ),
-        ("32 equalized+parzen", MiConfig::default()),
-        (
-            "16 equalized+parzen",
-            MiConfig {
-                bins_reflectivity: 16,
-                bins_gray: 16,
-                ..MiConfig::default()
-            },
-        ),
-        (
-            "64 equalized+parzen",
-            MiConfig {
-                bins_reflectivity: 64,
-                bins_gray: 64,
-                ..MiConfig::default()
-            },
-        ),
-        (
-            "32 eq+parzen NMI",
-            MiConfig {
-                objective: Objective::Nmi,
-                ..MiConfig::default()
-            },
-        ),
-    ];
+    let settings = settings();
     // Render every scene once.
     let scenes: Vec<(
         &str,
@@ -199,4 +134,74 @@ fn main() {
             println!("{row}");
         }
     }
+}
+
+/// The estimator settings compared, by name.
+fn settings() -> Vec<(&'static str, MiConfig)> {
+    vec![
+        (
+            "256 uniform (seed)",
+            MiConfig {
+                bins_reflectivity: 256,
+                bins_gray: 255,
+                binning: Binning::Uniform,
+                objective: Objective::Mi,
+                parzen: false,
+            },
+        ),
+        (
+            "64 uniform",
+            MiConfig {
+                bins_reflectivity: 64,
+                bins_gray: 64,
+                binning: Binning::Uniform,
+                objective: Objective::Mi,
+                parzen: false,
+            },
+        ),
+        (
+            "32 uniform",
+            MiConfig {
+                bins_reflectivity: 32,
+                bins_gray: 32,
+                binning: Binning::Uniform,
+                objective: Objective::Mi,
+                parzen: false,
+            },
+        ),
+        (
+            "32 equalized",
+            MiConfig {
+                bins_reflectivity: 32,
+                bins_gray: 32,
+                binning: Binning::Equalized,
+                objective: Objective::Mi,
+                parzen: false,
+            },
+        ),
+        ("32 equalized+parzen", MiConfig::default()),
+        (
+            "16 equalized+parzen",
+            MiConfig {
+                bins_reflectivity: 16,
+                bins_gray: 16,
+                ..MiConfig::default()
+            },
+        ),
+        (
+            "64 equalized+parzen",
+            MiConfig {
+                bins_reflectivity: 64,
+                bins_gray: 64,
+                ..MiConfig::default()
+            },
+        ),
+        (
+            "32 eq+parzen NMI",
+            MiConfig {
+                objective: Objective::Nmi,
+                ..MiConfig::default()
+            },
+        ),
+    ]
 }

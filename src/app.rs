@@ -201,7 +201,7 @@ fn prior(ov: &Overrides, cfg: &Config, cancel: &AtomicBool) -> Result<((f64, f64
             _ => "no position",
         };
         Error::stage(
-            "prior",
+            crate::stage::StageName::Prior,
             format!("no position: {why}; and no [gps] fallback-wgs84 is set"),
         )
     })?;
@@ -241,7 +241,7 @@ pub fn camera_and_frame(
     };
     if (image.width(), image.height()) != (camera.width(), camera.height()) {
         return Err(Error::stage(
-            StageName::Capture.name(),
+            StageName::Capture,
             format!(
                 "frame is {}×{}, camera intrinsics are {}×{}",
                 image.width(),
@@ -394,12 +394,8 @@ fn capture_and_receive(
 ) -> Result<(Camera, GrayImage, AcquiredPrior, Option<IntrinsicsSigma>)> {
     let (camera, image) = camera_and_frame(cfg, cfg_path, ov, progress)?;
     // Only a panic ends the acquisition without sending.
-    let lost = |stage: StageName| {
-        Error::stage(
-            stage.name(),
-            "the acquisition beside the capture ended early",
-        )
-    };
+    let lost =
+        |stage: StageName| Error::stage(stage, "the acquisition beside the capture ended early");
     progress(StageName::Prior);
     let prior = match rx.recv() {
         Ok(Located::Prior(p)) => p?,
@@ -458,7 +454,7 @@ fn matcher_from_config(cfg: &Config) -> Result<Option<Arc<dyn Matcher>>> {
     match (cfg.init.matcher, &cfg.init.matcher_path) {
         (MatcherKind::DenseSweep, _) => Ok(None),
         (MatcherKind::MatchFile, None) => Err(Error::stage(
-            StageName::Pnp.name(),
+            StageName::Pnp,
             "matcher = \"match-file\" needs matcher-path",
         )),
         (MatcherKind::MatchFile, Some(path)) => {

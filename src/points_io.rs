@@ -215,8 +215,23 @@ fn pcd_value(b: &[u8], kind: u8, size: usize) -> std::result::Result<f64, String
     Ok(v)
 }
 
-/// Parse a PCD file (ascii or binary).
-pub fn parse_pcd(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> {
+/// A PCD file's header: its fields laid out in a record, the points it declares, the data's
+/// encoding and where the data starts.
+struct PcdHeader {
+    fields: Vec<PcdField>,
+    /// Bytes of one binary record.
+    record: usize,
+    /// The POINTS line's count.
+    npoints: usize,
+    /// The DATA line's encoding, lower case.
+    data: String,
+    /// Byte offset of the data after the header.
+    data_start: usize,
+}
+
+/// Read a PCD header up to and including its DATA line; each field gets its SIZE, TYPE, COUNT
+/// and offset in a binary record.
+fn parse_pcd_header(bytes: &[u8]) -> std::result::Result<PcdHeader, String> {
     let mut pos = 0;
     let mut fields: Vec<PcdField> = Vec::new();
     let (mut sizes, mut types, mut counts) = (Vec::new(), Vec::new(), Vec::new());
@@ -306,7 +321,24 @@ pub fn parse_pcd(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> 
             .and_then(|b| off.checked_add(b))
             .ok_or_else(|| format!("PCD field {}: COUNT {} too large", f.name, f.count))?;
     }
-    let record = off;
+    Ok(PcdHeader {
+        fields,
+        record: off,
+        npoints: n,
+        data,
+        data_start: pos,
+    })
+}
+
+/// Parse a PCD file (ascii or binary).
+pub fn parse_pcd(bytes: &[u8]) -> std::result::Result<Vec<GroundPoint>, String> {
+    let PcdHeader {
+        fields,
+        record,
+        npoints: n,
+        data,
+        data_start: pos,
+    } = parse_pcd_header(bytes)?;
     let find = |n: &str| fields.iter().position(|f| f.name == n);
     let (ix, iy, iz) = (
         find("x").ok_or("PCD has no field x")?,

@@ -5,7 +5,7 @@
 use crate::camera::load_camera;
 use crate::camera::{Camera, CameraModel};
 use crate::error::{Error, Result};
-use crate::map::cache::{find_tile, load_tile};
+use crate::map::cache::load_covering;
 use crate::map::{Crs, Tile};
 use crate::pose::CamFromMap;
 use image::GrayImage;
@@ -73,8 +73,8 @@ pub(crate) fn load_scene(dir: &Path) -> Result<SceneFiles> {
     }
     let c = truth.pose.center();
     let (lat, lon) = crate::geo::map_to_wgs84(crs, c.x, c.y)?;
-    let tref = find_tile(&dir.join("tiles"), lat, lon, 0.0)?;
-    let tile = load_tile(&tref.dir)?;
+    let radius_m = crate::localize::pipeline::Params::default().mi_radius_m;
+    let (tile, _) = load_covering(&dir.join("tiles"), lat, lon, 0.0, radius_m)?;
     Ok(SceneFiles {
         camera,
         gray,

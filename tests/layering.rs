@@ -116,3 +116,309 @@ fn no_import_cycle_and_the_rooms_keep_their_rules() {
     );
     assert!(text.contains("no import cycle"), "{text}");
 }
+
+/// The longest a function may be: from its `fn` line to its closing brace.
+const MAX_FN_LINES: usize = 150;
+/// The longest a source file may be, its test code aside.
+const MAX_FILE_LINES: usize = 1_200;
+
+/// Every `.rs` file below `dir`, sorted.
+fn rust_files(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        let Ok(entries) = std::fs::read_dir(&d) else {
+            continue;
+        };
+        for e in entries {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.extension().is_some_and(|x| x == "rs") {
+                out.push(p);
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// The source with every comment, string and character literal blanked to spaces (newlines
+/// kept), so that braces, `fn` and attributes are found only where they are code.
+fn code_only(src: &str) -> Vec<char> {
+    let c: Vec<char> = src.chars().collect();
+    let mut out = c.clone();
+    let blank = |out: &mut Vec<char>, from: usize, to: usize| {
+        for ch in out.iter_mut().take(to.min(c.len())).skip(from) {
+            if *ch != '\n' {
+                *ch = ' ';
+            }
+        }
+    };
+    let ident = |ch: char| ch.is_alphanumeric() || ch == '_';
+    let mut i = 0;
+    while i < c.len() {
+        let prev_ident = i > 0 && ident(c[i - 1]);
+        match c[i] {
+            '/' if c.get(i + 1) == Some(&'/') => {
+                let end = (i..c.len()).find(|&j| c[j] == '\n').unwrap_or(c.len());
+                blank(&mut out, i, end);
+                i = end;
+            }
+            '/' if c.get(i + 1) == Some(&'*') => {
+                // Block comments nest.
+                let (mut j, mut depth) = (i + 2, 1);
+                while j < c.len() && depth > 0 {
+                    if c[j] == '/' && c.get(j + 1) == Some(&'*') {
+                        depth += 1;
+                        j += 2;
+                    } else if c[j] == '*' && c.get(j + 1) == Some(&'/') {
+                        depth -= 1;
+                        j += 2;
+                    } else {
+                        j += 1;
+                    }
+                }
+                blank(&mut out, i, j);
+                i = j;
+            }
+            // Raw strings: r"…", r#"…"#, br"…", cr#"…"# (a raw identifier r#name is not one).
+            'r' | 'b' | 'c' if !prev_ident => {
+                let mut j = i;
+                if c[j] != 'r' {
+                    j += 1;
+                }
+                if c.get(j) == Some(&'r') {
+                    let mut k = j + 1;
+                    while c.get(k) == Some(&'#') {
+                        k += 1;
+                    }
+                    if c.get(k) == Some(&'"') {
+                        let hashes = k - j - 1;
+                        let mut m = k + 1;
+                        while m < c.len()
+                            && !(c[m] == '"' && (1..=hashes).all(|h| c.get(m + h) == Some(&'#')))
+                        {
+                            m += 1;
+                        }
+                        let end = (m + 1 + hashes).min(c.len());
+                        blank(&mut out, k + 1, m);
+                        i = end;
+                        continue;
+                    }
+                }
+                i += 1;
+            }
+            '"' => {
+                let mut j = i + 1;
+                while j < c.len() && c[j] != '"' {
+                    j += if c[j] == '\\' { 2 } else { 1 };
+                }
+                blank(&mut out, i + 1, j);
+                i = j + 1;
+            }
+            // A character literal ('x', '\n', '\u{7f}'), not a lifetime or label ('a).
+            '\'' => {
+                if c.get(i + 1) == Some(&'\\') {
+                    // Past the backslash and the escaped character ('\'' is one literal).
+                    let mut j = i + 3;
+                    while j < c.len() && c[j] != '\'' {
+                        j += 1;
+                    }
+                    blank(&mut out, i + 1, j);
+                    i = j + 1;
+                } else if c.get(i + 2) == Some(&'\'') {
+                    blank(&mut out, i + 1, i + 2);
+                    i += 3;
+                } else {
+                    i += 1;
+                }
+            }
+            _ => i += 1,
+        }
+    }
+    out
+}
+
+/// Index of the brace that closes the one at `open`, in code-only text.
+fn closing_brace(code: &[char], open: usize) -> Option<usize> {
+    let mut depth = 0usize;
+    for (j, ch) in code.iter().enumerate().skip(open) {
+        match ch {
+            '{' => depth += 1,
+            '}' => {
+                depth -= 1;
+                if depth == 0 {
+                    return Some(j);
+                }
+            }
+            _ => {}
+        }
+    }
+    None
+}
+
+/// Where an item's body or end is: the first `{` or `;` from `from` outside parentheses and
+/// brackets (`[u8; 4]` in a signature is not the end).
+fn item_end(code: &[char], from: usize) -> Option<(usize, char)> {
+    let mut depth = 0i32;
+    for (j, &ch) in code.iter().enumerate().skip(from) {
+        match ch {
+            '(' | '[' => depth += 1,
+            ')' | ']' => depth -= 1,
+            '{' | ';' if depth == 0 => return Some((j, ch)),
+            _ => {}
+        }
+    }
+    None
+}
+
+/// Whether code-only `code` has the word `w` at `i` (not part of a longer identifier).
+fn word_at(code: &[char], i: usize, w: &str) -> bool {
+    let ident = |ch: &char| ch.is_alphanumeric() || *ch == '_';
+    w.chars()
+        .enumerate()
+        .all(|(k, ch)| code.get(i + k) == Some(&ch))
+        && !(i > 0 && ident(&code[i - 1]))
+        && !code.get(i + w.len()).is_some_and(ident)
+}
+
+/// The character ranges of test code: items under `#[test]` or a `#[cfg(…test…)]` attribute
+/// (not `cfg(not(test))`), from the attribute to the item's end.
+fn test_ranges(code: &[char]) -> Vec<(usize, usize)> {
+    let mut ranges = Vec::new();
+    let mut i = 0;
+    while i + 1 < code.len() {
+        if !(code[i] == '#' && code[i + 1] == '[') {
+            i += 1;
+            continue;
+        }
+        let Some(close) = (i..code.len()).find(|&j| code[j] == ']') else {
+            break;
+        };
+        let attr: String = code[i + 2..close]
+            .iter()
+            .filter(|c| !c.is_whitespace())
+            .collect();
+        let is_test = attr == "test"
+            || (attr.starts_with("cfg(") && attr.contains("test") && !attr.contains("not(test"));
+        if is_test {
+            if let Some((at, ch)) = item_end(code, close + 1) {
+                let end = if ch == '{' {
+                    closing_brace(code, at).unwrap_or(code.len() - 1)
+                } else {
+                    at
+                };
+                ranges.push((i, end));
+                i = end + 1;
+                continue;
+            }
+        }
+        i = close + 1;
+    }
+    ranges
+}
+
+/// Each function of a file outside its test code: (name, line of `fn`, lines to its closing
+/// brace). Functions without a body (trait declarations) and `fn` pointer types are not counted.
+fn functions(code: &[char], tests: &[(usize, usize)]) -> Vec<(String, usize, usize)> {
+    let line_of = |at: usize| 1 + code[..at].iter().filter(|c| **c == '\n').count();
+    let mut out = Vec::new();
+    for i in 0..code.len() {
+        if !word_at(code, i, "fn") || tests.iter().any(|(a, b)| (*a..=*b).contains(&i)) {
+            continue;
+        }
+        let mut j = i + 2;
+        while code.get(j).is_some_and(|c| c.is_whitespace()) {
+            j += 1;
+        }
+        let name: String = code[j..]
+            .iter()
+            .take_while(|c| c.is_alphanumeric() || **c == '_')
+            .collect();
+        if name.is_empty() {
+            continue;
+        }
+        if let Some((open, '{')) = item_end(code, j) {
+            if let Some(close) = closing_brace(code, open) {
+                out.push((name, line_of(i), line_of(close) - line_of(i) + 1));
+            }
+        }
+    }
+    out
+}
+
+/// Lines of a file outside its test code.
+fn product_lines(code: &[char], tests: &[(usize, usize)]) -> usize {
+    let lines = |a: usize, b: usize| code[a..=b].iter().filter(|c| **c == '\n').count();
+    let total = code.iter().filter(|c| **c == '\n').count();
+    total - tests.iter().map(|&(a, b)| lines(a, b)).sum::<usize>()
+}
+
+#[test]
+fn the_counter_skips_strings_chars_comments_and_tests() {
+    let src = r##"
+fn one() {
+    let s = "}{ fn fake() {";
+    let r = r#"}"#;
+    let c = ('{', '\'', b'}');
+    /* } /* nested } */ fn no() {} */
+    // fn nor() {
+    let f: fn(u8) -> [u8; 2] = |x| [x; 2];
+    'outer: loop { break 'outer; }
+}
+trait T { fn decl(&self) -> [u8; 3]; }
+#[cfg(test)]
+mod tests {
+    fn in_tests() {
+    }
+}
+fn two<'a>(x: &'a str) -> &'a str {
+    x
+}
+"##;
+    let code = code_only(src);
+    let tests = test_ranges(&code);
+    let fns = functions(&code, &tests);
+    assert_eq!(
+        fns,
+        [("one".to_string(), 2, 9), ("two".to_string(), 17, 3)],
+        "{}",
+        code.iter().collect::<String>()
+    );
+    assert_eq!(product_lines(&code, &tests), 19 - 4);
+}
+
+#[test]
+fn no_function_over_150_lines_and_no_file_over_1200() {
+    let mut long = Vec::new();
+    let mut files = 0;
+    for dir in ["src", "core/src", "examples", "benches"] {
+        for p in rust_files(&root().join(dir)) {
+            let rel = p.strip_prefix(root()).unwrap().display().to_string();
+            let is_test_file = p.file_name().is_some_and(|n| n == "tests.rs")
+                || p.components().any(|c| c.as_os_str() == "tests");
+            if is_test_file {
+                continue;
+            }
+            files += 1;
+            let code = code_only(&std::fs::read_to_string(&p).unwrap());
+            let tests = test_ranges(&code);
+            for (name, line, n) in functions(&code, &tests) {
+                if n > MAX_FN_LINES {
+                    long.push(format!("{rel}:{line}: fn {name} is {n} lines"));
+                }
+            }
+            let n = product_lines(&code, &tests);
+            if n > MAX_FILE_LINES {
+                long.push(format!("{rel}: {n} lines outside its tests"));
+            }
+        }
+    }
+    assert!(files > 100, "only {files} source files found");
+    assert!(
+        long.is_empty(),
+        "over {MAX_FN_LINES} lines a function or {MAX_FILE_LINES} a file (cut it into named steps):\n{}",
+        long.join("\n")
+    );
+}

@@ -2,7 +2,9 @@
 //! simulated scene: a tile whose height layer is all NaN fails in the `tile` stage naming the
 //! layer (not as a PnP failure that points at the lens); a corrupt tile elsewhere in the cache is
 //! skipped and reported while the covering tile localizes; a manifest in the wrong UTM zone is a
-//! CRS mismatch, not "nearest tile 496 km away". No failed run touches the pose file.
+//! CRS mismatch, not "nearest tile 496 km away". No failed run touches the pose file. `refine
+//! --tiles` and `plot mi-surface --tiles` look tiles up as `localize` does: a covering tile whose
+//! layer is corrupt is passed over for the next one.
 
 mod common;
 
@@ -142,4 +144,101 @@ fn a_manifest_in_the_wrong_utm_zone_is_a_crs_mismatch() {
     );
     assert!(!err.contains("km away") && !err.contains("m away"), "{err}");
     assert_eq!(pose, "OLD");
+}
+
+/// `refine --tiles` and `plot mi-surface --tiles` on `tiles` about the scene's true pose, with a
+/// small search box: (refine's output, its report without timings, plot's output, the plot).
+fn refine_and_plot(w: &Path, tiles: &Path) -> (Output, serde_json::Value, Output, Vec<u8>) {
+    let s = scene();
+    let common = |cmd: &mut Command| {
+        cmd.arg("--camera")
+            .arg(s.join("camera.yaml"))
+            .arg("--image")
+            .arg(s.join("frames/000.png"))
+            .arg("--tiles")
+            .arg(tiles)
+            .args(["--search", "x=0.1:0.05,y=0.1:0.05,z=0.1:0.05,yaw=0.5:0.25"]);
+    };
+    let mut refine = Command::new(BIN);
+    refine
+        .args(["refine", "--grid-only", "--init"])
+        .arg(s.join("truth.json"));
+    common(&mut refine);
+    let refined = refine
+        .arg("--report")
+        .arg(w.join("report.json"))
+        .output()
+        .unwrap();
+    let mut report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(w.join("report.json")).unwrap_or_default())
+            .unwrap_or_default();
+    strip_timings(&mut report);
+    let mut plot = Command::new(BIN);
+    plot.args(["plot", "mi-surface", "--pose"])
+        .arg(s.join("truth.json"));
+    common(&mut plot);
+    let plotted = plot
+        .args(["--size", "400,200", "--out"])
+        .arg(w.join("surface.png"))
+        .output()
+        .unwrap();
+    let png = std::fs::read(w.join("surface.png")).unwrap_or_default();
+    (refined, report, plotted, png)
+}
+
+/// Remove the keys that hold timings (they differ run to run).
+fn strip_timings(v: &mut serde_json::Value) {
+    match v {
+        serde_json::Value::Object(m) => {
+            m.retain(|k, _| !(k.contains("seconds") || k.ends_with("_s") || k == "elapsed"));
+            m.values_mut().for_each(strip_timings);
+        }
+        serde_json::Value::Array(a) => a.iter_mut().for_each(strip_timings),
+        _ => {}
+    }
+}
+
+#[test]
+fn refine_and_plot_pass_over_a_corrupt_covering_tile_as_localize_does() {
+    let w = tempfile::tempdir().unwrap();
+    let good = w.path().join("good");
+    let name = tile_dir().file_name().unwrap().to_owned();
+    copy_dir(&tile_dir(), &good.join(&name));
+    // The same tile again under an id sorted first (same extent, so it is the first choice),
+    // its height layer cut short.
+    let both = w.path().join("both");
+    copy_dir(&tile_dir(), &both.join(&name));
+    let broken = both.join("aaa-broken");
+    copy_dir(&tile_dir(), &broken);
+    let m = std::fs::read_to_string(broken.join("tile.toml")).unwrap();
+    let id = format!("id = \"{}\"", name.to_string_lossy());
+    assert!(m.contains(&id), "{m}");
+    std::fs::write(
+        broken.join("tile.toml"),
+        m.replace(&id, "id = \"aaa-broken\""),
+    )
+    .unwrap();
+    let height = std::fs::read(broken.join("height.tif")).unwrap();
+    std::fs::write(broken.join("height.tif"), &height[..height.len() / 2]).unwrap();
+
+    let (wg, wb) = (w.path().join("run-good"), w.path().join("run-both"));
+    std::fs::create_dir_all(&wg).unwrap();
+    std::fs::create_dir_all(&wb).unwrap();
+    let (refined, report, plotted, png) = refine_and_plot(&wg, &good);
+    assert!(!report.is_null(), "{}", text(&refined.stderr));
+    assert!(plotted.status.success(), "{}", text(&plotted.stderr));
+    let (refined_b, report_b, plotted_b, png_b) = refine_and_plot(&wb, &both);
+    // The corrupt tile changes nothing: same exit, same report, same plot.
+    assert_eq!(
+        refined_b.status.code(),
+        refined.status.code(),
+        "{}",
+        text(&refined_b.stderr)
+    );
+    assert_eq!(report_b, report);
+    assert!(plotted_b.status.success(), "{}", text(&plotted_b.stderr));
+    assert!(
+        png_b == png,
+        "the plot differs with the corrupt tile in the cache"
+    );
 }

@@ -184,6 +184,22 @@ fn the_metrics_pass_prometheus_own_parser() {
     assert!(!failed.contains("NaN"), "{failed}");
 }
 
+/// The rendered text, byte for byte, of a populated status and of a failed one (build version and
+/// architecture written as `{VERSION}` and `{ARCH}` in the pinned files).
+#[test]
+fn the_rendered_text_is_pinned() {
+    let now = infraloc::posefile::parse_utc("2026-11-22T17:27:01Z").unwrap();
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/metrics");
+    for (full, uptime_s, file) in [(true, 1860.0, "full.prom"), (false, 5.0, "failed.prom")] {
+        let got = metrics::render(&status(full, uptime_s), now);
+        let want = std::fs::read_to_string(dir.join(file))
+            .unwrap()
+            .replace("{VERSION}", env!("CARGO_PKG_VERSION"))
+            .replace("{ARCH}", std::env::consts::ARCH);
+        assert_eq!(got, want, "{file}");
+    }
+}
+
 /// Child process of [`a_killed_writer_never_leaves_a_partial_file`] (run by it with `--ignored`):
 /// write the metrics file over and over until killed.
 #[test]

@@ -1,6 +1,7 @@
 //! One error type for the whole crate. Every variant renders as a single line that names the
 //! file, field, device or stage at fault, because that line is what a technician sees.
 
+use crate::stage::StageName;
 use std::path::Path;
 
 /// Exit code for configuration errors (sysexits.h `EX_CONFIG`).
@@ -46,13 +47,33 @@ pub enum Error {
         #[source]
         source: std::io::Error,
     },
-    /// A processing stage could not produce a trustworthy result.
-    #[error("{stage}: {msg}")]
+    /// A stage of a localization could not produce a trustworthy result.
+    #[error("{}: {msg}", stage.name())]
     Stage {
-        /// Stage name (`prior`, `pnp`, `mi`, `capture`, …).
-        stage: &'static str,
+        /// The stage.
+        stage: StageName,
         /// The numbers that made it fail.
         msg: String,
+    },
+    /// A command's own verdict on its run (`demo`'s error thresholds, a `study` trial, the
+    /// service's answer to `relocalize`, the kernel's `self-test`).
+    #[error("{command}: {msg}")]
+    Command {
+        /// The command's name.
+        command: &'static str,
+        /// What failed.
+        msg: String,
+    },
+    /// The served pose or its history could not be stored.
+    #[error("persist: {0}")]
+    Persist(String),
+    /// A job of the service (`localize`, `drift`) panicked; the service goes on.
+    #[error("{job}: internal error: {what}")]
+    Internal {
+        /// The job.
+        job: &'static str,
+        /// The panic's message.
+        what: String,
     },
     /// Invalid argument on the command line or to a library call.
     #[error("{0}")]
@@ -117,8 +138,16 @@ impl Error {
         }
     }
 
+    /// Shorthand for [`Error::Command`].
+    pub fn command(command: &'static str, msg: impl Into<String>) -> Self {
+        Error::Command {
+            command,
+            msg: msg.into(),
+        }
+    }
+
     /// Shorthand for [`Error::Stage`].
-    pub fn stage(stage: &'static str, msg: impl Into<String>) -> Self {
+    pub fn stage(stage: StageName, msg: impl Into<String>) -> Self {
         Error::Stage {
             stage,
             msg: msg.into(),

@@ -103,9 +103,12 @@ pub fn scene_inputs(
     g.source = GpsSourceKind::NmeaFile;
     g.path = Some(nmea);
     let prior = infraloc::gps_serial::acquire_prior(&g)?;
-    let (lat, lon, prior_sigma_m) = prior
-        .position()
-        .ok_or_else(|| infraloc::Error::stage("prior", "no position from the NMEA log"))?;
+    let (lat, lon, prior_sigma_m) = prior.position().ok_or_else(|| {
+        infraloc::Error::stage(
+            infraloc::stage::StageName::Prior,
+            "no position from the NMEA log",
+        )
+    })?;
     let tref = infraloc::map::cache::find_tile(&tiles, lat, lon, cfg.map.search_margin_m)?;
     let tile = infraloc::map::cache::load_tile(&tref.dir)?;
     let prior_xy = infraloc::geo::wgs84_to_map(tile.reflectivity.grid.crs, lat, lon)?;

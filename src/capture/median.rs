@@ -30,7 +30,7 @@ pub fn temporal_median(frames: &[GrayImage]) -> Result<GrayImage> {
         .find(|(_, f)| f.dimensions() != (w, h))
     {
         return Err(Error::stage(
-            "capture",
+            crate::stage::StageName::Capture,
             format!(
                 "frame {i} is {}x{}, frame 0 is {w}x{h}: cannot take a temporal median",
                 f.width(),
@@ -105,7 +105,10 @@ pub fn temporal_median_naive(frames: &[GrayImage]) -> Result<GrayImage> {
         .ok_or_else(|| Error::Invalid("temporal median of zero frames".into()))?;
     let (w, h) = first.dimensions();
     if frames.iter().any(|f| f.dimensions() != (w, h)) {
-        return Err(Error::stage("capture", "frames differ in size"));
+        return Err(Error::stage(
+            crate::stage::StageName::Capture,
+            "frames differ in size",
+        ));
     }
     let mid = (frames.len() - 1) / 2;
     Ok(GrayImage::from_fn(w, h, |x, y| {

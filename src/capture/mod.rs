@@ -350,7 +350,7 @@ impl Session<'_> {
             backoff = (backoff * 2).min(retry.max_backoff);
         };
         Err(Error::stage(
-            "capture",
+            crate::stage::StageName::Capture,
             format!(
                 "camera {}: {} [{}; gave up after {attempt} attempt{}]",
                 self.source.device(),

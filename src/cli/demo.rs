@@ -33,7 +33,7 @@ fn verdict(mi: &Value) -> Result<()> {
     let (h, z, y) = (err("horizontal_m"), err("height_m"), err("yaw_deg"));
     // `!(e <= max)` also fails a NaN error.
     if !(h <= MAX_HORIZONTAL_M && z <= MAX_HEIGHT_M && y <= MAX_YAW_DEG) {
-        return Err(Error::stage(
+        return Err(Error::command(
             "demo",
             format!("errors {h:.3} m / {z:.3} m / {y:.3}° exceed {MAX_HORIZONTAL_M} m / {MAX_HEIGHT_M} m / {MAX_YAW_DEG}°"),
         ));

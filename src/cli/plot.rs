@@ -198,8 +198,7 @@ fn tile_points(
     let crs = crs
         .ok_or_else(|| Error::input(pose_path, "no \"crs\": needed to find the tile in --tiles"))?;
     let (lat, lon) = crate::geo::map_to_wgs84(crs, c.x, c.y)?;
-    let tref = cache::find_tile(dir, lat, lon, radius)?;
-    let tile = cache::load_tile(&tref.dir)?;
+    let (tile, tref) = cache::load_covering(dir, lat, lon, radius, radius)?;
     let pts = crate::map::ground_points(&tile, (c.x, c.y), radius);
     if pts.is_empty() {
         return Err(Error::input(

@@ -8,12 +8,14 @@ use crate::localize::mi::points::GroundPoint;
 use crate::localize::mi::smooth::{Pooling, Sampling};
 use crate::localize::mi::space::{Mode, SearchConfig, SearchSpec};
 use crate::localize::mi::MiValue;
-use crate::localize::refine::gradient::refine_smooth;
+use crate::localize::refine::gradient::{refine_smooth, SmoothRefinement};
 use crate::localize::refine::quality::QualityConfig;
-use crate::localize::refine::{finish_name, refine_polished, summed_offsets, PolishedSearch};
+use crate::localize::refine::{
+    finish_name, refine_polished, summed_offsets, PolishedSearch, Refinement, Round,
+};
 use crate::map::{cache, Crs};
 use crate::points_io::read_points;
-use crate::posefile::{format_utc, read_pose, PoseFile};
+use crate::posefile::{format_utc, read_pose, PoseFile, ReadPose};
 use std::path::{Path, PathBuf};
 
 /// Default radius (m) of tile ground points around the camera's nadir: at 6 m height that is
@@ -147,6 +149,104 @@ fn quality_config(spec: Option<&str>) -> Result<QualityConfig> {
     Ok(q)
 }
 
+/// The point sets of `refine`: one per image (--points), or the tile's one set shared by every
+/// image (--tiles, the tile covering `init`'s camera); with the map CRS and the tile's id.
+fn point_sets(a: &Args, init: &ReadPose) -> Result<(Vec<Vec<GroundPoint>>, Crs, String)> {
+    let c = init.pose.center();
+    match &a.tiles {
+        Some(dir) => {
+            if !(a.radius > 0.0 && a.radius.is_finite()) {
+                return Err(Error::Invalid(format!(
+                    "--radius {}: must be positive",
+                    a.radius
+                )));
+            }
+            let crs = init.crs.ok_or_else(|| {
+                Error::input(&a.init, "no \"crs\": needed to find the tile in --tiles")
+            })?;
+            let (lat, lon) = crate::geo::map_to_wgs84(crs, c.x, c.y)?;
+            let (tile, tref) = cache::load_covering(dir, lat, lon, a.radius, a.radius)?;
+            if tref.crs != crs {
+                return Err(Error::input(
+                    &a.init,
+                    format!(
+                        "pose CRS {crs} differs from tile {} CRS {}",
+                        tref.id, tref.crs
+                    ),
+                ));
+            }
+            let pts = crate::map::ground_points(&tile, (c.x, c.y), a.radius);
+            if pts.is_empty() {
+                return Err(Error::input(
+                    &tref.dir,
+                    format!("no valid ground point within {} m of the camera", a.radius),
+                ));
+            }
+            Ok((vec![pts], crs, tref.id))
+        }
+        None => {
+            let mut sets = Vec::with_capacity(a.points.len());
+            for p in &a.points {
+                sets.push(read_points(p)?);
+            }
+            Ok((sets, init.crs.unwrap_or(Crs::Local), String::new()))
+        }
+    }
+}
+
+/// What `refine` prints of an accepted result: the move, the MI, the uncertainty and each
+/// polish round's move.
+fn print_result(r: &Refinement, rounds: &[Round], smooth: Option<&SmoothRefinement>) {
+    let o = r.offsets;
+    // Pitch and roll only move when the grid searches them or a 6-DoF polish ran.
+    let tilt = if o[4] != 0.0 || o[5] != 0.0 {
+        format!(", pitch {:+.3}°, roll {:+.3}°", o[4], o[5])
+    } else {
+        String::new()
+    };
+    let pairs = if r.views.len() > 1 {
+        format!(" ({} pairs pooled)", r.views.len())
+    } else {
+        String::new()
+    };
+    println!(
+        "mi: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°{tilt}; MI {:.4} nats on {} points{pairs}; {:.0}× fewer point-pose evaluations than exhaustive",
+        o[0],
+        o[1],
+        o[2],
+        o[3],
+        r.quality.mi,
+        r.points.1,
+        r.stats.exhaustive_point_evaluations as f64 / r.stats.point_evaluations.max(1) as f64
+    );
+    if let Some(sig) = &r.quality.sigma {
+        println!("uncertainty: {}", sig.describe());
+    }
+    if let Some(sm) = smooth {
+        if let Ok(info) = &sm.information {
+            println!("information: {}", info.describe());
+        }
+        for (i, asc) in sm.ascents.iter().enumerate() {
+            println!(
+                "gradient ascent {}: {} iterations, {} evaluations, stopped on {}, objective {:.5} -> {:.5}",
+                i + 1,
+                asc.iterations,
+                asc.evaluations,
+                asc.stop,
+                asc.value_start,
+                asc.value
+            );
+        }
+    }
+    for round in rounds {
+        let o = summed_offsets(&round.polish);
+        println!(
+            "polish after the {} search: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°, pitch {:+.3}°, roll {:+.3}°",
+            round.start, o[0], o[1], o[2], o[3], o[4], o[5]
+        );
+    }
+}
+
 /// Run `refine`.
 pub(super) fn run(mut a: Args) -> Result<()> {
     if let Some(file) = &a.pairs {
@@ -199,48 +299,7 @@ pub(super) fn run(mut a: Args) -> Result<()> {
     if let Some(n) = &init.note {
         super::note(n);
     }
-    let c = init.pose.center();
-    // One point set per image (--points), or the tile's one set shared by every image.
-    let (point_sets, crs, tile_id): (Vec<Vec<GroundPoint>>, Crs, String) = match &a.tiles {
-        Some(dir) => {
-            if !(a.radius > 0.0 && a.radius.is_finite()) {
-                return Err(Error::Invalid(format!(
-                    "--radius {}: must be positive",
-                    a.radius
-                )));
-            }
-            let crs = init.crs.ok_or_else(|| {
-                Error::input(&a.init, "no \"crs\": needed to find the tile in --tiles")
-            })?;
-            let (lat, lon) = crate::geo::map_to_wgs84(crs, c.x, c.y)?;
-            let tref = cache::find_tile(dir, lat, lon, a.radius)?;
-            if tref.crs != crs {
-                return Err(Error::input(
-                    &a.init,
-                    format!(
-                        "pose CRS {crs} differs from tile {} CRS {}",
-                        tref.id, tref.crs
-                    ),
-                ));
-            }
-            let tile = cache::load_tile(&tref.dir)?;
-            let pts = crate::map::ground_points(&tile, (c.x, c.y), a.radius);
-            if pts.is_empty() {
-                return Err(Error::input(
-                    &tref.dir,
-                    format!("no valid ground point within {} m of the camera", a.radius),
-                ));
-            }
-            (vec![pts], crs, tref.id)
-        }
-        None => {
-            let mut sets = Vec::with_capacity(a.points.len());
-            for p in &a.points {
-                sets.push(read_points(p)?);
-            }
-            (sets, init.crs.unwrap_or(Crs::Local), String::new())
-        }
-    };
+    let (point_sets, crs, tile_id) = point_sets(&a, &init)?;
     let cfg = SearchConfig {
         spec,
         mode,
@@ -331,85 +390,61 @@ pub(super) fn run(mut a: Args) -> Result<()> {
     }
     if !r.quality.accepted {
         return Err(Error::stage(
-            "mi",
+            crate::stage::StageName::Mi,
             format!(
                 "result rejected: {}",
                 r.quality.reason.clone().unwrap_or_default()
             ),
         ));
     }
-    let o = r.offsets;
-    // Pitch and roll only move when the grid searches them or a 6-DoF polish ran.
-    let tilt = if o[4] != 0.0 || o[5] != 0.0 {
-        format!(", pitch {:+.3}°, roll {:+.3}°", o[4], o[5])
-    } else {
-        String::new()
-    };
-    let pairs = if r.views.len() > 1 {
-        format!(" ({} pairs pooled)", r.views.len())
-    } else {
-        String::new()
-    };
-    println!(
-        "mi: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°{tilt}; MI {:.4} nats on {} points{pairs}; {:.0}× fewer point-pose evaluations than exhaustive",
-        o[0],
-        o[1],
-        o[2],
-        o[3],
-        r.quality.mi,
-        r.points.1,
-        r.stats.exhaustive_point_evaluations as f64 / r.stats.point_evaluations.max(1) as f64
-    );
-    if let Some(sig) = &r.quality.sigma {
-        println!("uncertainty: {}", sig.describe());
-    }
-    if let Some(sm) = &smooth {
-        if let Ok(info) = &sm.information {
-            println!("information: {}", info.describe());
-        }
-        for (i, asc) in sm.ascents.iter().enumerate() {
-            println!(
-                "gradient ascent {}: {} iterations, {} evaluations, stopped on {}, objective {:.5} -> {:.5}",
-                i + 1,
-                asc.iterations,
-                asc.evaluations,
-                asc.stop,
-                asc.value_start,
-                asc.value
-            );
-        }
-    }
-    for round in &rounds {
-        let o = summed_offsets(&round.polish);
-        println!(
-            "polish after the {} search: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°, pitch {:+.3}°, roll {:+.3}°",
-            round.start, o[0], o[1], o[2], o[3], o[4], o[5]
-        );
-    }
+    print_result(&r, &rounds, smooth.as_ref());
     if let Some(path) = &a.out {
-        let now = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_secs() as i64)
-            .unwrap_or(0);
-        let mut pf = PoseFile::new(&r.pose, crs, &tile_id, format_utc(now, None));
-        pf.quality = serde_json::to_value(&r.quality).unwrap_or_default();
-        if let (Some(Ok(info)), Some(q)) = (
-            smooth.as_ref().map(|s| &s.information),
-            pf.quality.as_object_mut(),
-        ) {
-            q.insert(
-                "information".into(),
-                serde_json::to_value(info).unwrap_or_default(),
-            );
-        }
-        pf.stages = vec![
-            serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.polish, "finish": finish_label }),
-        ];
-        if smooth.is_some() {
-            pf.stages[0]["sampling"] = sampling.name().into();
-            pf.stages[0]["pooling"] = pooling.name().into();
-        }
-        crate::persist::write_atomic(path, pf.to_json().as_bytes())?;
+        write_pose_out(
+            path,
+            &a,
+            &r,
+            crs,
+            &tile_id,
+            smooth.as_ref(),
+            finish_label,
+            (sampling, pooling),
+        )?;
     }
     Ok(())
+}
+
+/// The refined pose as a pose file at `path`, with the smooth stage's information and settings
+/// when it ran.
+#[allow(clippy::too_many_arguments)]
+fn write_pose_out(
+    path: &Path,
+    a: &Args,
+    r: &Refinement,
+    crs: Crs,
+    tile_id: &str,
+    smooth: Option<&SmoothRefinement>,
+    finish_label: &str,
+    (sampling, pooling): (Sampling, Pooling),
+) -> Result<()> {
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs() as i64)
+        .unwrap_or(0);
+    let mut pf = PoseFile::new(&r.pose, crs, tile_id, format_utc(now, None));
+    pf.quality = serde_json::to_value(&r.quality).unwrap_or_default();
+    if let (Some(Ok(info)), Some(q)) = (smooth.map(|s| &s.information), pf.quality.as_object_mut())
+    {
+        q.insert(
+            "information".into(),
+            serde_json::to_value(info).unwrap_or_default(),
+        );
+    }
+    pf.stages = vec![
+        serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.polish, "finish": finish_label }),
+    ];
+    if smooth.is_some() {
+        pf.stages[0]["sampling"] = sampling.name().into();
+        pf.stages[0]["pooling"] = pooling.name().into();
+    }
+    crate::persist::write_atomic(path, pf.to_json().as_bytes())
 }

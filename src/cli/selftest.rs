@@ -33,7 +33,7 @@ pub(crate) fn run(a: Args) -> Result<()> {
         println!("workload: {n} poses × {points} points, {path}, checksum {sum}");
         return Ok(());
     }
-    let r = kernel::selftest::self_test(a.poses).map_err(|m| Error::stage("self-test", m))?;
+    let r = kernel::selftest::self_test(a.poses).map_err(|m| Error::command("self-test", m))?;
     println!(
         "self-test OK: MI kernel ({}) bit-identical to the reference loop, {} poses × {} points",
         r.path, r.poses, r.points

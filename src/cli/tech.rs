@@ -321,7 +321,7 @@ pub(crate) fn relocalize(a: RelocalizeArgs) -> Result<()> {
         println!("{}", answer.text());
     }
     if let Some(e) = answer.refusal() {
-        return Err(Error::stage("relocalize", e.to_string()));
+        return Err(Error::command("relocalize", e.to_string()));
     }
     if !a.target.json {
         if a.wait {
@@ -337,7 +337,7 @@ pub(crate) fn relocalize(a: RelocalizeArgs) -> Result<()> {
             } = &r.outcome
             else {
                 // `ok: true` parses only as a localized result.
-                return Err(Error::stage(
+                return Err(Error::command(
                     "relocalize",
                     r.error().unwrap_or("failed").to_string(),
                 ));

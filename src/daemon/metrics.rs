@@ -7,7 +7,7 @@
 //! exist (no pose served, no run yet, a pose without σ) are left out rather than written as
 //! `NaN`, so an alert on them can use `absent()`.
 
-use super::status::{DriftOutcome, RunOutcome, State, Status};
+use super::status::{DriftOutcome, DriftSearch, RunOutcome, StageTime, State, Status};
 use crate::localize::refine::quality::Sigma;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -27,34 +27,308 @@ fn unix_seconds(utc: &str) -> Option<f64> {
     crate::posefile::parse_utc(utc)
 }
 
-/// One metric family being written.
-struct Family<'a> {
-    out: &'a mut String,
+/// The kind of a metric family, as its `# TYPE` line names it.
+#[derive(Debug, Clone, Copy)]
+enum Kind {
+    /// A value that goes up and down.
+    Gauge,
 }
 
-impl Family<'_> {
-    /// A sample with labels (`(name, value)` pairs).
-    fn sample(&mut self, name: &str, labels: &[(&str, &str)], v: f64) {
-        self.out.push_str(name);
-        if !labels.is_empty() {
-            self.out.push('{');
-            for (i, (k, val)) in labels.iter().enumerate() {
-                if i > 0 {
-                    self.out.push(',');
-                }
-                let _ = write!(self.out, "{k}=\"{}\"", escape(val));
-            }
-            self.out.push('}');
+impl Kind {
+    fn name(self) -> &'static str {
+        match self {
+            Kind::Gauge => "gauge",
         }
-        let _ = writeln!(self.out, " {}", number(v));
     }
 }
 
-/// Write a gauge family's metadata, then its samples through `f`.
-fn gauge(out: &mut String, name: &str, help: &str, f: impl FnOnce(&mut Family<'_>)) {
-    let _ = writeln!(out, "# HELP {name} {help}");
-    let _ = writeln!(out, "# TYPE {name} gauge");
-    f(&mut Family { out });
+/// One sample of a family: its labels (`(name, value)` pairs) and value.
+struct Sample {
+    labels: Vec<(&'static str, String)>,
+    value: f64,
+}
+
+impl Sample {
+    /// A sample without labels.
+    fn bare(value: f64) -> Vec<Sample> {
+        vec![Sample {
+            labels: Vec::new(),
+            value,
+        }]
+    }
+
+    /// One sample per `(label value, value)`, all under the label `name`.
+    fn by<'a>(name: &'static str, values: impl IntoIterator<Item = (&'a str, f64)>) -> Vec<Sample> {
+        values
+            .into_iter()
+            .map(|(v, value)| Sample {
+                labels: vec![(name, v.to_string())],
+                value,
+            })
+            .collect()
+    }
+}
+
+/// The samples of a family read from the status and the clock (seconds since the Unix epoch);
+/// `None` leaves the whole family out, `Some` of no samples writes its metadata alone.
+type Read = fn(&Status, f64) -> Option<Vec<Sample>>;
+
+/// A metric family: what its metadata says and how its samples are read from the status.
+struct Metric {
+    name: &'static str,
+    help: &'static str,
+    kind: Kind,
+    read: Read,
+}
+
+/// The families in the order they are written.
+const METRICS: &[Metric] = &[
+    Metric {
+        name: "infraloc_build_info",
+        help: "The running build: version, architecture and OS (value always 1).",
+        kind: Kind::Gauge,
+        read: |s, _| {
+            Some(vec![Sample {
+                labels: vec![
+                    ("version", s.version.clone()),
+                    ("arch", std::env::consts::ARCH.into()),
+                    ("os", std::env::consts::OS.into()),
+                ],
+                value: 1.0,
+            }])
+        },
+    },
+    Metric {
+        name: "infraloc_state",
+        help: "Service state: 1 for the current one (starting, ok, degraded, failed).",
+        kind: Kind::Gauge,
+        read: |s, _| {
+            let states = [State::Starting, State::Ok, State::Degraded, State::Failed];
+            Some(Sample::by(
+                "state",
+                states.map(|st| (st.name(), flag(s.state == st))),
+            ))
+        },
+    },
+    Metric {
+        name: "infraloc_uptime_seconds",
+        help: "Seconds since the service started.",
+        kind: Kind::Gauge,
+        read: |s, _| Some(Sample::bare(s.uptime_s)),
+    },
+    Metric {
+        name: "infraloc_config_reload_failed",
+        help: "1 when the last SIGHUP reload was refused (the running config stays in force).",
+        kind: Kind::Gauge,
+        read: |s, _| Some(Sample::bare(flag(s.reload_error.is_some()))),
+    },
+    Metric {
+        name: "infraloc_pose_served",
+        help: "1 when a pose is served.",
+        kind: Kind::Gauge,
+        read: |s, _| Some(Sample::bare(flag(s.served.is_some()))),
+    },
+    Metric {
+        name: "infraloc_pose_timestamp_seconds",
+        help: "When the served pose was computed, seconds since the Unix epoch.",
+        kind: Kind::Gauge,
+        read: |s, _| served_at(s).map(Sample::bare),
+    },
+    Metric {
+        name: "infraloc_pose_age_seconds",
+        help: "Age of the served pose.",
+        kind: Kind::Gauge,
+        read: |s, now| served_at(s).map(|t| Sample::bare((now - t).max(0.0))),
+    },
+    Metric {
+        name: "infraloc_pose_score",
+        help: "The served pose's score (NMI at the MI optimum).",
+        kind: Kind::Gauge,
+        read: |s, _| s.served.as_ref()?.score.map(Sample::bare),
+    },
+    Metric {
+        name: "infraloc_pose_sigma_meters",
+        help: "Marginal standard deviation of the served pose's camera centre per map axis.",
+        kind: Kind::Gauge,
+        read: |s, _| sigma_meters(s.served.as_ref()?.sigma.as_ref()),
+    },
+    Metric {
+        name: "infraloc_pose_sigma_degrees",
+        help: "Marginal standard deviation of the served pose's angles (pitch and roll when estimated).",
+        kind: Kind::Gauge,
+        read: |s, _| sigma_degrees(s.served.as_ref()?.sigma.as_ref()),
+    },
+    Metric {
+        name: "infraloc_job_running",
+        help: "1 for the job running now (localize, drift-check).",
+        kind: Kind::Gauge,
+        read: |s, _| {
+            let on = |job: &str| s.running.as_ref().is_some_and(|r| r.job.name() == job);
+            Some(Sample::by(
+                "job",
+                ["localize", "drift-check"].map(|job| (job, flag(on(job)))),
+            ))
+        },
+    },
+    Metric {
+        name: "infraloc_consecutive_failures",
+        help: "Failed localizations since the last successful one.",
+        kind: Kind::Gauge,
+        read: |s, _| Some(Sample::bare(f64::from(s.failures_in_a_row))),
+    },
+    Metric {
+        name: "infraloc_last_run_timestamp_seconds",
+        help: "When the latest localization finished, seconds since the Unix epoch.",
+        kind: Kind::Gauge,
+        read: |s, _| unix_seconds(&s.last_result.as_ref()?.finished_utc).map(Sample::bare),
+    },
+    Metric {
+        name: "infraloc_last_run_success",
+        help: "1 when the latest localization computed a pose.",
+        kind: Kind::Gauge,
+        read: |s, _| Some(Sample::bare(flag(s.last_result.as_ref()?.ok()))),
+    },
+    Metric {
+        name: "infraloc_last_run_served",
+        help: "1 when the latest localization's pose is now served.",
+        kind: Kind::Gauge,
+        read: |s, _| Some(Sample::bare(flag(s.last_result.as_ref()?.served()))),
+    },
+    Metric {
+        name: "infraloc_last_run_duration_seconds",
+        help: "Wall time of the latest localization.",
+        kind: Kind::Gauge,
+        read: |s, _| Some(Sample::bare(s.last_result.as_ref()?.seconds)),
+    },
+    Metric {
+        name: "infraloc_last_run_score",
+        help: "The latest result's score (NMI at the MI optimum).",
+        kind: Kind::Gauge,
+        read: |s, _| localized(s)?.score.map(Sample::bare),
+    },
+    Metric {
+        name: "infraloc_last_run_sigma_meters",
+        help: "Marginal standard deviation of the latest result's camera centre per map axis.",
+        kind: Kind::Gauge,
+        read: |s, _| sigma_meters(localized(s)?.sigma),
+    },
+    Metric {
+        name: "infraloc_last_run_sigma_degrees",
+        help: "Marginal standard deviation of the latest result's angles (pitch and roll when estimated).",
+        kind: Kind::Gauge,
+        read: |s, _| sigma_degrees(localized(s)?.sigma),
+    },
+    Metric {
+        name: "infraloc_last_run_stage_duration_seconds",
+        help: "Wall time of each stage of the latest localization.",
+        kind: Kind::Gauge,
+        read: |s, _| {
+            let stages = localized(s)?.stages;
+            Some(Sample::by(
+                "stage",
+                stages.iter().map(|st| (st.name.as_str(), st.seconds)),
+            ))
+        },
+    },
+    Metric {
+        name: "infraloc_last_run_skipped_tiles",
+        help: "Tiles of the cache the latest localization skipped as unreadable.",
+        kind: Kind::Gauge,
+        read: |s, _| Some(Sample::bare(localized(s)?.skipped_tiles as f64)),
+    },
+    Metric {
+        name: "infraloc_drift_check_timestamp_seconds",
+        help: "When the latest drift check ran, seconds since the Unix epoch.",
+        kind: Kind::Gauge,
+        read: |s, _| unix_seconds(&s.last_drift_check.as_ref()?.checked_utc).map(Sample::bare),
+    },
+    Metric {
+        name: "infraloc_drift_check_ran",
+        help: "1 when the latest drift check could run (frames and tile available).",
+        kind: Kind::Gauge,
+        read: |s, _| {
+            let d = s.last_drift_check.as_ref()?;
+            Some(Sample::bare(flag(matches!(d.outcome, DriftOutcome::Ran(_)))))
+        },
+    },
+    Metric {
+        name: "infraloc_drift_moved",
+        help: "1 when the latest drift check found the camera moved and no re-localization has answered it yet.",
+        kind: Kind::Gauge,
+        read: |s, _| Some(Sample::bare(flag(s.last_drift_check.as_ref()?.unresolved_move()))),
+    },
+    Metric {
+        name: "infraloc_drift_offset_meters",
+        help: "Offset of the drift check's MI optimum from the served pose: horizontal distance and height.",
+        kind: Kind::Gauge,
+        read: |s, _| {
+            let v = &drift_search(s)?.verdict;
+            Some(Sample::by("axis", [("horizontal", v.shift_m), ("z", v.dz_m)]))
+        },
+    },
+    Metric {
+        name: "infraloc_drift_offset_degrees",
+        help: "Offset of the drift check's MI optimum from the served pose in yaw.",
+        kind: Kind::Gauge,
+        read: |s, _| Some(Sample::by("axis", [("yaw", drift_search(s)?.verdict.yaw_deg)])),
+    },
+];
+
+/// When the served pose was computed, seconds since the Unix epoch.
+fn served_at(s: &Status) -> Option<f64> {
+    unix_seconds(&s.served.as_ref()?.timestamp_utc)
+}
+
+/// What the metrics read of a latest run that computed a pose.
+struct Localized<'a> {
+    score: Option<f64>,
+    sigma: Option<&'a Sigma>,
+    stages: &'a [StageTime],
+    skipped_tiles: usize,
+}
+
+/// The latest run, when it computed a pose.
+fn localized(s: &Status) -> Option<Localized<'_>> {
+    match &s.last_result.as_ref()?.outcome {
+        RunOutcome::Localized {
+            score,
+            sigma,
+            stages,
+            skipped_tiles,
+            ..
+        } => Some(Localized {
+            score: *score,
+            sigma: sigma.as_ref(),
+            stages,
+            skipped_tiles: skipped_tiles.len(),
+        }),
+        RunOutcome::Failed { .. } => None,
+    }
+}
+
+/// The latest drift check's search, when it ran.
+fn drift_search(s: &Status) -> Option<&DriftSearch> {
+    match &s.last_drift_check.as_ref()?.outcome {
+        DriftOutcome::Ran(r) => Some(r),
+        _ => None,
+    }
+}
+
+/// σ of the camera centre in metres per map axis.
+fn sigma_meters(s: Option<&Sigma>) -> Option<Vec<Sample>> {
+    let s = s?;
+    Some(Sample::by("axis", [("x", s.x), ("y", s.y), ("z", s.z)]))
+}
+
+/// σ of the angles in degrees: yaw, then pitch and roll when estimated.
+fn sigma_degrees(s: Option<&Sigma>) -> Option<Vec<Sample>> {
+    let s = s?;
+    let tilt = [("pitch", s.pitch), ("roll", s.roll)];
+    let tilt = tilt.into_iter().filter_map(|(a, v)| Some((a, v?)));
+    Some(Sample::by(
+        "axis",
+        std::iter::once(("yaw", s.yaw)).chain(tilt),
+    ))
 }
 
 /// A label value with `\`, `"` and newlines escaped.
@@ -85,278 +359,35 @@ fn flag(b: bool) -> f64 {
     }
 }
 
-/// σ samples: metres for x, y, z and degrees for the angles (pitch and roll when estimated).
-fn sigma_families(out: &mut String, prefix: &str, what: &str, s: Option<&Sigma>) {
-    let Some(s) = s else {
-        return;
-    };
-    gauge(
-        out,
-        &format!("{prefix}_sigma_meters"),
-        &format!("Marginal standard deviation of {what}'s camera centre per map axis."),
-        |f| {
-            for (axis, v) in [("x", s.x), ("y", s.y), ("z", s.z)] {
-                f.sample(&format!("{prefix}_sigma_meters"), &[("axis", axis)], v);
+/// Write one sample line of family `name`.
+fn write_sample(out: &mut String, name: &str, s: &Sample) {
+    out.push_str(name);
+    if !s.labels.is_empty() {
+        out.push('{');
+        for (i, (k, val)) in s.labels.iter().enumerate() {
+            if i > 0 {
+                out.push(',');
             }
-        },
-    );
-    gauge(
-        out,
-        &format!("{prefix}_sigma_degrees"),
-        &format!("Marginal standard deviation of {what}'s angles (pitch and roll when estimated)."),
-        |f| {
-            let n = format!("{prefix}_sigma_degrees");
-            f.sample(&n, &[("axis", "yaw")], s.yaw);
-            if let Some(p) = s.pitch {
-                f.sample(&n, &[("axis", "pitch")], p);
-            }
-            if let Some(r) = s.roll {
-                f.sample(&n, &[("axis", "roll")], r);
-            }
-        },
-    );
+            let _ = write!(out, "{k}=\"{}\"", escape(val));
+        }
+        out.push('}');
+    }
+    let _ = writeln!(out, " {}", number(s.value));
 }
 
 /// The status as OpenMetrics text (ending in `# EOF`), `now_unix` being the clock reading in
-/// seconds since the Unix epoch (for the pose's age).
+/// seconds since the Unix epoch (for the pose's age): each family of [`METRICS`] whose samples
+/// the status has, its metadata, then its samples.
 pub fn render(s: &Status, now_unix: f64) -> String {
     let mut o = String::new();
-    gauge(
-        &mut o,
-        "infraloc_build_info",
-        "The running build: version, architecture and OS (value always 1).",
-        |f| {
-            f.sample(
-                "infraloc_build_info",
-                &[
-                    ("version", &s.version),
-                    ("arch", std::env::consts::ARCH),
-                    ("os", std::env::consts::OS),
-                ],
-                1.0,
-            )
-        },
-    );
-    gauge(
-        &mut o,
-        "infraloc_state",
-        "Service state: 1 for the current one (starting, ok, degraded, failed).",
-        |f| {
-            for st in [State::Starting, State::Ok, State::Degraded, State::Failed] {
-                f.sample(
-                    "infraloc_state",
-                    &[("state", st.name())],
-                    flag(s.state == st),
-                );
-            }
-        },
-    );
-    gauge(
-        &mut o,
-        "infraloc_uptime_seconds",
-        "Seconds since the service started.",
-        |f| f.sample("infraloc_uptime_seconds", &[], s.uptime_s),
-    );
-    gauge(
-        &mut o,
-        "infraloc_config_reload_failed",
-        "1 when the last SIGHUP reload was refused (the running config stays in force).",
-        |f| {
-            f.sample(
-                "infraloc_config_reload_failed",
-                &[],
-                flag(s.reload_error.is_some()),
-            )
-        },
-    );
-    gauge(
-        &mut o,
-        "infraloc_pose_served",
-        "1 when a pose is served.",
-        |f| f.sample("infraloc_pose_served", &[], flag(s.served.is_some())),
-    );
-    if let Some(p) = &s.served {
-        if let Some(t) = unix_seconds(&p.timestamp_utc) {
-            gauge(
-                &mut o,
-                "infraloc_pose_timestamp_seconds",
-                "When the served pose was computed, seconds since the Unix epoch.",
-                |f| f.sample("infraloc_pose_timestamp_seconds", &[], t),
-            );
-            gauge(
-                &mut o,
-                "infraloc_pose_age_seconds",
-                "Age of the served pose.",
-                |f| f.sample("infraloc_pose_age_seconds", &[], (now_unix - t).max(0.0)),
-            );
-        }
-        if let Some(score) = p.score {
-            gauge(
-                &mut o,
-                "infraloc_pose_score",
-                "The served pose's score (NMI at the MI optimum).",
-                |f| f.sample("infraloc_pose_score", &[], score),
-            );
-        }
-        sigma_families(&mut o, "infraloc_pose", "the served pose", p.sigma.as_ref());
-    }
-    gauge(
-        &mut o,
-        "infraloc_job_running",
-        "1 for the job running now (localize, drift-check).",
-        |f| {
-            for job in ["localize", "drift-check"] {
-                let on = s.running.as_ref().is_some_and(|r| r.job.name() == job);
-                f.sample("infraloc_job_running", &[("job", job)], flag(on));
-            }
-        },
-    );
-    gauge(
-        &mut o,
-        "infraloc_consecutive_failures",
-        "Failed localizations since the last successful one.",
-        |f| {
-            f.sample(
-                "infraloc_consecutive_failures",
-                &[],
-                f64::from(s.failures_in_a_row),
-            )
-        },
-    );
-    if let Some(r) = &s.last_result {
-        if let Some(t) = unix_seconds(&r.finished_utc) {
-            gauge(
-                &mut o,
-                "infraloc_last_run_timestamp_seconds",
-                "When the latest localization finished, seconds since the Unix epoch.",
-                |f| f.sample("infraloc_last_run_timestamp_seconds", &[], t),
-            );
-        }
-        gauge(
-            &mut o,
-            "infraloc_last_run_success",
-            "1 when the latest localization computed a pose.",
-            |f| f.sample("infraloc_last_run_success", &[], flag(r.ok())),
-        );
-        gauge(
-            &mut o,
-            "infraloc_last_run_served",
-            "1 when the latest localization's pose is now served.",
-            |f| f.sample("infraloc_last_run_served", &[], flag(r.served())),
-        );
-        gauge(
-            &mut o,
-            "infraloc_last_run_duration_seconds",
-            "Wall time of the latest localization.",
-            |f| f.sample("infraloc_last_run_duration_seconds", &[], r.seconds),
-        );
-        if let RunOutcome::Localized {
-            score,
-            sigma,
-            stages,
-            skipped_tiles,
-            ..
-        } = &r.outcome
-        {
-            if let Some(score) = score {
-                gauge(
-                    &mut o,
-                    "infraloc_last_run_score",
-                    "The latest result's score (NMI at the MI optimum).",
-                    |f| f.sample("infraloc_last_run_score", &[], *score),
-                );
-            }
-            sigma_families(
-                &mut o,
-                "infraloc_last_run",
-                "the latest result",
-                sigma.as_ref(),
-            );
-            gauge(
-                &mut o,
-                "infraloc_last_run_stage_duration_seconds",
-                "Wall time of each stage of the latest localization.",
-                |f| {
-                    for st in stages {
-                        f.sample(
-                            "infraloc_last_run_stage_duration_seconds",
-                            &[("stage", &st.name)],
-                            st.seconds,
-                        );
-                    }
-                },
-            );
-            gauge(
-                &mut o,
-                "infraloc_last_run_skipped_tiles",
-                "Tiles of the cache the latest localization skipped as unreadable.",
-                |f| {
-                    f.sample(
-                        "infraloc_last_run_skipped_tiles",
-                        &[],
-                        skipped_tiles.len() as f64,
-                    )
-                },
-            );
-        }
-    }
-    if let Some(d) = &s.last_drift_check {
-        if let Some(t) = unix_seconds(&d.checked_utc) {
-            gauge(
-                &mut o,
-                "infraloc_drift_check_timestamp_seconds",
-                "When the latest drift check ran, seconds since the Unix epoch.",
-                |f| f.sample("infraloc_drift_check_timestamp_seconds", &[], t),
-            );
-        }
-        gauge(
-            &mut o,
-            "infraloc_drift_check_ran",
-            "1 when the latest drift check could run (frames and tile available).",
-            |f| {
-                f.sample(
-                    "infraloc_drift_check_ran",
-                    &[],
-                    flag(matches!(d.outcome, DriftOutcome::Ran(_))),
-                )
-            },
-        );
-        gauge(
-            &mut o,
-            "infraloc_drift_moved",
-            "1 when the latest drift check found the camera moved and no re-localization has answered it yet.",
-            |f| f.sample("infraloc_drift_moved", &[], flag(d.unresolved_move())),
-        );
-        if let DriftOutcome::Ran(r) = &d.outcome {
-            gauge(
-                &mut o,
-                "infraloc_drift_offset_meters",
-                "Offset of the drift check's MI optimum from the served pose: horizontal distance and height.",
-                |f| {
-                    f.sample(
-                        "infraloc_drift_offset_meters",
-                        &[("axis", "horizontal")],
-                        r.verdict.shift_m,
-                    );
-                    f.sample(
-                        "infraloc_drift_offset_meters",
-                        &[("axis", "z")],
-                        r.verdict.dz_m,
-                    );
-                },
-            );
-            gauge(
-                &mut o,
-                "infraloc_drift_offset_degrees",
-                "Offset of the drift check's MI optimum from the served pose in yaw.",
-                |f| {
-                    f.sample(
-                        "infraloc_drift_offset_degrees",
-                        &[("axis", "yaw")],
-                        r.verdict.yaw_deg,
-                    )
-                },
-            );
+    for m in METRICS {
+        let Some(samples) = (m.read)(s, now_unix) else {
+            continue;
+        };
+        let _ = writeln!(o, "# HELP {} {}", m.name, m.help);
+        let _ = writeln!(o, "# TYPE {} {}", m.name, m.kind.name());
+        for sample in &samples {
+            write_sample(&mut o, m.name, sample);
         }
     }
     o.push_str("# EOF\n");

@@ -543,13 +543,13 @@ impl Daemon {
                 Some(why) => {
                     self.store
                         .record_kept(&run.pose_file, &why)
-                        .map_err(|e| Error::stage("persist", e.to_string()))?;
+                        .map_err(|e| Error::Persist(e.to_string()))?;
                     Decision::Kept(why)
                 }
                 None => self
                     .store
                     .offer(&run.pose_file, force)
-                    .map_err(|e| Error::stage("persist", e.to_string()))?,
+                    .map_err(|e| Error::Persist(e.to_string()))?,
             };
             Ok((run, decision))
         });
@@ -863,13 +863,13 @@ impl Daemon {
     }
 }
 
-fn internal_error(stage: &'static str, p: Box<dyn std::any::Any + Send>) -> Error {
+fn internal_error(job: &'static str, p: Box<dyn std::any::Any + Send>) -> Error {
     let what = p
         .downcast_ref::<&str>()
         .map(|s| s.to_string())
         .or_else(|| p.downcast_ref::<String>().cloned())
         .unwrap_or_else(|| "panic".into());
-    Error::stage(stage, format!("internal error: {what}"))
+    Error::Internal { job, what }
 }
 
 /// The drift check: fresh frames, then [`drift_search`] around the served pose.

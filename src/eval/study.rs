@@ -323,7 +323,7 @@ pub(crate) fn run_trial(
         finish,
         &|_| None,
     )
-    .map_err(|e| Error::stage("study", format!("trial {index}: {e}")))?;
+    .map_err(|e| Error::command("study", format!("trial {index}: {e}")))?;
     let seconds = now() - t0;
     let result = offsets_from(scene.truth, &r.pose);
     let horizontal_m = result[0].hypot(result[1]);

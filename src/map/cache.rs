@@ -617,7 +617,12 @@ struct Scan {
 }
 
 fn scan(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<Scan> {
-    let tile_err = |msg: String| Error::stage("tile", format!("{}: {msg}", cache_dir.display()));
+    let tile_err = |msg: String| {
+        Error::stage(
+            crate::stage::StageName::Tile,
+            format!("{}: {msg}", cache_dir.display()),
+        )
+    };
     let entries = fs::read_dir(cache_dir).map_err(|e| tile_err(e.to_string()))?;
     let mut dirs: Vec<PathBuf> = Vec::new();
     for e in entries {
@@ -773,7 +778,7 @@ fn no_cover(
         ),
     };
     Error::stage(
-        "tile",
+        crate::stage::StageName::Tile,
         format!("{}: {msg}{skipped_note}", cache_dir.display()),
     )
 }
@@ -825,7 +830,7 @@ pub(crate) fn check_layers_near(
         let frac = ok as f64 / n;
         if frac < MIN_VALID_FRACTION {
             return Err(Error::stage(
-                "tile",
+                crate::stage::StageName::Tile,
                 format!(
                     "{}: {layer} layer has valid data in only {:.1} % of the {radius_m:.0} m around the prior (need {:.0} %): the map tile is damaged or does not cover this ground",
                     dir.join(file).display(),
@@ -843,7 +848,7 @@ pub(crate) fn check_layers_near(
 /// that fails to load is skipped (and listed) in favour of the next one that covers the
 /// position. The error, when none is usable, is the first covering tile's (a `tile:` line naming
 /// its file and layer), or [`find_tile`]'s when none covers.
-pub(crate) fn load_covering(
+pub fn load_covering(
     cache_dir: &Path,
     lat: f64,
     lon: f64,
@@ -855,7 +860,7 @@ pub(crate) fn load_covering(
     let mut first_err = None;
     for mut r in found.covering {
         let loaded = load_tile(&r.dir)
-            .map_err(|e| Error::stage("tile", e.to_string()))
+            .map_err(|e| Error::stage(crate::stage::StageName::Tile, e.to_string()))
             .and_then(|t| check_layers_near(&t, &r.dir, r.position, radius_m).map(|_| t));
         match loaded {
             Ok(t) => {

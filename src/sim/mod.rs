@@ -443,6 +443,114 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
             (c, Some(sigma))
         }
     };
+    let (pose_local, pose, above) = true_pose(&mut rng, &mut world, hard, origin);
+
+    // Map layers.
+    let look = Appearance::new(world.seed);
+    let half = TILE_SIZE_M / 2.0;
+    let n = (TILE_SIZE_M / MAP_RES).round() as usize;
+    let grid = GeoGrid {
+        crs,
+        x0: origin[0] - half,
+        y0: origin[1] + half,
+        res: MAP_RES,
+        width: n,
+        height: n,
+    };
+    let lidar = layers::lidar(&world, &look, &grid, origin, if hard { 0.03 } else { 0.02 });
+    let sat = satellite_layer(&mut rng, &world, &look, origin, crs)?;
+
+    // Fisheye frames.
+    let overcast = hard && rng.random_bool(0.25);
+    let cam_sun = (rng.random_range(0.0..360.0), rng.random_range(18.0..65.0));
+    let light = if overcast {
+        Light::from_az_el(cam_sun.0, cam_sun.1, 0.0, 1.0)
+    } else {
+        Light::from_az_el(cam_sun.0, cam_sun.1, 1.0, 0.3)
+    };
+    let mut statics = world.statics.clone();
+    statics.extend_from_slice(&world.camera_parked);
+    let view = View {
+        world: &world,
+        look: &look,
+        statics: &statics,
+        light,
+    };
+    let sensor = sensor(hard);
+    let base = render::static_pass(&view, &camera_true, &pose_local);
+    let exposure = base.auto_exposure();
+    let (nv, np) = if hard {
+        (rng.random_range(8..15), rng.random_range(5..11))
+    } else {
+        (rng.random_range(3..7), rng.random_range(2..6))
+    };
+    let movers = traffic(&world, &mut rng, nv, np);
+    let frames = (0..settings.frames)
+        .map(|f| {
+            let dynamic = movers_at(&world, &movers, f);
+            let gain = 1.0 + rng.random_range(-0.04..0.04);
+            base.frame(
+                &view,
+                &dynamic,
+                &sensor,
+                exposure * gain,
+                mix64(world.seed ^ (0xF0 + f as u64)),
+            )
+        })
+        .collect();
+
+    let gps = gps_log(&mut rng, hard, &pose, crs)?;
+
+    let (control_points, tile_points) =
+        control_points(&world, &statics, origin, &pose, &pose_local, &camera_true);
+
+    let tile = Tile {
+        id: format!("sim-{:04}", settings.seed % 10_000),
+        satellite: sat.image,
+        reflectivity: lidar.reflectivity,
+        height: lidar.height,
+        control_points: tile_points,
+    };
+    let acquisition = Acquisition {
+        camera_sun_az_el_deg: [cam_sun.0, cam_sun.1],
+        camera_overcast: overcast,
+        satellite_sun_az_el_deg: [sat.sun_az_el.0, sat.sun_az_el.1],
+        satellite_off_nadir_deg: sat.off_nadir_deg,
+        satellite_shift_m: sat.shot.shift,
+        satellite_jpeg_quality: sat.shot.jpeg_quality,
+        gps_sigma_bias_noise_m: gps.sigma_bias_noise_m,
+        camera_height_above_ground_m: above,
+        approaches: world.approaches.len(),
+        traffic_vehicles_pedestrians: [nv, np],
+    };
+    Ok(Scene {
+        settings: *settings,
+        crs,
+        origin,
+        world,
+        camera_true,
+        camera_given,
+        camera_sigma,
+        pose,
+        tile,
+        frames,
+        nmea: gps.nmea,
+        gps_truth_wgs84: gps.truth_wgs84,
+        control_points,
+        acquisition,
+        start: gps.start,
+    })
+}
+
+/// The true pose in the world's local frame and in the map frame, and the camera's height above
+/// the ground: a centre within 10 m of the intersection's centre (cleared of solids 4 m around),
+/// 4–12 m up, any yaw, and a tilt of up to 3° (hard) or 0.2°.
+fn true_pose(
+    rng: &mut ChaCha8Rng,
+    world: &mut World,
+    hard: bool,
+    origin: [f64; 2],
+) -> (CamFromMap, CamFromMap, f64) {
     let r = 10.0 * rng.random::<f64>().sqrt();
     let phi = rng.random_range(0.0..TAU);
     let (cx, cy) = (r * phi.cos(), r * phi.sin());
@@ -464,20 +572,31 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         pitch,
         roll,
     );
+    (pose_local, pose, above)
+}
 
-    // Map layers.
-    let look = Appearance::new(world.seed);
+/// The satellite layer and how it was taken.
+struct SatelliteLayer {
+    /// The image.
+    image: Raster<[u8; 3]>,
+    /// The shot: light, view, shift, blur and JPEG quality.
+    shot: layers::SatelliteShot,
+    /// The sun's azimuth and elevation, degrees.
+    sun_az_el: (f64, f64),
+    /// The view's angle off nadir, degrees.
+    off_nadir_deg: f64,
+}
+
+/// The satellite layer, its grid jitter, shift, sun, off-nadir view and JPEG quality drawn from
+/// `rng`.
+fn satellite_layer(
+    rng: &mut ChaCha8Rng,
+    world: &World,
+    look: &Appearance,
+    origin: [f64; 2],
+    crs: Crs,
+) -> Result<SatelliteLayer> {
     let half = TILE_SIZE_M / 2.0;
-    let n = (TILE_SIZE_M / MAP_RES).round() as usize;
-    let grid = GeoGrid {
-        crs,
-        x0: origin[0] - half,
-        y0: origin[1] + half,
-        res: MAP_RES,
-        width: n,
-        height: n,
-    };
-    let lidar = layers::lidar(&world, &look, &grid, origin, if hard { 0.03 } else { 0.02 });
     let sat_n = ((TILE_SIZE_M + 2.0 * SAT_MARGIN_M) / MAP_RES).round() as usize;
     let sat_grid = GeoGrid {
         crs,
@@ -501,31 +620,24 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         jpeg_quality: rng.random_range(55..80),
     };
     let satellite = layers::satellite(
-        &world,
-        &look,
+        world,
+        look,
         &sat_grid,
         origin,
         &shot,
         &world.satellite_parked,
     )?;
+    Ok(SatelliteLayer {
+        image: satellite,
+        shot,
+        sun_az_el: sat_sun,
+        off_nadir_deg: off_nadir,
+    })
+}
 
-    // Fisheye frames.
-    let overcast = hard && rng.random_bool(0.25);
-    let cam_sun = (rng.random_range(0.0..360.0), rng.random_range(18.0..65.0));
-    let light = if overcast {
-        Light::from_az_el(cam_sun.0, cam_sun.1, 0.0, 1.0)
-    } else {
-        Light::from_az_el(cam_sun.0, cam_sun.1, 1.0, 0.3)
-    };
-    let mut statics = world.statics.clone();
-    statics.extend_from_slice(&world.camera_parked);
-    let view = View {
-        world: &world,
-        look: &look,
-        statics: &statics,
-        light,
-    };
-    let sensor = if hard {
+/// The camera's sensor: noisier, blurrier and more vignetted in a hard scene.
+fn sensor(hard: bool) -> Sensor {
+    if hard {
         Sensor {
             blur_px: 0.7,
             vignetting: 0.45,
@@ -541,30 +653,23 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
             read_noise: 0.003,
             gamma: 2.2,
         }
-    };
-    let base = render::static_pass(&view, &camera_true, &pose_local);
-    let exposure = base.auto_exposure();
-    let (nv, np) = if hard {
-        (rng.random_range(8..15), rng.random_range(5..11))
-    } else {
-        (rng.random_range(3..7), rng.random_range(2..6))
-    };
-    let movers = traffic(&world, &mut rng, nv, np);
-    let frames = (0..settings.frames)
-        .map(|f| {
-            let dynamic = movers_at(&world, &movers, f);
-            let gain = 1.0 + rng.random_range(-0.04..0.04);
-            base.frame(
-                &view,
-                &dynamic,
-                &sensor,
-                exposure * gain,
-                mix64(world.seed ^ (0xF0 + f as u64)),
-            )
-        })
-        .collect();
+    }
+}
 
-    // GPS.
+/// The receiver's log of a scene and what it was drawn from.
+struct GpsLog {
+    /// The NMEA 0183 log.
+    nmea: String,
+    /// The log's first UTC time.
+    start: gps::UtcStart,
+    /// The receiver's true position, [lat, lon].
+    truth_wgs84: [f64; 2],
+    /// The bias and noise σ of the fixes, metres.
+    sigma_bias_noise_m: [f64; 2],
+}
+
+/// The receiver's log at the camera of `pose`, drawn from `rng`.
+fn gps_log(rng: &mut ChaCha8Rng, hard: bool, pose: &CamFromMap, crs: Crs) -> Result<GpsLog> {
     let (bias_s, noise_s) = if hard { (4.0, 3.0) } else { (1.5, 1.3) };
     let gm = gps::GpsModel {
         bias_sigma: bias_s,
@@ -577,7 +682,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
     };
     let c_map = pose.center();
     let to_wgs = |x: f64, y: f64| crate::geo::map_to_wgs84(crs, x, y);
-    let fixes = gps::track(&mut rng, [c_map.x, c_map.y, c_map.z], &gm, to_wgs)?;
+    let fixes = gps::track(rng, [c_map.x, c_map.y, c_map.z], &gm, to_wgs)?;
     let start = gps::UtcStart {
         year: 2026,
         month: rng.random_range(4..=10),
@@ -586,8 +691,24 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
     };
     let nmea = gps::nmea_log(&fixes, &start, GEOID_SEP);
     let (lat, lon) = to_wgs(c_map.x, c_map.y)?;
+    Ok(GpsLog {
+        nmea,
+        start,
+        truth_wgs84: [lat, lon],
+        sigma_bias_noise_m: [bias_s, noise_s],
+    })
+}
 
-    // Control points: marking corners the true camera sees unoccluded.
+/// Control points: every marking corner as a tile point, and as truth those the true camera
+/// sees unoccluded (within [`CONTROL_MAX_THETA_DEG`] of its axis).
+fn control_points(
+    world: &World,
+    statics: &[Solid],
+    origin: [f64; 2],
+    pose: &CamFromMap,
+    pose_local: &CamFromMap,
+    camera_true: &Camera,
+) -> (Vec<TruthPoint>, Vec<ControlPoint>) {
     let cands = world.control_candidates();
     let mut control_points = Vec::new();
     let mut tile_points = Vec::new();
@@ -611,9 +732,9 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         let to = Vector3::new(x, y, z) - center_l;
         let dist = to.norm();
         let d = to / dist;
-        let blocked = solids::nearest(&statics, &center_l, &d, dist - 0.05).is_some();
-        let first = render::intersect_ground(&world, &center_l, &d)
-            .is_some_and(|t| (t - dist).abs() < 0.02);
+        let blocked = solids::nearest(statics, &center_l, &d, dist - 0.05).is_some();
+        let first =
+            render::intersect_ground(world, &center_l, &d).is_some_and(|t| (t - dist).abs() < 0.02);
         if !blocked && first {
             control_points.push(TruthPoint {
                 id,
@@ -622,43 +743,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
             });
         }
     }
-
-    let tile = Tile {
-        id: format!("sim-{:04}", settings.seed % 10_000),
-        satellite,
-        reflectivity: lidar.reflectivity,
-        height: lidar.height,
-        control_points: tile_points,
-    };
-    let acquisition = Acquisition {
-        camera_sun_az_el_deg: [cam_sun.0, cam_sun.1],
-        camera_overcast: overcast,
-        satellite_sun_az_el_deg: [sat_sun.0, sat_sun.1],
-        satellite_off_nadir_deg: off_nadir,
-        satellite_shift_m: shot.shift,
-        satellite_jpeg_quality: shot.jpeg_quality,
-        gps_sigma_bias_noise_m: [bias_s, noise_s],
-        camera_height_above_ground_m: above,
-        approaches: world.approaches.len(),
-        traffic_vehicles_pedestrians: [nv, np],
-    };
-    Ok(Scene {
-        settings: *settings,
-        crs,
-        origin,
-        world,
-        camera_true,
-        camera_given,
-        camera_sigma,
-        pose,
-        tile,
-        frames,
-        nmea,
-        gps_truth_wgs84: [lat, lon],
-        control_points,
-        acquisition,
-        start,
-    })
+    (control_points, tile_points)
 }
 
 impl Scene {

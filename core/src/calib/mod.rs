@@ -302,21 +302,60 @@ pub fn calibrate(obs: &Observations, model: LensModel) -> Result<Calibration, Ca
     }
 
     let mut state = State { intr: intr0, poses };
-    let first_used = used.len();
-    let (run, final_used) = loop {
-        let views: Vec<Obs> = used
+    let (run, final_used) =
+        fit_rejecting_outliers(obs, model, &mut state, used, &mut results, &normal_of)?;
+    let camera = model.camera(&state.intr, obs.width, obs.height);
+    check_fitted(&camera, obs, &final_used, &state)?;
+    let views = obs_views(obs, &final_used);
+    let std = lm::intrinsic_std(model, &state, &views, run.cost)
+        .unwrap_or_else(|| vec![f64::NAN; model.n_params()]);
+    let corners_used: usize = views.iter().map(|v| v.object.len()).sum();
+    let rms = (run.cost / corners_used as f64).sqrt();
+    Ok(Calibration {
+        model,
+        camera,
+        image_size: [obs.width, obs.height],
+        params: model
+            .names()
             .iter()
-            .map(|&i| Obs {
-                object: &obs.views[i].object,
-                image: &obs.views[i].image,
+            .zip(&state.intr)
+            .zip(&std)
+            .map(|((name, v), s)| Param {
+                name,
+                value: *v,
+                std: *s,
             })
-            .collect();
-        let mut run = lm::optimise(model, &mut state, &views)
+            .collect(),
+        rms,
+        corners_used,
+        iterations: run.iterations,
+        init: init_info,
+        views: results,
+        outlier_rule: outlier_rule(),
+        not_found: Vec::new(),
+    })
+}
+
+/// Fit `state` to the `used` views, removing the worst view and fitting again while it is an
+/// outlier (the report's rule), and record each view's result; the fit's run and the views it
+/// kept. `normal_of` gives a used view's board normal.
+fn fit_rejecting_outliers(
+    obs: &Observations,
+    model: LensModel,
+    state: &mut State,
+    mut used: Vec<usize>,
+    results: &mut [ViewResult],
+    normal_of: &dyn Fn(usize) -> Vector3<f64>,
+) -> Result<(lm::LmRun, Vec<usize>), CalibError> {
+    let first_used = used.len();
+    loop {
+        let views = obs_views(obs, &used);
+        let mut run = lm::optimise(model, state, &views)
             .ok_or_else(|| CalibError("the optimisation left the model's domain".into()))?;
         if model == LensModel::Mei && used.len() == first_used {
-            run = other_xi_starts(&mut state, &views, run);
+            run = other_xi_starts(state, &views, run);
         }
-        let res = lm::residuals(model, &state, &views)
+        let res = lm::residuals(model, state, &views)
             .ok_or_else(|| CalibError("the optimisation left the model's domain".into()))?;
         let rms: Vec<f64> = res.iter().map(|r| rms_of(r)).collect();
         let mut sorted = rms.clone();
@@ -350,16 +389,32 @@ pub fn calibrate(obs: &Observations, model: LensModel) -> Result<Calibration, Ca
             vr.tilt_deg = Some(tilt_deg(pose, normal_of(i)));
             vr.residuals = r;
         }
-        break (run, used.clone());
-    };
+        return Ok((run, used));
+    }
+}
 
-    let camera = model.camera(&state.intr, obs.width, obs.height);
+/// The observations of the views `used`, as the fit takes them.
+fn obs_views<'a>(obs: &'a Observations, used: &[usize]) -> Vec<Obs<'a>> {
+    used.iter()
+        .map(|&i| Obs {
+            object: &obs.views[i].object,
+            image: &obs.views[i].image,
+        })
+        .collect()
+}
+
+/// The fitted camera must be valid and accept every observation the fit used (no fold, not
+/// behind the mirror), or the file would not describe what was fitted.
+fn check_fitted(
+    camera: &Camera,
+    obs: &Observations,
+    used: &[usize],
+    state: &State,
+) -> Result<(), CalibError> {
     camera
         .validate()
         .map_err(|m| CalibError(format!("the fitted camera is invalid: {m}")))?;
-    // The crate's model must accept every observation the fit used (no fold, not behind the
-    // mirror), or the file would not describe what was fitted.
-    for (&i, pose) in final_used.iter().zip(&state.poses) {
+    for (&i, pose) in used.iter().zip(&state.poses) {
         for (j, x) in obs.views[i].object.iter().enumerate() {
             if let Err(e) = camera.project(&pose.apply(x)) {
                 return Err(CalibError(format!(
@@ -369,40 +424,7 @@ pub fn calibrate(obs: &Observations, model: LensModel) -> Result<Calibration, Ca
             }
         }
     }
-    let views: Vec<Obs> = final_used
-        .iter()
-        .map(|&i| Obs {
-            object: &obs.views[i].object,
-            image: &obs.views[i].image,
-        })
-        .collect();
-    let std = lm::intrinsic_std(model, &state, &views, run.cost)
-        .unwrap_or_else(|| vec![f64::NAN; model.n_params()]);
-    let corners_used: usize = views.iter().map(|v| v.object.len()).sum();
-    let rms = (run.cost / corners_used as f64).sqrt();
-    Ok(Calibration {
-        model,
-        camera,
-        image_size: [obs.width, obs.height],
-        params: model
-            .names()
-            .iter()
-            .zip(&state.intr)
-            .zip(&std)
-            .map(|((name, v), s)| Param {
-                name,
-                value: *v,
-                std: *s,
-            })
-            .collect(),
-        rms,
-        corners_used,
-        iterations: run.iterations,
-        init: init_info,
-        views: results,
-        outlier_rule: outlier_rule(),
-        not_found: Vec::new(),
-    })
+    Ok(())
 }
 
 /// Starting values of ξ tried besides the Mei & Rives start (ξ = 1).

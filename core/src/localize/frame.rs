@@ -24,7 +24,7 @@ impl<'a> Frame<'a> {
         let (w, h) = (camera.width() as usize, camera.height() as usize);
         if gray.len() != w * h {
             return Err(Error::stage(
-                StageName::Capture.name(),
+                StageName::Capture,
                 format!("frame has {} pixels, camera expects {w}×{h}", gray.len()),
             ));
         }

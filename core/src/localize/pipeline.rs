@@ -308,7 +308,7 @@ pub fn quality_gate(o: &Outcome) -> Result<()> {
         })
         .unwrap_or_default();
     Err(Error::stage(
-        StageName::Mi.name(),
+        StageName::Mi,
         format!("quality gate: {}{also}", refusal(&o.refinement)),
     ))
 }
@@ -328,7 +328,7 @@ pub(crate) fn localize_ungated(
     let (camera, image) = (frame.camera(), frame.gray());
     if !(prior_sigma_m > 0.0 && prior_xy.0.is_finite() && prior_xy.1.is_finite()) {
         return Err(Error::stage(
-            StageName::Prior.name(),
+            StageName::Prior,
             format!("unusable prior {prior_xy:?} σ {prior_sigma_m}"),
         ));
     }
@@ -341,7 +341,7 @@ pub(crate) fn localize_ungated(
     }];
     if !tile.satellite.grid.contains(prior_xy.0, prior_xy.1, 0.0) {
         return Err(Error::stage(
-            StageName::Prior.name(),
+            StageName::Prior,
             format!(
                 "prior ({:.1}, {:.1}) is outside tile {:?}",
                 prior_xy.0, prior_xy.1, tile.id

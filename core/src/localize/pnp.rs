@@ -142,7 +142,7 @@ pub(crate) fn solve_pnp_ransac<R: Rng>(
 ) -> Result<PnpResult> {
     if corr.len() < params.min_inliers.max(4) {
         return Err(Error::stage(
-            StageName::Pnp.name(),
+            StageName::Pnp,
             format!(
                 "{} correspondences < {} required",
                 corr.len(),
@@ -171,7 +171,7 @@ pub(crate) fn solve_pnp_ransac<R: Rng>(
         .collect();
     if usable.len() < 4 {
         return Err(Error::stage(
-            StageName::Pnp.name(),
+            StageName::Pnp,
             format!("{} unprojectable-free correspondences < 4", usable.len()),
         ));
     }
@@ -227,8 +227,7 @@ pub(crate) fn solve_pnp_ransac<R: Rng>(
             }
         }
     }
-    let (_, _, mut pose) =
-        best.ok_or_else(|| Error::stage(StageName::Pnp.name(), "no P3P hypothesis"))?;
+    let (_, _, mut pose) = best.ok_or_else(|| Error::stage(StageName::Pnp, "no P3P hypothesis"))?;
     // Refine, re-select inliers, refine again: the first LM often recruits more inliers.
     for _ in 0..3 {
         let inliers: Vec<usize> = (0..local.len())
@@ -245,7 +244,7 @@ pub(crate) fn solve_pnp_ransac<R: Rng>(
         .collect();
     if inliers.len() < params.min_inliers {
         return Err(Error::stage(
-            StageName::Pnp.name(),
+            StageName::Pnp,
             format!(
                 "{} inliers < {} required",
                 inliers.len(),

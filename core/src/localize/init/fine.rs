@@ -8,7 +8,7 @@ use crate::localize::frame::{Frame, MapLayers};
 use crate::localize::init::coarse::{coarse_candidates_mip, satellite_gray, CoarseParams};
 use crate::localize::init::ground::{focal_px, ground_disc, height_at, Mip};
 use crate::localize::init::sweep::{orientation_field, Candidate, Field, GrayF32};
-use crate::localize::init::verify::MiVerifier;
+use crate::localize::init::verify::{MiVerifier, Verdict};
 use crate::map::Raster;
 use crate::stage::StageName;
 use rayon::prelude::*;
@@ -565,7 +565,7 @@ pub fn initialize<R: rand::Rng>(
     };
     if cands.is_empty() {
         return Err(crate::Error::stage(
-            StageName::Pnp.name(),
+            StageName::Pnp,
             "satellite match: no hypothesis scored (featureless view or satellite?)",
         ));
     }
@@ -603,7 +603,7 @@ pub fn initialize<R: rand::Rng>(
     }
     best.ok_or_else(|| {
         crate::Error::stage(
-            StageName::Pnp.name(),
+            StageName::Pnp,
             format!(
                 "none of {} candidates gave a pose; last: {last_err}",
                 cands.len()
@@ -651,20 +651,8 @@ fn initialize_verified<R: rand::Rng>(
     rng: &mut R,
 ) -> crate::Result<InitResult> {
     let heights = map.heights;
-    // Screening: MI of each sweep candidate's own pose. Candidates whose view holds too few LiDAR
-    // points have no evidence and go last, in sweep order.
-    // Candidates in parallel as well as each one's grid cells: a screening's LiDAR disc is
-    // gathered serially, and the cells alone leave threads idle between candidates.
-    let screened: Vec<Option<crate::localize::init::verify::Verdict>> = cands
-        .par_iter()
-        .map(|c| verifier.screen(&candidate_pose(heights, prior_xy, c)))
-        .collect();
+    let (screened, order) = screen_candidates(heights, prior_xy, cands, verifier);
     let screen_mi = |i: usize| screened[i].map(|v| v.mi);
-    let mut order: Vec<usize> = (0..cands.len()).collect();
-    order.sort_by(|&a, &b| {
-        let key = |i: usize| screen_mi(i).unwrap_or(f64::NEG_INFINITY);
-        key(b).total_cmp(&key(a)).then(a.cmp(&b))
-    });
     // Every tried candidate's hypothesis, in try order (ties go to the earlier one).
     let mut pool: Vec<(f64, InitResult)> = Vec::new();
     let mut any_pnp = false;
@@ -760,13 +748,53 @@ fn initialize_verified<R: rand::Rng>(
     }
     if !any_pnp {
         return Err(crate::Error::stage(
-            StageName::Pnp.name(),
+            StageName::Pnp,
             format!(
                 "none of the {tried} best-screened of {} candidates, nor {CLIMB_CANDIDATES} of them climbed on the LiDAR map, gave a PnP pose; last: {last_err}",
                 cands.len()
             ),
         ));
     }
+    choose(pool, &order, &screened, cands, tried, fine, verifier)
+}
+
+/// Screening: MI of each sweep candidate's own pose, and the order to try them in (best
+/// screened first). Candidates whose view holds too few LiDAR points have no evidence and go
+/// last, in sweep order.
+fn screen_candidates(
+    heights: &Raster<f32>,
+    prior_xy: (f64, f64),
+    cands: &[Candidate],
+    verifier: &MiVerifier,
+) -> (Vec<Option<Verdict>>, Vec<usize>) {
+    // Candidates in parallel as well as each one's grid cells: a screening's LiDAR disc is
+    // gathered serially, and the cells alone leave threads idle between candidates.
+    let screened: Vec<Option<Verdict>> = cands
+        .par_iter()
+        .map(|c| verifier.screen(&candidate_pose(heights, prior_xy, c)))
+        .collect();
+    let screen_mi = |i: usize| screened[i].map(|v| v.mi);
+    let mut order: Vec<usize> = (0..cands.len()).collect();
+    order.sort_by(|&a, &b| {
+        let key = |i: usize| screen_mi(i).unwrap_or(f64::NEG_INFINITY);
+        key(b).total_cmp(&key(a)).then(a.cmp(&b))
+    });
+    (screened, order)
+}
+
+/// The chosen hypothesis of the `pool` (MI, hypothesis; in try order): the best MI (ties go to
+/// the earlier), with its strongest rival kept as the runner-up when the margin is thin. `tried`
+/// candidates of `order` were tried; the untried ones compete with their screening MI.
+fn choose(
+    mut pool: Vec<(f64, InitResult)>,
+    order: &[usize],
+    screened: &[Option<Verdict>],
+    cands: &[Candidate],
+    tried: usize,
+    fine: &FineParams,
+    verifier: &MiVerifier,
+) -> crate::Result<InitResult> {
+    let screen_mi = |i: usize| screened[i].map(|v| v.mi);
     let Some(bi) = pool
         .iter()
         .enumerate()
@@ -776,7 +804,7 @@ fn initialize_verified<R: rand::Rng>(
         })
     else {
         return Err(crate::Error::stage(
-            StageName::Pnp.name(),
+            StageName::Pnp,
             format!(
                 "no hypothesis of {tried} tried sees enough LiDAR points ({} needed) to verify",
                 verifier.params().min_points

@@ -174,7 +174,7 @@ impl Matcher for MatchFile {
             .collect();
         if out.is_empty() {
             return Err(Error::stage(
-                StageName::Pnp.name(),
+                StageName::Pnp,
                 format!(
                     "match-file {}: none of its {} rows lies on the image and within {reach:.0} m of the prior with a height",
                     self.origin.display(),
@@ -213,17 +213,17 @@ pub(crate) fn initialize_with<R: rand::Rng>(
     let r = solve_pnp_ransac(q.camera, &corr, &params, rng).map_err(|e| {
         // The solver's own error already says `pnp: …`; one stage prefix is enough.
         let why = match e {
-            Error::Stage { msg, .. } => msg,
+            Error::Stage {
+                stage: StageName::Pnp,
+                msg,
+            } => msg,
             other => other.to_string(),
         };
         let from = matcher
             .origin()
             .map(|p| format!(" {}", p.display()))
             .unwrap_or_default();
-        Error::stage(
-            StageName::Pnp.name(),
-            format!("{}{from}: {why}", matcher.name()),
-        )
+        Error::stage(StageName::Pnp, format!("{}{from}: {why}", matcher.name()))
     })?;
     let pose = r.pose;
     let c = pose.center();

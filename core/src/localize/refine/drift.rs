@@ -200,7 +200,10 @@ pub fn drift_search_with(
     let res = search(&ev, &search_cfg);
     let quality = assess(&ev, &res, &QualityConfig::default());
     if !res.pose.translation.iter().all(|v| v.is_finite()) {
-        return Err(Error::stage("mi", "refined pose is not finite"));
+        return Err(Error::stage(
+            crate::stage::StageName::Mi,
+            "refined pose is not finite",
+        ));
     }
     let verdict = drift_verdict(
         &res.offsets,

@@ -530,7 +530,7 @@ pub fn refine_smooth(
     });
     if ascents.iter().any(|a| a.stop == "non-finite") {
         return Err(crate::error::Error::stage(
-            "mi",
+            crate::stage::StageName::Mi,
             "the smooth estimator's value or gradient is not finite",
         ));
     }

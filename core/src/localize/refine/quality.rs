@@ -22,7 +22,8 @@
 #![allow(clippy::needless_range_loop)]
 
 use crate::localize::mi::objective::Evaluator;
-use crate::localize::mi::space::AXES;
+use crate::localize::mi::objective::Scored;
+use crate::localize::mi::space::{Cell, AXES};
 use crate::localize::refine::search::SearchResult;
 use crate::localize::refine::uncertainty::{Uncertainty, UncertaintyConfig, REGION_Z};
 pub use crate::pose::Sigma;
@@ -395,7 +396,6 @@ fn fit_parabola(pts: &[(f64, f64)]) -> Option<(f64, f64)> {
 pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Quality {
     let g = *ev.grid();
     let best_cell = g.cell(res.best.idx);
-    let n = res.best.value.n.max(1) as f64;
     let mut poses = 0u64;
     let mut axes = Vec::new();
     let mut background = res.best.score;
@@ -405,98 +405,15 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
         if g.m[i] == 0 {
             continue;
         }
-        // The profile's cells (k ≠ 0 inside the grid), scored in parallel.
-        let ks: Vec<i64> = (-cfg.profile_half_steps..=cfg.profile_half_steps)
-            .filter(|&k| {
-                let mut c = best_cell;
-                c[i] += k;
-                k != 0 && g.contains(&c)
-            })
-            .collect();
-        let idxs: Vec<u64> = ks
-            .iter()
-            .map(|&k| {
-                let mut c = best_cell;
-                c[i] += k;
-                g.index(&c)
-            })
-            .collect();
-        poses += idxs.len() as u64;
-        let mut prof: Vec<(i64, f64, f64)> = ks
-            .iter()
-            .zip(ev.score_cells(0, &idxs))
-            .map(|(&k, s)| (k, s.score, s.value.mi))
-            .collect(); // (k, objective, mi)
-        let at = prof.partition_point(|p| p.0 < 0);
-        prof.insert(at, (0, res.best.score, res.best.value.mi));
-        background = prof.iter().map(|p| p.1).fold(background, f64::min);
-        let step = g.step[i];
-        let fit: Vec<(f64, f64)> = prof
-            .iter()
-            .filter(|p| p.0.abs() <= cfg.fit_half_steps)
-            .map(|p| (p.0 as f64 * step, p.2))
-            .collect();
-        let (a, b) = fit_parabola(&fit).unwrap_or((0.0, 0.0));
-        let curvature = -2.0 * a;
-        let sigma = if curvature > 0.0 {
-            1.0 / (n * curvature).sqrt()
-        } else {
-            f64::INFINITY
-        };
-        let vertex_offset = if a != 0.0 { -b / (2.0 * a) } else { 0.0 };
-        let zero = prof.iter().position(|p| p.0 == 0).unwrap_or(0);
-        let mut open = false;
-        let mut walk = |dir: i64| -> i64 {
-            let mut j = zero as i64;
-            loop {
-                let nxt = j + dir;
-                if nxt < 0 || nxt >= prof.len() as i64 {
-                    open = true;
-                    break;
-                }
-                if prof[nxt as usize].1 > prof[j as usize].1 {
-                    break;
-                }
-                j = nxt;
-            }
-            (j - zero as i64).abs()
-        };
-        let (lo, hi) = (walk(-1), walk(1));
-        basin_cells[i] = [lo, hi];
-        axes.push(AxisQuality {
-            axis: AXES[i].into(),
-            unit: if i < 3 { "m" } else { "deg" }.into(),
-            curvature,
-            fisher_sigma: sigma,
-            vertex_offset,
-            basin_width: (lo + hi) as f64 * step,
-            basin_open: open,
-            on_edge: best_cell[i].abs() == g.m[i],
-        });
+        let p = profile_axis(ev, res, cfg, &best_cell, i);
+        background = p.objective.iter().copied().fold(background, f64::min);
+        poses += p.poses;
+        basin_cells[i] = p.basin;
+        axes.push(p.quality);
     }
-    // Second peak: the best other local maximum outside the basin on some axis that is a hill
-    // of its own: the objective dips between it and the optimum. One on the same valley floor
-    // (axes trading against each other) is the same answer, whose spread the σ reports.
-    let s1 = res.best.score;
-    let height = s1 - background;
-    let mut path_poses = 0u64;
-    let second = res.other_peaks.iter().find(|p| {
-        let c = g.cell(p.idx);
-        let outside = (0..6).any(|i| {
-            let d = c[i] - best_cell[i];
-            (d < 0 && -d > basin_cells[i][0].max(1)) || (d > 0 && d > basin_cells[i][1].max(1))
-        });
-        if !outside {
-            return false;
-        }
-        if cfg.max_saddle_dip <= 0.0 {
-            return true;
-        }
-        let (saddle, n) = path_minimum(ev, &g.offsets(&best_cell), &g.offsets(&c), &best_cell, &c);
-        path_poses += n;
-        height <= 0.0 || p.score.min(s1) - saddle > cfg.max_saddle_dip * height
-    });
+    let (second, path_poses) = second_peak(ev, res, cfg, &best_cell, &basin_cells, background);
     poses += path_poses;
+    let s1 = res.best.score;
     let (ratio, contrast, offset) = match second {
         Some(p) => {
             let c = g.cell(p.idx);
@@ -514,60 +431,11 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
         }
         None => (None, None, None),
     };
-
-    // The gate: first failing check wins.
-    let mut reason = None;
-    let mut refused_by = None;
-    if ev.n_points < cfg.min_points {
-        refused_by = Some(GateCheck::TooFewPoints);
-        reason = Some(format!(
-            "only {} points seen from every pose of the search box (< {})",
-            ev.n_points, cfg.min_points
-        ));
-    } else if res.stats.max_lost_fraction > cfg.max_lost_fraction {
-        refused_by = Some(GateCheck::PointsLost);
-        reason = Some(format!(
-            "{:.1}% of the fixed point set left the image at some pose (> {:.1}%)",
-            100.0 * res.stats.max_lost_fraction,
-            100.0 * cfg.max_lost_fraction
-        ));
-    } else if let Some(a) = axes.iter().find(|a| a.on_edge) {
-        refused_by = Some(GateCheck::OnEdge);
-        reason = Some(format!(
-            "optimum on the search box's {} edge: the true optimum may lie outside; widen --search",
-            a.axis
-        ));
-    } else if let Some((a, cells)) = axes
-        .iter()
-        .filter_map(|a| {
-            let i = AXES.iter().position(|n| *n == a.axis)?;
-            Some((a, basin_cells[i][0] + basin_cells[i][1]))
-        })
-        .find(|(_, cells)| *cells < cfg.min_basin_steps)
-    {
-        refused_by = Some(GateCheck::NoBasin);
-        reason = Some(format!(
-            "no basin along {}: the objective rises again {cells} step(s) from the optimum (< {}), a spike rather than an alignment peak",
-            a.axis, cfg.min_basin_steps
-        ));
-    } else if let Some(a) = axes.iter().find(|a| !(a.curvature > 0.0)) {
-        refused_by = Some(GateCheck::NoPeak);
-        reason = Some(format!(
-            "no peak along {}: MI curvature {:.3e} nats/{}² is not negative-definite",
-            a.axis, a.curvature, a.unit
-        ));
-    } else if let (Some(c), Some(o)) = (contrast, offset) {
-        if c > cfg.max_second_peak_contrast {
-            let a = res.offsets;
-            refused_by = Some(GateCheck::Ambiguous);
-            reason = Some(format!(
-                "ambiguous: two separate peaks, the optimum at ({:+.2} m, {:+.2} m, {:+.2} m, {:+.2}°) from the start and a second at ({:+.2} m, {:+.2} m, {:+.2} m, {:+.2}°), offset ({:.2} m, {:.2} m, {:.2} m, {:.2}°) from it, reaching {:.0}% of the optimum's height above background (> {:.0}%)",
-                a[0], a[1], a[2], a[3],
-                a[0] + o[0], a[1] + o[1], a[2] + o[2], a[3] + o[3],
-                o[0], o[1], o[2], o[3], 100.0 * c, 100.0 * cfg.max_second_peak_contrast
-            ));
-        }
-    }
+    let refusal = gate(ev, res, cfg, &axes, &basin_cells, contrast.zip(offset));
+    let (refused_by, reason) = match refusal {
+        Some((check, why)) => (Some(check), Some(why)),
+        None => (None, None),
+    };
     Quality {
         mi: res.best.value.mi,
         nmi: res.best.value.nmi,
@@ -584,6 +452,214 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
         reason,
         refused_by,
     }
+}
+
+/// One axis's profile through the optimum.
+struct AxisProfile {
+    /// The axis's statistics.
+    quality: AxisQuality,
+    /// The basin's half widths in cells below and above the optimum.
+    basin: [i64; 2],
+    /// The objective along the profile, the optimum included, in cell order.
+    objective: Vec<f64>,
+    /// Poses scored for it.
+    poses: u64,
+}
+
+/// Score the profile of axis `i` through the optimum (cells within `profile_half_steps`, in
+/// parallel), fit its MI parabola and walk its basin.
+fn profile_axis(
+    ev: &Evaluator,
+    res: &SearchResult,
+    cfg: &QualityConfig,
+    best_cell: &Cell,
+    i: usize,
+) -> AxisProfile {
+    let g = *ev.grid();
+    let n = res.best.value.n.max(1) as f64;
+    // The profile's cells (k ≠ 0 inside the grid), scored in parallel.
+    let ks: Vec<i64> = (-cfg.profile_half_steps..=cfg.profile_half_steps)
+        .filter(|&k| {
+            let mut c = *best_cell;
+            c[i] += k;
+            k != 0 && g.contains(&c)
+        })
+        .collect();
+    let idxs: Vec<u64> = ks
+        .iter()
+        .map(|&k| {
+            let mut c = *best_cell;
+            c[i] += k;
+            g.index(&c)
+        })
+        .collect();
+    let mut prof: Vec<(i64, f64, f64)> = ks
+        .iter()
+        .zip(ev.score_cells(0, &idxs))
+        .map(|(&k, s)| (k, s.score, s.value.mi))
+        .collect(); // (k, objective, mi)
+    let at = prof.partition_point(|p| p.0 < 0);
+    prof.insert(at, (0, res.best.score, res.best.value.mi));
+    let step = g.step[i];
+    let fit: Vec<(f64, f64)> = prof
+        .iter()
+        .filter(|p| p.0.abs() <= cfg.fit_half_steps)
+        .map(|p| (p.0 as f64 * step, p.2))
+        .collect();
+    let (a, b) = fit_parabola(&fit).unwrap_or((0.0, 0.0));
+    let curvature = -2.0 * a;
+    let sigma = if curvature > 0.0 {
+        1.0 / (n * curvature).sqrt()
+    } else {
+        f64::INFINITY
+    };
+    let vertex_offset = if a != 0.0 { -b / (2.0 * a) } else { 0.0 };
+    let zero = prof.iter().position(|p| p.0 == 0).unwrap_or(0);
+    let mut open = false;
+    let mut walk = |dir: i64| -> i64 {
+        let mut j = zero as i64;
+        loop {
+            let nxt = j + dir;
+            if nxt < 0 || nxt >= prof.len() as i64 {
+                open = true;
+                break;
+            }
+            if prof[nxt as usize].1 > prof[j as usize].1 {
+                break;
+            }
+            j = nxt;
+        }
+        (j - zero as i64).abs()
+    };
+    let (lo, hi) = (walk(-1), walk(1));
+    AxisProfile {
+        quality: AxisQuality {
+            axis: AXES[i].into(),
+            unit: if i < 3 { "m" } else { "deg" }.into(),
+            curvature,
+            fisher_sigma: sigma,
+            vertex_offset,
+            basin_width: (lo + hi) as f64 * step,
+            basin_open: open,
+            on_edge: best_cell[i].abs() == g.m[i],
+        },
+        basin: [lo, hi],
+        objective: prof.iter().map(|p| p.1).collect(),
+        poses: idxs.len() as u64,
+    }
+}
+
+/// The second peak and the poses its saddle search scored: the best other local maximum outside
+/// the basin on some axis that is a hill of its own, the objective dipping between it and the
+/// optimum. One on the same valley floor (axes trading against each other) is the same answer,
+/// whose spread the σ reports.
+fn second_peak<'a>(
+    ev: &Evaluator,
+    res: &'a SearchResult,
+    cfg: &QualityConfig,
+    best_cell: &Cell,
+    basin_cells: &[[i64; 2]; 6],
+    background: f64,
+) -> (Option<&'a Scored>, u64) {
+    let g = *ev.grid();
+    let s1 = res.best.score;
+    let height = s1 - background;
+    let mut path_poses = 0u64;
+    let second = res.other_peaks.iter().find(|p| {
+        let c = g.cell(p.idx);
+        let outside = (0..6).any(|i| {
+            let d = c[i] - best_cell[i];
+            (d < 0 && -d > basin_cells[i][0].max(1)) || (d > 0 && d > basin_cells[i][1].max(1))
+        });
+        if !outside {
+            return false;
+        }
+        if cfg.max_saddle_dip <= 0.0 {
+            return true;
+        }
+        let (saddle, n) = path_minimum(ev, &g.offsets(best_cell), &g.offsets(&c), best_cell, &c);
+        path_poses += n;
+        height <= 0.0 || p.score.min(s1) - saddle > cfg.max_saddle_dip * height
+    });
+    (second, path_poses)
+}
+
+/// The gate: the first failing check and its one-line reason, or `None` when the optimum passes.
+/// `second` is the second peak's contrast and offset from the optimum.
+fn gate(
+    ev: &Evaluator,
+    res: &SearchResult,
+    cfg: &QualityConfig,
+    axes: &[AxisQuality],
+    basin_cells: &[[i64; 2]; 6],
+    second: Option<(f64, [f64; 6])>,
+) -> Option<(GateCheck, String)> {
+    if ev.n_points < cfg.min_points {
+        return Some((
+            GateCheck::TooFewPoints,
+            format!(
+                "only {} points seen from every pose of the search box (< {})",
+                ev.n_points, cfg.min_points
+            ),
+        ));
+    }
+    if res.stats.max_lost_fraction > cfg.max_lost_fraction {
+        return Some((
+            GateCheck::PointsLost,
+            format!(
+                "{:.1}% of the fixed point set left the image at some pose (> {:.1}%)",
+                100.0 * res.stats.max_lost_fraction,
+                100.0 * cfg.max_lost_fraction
+            ),
+        ));
+    }
+    if let Some(a) = axes.iter().find(|a| a.on_edge) {
+        return Some((
+            GateCheck::OnEdge,
+            format!(
+                "optimum on the search box's {} edge: the true optimum may lie outside; widen --search",
+                a.axis
+            ),
+        ));
+    }
+    if let Some((a, cells)) = axes
+        .iter()
+        .filter_map(|a| {
+            let i = AXES.iter().position(|n| *n == a.axis)?;
+            Some((a, basin_cells[i][0] + basin_cells[i][1]))
+        })
+        .find(|(_, cells)| *cells < cfg.min_basin_steps)
+    {
+        return Some((
+            GateCheck::NoBasin,
+            format!(
+                "no basin along {}: the objective rises again {cells} step(s) from the optimum (< {}), a spike rather than an alignment peak",
+                a.axis, cfg.min_basin_steps
+            ),
+        ));
+    }
+    if let Some(a) = axes.iter().find(|a| !(a.curvature > 0.0)) {
+        return Some((
+            GateCheck::NoPeak,
+            format!(
+                "no peak along {}: MI curvature {:.3e} nats/{}² is not negative-definite",
+                a.axis, a.curvature, a.unit
+            ),
+        ));
+    }
+    let (c, o) = second?;
+    let a = res.offsets;
+    (c > cfg.max_second_peak_contrast).then(|| {
+        (
+            GateCheck::Ambiguous,
+            format!(
+                "ambiguous: two separate peaks, the optimum at ({:+.2} m, {:+.2} m, {:+.2} m, {:+.2}°) from the start and a second at ({:+.2} m, {:+.2} m, {:+.2} m, {:+.2}°), offset ({:.2} m, {:.2} m, {:.2} m, {:.2}°) from it, reaching {:.0}% of the optimum's height above background (> {:.0}%)",
+                a[0], a[1], a[2], a[3],
+                a[0] + o[0], a[1] + o[1], a[2] + o[2], a[3] + o[3],
+                o[0], o[1], o[2], o[3], 100.0 * c, 100.0 * cfg.max_second_peak_contrast
+            ),
+        )
+    })
 }
 
 impl QualityConfig {

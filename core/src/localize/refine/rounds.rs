@@ -126,7 +126,10 @@ fn search_views<'a>(
     let res = search_thinned(&ev, cfg, thinning);
     let quality = assess(&ev, &res, qcfg);
     if !res.pose.translation.iter().all(|v| v.is_finite()) {
-        return Err(Error::stage("mi", "refined pose is not finite"));
+        return Err(Error::stage(
+            crate::stage::StageName::Mi,
+            "refined pose is not finite",
+        ));
     }
     Ok(Refinement {
         pose: res.pose,

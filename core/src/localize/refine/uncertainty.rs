@@ -231,45 +231,8 @@ pub(crate) fn estimate_cached<'a>(
         Ok(region(&rev, &rfolds, objective, parzen, &rp, &unit, d))
     });
     let reg = reg?;
-    // Each group's optimum as the change of the camera centre and of the angles it makes (a tilt
-    // about a ground pivot also moves the centre).
-    let (c0, a0) = (pose.center(), pose.yaw_pitch_roll());
-    let deltas: Vec<[f64; 6]> = ends
-        .iter()
-        .map(|e| {
-            let q = pose_at_pivot(pose, &e.0, applied_pivot);
-            let (c, a) = (q.center(), q.yaw_pitch_roll());
-            let da = |x: f64, y: f64| angle_difference(x, y).to_degrees();
-            [
-                c.x - c0.x,
-                c.y - c0.y,
-                c.z - c0.z,
-                da(a.0, a0.0),
-                da(a.1, a0.1),
-                da(a.2, a0.2),
-            ]
-        })
-        .collect();
-    let mean: Vec<f64> = (0..d)
-        .map(|i| deltas.iter().map(|e| e[i]).sum::<f64>() / k as f64)
-        .collect();
-    let scale = (k as f64 - 1.0) / k as f64;
-    let mut matrix = vec![vec![0.0; d]; d];
-    for (a, row) in matrix.iter_mut().enumerate() {
-        for (b, v) in row.iter_mut().enumerate() {
-            *v = scale
-                * deltas
-                    .iter()
-                    .map(|e| (e[a] - mean[a]) * (e[b] - mean[b]))
-                    .sum::<f64>();
-        }
-    }
-    // The objective is rugged at the pixel scale (nearest-pixel sampling), and every group's
-    // re-optimisation starts at the answer, so they can share one local bump and spread less than
-    // the search resolves: the variance is floored at (half the finest step)² per axis.
-    for (a, row) in matrix.iter_mut().enumerate() {
-        row[a] = row[a].max((0.5 * unit[a]).powi(2));
-    }
+    let deltas = group_deltas(pose, &ends, applied_pivot);
+    let matrix = jackknife_covariance(&deltas, k, &unit);
     let jackknife = matrix.clone();
     // The jackknife's variance has K − 1 degrees of freedom: a 3σ bound from it covers what 3
     // true σ do only when widened to the Student-t quantile (×1.51 for 8 groups). The reported
@@ -316,6 +279,62 @@ pub(crate) fn estimate_cached<'a>(
         region: Some(reg),
         gate_sigma,
     })
+}
+
+/// Each group's optimum (`ends`: offsets, evaluations, on the box's edge) as the change of the
+/// camera centre and of the angles (degrees) it makes; a tilt about a ground pivot also moves
+/// the centre.
+fn group_deltas(
+    pose: &CamFromMap,
+    ends: &[([f64; 6], usize, bool)],
+    applied_pivot: Option<f64>,
+) -> Vec<[f64; 6]> {
+    ends.iter()
+        .map(|e| pose_delta(pose, &pose_at_pivot(pose, &e.0, applied_pivot)))
+        .collect()
+}
+
+/// The change of the camera centre (map metres) and of the yaw, pitch and roll (degrees) from
+/// `pose` to `q`.
+fn pose_delta(pose: &CamFromMap, q: &CamFromMap) -> [f64; 6] {
+    let (c0, a0) = (pose.center(), pose.yaw_pitch_roll());
+    let (c, a) = (q.center(), q.yaw_pitch_roll());
+    let da = |x: f64, y: f64| angle_difference(x, y).to_degrees();
+    [
+        c.x - c0.x,
+        c.y - c0.y,
+        c.z - c0.z,
+        da(a.0, a0.0),
+        da(a.1, a0.1),
+        da(a.2, a0.2),
+    ]
+}
+
+/// The jackknife covariance of the `k` groups' optima over the first `unit.len()` axes, each
+/// variance floored at (half the finest step `unit`)².
+fn jackknife_covariance(deltas: &[[f64; 6]], k: usize, unit: &[f64]) -> Vec<Vec<f64>> {
+    let d = unit.len();
+    let mean: Vec<f64> = (0..d)
+        .map(|i| deltas.iter().map(|e| e[i]).sum::<f64>() / k as f64)
+        .collect();
+    let scale = (k as f64 - 1.0) / k as f64;
+    let mut matrix = vec![vec![0.0; d]; d];
+    for (a, row) in matrix.iter_mut().enumerate() {
+        for (b, v) in row.iter_mut().enumerate() {
+            *v = scale
+                * deltas
+                    .iter()
+                    .map(|e| (e[a] - mean[a]) * (e[b] - mean[b]))
+                    .sum::<f64>();
+        }
+    }
+    // The objective is rugged at the pixel scale (nearest-pixel sampling), and every group's
+    // re-optimisation starts at the answer, so they can share one local bump and spread less than
+    // the search resolves: the variance is floored at (half the finest step)² per axis.
+    for (a, row) in matrix.iter_mut().enumerate() {
+        row[a] = row[a].max((0.5 * unit[a]).powi(2));
+    }
+    matrix
 }
 
 /// The jackknife groups' re-optimisations stop when every vertex is within this many finest
@@ -628,25 +647,12 @@ pub(crate) fn intrinsics_deltas(
     if corr.len() < 6 {
         return Vec::new();
     }
-    let (c0, a0) = (pose.center(), pose.yaw_pitch_roll());
     // Each perturbed camera's refit on its own (results collected in order): a serial stretch
     // at the end of every localization otherwise.
     sigma
         .perturbed(cam)
         .par_iter()
-        .map(|pc| {
-            let q = refine_lm(pc, pose, &corr, 30);
-            let (c, a) = (q.center(), q.yaw_pitch_roll());
-            let da = |x: f64, y: f64| angle_difference(x, y).to_degrees();
-            [
-                c.x - c0.x,
-                c.y - c0.y,
-                c.z - c0.z,
-                da(a.0, a0.0),
-                da(a.1, a0.1),
-                da(a.2, a0.2),
-            ]
-        })
+        .map(|pc| pose_delta(pose, &refine_lm(pc, pose, &corr, 30)))
         .collect()
 }
 
