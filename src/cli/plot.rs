@@ -11,6 +11,7 @@ use crate::eval::study::{
     mi_surface, mi_surface_pooled, offsets_from, Perturbation, PointSelection, Summary, Surface,
     Trial, SUCCESS_HEIGHT_M, SUCCESS_HORIZONTAL_M, SUCCESS_YAW_DEG,
 };
+use crate::localize::mi::smooth::{Pooling, Sampling};
 use crate::localize::mi::space::{SearchConfig, SearchSpec};
 use crate::points_io::read_points;
 use crate::posefile::read_pose;
@@ -219,18 +220,21 @@ struct Marks {
     cov: Option<[[f64; 3]; 3]>,
 }
 
+/// `--sampling` and `--pooling` as [`mi_surface`] takes them: the pooling of the partial-volume
+/// estimator, or `None` for the nearest pixel.
+fn pv_pooling(sampling: &str, pooling: &str) -> Result<Option<Pooling>> {
+    let pooling: Pooling = pooling.parse()?;
+    Ok(match sampling.parse::<Sampling>()? {
+        Sampling::Nearest => None,
+        Sampling::Pv => Some(pooling),
+    })
+}
+
 fn mi_surface_cmd(a: MiSurfaceArgs) -> Result<()> {
     let spec: SearchSpec = a.search.parse()?;
     let size = parse_size(&a.size)?;
     let mi = a.estimator.config()?;
-    let pooling: crate::localize::mi::smooth::Pooling = a.pooling.parse()?;
-    let pv = match a
-        .sampling
-        .parse::<crate::localize::mi::smooth::Sampling>()?
-    {
-        crate::localize::mi::smooth::Sampling::Nearest => None,
-        crate::localize::mi::smooth::Sampling::Pv => Some(pooling),
-    };
+    let pv = pv_pooling(&a.sampling, &a.pooling)?;
     let cfg = SearchConfig {
         spec,
         mi,

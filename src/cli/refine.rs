@@ -346,38 +346,20 @@ pub(super) fn run(mut a: Args) -> Result<()> {
             (r, Vec::new(), Some(s))
         }
     };
-    let finish_label = if smooth.is_some() {
-        if a.polish {
-            "6-dof-gradient"
-        } else {
-            "4-dof-gradient"
-        }
-    } else {
-        finish_name(finish.as_ref())
+    let finish_label = match (&smooth, a.polish) {
+        (Some(_), true) => "6-dof-gradient",
+        (Some(_), false) => "4-dof-gradient",
+        (None, _) => finish_name(finish.as_ref()),
     };
     if let Some(path) = &a.report {
-        let mut report = serde_json::to_value(r.report(mode))
-            .map_err(|e| Error::Invalid(format!("report: {e}")))?;
-        report["finish"] = finish_label.into();
-        if let Some(sm) = &smooth {
-            report["smooth"] = serde_json::to_value(sm).unwrap_or_default();
-        }
-        report["estimator"] = serde_json::to_value(mi).unwrap_or_default();
-        // The value the search maximised, named: quality.mi and quality.nmi are both reported
-        // whatever the objective, so a reader cannot tell from them which one was optimised.
-        report["score"] = serde_json::json!({
-            "objective": mi.objective,
-            "value": MiValue { mi: r.quality.mi, nmi: r.quality.nmi, n: r.quality.points }.get(mi.objective),
-        });
-        if let Some(n) = &init.note {
-            report["notes"] = serde_json::json!([n]);
-        }
-        if finish.is_some() {
-            report["rounds"] = serde_json::to_value(&rounds).unwrap_or_default();
-        }
-        let text = serde_json::to_string_pretty(&report)
-            .map_err(|e| Error::Invalid(format!("report: {e}")))?;
-        crate::persist::write_atomic(path, (text + "\n").as_bytes())?;
+        let head = ReportHead {
+            mode,
+            mi,
+            finish_label,
+            note: init.note.as_deref(),
+            polished: finish.is_some(),
+        };
+        write_report(path, &r, &rounds, smooth.as_ref(), &head)?;
     }
     if let Some(path) = &a.overlay {
         // `gray` is the camera's size (checked above), so this cannot fail; the error is kept
@@ -411,6 +393,48 @@ pub(super) fn run(mut a: Args) -> Result<()> {
         )?;
     }
     Ok(())
+}
+
+/// What the report names beside the refinement: the settings and the start's note.
+struct ReportHead<'a> {
+    mode: Mode,
+    mi: crate::localize::mi::MiConfig,
+    finish_label: &'a str,
+    note: Option<&'a str>,
+    polished: bool,
+}
+
+/// The refinement's JSON report at `path`.
+fn write_report(
+    path: &Path,
+    r: &Refinement,
+    rounds: &[Round],
+    smooth: Option<&SmoothRefinement>,
+    head: &ReportHead<'_>,
+) -> Result<()> {
+    let (mode, mi, finish_label) = (head.mode, head.mi, head.finish_label);
+    let mut report =
+        serde_json::to_value(r.report(mode)).map_err(|e| Error::Invalid(format!("report: {e}")))?;
+    report["finish"] = finish_label.into();
+    if let Some(sm) = smooth {
+        report["smooth"] = serde_json::to_value(sm).unwrap_or_default();
+    }
+    report["estimator"] = serde_json::to_value(mi).unwrap_or_default();
+    // The value the search maximised, named: quality.mi and quality.nmi are both reported
+    // whatever the objective, so a reader cannot tell from them which one was optimised.
+    report["score"] = serde_json::json!({
+        "objective": mi.objective,
+        "value": MiValue { mi: r.quality.mi, nmi: r.quality.nmi, n: r.quality.points }.get(mi.objective),
+    });
+    if let Some(n) = head.note {
+        report["notes"] = serde_json::json!([n]);
+    }
+    if head.polished {
+        report["rounds"] = serde_json::to_value(rounds).unwrap_or_default();
+    }
+    let text = serde_json::to_string_pretty(&report)
+        .map_err(|e| Error::Invalid(format!("report: {e}")))?;
+    crate::persist::write_atomic(path, (text + "\n").as_bytes())
 }
 
 /// The refined pose as a pose file at `path`, with the smooth stage's information and settings

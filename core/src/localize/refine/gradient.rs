@@ -489,7 +489,6 @@ pub fn refine_smooth(
     six_dof: bool,
     pooling: crate::localize::mi::smooth::Pooling,
 ) -> crate::error::Result<(super::rounds::Refinement, SmoothRefinement)> {
-    use super::quality::GateCheck;
     let (mut r, _) = super::rounds::refine_polished(cam, views, init, cfg, qcfg, None, &|_| None)?;
     let grid_reason = r.quality.reason.clone();
     let acfg = if six_dof {
@@ -536,11 +535,39 @@ pub fn refine_smooth(
     }
     r.pose = pose;
     r.offsets = crate::pose::offsets_between(init, &pose);
+    smooth_gate(&mut r, &information, qcfg);
+    if let Some(v) = mi.first() {
+        if pooling == crate::localize::mi::smooth::Pooling::Joint {
+            r.quality.mi = *v;
+        }
+    }
+    Ok((
+        r,
+        SmoothRefinement {
+            sampling: crate::localize::mi::smooth::Sampling::Pv,
+            pooling,
+            ascents,
+            mi,
+            information,
+            grid_reason,
+        },
+    ))
+}
+
+/// [`refine_smooth`]'s gate on `r`: the grid's global checks stand, its local ones are replaced
+/// by `information`'s (a finite, negative-definite Hessian; the largest of the bound's, the
+/// sandwich's and the jackknife's σ within the limits).
+fn smooth_gate(
+    r: &mut super::rounds::Refinement,
+    information: &std::result::Result<Information, String>,
+    qcfg: &super::quality::QualityConfig,
+) {
+    use super::quality::GateCheck;
     // The gate: the grid's global checks stand, the local ones are the information's. A second
     // peak inside the sandwich's 3σ ellipsoid is the same answer's long axis (a lateral–yaw
     // valley), not a second answer.
     let covered = |o: &[f64; 6]| -> bool {
-        let Ok(info) = &information else {
+        let Ok(info) = information else {
             return false;
         };
         let d = info.axes.len();
@@ -559,7 +586,7 @@ pub fn refine_smooth(
         r.quality.accepted = true;
         r.quality.reason = None;
         r.quality.refused_by = None;
-        match &information {
+        match information {
             Err(m) => {
                 r.quality.accepted = false;
                 r.quality.reason = Some(m.clone());
@@ -621,22 +648,6 @@ pub fn refine_smooth(
             }
         }
     }
-    if let Some(v) = mi.first() {
-        if pooling == crate::localize::mi::smooth::Pooling::Joint {
-            r.quality.mi = *v;
-        }
-    }
-    Ok((
-        r,
-        SmoothRefinement {
-            sampling: crate::localize::mi::smooth::Sampling::Pv,
-            pooling,
-            ascents,
-            mi,
-            information,
-            grid_reason,
-        },
-    ))
 }
 
 #[cfg(test)]
