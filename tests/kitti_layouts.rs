@@ -27,13 +27,7 @@ use std::process::{Command, Output};
 
 /// The KITTI-360 sample, or `None` (after a visible skip line) when it is missing outside CI.
 fn kitti360_dir(test: &str) -> Option<PathBuf> {
-    let dir = match std::env::var_os("INFRALOC_SHARED_DATA") {
-        Some(d) => PathBuf::from(d).join("real/kitti360_0000"),
-        None => PathBuf::from(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../shared/data/real/kitti360_0000"
-        )),
-    };
+    let dir = common::shared_data("real/kitti360_0000");
     let need = [
         "calibration/perspective.txt",
         "calibration/calib_cam_to_velo.txt",

@@ -30,13 +30,7 @@ const FRAMES: [&str; 3] = ["000000", "000001", "000002"];
 
 /// The KITTI directory, or `None` (after a visible skip line) when it is missing outside CI.
 fn kitti_dir(test: &str) -> Option<PathBuf> {
-    let dir = match std::env::var_os("INFRALOC_SHARED_DATA") {
-        Some(d) => PathBuf::from(d).join("real/kitti_object"),
-        None => PathBuf::from(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../shared/data/real/kitti_object"
-        )),
-    };
+    let dir = common::shared_data("real/kitti_object");
     if FRAMES.iter().all(|f| {
         dir.join(format!("calib/{f}.txt")).is_file()
             && dir.join(format!("image_2/{f}.png")).is_file()

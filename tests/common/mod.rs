@@ -4,13 +4,19 @@
 
 use std::path::{Path, PathBuf};
 
-/// `shared/data/nmea` beside the clone (as CI lays it out); `INFRALOC_SHARED_DATA` overrides the
-/// `shared/data` directory for other layouts. A missing directory fails the test loudly.
+/// `rel` under `shared/data` beside the clone (as CI lays it out); `INFRALOC_SHARED_DATA`
+/// overrides the `shared/data` directory for other layouts. Not checked for existence.
+pub fn shared_data(rel: &str) -> PathBuf {
+    match std::env::var_os("INFRALOC_SHARED_DATA") {
+        Some(d) => PathBuf::from(d),
+        None => PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data")),
+    }
+    .join(rel)
+}
+
+/// [`shared_data`]`("nmea")`; a missing directory fails the test loudly.
 pub fn nmea_dir() -> PathBuf {
-    let dir = match std::env::var_os("INFRALOC_SHARED_DATA") {
-        Some(d) => PathBuf::from(d).join("nmea"),
-        None => PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/nmea")),
-    };
+    let dir = shared_data("nmea");
     assert!(
         dir.is_dir(),
         "{} missing: set INFRALOC_SHARED_DATA to the shared/data directory",

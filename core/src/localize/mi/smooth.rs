@@ -341,6 +341,13 @@ pub struct SmoothValue {
     pub grad: Option<[f64; 6]>,
 }
 
+/// [`Smooth::pool`]'s answer.
+struct Pooled {
+    value: f64,
+    mi: Vec<f64>,
+    cells: Vec<(Vec<f64>, f64)>,
+}
+
 /// A joint histogram of f64 masses, `rows × cols` (invalid mass is counted apart).
 #[derive(Debug, Clone)]
 struct Hist {
@@ -561,15 +568,52 @@ impl<'a> Smooth<'a> {
         [gd.x, gd.y, gd.z, gr.x, gr.y, gr.z]
     }
 
+    /// Every view's PV histogram at the pose (R, t).
+    fn histograms(&self, r: &Matrix3<f64>, t: &Vector3<f64>) -> Vec<Hist> {
+        self.views.iter().map(|v| self.histogram(v, r, t)).collect()
+    }
+
+    /// The objective of the views' histograms under the pooling rule: its value, MI per
+    /// histogram, and per view the cell weights ∂objective/∂h with the view's weight in the
+    /// objective (1 for the joint histogram, n_v/n per pair), which pull the gradient back.
+    fn pool(&self, hists: &[Hist]) -> Pooled {
+        let n = self.n();
+        match self.pooling {
+            Pooling::Joint => {
+                let mut h = vec![0.0; self.rows * self.cols];
+                for x in hists {
+                    h.iter_mut().zip(&x.h).for_each(|(a, b)| *a += b);
+                }
+                let (mi, g) = mi_gradient(&h, self.rows, self.cols, self.parzen);
+                Pooled {
+                    value: mi,
+                    mi: vec![mi],
+                    cells: self.views.iter().map(|_| (g.clone(), 1.0)).collect(),
+                }
+            }
+            Pooling::PerPair => {
+                let mut out = Pooled {
+                    value: 0.0,
+                    mi: Vec::new(),
+                    cells: Vec::new(),
+                };
+                for (v, h) in self.views.iter().zip(hists) {
+                    let wv = v.pts.len() as f64 / n.max(1) as f64;
+                    let (mi, g) = mi_gradient(&h.h, self.rows, self.cols, self.parzen);
+                    out.value += wv * mi;
+                    out.mi.push(mi);
+                    out.cells.push((g, wv));
+                }
+                out
+            }
+        }
+    }
+
     /// The objective at `pose`, with its gradient when `grad`.
     pub fn evaluate(&self, pose: &CamFromMap, grad: bool) -> SmoothValue {
         let (r, t) = self.rt(pose);
         let n = self.n();
-        let hists: Vec<Hist> = self
-            .views
-            .iter()
-            .map(|v| self.histogram(v, &r, &t))
-            .collect();
+        let hists = self.histograms(&r, &t);
         let valid = hists.iter().map(|h| h.h.iter().sum::<f64>()).sum::<f64>();
         let mut out = SmoothValue {
             value: 0.0,
@@ -578,37 +622,15 @@ impl<'a> Smooth<'a> {
             valid,
             grad: None,
         };
-        let mut gsum = [0.0; 6];
-        match self.pooling {
-            Pooling::Joint => {
-                let mut h = vec![0.0; self.rows * self.cols];
-                for x in &hists {
-                    h.iter_mut().zip(&x.h).for_each(|(a, b)| *a += b);
-                }
-                let (mi, g) = mi_gradient(&h, self.rows, self.cols, self.parzen);
-                out.value = mi;
-                out.mi.push(mi);
-                if grad {
-                    for v in &self.views {
-                        let d = self.pull_back(v, &r, &t, &g);
-                        gsum.iter_mut().zip(d).for_each(|(a, b)| *a += b);
-                    }
-                }
-            }
-            Pooling::PerPair => {
-                for (v, h) in self.views.iter().zip(&hists) {
-                    let wv = v.pts.len() as f64 / n.max(1) as f64;
-                    let (mi, g) = mi_gradient(&h.h, self.rows, self.cols, self.parzen);
-                    out.value += wv * mi;
-                    out.mi.push(mi);
-                    if grad {
-                        let d = self.pull_back(v, &r, &t, &g);
-                        gsum.iter_mut().zip(d).for_each(|(a, b)| *a += wv * b);
-                    }
-                }
-            }
-        }
+        let pooled = self.pool(&hists);
+        out.value = pooled.value;
+        out.mi = pooled.mi;
         if grad {
+            let mut gsum = [0.0; 6];
+            for (v, (g, w)) in self.views.iter().zip(&pooled.cells) {
+                let d = self.pull_back(v, &r, &t, g);
+                gsum.iter_mut().zip(d).for_each(|(a, b)| *a += w * b);
+            }
             out.grad = Some(gsum);
         }
         out
@@ -623,32 +645,7 @@ impl<'a> Smooth<'a> {
     pub fn cluster_gradients(&self, pose: &CamFromMap, k: usize) -> Vec<[f64; 6]> {
         let k = k.max(1);
         let (r, t) = self.rt(pose);
-        let n = self.n();
-        let hists: Vec<Hist> = self
-            .views
-            .iter()
-            .map(|v| self.histogram(v, &r, &t))
-            .collect();
-        // Per view: the cell weights g (∂objective/∂h) and the view's weight in the objective.
-        let weights: Vec<(Vec<f64>, f64)> = match self.pooling {
-            Pooling::Joint => {
-                let mut h = vec![0.0; self.rows * self.cols];
-                for x in &hists {
-                    h.iter_mut().zip(&x.h).for_each(|(a, b)| *a += b);
-                }
-                let (_, g) = mi_gradient(&h, self.rows, self.cols, self.parzen);
-                self.views.iter().map(|_| (g.clone(), 1.0)).collect()
-            }
-            Pooling::PerPair => self
-                .views
-                .iter()
-                .zip(&hists)
-                .map(|(v, h)| {
-                    let (_, g) = mi_gradient(&h.h, self.rows, self.cols, self.parzen);
-                    (g, v.pts.len() as f64 / n.max(1) as f64)
-                })
-                .collect(),
-        };
+        let weights = self.pool(&self.histograms(&r, &t)).cells;
         (0..k)
             .into_par_iter()
             .map(|j| {
