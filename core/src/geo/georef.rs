@@ -20,7 +20,7 @@
 //! unprojection).
 
 use crate::camera::CameraModel;
-use crate::map::{Crs, Raster};
+use crate::map::{Crs, GeoGrid, Raster};
 use crate::pose::CamFromMap;
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
 use rayon::prelude::*;
@@ -166,6 +166,9 @@ pub struct Params {
     pub sigma_px: f64,
     /// Also compute WGS84 latitude and longitude (EPSG tiles only).
     pub wgs84: bool,
+    /// σ of the surface's height (m), propagated along the ray into the covariance. `None`: the
+    /// height layer's own noise ([`HeightSurface::noise_sigma_m`]); 0 for [`Surface::Plane`].
+    pub height_sigma_m: Option<f64>,
 }
 
 impl Default for Params {
@@ -174,16 +177,33 @@ impl Default for Params {
             max_off_nadir_deg: DEFAULT_MAX_OFF_NADIR_DEG,
             sigma_px: 0.0,
             wgs84: true,
+            height_sigma_m: None,
         }
     }
 }
 
-/// The height layer prepared for ray walking: the highest and lowest height of the layer and of
-/// each block of [`BLOCK`] × [`BLOCK`] bilinear patches. Built once per tile (one pass over the
-/// layer); read-only afterwards, so threads share it.
-#[derive(Debug, Clone)]
-pub struct HeightSurface<'a> {
-    raster: &'a Raster<f32>,
+/// σ (m) of the Gaussian a height layer is smoothed with before rays meet it (see
+/// [`HeightIndex::with_smoothing`]).
+pub const DEFAULT_SMOOTHING_M: f64 = 0.15;
+
+/// Largest smoothing σ accepted (m): beyond it a kerb or a ramp's start is no longer where the
+/// layer puts it.
+pub const MAX_SMOOTHING_M: f64 = 1.0;
+
+/// What ray walking needs: the surface's samples (the layer smoothed, see
+/// [`HeightIndex::with_smoothing`]), the highest and lowest height of the surface and of each
+/// block of [`BLOCK`] × [`BLOCK`] bilinear patches, and the layer's noise. Built once per layer;
+/// owned, so a service keeps it beside the layer it was built from and serves every request
+/// without rebuilding it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeightIndex {
+    /// The surface's samples on the layer's grid (NaN: no height).
+    heights: Vec<f32>,
+    /// σ of the smoothing (m; 0: the layer's own samples).
+    smoothing_m: f64,
+    /// Sum of the squared weights one smoothed sample gives the layer's samples (1 unsmoothed):
+    /// the factor on the layer's noise variance.
+    smoothing_weights_sq: f64,
     /// Highest valid height of each block (row-major over blocks); a block with no valid height
     /// gets the layer's highest, so a ray never skips it.
     block_max: Vec<f32>,
@@ -191,19 +211,47 @@ pub struct HeightSurface<'a> {
     /// Lowest and highest valid height of the layer.
     h_min: f64,
     h_max: f64,
+    /// The layer's per-sample height noise σ (m), see [`HeightSurface::noise_sigma_m`].
+    noise_sigma: f64,
+    /// The grid the index was built on (a check that it is used with its own layer).
+    grid: GeoGrid,
 }
 
-impl<'a> HeightSurface<'a> {
-    /// Prepare `raster` (NaN and its no-data value are cells without height). `None` when the
-    /// layer has fewer than 2 × 2 cells or no valid height at all.
-    pub fn new(raster: &'a Raster<f32>) -> Option<Self> {
+impl HeightIndex {
+    /// σ (m) of the smoothing the surface's samples had (0: none).
+    pub fn smoothing_m(&self) -> f64 {
+        self.smoothing_m
+    }
+
+    /// Index `raster` (NaN and its no-data value are cells without height) smoothed by
+    /// [`DEFAULT_SMOOTHING_M`]. `None` when the layer has fewer than 2 × 2 cells or no valid
+    /// height at all.
+    pub fn new(raster: &Raster<f32>) -> Option<Self> {
+        Self::with_smoothing(raster, DEFAULT_SMOOTHING_M)
+    }
+
+    /// Index `raster` smoothed by a Gaussian of σ `smoothing_m` (metres; 0: the layer's own
+    /// samples, bilinear), normalised over the valid cells (a cell without height stays without).
+    ///
+    /// Why smooth: a LiDAR height layer is the road plus each cell's noise. Far from nadir a height
+    /// error δh moves the point by δh·tan θ along the ground (× 5.7 at 80°), and the first
+    /// crossing of a noisy surface leans upwards (the ray meets the first bump that reaches it).
+    /// Smoothing estimates the road instead of interpolating its noise: the default σ of 0.15 m
+    /// on a 0.1 m layer keeps about a fifth of the noise's σ; a camber or a ramp, smooth over the
+    /// kernel, is kept, and a kerb's step spreads over ±2σ of the kernel.
+    /// `None` also when `smoothing_m` is not in [0, [`MAX_SMOOTHING_M`]].
+    pub fn with_smoothing(raster: &Raster<f32>, smoothing_m: f64) -> Option<Self> {
         let g = raster.grid;
         if g.width < 2 || g.height < 2 || raster.data.len() != g.len() {
             return None;
         }
+        if !(0.0..=MAX_SMOOTHING_M).contains(&smoothing_m) {
+            return None;
+        }
         let valid = |v: f32| v.is_finite() && raster.nodata != Some(v);
+        let (heights, smoothing_weights_sq) = smoothed(raster, smoothing_m / g.res);
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        for &v in &raster.data {
+        for &v in &heights {
             if valid(v) {
                 lo = lo.min(v as f64);
                 hi = hi.max(v as f64);
@@ -223,7 +271,7 @@ impl<'a> HeightSurface<'a> {
                 let (r0, r1) = (bj * BLOCK, ((bj + 1) * BLOCK).min(ph));
                 let k = bj * bw + bi;
                 for r in r0..=r1 {
-                    for &v in &raster.data[r * g.width + c0..=r * g.width + c1] {
+                    for &v in &heights[r * g.width + c0..=r * g.width + c1] {
                         if valid(v) {
                             block_max[k] = block_max[k].max(v);
                         }
@@ -234,13 +282,72 @@ impl<'a> HeightSurface<'a> {
                 }
             }
         }
-        Some(HeightSurface {
-            raster,
+        Some(HeightIndex {
+            heights,
+            smoothing_m,
+            smoothing_weights_sq,
             block_max,
             blocks_w: bw,
             h_min: lo,
             h_max: hi,
+            noise_sigma: noise_sigma(raster),
+            grid: g,
         })
+    }
+}
+
+/// A height layer prepared for ray walking: the layer and its [`HeightIndex`] (owned, or
+/// borrowed from whoever keeps it). Read-only, so threads share it.
+#[derive(Debug, Clone)]
+pub struct HeightSurface<'a> {
+    raster: &'a Raster<f32>,
+    index: std::borrow::Cow<'a, HeightIndex>,
+}
+
+impl std::ops::Deref for HeightSurface<'_> {
+    type Target = HeightIndex;
+    fn deref(&self) -> &HeightIndex {
+        &self.index
+    }
+}
+
+impl<'a> HeightSurface<'a> {
+    /// Prepare `raster` (NaN and its no-data value are cells without height). `None` when the
+    /// layer has fewer than 2 × 2 cells or no valid height at all.
+    pub fn new(raster: &'a Raster<f32>) -> Option<Self> {
+        Some(HeightSurface {
+            raster,
+            index: std::borrow::Cow::Owned(HeightIndex::new(raster)?),
+        })
+    }
+
+    /// Prepare `raster` smoothed by σ `smoothing_m` (see [`HeightIndex::with_smoothing`]).
+    pub fn with_smoothing(raster: &'a Raster<f32>, smoothing_m: f64) -> Option<Self> {
+        Some(HeightSurface {
+            raster,
+            index: std::borrow::Cow::Owned(HeightIndex::with_smoothing(raster, smoothing_m)?),
+        })
+    }
+
+    /// `raster` with the index built from it earlier; `None` when `index` was built on another
+    /// grid.
+    pub fn with_index(raster: &'a Raster<f32>, index: &'a HeightIndex) -> Option<Self> {
+        (index.grid == raster.grid && raster.data.len() == raster.grid.len()).then_some(
+            HeightSurface {
+                raster,
+                index: std::borrow::Cow::Borrowed(index),
+            },
+        )
+    }
+
+    /// The layer's per-sample height noise σ (m), estimated from the layer itself: the robust
+    /// spread (1.4826 × the median absolute deviation) of its second differences along rows and
+    /// columns, over √6. For independent noise of σ on a surface whose curvature is small over
+    /// three samples, a second difference h₋ − 2h₀ + h₊ has the spread √6·σ; kerbs and walls are
+    /// a minority of the differences and move the median little. 0 when the layer has fewer than
+    /// 16 such triples.
+    pub fn noise_sigma_m(&self) -> f64 {
+        self.noise_sigma
     }
 
     /// The layer this surface was prepared from.
@@ -251,14 +358,14 @@ impl<'a> HeightSurface<'a> {
     /// The sample at (col, row) if it is a valid height.
     #[inline]
     fn sample(&self, col: usize, row: usize) -> Option<f64> {
-        let v = self.raster.data[row * self.raster.grid.width + col];
-        (v.is_finite() && self.raster.nodata != Some(v)).then_some(v as f64)
+        let v = self.index.heights[row * self.raster.grid.width + col];
+        v.is_finite().then_some(v as f64)
     }
 
-    /// Where the ray `c + t·d` (map frame, `d` unit and descending) first meets the surface:
-    /// `(t, ∂h/∂x, ∂h/∂y)` with the surface's slope at the hit; `None` when it leaves the layer or
-    /// crosses a cell without height first.
-    fn intersect(&self, c: &Point3<f64>, d: &Vector3<f64>) -> Option<(f64, f64, f64)> {
+    /// Where the ray `c + t·d` (map frame, `d` unit and descending) first meets the surface, with
+    /// the surface's slope there; `None` when it leaves the layer or crosses a cell without height
+    /// first.
+    fn intersect(&self, c: &Point3<f64>, d: &Vector3<f64>) -> Option<RayHit> {
         let g = self.raster.grid;
         // Continuous sample coordinates: sample centres at integers.
         let (pc, pr) = g.to_pixel(c.x, c.y);
@@ -317,7 +424,7 @@ impl<'a> HeightSurface<'a> {
         (i, j): (usize, usize),
         (t0, t1): (f64, f64),
         top: f64,
-    ) -> Walk<Option<(f64, f64, f64)>> {
+    ) -> Walk<Option<RayHit>> {
         let corners = [
             self.sample(i, j),
             self.sample(i + 1, j),
@@ -362,9 +469,155 @@ impl<'a> HeightSurface<'a> {
                 let dhdu = b + e * v;
                 let dhdv = cc + e * u;
                 let res = self.raster.grid.res;
-                Walk::Stop(Some((t0 + s, dhdu / res, -dhdv / res)))
+                Walk::Stop(Some(RayHit {
+                    t: t0 + s,
+                    slope: (dhdu / res, -dhdv / res),
+                    weights_sq: if self.smoothing_m > 0.0 {
+                        // Neighbouring smoothed samples share most of their weights: the
+                        // kernel's own sum is the (slightly high) variance factor.
+                        self.smoothing_weights_sq
+                    } else {
+                        ((1.0 - u).powi(2) + u * u) * ((1.0 - v).powi(2) + v * v)
+                    },
+                }))
             }
         }
+    }
+}
+
+/// A ray's crossing of the ground surface.
+#[derive(Debug, Clone, Copy)]
+struct RayHit {
+    /// Distance along the unit ray (m).
+    t: f64,
+    /// The surface's slope at the hit, (∂h/∂x, ∂h/∂y).
+    slope: (f64, f64),
+    /// Sum of the squared interpolation weights of the heights the hit's height is made of (1 for
+    /// a plane): the hit's height variance is σ_h² times this for independent sample noise.
+    weights_sq: f64,
+}
+
+/// `raster`'s heights smoothed by a Gaussian of σ `sigma_cells`, normalised over the valid cells
+/// (separable: rows, then columns, on the weighted heights and on the weights), NaN where the
+/// layer has no height; and the sum of the kernel's squared normalised weights. `sigma_cells` 0
+/// (or under 0.05 cells) returns the valid samples as they are.
+fn smoothed(raster: &Raster<f32>, sigma_cells: f64) -> (Vec<f32>, f64) {
+    let g = raster.grid;
+    let valid = |v: f32| v.is_finite() && raster.nodata != Some(v);
+    let raw: Vec<f32> = raster
+        .data
+        .iter()
+        .map(|&v| if valid(v) { v } else { f32::NAN })
+        .collect();
+    if sigma_cells < 0.05 {
+        return (raw, 1.0);
+    }
+    let radius = (3.0 * sigma_cells).ceil() as usize;
+    let kernel: Vec<f64> = (0..=2 * radius)
+        .map(|k| {
+            let d = k as f64 - radius as f64;
+            (-0.5 * d * d / (sigma_cells * sigma_cells)).exp()
+        })
+        .collect();
+    let total: f64 = kernel.iter().sum();
+    let sq_1d: f64 = kernel.iter().map(|w| (w / total).powi(2)).sum();
+    // Heights relative to a reference, so f64 sums of large map heights keep their millimetres.
+    let reference = raw
+        .iter()
+        .find(|v| v.is_finite())
+        .map_or(0.0, |&v| v as f64);
+    let (w, h) = (g.width, g.height);
+    let mut num = vec![0.0f64; w * h];
+    let mut den = vec![0.0f64; w * h];
+    // Rows.
+    num.par_chunks_mut(w)
+        .zip(den.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(r, (nr, dr))| {
+            let row = &raw[r * w..(r + 1) * w];
+            for c in 0..w {
+                let (lo, hi) = (c.saturating_sub(radius), (c + radius).min(w - 1));
+                let (mut n, mut d) = (0.0, 0.0);
+                for (k, &v) in row[lo..=hi].iter().enumerate() {
+                    if v.is_finite() {
+                        let wk = kernel[lo + k + radius - c];
+                        n += wk * (v as f64 - reference);
+                        d += wk;
+                    }
+                }
+                nr[c] = n;
+                dr[c] = d;
+            }
+        });
+    // Columns.
+    let out: Vec<f32> = (0..w * h)
+        .into_par_iter()
+        .with_min_len(1024)
+        .map(|k| {
+            let (c, r) = (k % w, k / w);
+            if !raw[k].is_finite() {
+                return f32::NAN;
+            }
+            let (lo, hi) = (r.saturating_sub(radius), (r + radius).min(h - 1));
+            let (mut n, mut d) = (0.0, 0.0);
+            for rr in lo..=hi {
+                let wk = kernel[rr + radius - r];
+                n += wk * num[rr * w + c];
+                d += wk * den[rr * w + c];
+            }
+            (reference + n / d) as f32
+        })
+        .collect();
+    (out, sq_1d * sq_1d)
+}
+
+/// The robust noise σ of a height layer (see [`HeightSurface::noise_sigma_m`]). At most about
+/// 2¹⁶ triples are used, taken on a regular stride, so the cost does not grow with the tile.
+fn noise_sigma(raster: &Raster<f32>) -> f64 {
+    let g = raster.grid;
+    let valid = |v: f32| v.is_finite() && raster.nodata != Some(v);
+    let at = |c: usize, r: usize| {
+        let v = raster.data[r * g.width + c];
+        valid(v).then_some(v as f64)
+    };
+    // A stride prime to the width, so the samples do not fall on the same few columns.
+    let mut stride = (g.len() / 32_768).max(1);
+    while stride > 1 && gcd(stride, g.width) != 1 {
+        stride += 1;
+    }
+    let mut second = Vec::with_capacity(2 * (g.len() / stride + 1));
+    let mut k = 0;
+    while k < g.len() {
+        let (c, r) = (k % g.width, k / g.width);
+        if c >= 1 && c + 1 < g.width {
+            if let (Some(a), Some(b), Some(e)) = (at(c - 1, r), at(c, r), at(c + 1, r)) {
+                second.push(a - 2.0 * b + e);
+            }
+        }
+        if r >= 1 && r + 1 < g.height {
+            if let (Some(a), Some(b), Some(e)) = (at(c, r - 1), at(c, r), at(c, r + 1)) {
+                second.push(a - 2.0 * b + e);
+            }
+        }
+        k += stride;
+    }
+    if second.len() < 16 {
+        return 0.0;
+    }
+    let median = |xs: &mut Vec<f64>| {
+        let m = xs.len() / 2;
+        *xs.select_nth_unstable_by(m, f64::total_cmp).1
+    };
+    let mid = median(&mut second);
+    let mut dev: Vec<f64> = second.iter().map(|x| (x - mid).abs()).collect();
+    1.4826 * median(&mut dev) / 6f64.sqrt()
+}
+
+fn gcd(a: usize, b: usize) -> usize {
+    if b == 0 {
+        a
+    } else {
+        gcd(b, a % b)
     }
 }
 
@@ -483,14 +736,28 @@ pub enum Surface<'a> {
 }
 
 impl Surface<'_> {
-    /// `(t, ∂h/∂x, ∂h/∂y)` of the ray's first crossing (see [`HeightSurface::intersect`]).
-    fn intersect(&self, c: &Point3<f64>, d: &Vector3<f64>) -> Option<(f64, f64, f64)> {
+    /// The ray's first crossing (see [`HeightSurface::intersect`]).
+    fn intersect(&self, c: &Point3<f64>, d: &Vector3<f64>) -> Option<RayHit> {
         match self {
             Surface::Heights(s) => s.intersect(c, d),
             Surface::Plane(h) => {
                 let t = (h - c.z) / d.z;
-                (t.is_finite() && t >= 0.0).then_some((t, 0.0, 0.0))
+                (t.is_finite() && t >= 0.0).then_some(RayHit {
+                    t,
+                    slope: (0.0, 0.0),
+                    weights_sq: 1.0,
+                })
             }
+        }
+    }
+
+    /// The height σ (m) a georeference on this surface carries with `params`: the given one, or
+    /// the layer's own estimate (0 for a plane).
+    pub fn height_sigma_m(&self, params: &Params) -> f64 {
+        match (params.height_sigma_m, self) {
+            (Some(s), _) => s,
+            (None, Surface::Heights(h)) => h.noise_sigma,
+            (None, Surface::Plane(_)) => 0.0,
         }
     }
 }
@@ -719,9 +986,10 @@ impl Prepared {
             return MapPoint::invalid(Status::Grazing);
         }
         let c = self.center;
-        let Some((t, hx, hy)) = surface.intersect(&c, &d) else {
+        let Some(hit) = surface.intersect(&c, &d) else {
             return MapPoint::invalid(Status::NoHeight);
         };
+        let (t, (hx, hy)) = (hit.t, hit.slope);
         let g = c + t * d;
         // F(t, θ) = c_z + t·d_z − H(c_xy + t·d_xy) = 0; F_t < 0 for a ray meeting the ground
         // from above.
@@ -751,6 +1019,13 @@ impl Prepared {
                     }
                 }
             }
+        }
+        // A height error δh of the surface moves the hit along the ray: F_δh = −1, so
+        // δt = δh / F_t and δg = d·δh / F_t (|δg_xy| = δh·tan θ on flat ground).
+        let sigma_h = surface.height_sigma_m(params);
+        if sigma_h > 0.0 {
+            let j = d / f_t;
+            cov += (sigma_h * sigma_h * hit.weights_sq) * j * j.transpose();
         }
         if params.sigma_px > 0.0 {
             const H: f64 = 1e-2;

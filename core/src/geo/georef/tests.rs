@@ -67,11 +67,19 @@ fn exact(p: CamFromMap) -> PoseWithCovariance {
     }
 }
 
+/// No WGS84 and no height noise: the covariance tests below check the pose's and the pixel's
+/// terms alone; the height term has its own tests.
 const NO_WGS: Params = Params {
     max_off_nadir_deg: DEFAULT_MAX_OFF_NADIR_DEG,
     sigma_px: 0.0,
     wgs84: false,
+    height_sigma_m: Some(0.0),
 };
+
+/// The layer's own samples, bilinear (no smoothing): the surface the exact tests check.
+fn raw_surface(r: &Raster<f32>) -> Option<HeightSurface<'_>> {
+    HeightSurface::with_smoothing(r, 0.0)
+}
 
 /// An independent intersection: march the ray in 1 mm steps on the bilinear surface (sampled
 /// with the localizer's `height_at`), then bisect the first sign change.
@@ -119,7 +127,7 @@ fn a_plane_layer_gives_the_analytic_intersection() {
     let g = grid(0.1, 900, 700);
     let plane = |x: f64, y: f64| 100.0 + 0.06 * (x - 500.0) - 0.035 * (y - 300.0);
     let h = layer(g, plane);
-    let surf = Surface::Heights(HeightSurface::new(&h).unwrap());
+    let surf = Surface::Heights(raw_surface(&h).unwrap());
     let cam = fisheye();
     let p = pose(true);
     let c = p.center();
@@ -149,7 +157,7 @@ fn a_plane_layer_gives_the_analytic_intersection() {
 fn the_walk_agrees_with_a_millimetre_march_on_a_bumpy_layer() {
     let g = grid(0.1, 900, 700);
     let h = layer(g, bumpy);
-    let surf = Surface::Heights(HeightSurface::new(&h).unwrap());
+    let surf = Surface::Heights(raw_surface(&h).unwrap());
     let cam = fisheye();
     let p = pose(true);
     let mut n = 0;
@@ -209,7 +217,7 @@ fn the_flat_plane_option_is_the_ray_plane_intersection() {
 fn the_covariance_propagates_the_pose_jacobian() {
     let g = grid(0.1, 900, 700);
     let h = layer(g, bumpy);
-    let surf = Surface::Heights(HeightSurface::new(&h).unwrap());
+    let surf = Surface::Heights(raw_surface(&h).unwrap());
     let cam = fisheye();
     let p = pose(true);
     let (y0, p0, r0) = p.yaw_pitch_roll();
@@ -333,7 +341,7 @@ fn every_failure_has_its_status_and_spares_the_rest() {
             h.data[r * g.width + c] = f32::NAN;
         }
     }
-    let surf = Surface::Heights(HeightSurface::new(&h).unwrap());
+    let surf = Surface::Heights(raw_surface(&h).unwrap());
     let cam = fisheye();
     let p = pose(false);
     // The principal point looks straight down into the hole.
@@ -399,7 +407,7 @@ fn rays_pass_over_a_hole_the_block_lies_below() {
             h.data[r * g.width + c] = -9999.0;
         }
     }
-    let surf = Surface::Heights(HeightSurface::new(&h).unwrap());
+    let surf = Surface::Heights(raw_surface(&h).unwrap());
     let cam = fisheye();
     let p = pose(false);
     let c = p.center();
@@ -492,7 +500,7 @@ fn wgs84_is_added_on_epsg_tiles() {
 fn the_lookup_table_holds_each_step_pixels_georeference() {
     let g = grid(0.1, 240, 240);
     let h = layer(g, bumpy);
-    let surf = Surface::Heights(HeightSurface::new(&h).unwrap());
+    let surf = Surface::Heights(raw_surface(&h).unwrap());
     let cam = fisheye();
     let pose = PoseWithCovariance {
         pose: pose(true),
@@ -530,4 +538,273 @@ fn statuses_read_back_from_their_names() {
         assert_eq!(Status::from_name(s.name()), Some(s));
     }
     assert_eq!(Status::from_name("fine"), None);
+}
+
+/// A seeded standard normal (Box–Muller over a splitmix64 stream).
+fn normals(seed: u64) -> impl FnMut() -> f64 {
+    let mut state = seed;
+    let mut next = move || {
+        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    };
+    move || {
+        let (a, b) = (next().max(1e-300), next());
+        (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+    }
+}
+
+#[test]
+fn the_layer_noise_is_estimated_from_the_layer() {
+    let g = grid(0.1, 400, 300);
+    // A tilted, cambered road with 3 cm of independent noise per cell and a 15 cm kerb.
+    for sigma in [0.01, 0.03] {
+        let mut noise = normals(7);
+        let mut r = layer(g, |x, y| {
+            let kerb = if x > 510.0 { 0.15 } else { 0.0 };
+            100.0 + 0.03 * (x - 500.0) + 0.002 * (y - 300.0).powi(2) + kerb
+        });
+        for v in &mut r.data {
+            *v += (sigma * noise()) as f32;
+        }
+        let est = raw_surface(&r).unwrap().noise_sigma_m();
+        assert!(
+            (est / sigma - 1.0).abs() < 0.05,
+            "σ {sigma}: estimated {est}"
+        );
+    }
+    // Without noise the kerb and the camber alone leave it at (almost) nothing.
+    let r = layer(g, |x, y| {
+        100.0
+            + 0.03 * (x - 500.0)
+            + 0.002 * (y - 300.0).powi(2)
+            + if x > 510.0 { 0.15 } else { 0.0 }
+    });
+    let est = raw_surface(&r).unwrap().noise_sigma_m();
+    assert!(est < 1e-3, "noise-free layer: {est}");
+}
+
+/// The height term equals the variance of the point under independent noise of σ on each of the
+/// four samples its height is interpolated from, by central differences of the georeference.
+#[test]
+fn the_height_term_is_the_samples_noise_carried_along_the_ray() {
+    let g = grid(0.1, 900, 700);
+    let base = layer(g, bumpy);
+    let surf = Surface::Heights(raw_surface(&base).unwrap());
+    let cam = fisheye();
+    let p = pose(true);
+    let sigma_h = 0.03;
+    let with_h = Params {
+        height_sigma_m: Some(sigma_h),
+        ..NO_WGS
+    };
+    for px in [
+        [520.0, 410.0],
+        [650.3, 330.2],
+        [380.5, 560.0],
+        [300.0, 300.0],
+    ] {
+        let m = georef(&cam, &exact(p), &surf, Crs::Local, px, &with_h);
+        assert_eq!(m.status, Status::Ok, "{px:?}");
+        let m0 = georef(&cam, &exact(p), &surf, Crs::Local, px, &NO_WGS);
+        // The four samples around the hit.
+        let (fc, fr) = g.to_pixel(m.enh[0], m.enh[1]);
+        let (c0, r0) = (fc.floor() as usize, fr.floor() as usize);
+        let mut want = [[0.0; 3]; 3];
+        for (dc, dr) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let k = (r0 + dr) * g.width + c0 + dc;
+            let shifted = |eps: f32| {
+                let mut r = base.clone();
+                r.data[k] += eps;
+                let s = Surface::Heights(raw_surface(&r).unwrap());
+                georef(&cam, &exact(p), &s, Crs::Local, px, &NO_WGS).enh
+            };
+            let eps = 1e-3f32;
+            let (a, b) = (shifted(eps), shifted(-eps));
+            let j: Vec<f64> = (0..3).map(|i| (a[i] - b[i]) / (2.0 * eps as f64)).collect();
+            for r in 0..3 {
+                for c in 0..3 {
+                    want[r][c] += sigma_h * sigma_h * j[r] * j[c];
+                }
+            }
+        }
+        for r in 0..3 {
+            for c in 0..3 {
+                let got = m.covariance[r][c] - m0.covariance[r][c];
+                let tol = 2e-3 * want[r][r].max(want[c][c]).max(1e-8);
+                assert!(
+                    (got - want[r][c]).abs() < tol,
+                    "{px:?} [{r}][{c}]: {got} vs {want:?}"
+                );
+            }
+        }
+        // On flat ground the horizontal part is δh·tan θ: far pixels get more of it.
+        let horiz = (want[0][0] + want[1][1]).sqrt();
+        assert!(horiz > 0.0);
+    }
+}
+
+#[test]
+fn the_default_height_sigma_is_the_layers_and_none_for_a_plane() {
+    let g = grid(0.1, 400, 300);
+    let mut noise = normals(11);
+    let mut r = layer(g, |_, _| 100.0);
+    for v in &mut r.data {
+        *v += (0.02 * noise()) as f32;
+    }
+    let hs = raw_surface(&r).unwrap();
+    let est = hs.noise_sigma_m();
+    let heights = Surface::Heights(hs);
+    let cam = fisheye();
+    let p = pose(false);
+    let auto = Params {
+        height_sigma_m: None,
+        ..NO_WGS
+    };
+    let given = Params {
+        height_sigma_m: Some(est),
+        ..NO_WGS
+    };
+    let px = [300.0, 300.0];
+    let a = georef(&cam, &exact(p), &heights, Crs::Local, px, &auto);
+    let b = georef(&cam, &exact(p), &heights, Crs::Local, px, &given);
+    assert_eq!(a.status, Status::Ok);
+    assert_eq!(a.covariance, b.covariance);
+    assert!(a.covariance[0][0] + a.covariance[1][1] > 0.0);
+    let plane = Surface::Plane(100.0);
+    let c = georef(&cam, &exact(p), &plane, Crs::Local, px, &auto);
+    assert_eq!(c.covariance, [[0.0; 3]; 3]);
+    let d = georef(&cam, &exact(p), &plane, Crs::Local, px, &given);
+    // A plane's σ_h is the plane's own: the whole δh, along the ray.
+    let tan = (c.enh[0] - p.center().x).hypot(c.enh[1] - p.center().y) / (p.center().z - 100.0);
+    let horiz = (d.covariance[0][0] + d.covariance[1][1]).sqrt();
+    assert!(
+        (horiz / (est * tan) - 1.0).abs() < 1e-9,
+        "{horiz} vs {}",
+        est * tan
+    );
+}
+
+#[test]
+fn smoothing_keeps_a_plane_in_the_layers_interior() {
+    let g = grid(0.1, 900, 700);
+    let plane = |x: f64, y: f64| 100.0 + 0.06 * (x - 500.0) - 0.035 * (y - 300.0);
+    let h = layer(g, plane);
+    let surf = Surface::Heights(HeightSurface::new(&h).unwrap());
+    let cam = fisheye();
+    let p = pose(true);
+    let c = p.center();
+    let mut n = 0;
+    for v in (250..560).step_by(40) {
+        for u in (300..720).step_by(40) {
+            let px = [u as f64 + 0.37, v as f64 + 0.61];
+            let m = georef(&cam, &exact(p), &surf, Crs::Local, px, &NO_WGS);
+            assert_eq!(m.status, Status::Ok, "{px:?}");
+            let d = ray(&cam, &p, px);
+            // The ray met with the plane analytically.
+            let (a, b) = (0.06, -0.035);
+            let t =
+                (100.0 + a * (c.x - 500.0) + b * (c.y - 300.0) - c.z) / (d.z - a * d.x - b * d.y);
+            let want = c + t * d;
+            let err = (Vector3::new(m.enh[0], m.enh[1], m.enh[2]) - want.coords).norm();
+            assert!(err < 5e-4, "{px:?}: {err}");
+            n += 1;
+        }
+    }
+    assert!(n > 50);
+}
+
+/// Far from nadir a height error moves the point by δh·tan θ; the smoothed surface's height
+/// error is a fraction of the raw layer's, and the upward bias of the first crossing (the ray
+/// meets the first bump that reaches it) goes with it.
+#[test]
+fn smoothing_cuts_the_height_error_of_grazing_rays() {
+    let g = grid(0.1, 900, 700);
+    let sigma = 0.03;
+    let mut noise = normals(5);
+    let mut h = layer(g, |_, _| 100.0);
+    for v in &mut h.data {
+        *v += (sigma * noise()) as f32;
+    }
+    let cam = fisheye();
+    let p = pose(false);
+    let stats = |surf: &Surface<'_>| {
+        let (mut sum, mut sum2, mut n) = (0.0, 0.0, 0);
+        for v in (0..800).step_by(7) {
+            for u in (0..1000).step_by(7) {
+                let m = georef(
+                    &cam,
+                    &exact(p),
+                    surf,
+                    Crs::Local,
+                    [u as f64, v as f64],
+                    &NO_WGS,
+                );
+                if m.status == Status::Ok && (72.0..82.0).contains(&m.off_nadir_deg) {
+                    sum += m.enh[2] - 100.0;
+                    sum2 += (m.enh[2] - 100.0).powi(2);
+                    n += 1;
+                }
+            }
+        }
+        assert!(n > 500, "{n} grazing pixels");
+        (sum / n as f64, (sum2 / n as f64).sqrt())
+    };
+    let (raw_mean, raw_rms) = stats(&Surface::Heights(raw_surface(&h).unwrap()));
+    let (mean, rms) = stats(&Surface::Heights(HeightSurface::new(&h).unwrap()));
+    assert!(raw_mean > 0.1 * sigma, "raw layer: mean δh {raw_mean}");
+    assert!(mean.abs() < 0.05 * sigma, "smoothed: mean δh {mean}");
+    assert!(rms < raw_rms / 3.0, "rms δh: smoothed {rms}, raw {raw_rms}");
+}
+
+/// The height term of a smoothed surface is the kernel's share of the layer's noise: over many
+/// noise draws the hit's height varies as the covariance says.
+#[test]
+fn the_smoothed_height_term_matches_the_scatter_over_noise_draws() {
+    let g = grid(0.1, 300, 300);
+    let sigma = 0.03;
+    let cam = fisheye();
+    let p = CamFromMap::from_center_ypr(&Point3::new(500.0, 300.0, 106.0), 0.3, 0.0, 0.0);
+    let params = Params {
+        height_sigma_m: Some(sigma),
+        ..NO_WGS
+    };
+    let px = [640.0, 470.0];
+    let (mut sum2, mut var_pred) = (0.0, 0.0);
+    let draws = 60;
+    for seed in 0..draws {
+        let mut noise = normals(1000 + seed);
+        let mut h = layer(g, |_, _| 100.0);
+        for v in &mut h.data {
+            *v += (sigma * noise()) as f32;
+        }
+        let surf = Surface::Heights(HeightSurface::new(&h).unwrap());
+        let m = georef(&cam, &exact(p), &surf, Crs::Local, px, &params);
+        assert_eq!(m.status, Status::Ok);
+        // Off nadir the error runs along the ray: its vertical part is the height error.
+        sum2 += (m.enh[2] - 100.0).powi(2);
+        var_pred = m.covariance[2][2];
+    }
+    let ratio = sum2 / draws as f64 / var_pred;
+    // χ² with 60 degrees of freedom: 99 % of draws fall in [0.61, 1.47]; the kernel's own sum
+    // is a little above the variance between samples.
+    assert!(
+        (0.4..1.5).contains(&ratio),
+        "scatter / predicted variance {ratio}"
+    );
+}
+
+#[test]
+fn smoothing_out_of_range_is_refused() {
+    let g = grid(0.1, 50, 50);
+    let h = layer(g, |_, _| 100.0);
+    for bad in [-0.1, f64::NAN, MAX_SMOOTHING_M + 0.1, f64::INFINITY] {
+        assert!(HeightIndex::with_smoothing(&h, bad).is_none(), "{bad}");
+    }
+    assert_eq!(
+        HeightIndex::with_smoothing(&h, 0.0).unwrap().smoothing_m(),
+        0.0
+    );
 }
