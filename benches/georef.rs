@@ -76,22 +76,29 @@ fn bench_georef(c: &mut Criterion) {
         .collect();
     let params = Params {
         wgs84: false,
+        height_sigma_m: None,
         ..Params::default()
     };
     let crs = h.grid.crs;
-    let ok = georef_batch(&cam, &pose, &surface, crs, &pixels, &params)
+    // The pixels whose ray meets the layer: the per-core rate of the issue is on these.
+    let ground: Vec<[f64; 2]> = georef_batch(&cam, &pose, &surface, crs, &pixels, &params)
         .iter()
-        .filter(|m| m.status == infraloc::geo::georef::Status::Ok)
-        .count();
-    eprintln!("{} pixels, {ok} on the ground", pixels.len());
+        .zip(&pixels)
+        .filter(|(m, _)| m.status == infraloc::geo::georef::Status::Ok)
+        .map(|(_, p)| *p)
+        .collect();
+    eprintln!("{} pixels, {} on the ground", pixels.len(), ground.len());
+    let pools: Vec<(usize, rayon::ThreadPool)> = [1usize, 2]
+        .into_iter()
+        .map(|n| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build();
+            (n, pool.expect("pool"))
+        })
+        .collect();
     let mut g = c.benchmark_group("georef_5mp_step4");
     g.sample_size(10);
     g.throughput(Throughput::Elements(pixels.len() as u64));
-    for threads in [1usize, 2] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("pool");
+    for (threads, pool) in &pools {
         g.bench_function(format!("{threads}_thread"), |b| {
             b.iter(|| {
                 pool.install(|| {
@@ -108,6 +115,17 @@ fn bench_georef(c: &mut Criterion) {
                     black_box(infraloc::georef::npy_bytes(&lut))
                 })
             })
+        });
+    }
+    g.finish();
+    // The pixels that meet the layer alone: the per-core rate on the height layer.
+    let mut g = c.benchmark_group("georef_5mp_step4_ground");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements(ground.len() as u64));
+    for (threads, pool) in &pools {
+        let run = || georef_batch(&cam, &pose, &surface, crs, &ground, &params);
+        g.bench_function(format!("{threads}_thread"), |b| {
+            b.iter(|| pool.install(|| black_box(run())))
         });
     }
     g.finish();

@@ -72,6 +72,9 @@ pub enum Request {
         /// Pixel noise σ (px) added to each point's covariance.
         #[serde(default)]
         sigma_px: f64,
+        /// σ of the height layer (m) carried along each ray; absent: the layer's own estimate.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        height_sigma_m: Option<f64>,
     },
 }
 
@@ -86,8 +89,15 @@ impl Request {
     /// counted rather than listed.
     pub fn name(&self) -> String {
         match self {
-            Request::Georef { pixels, sigma_px } => {
-                format!("Georef {{ {} pixels, sigma_px: {sigma_px} }}", pixels.len())
+            Request::Georef {
+                pixels,
+                sigma_px,
+                height_sigma_m,
+            } => {
+                format!(
+                    "Georef {{ {} pixels, sigma_px: {sigma_px}, height_sigma_m: {height_sigma_m:?} }}",
+                    pixels.len()
+                )
             }
             r => format!("{r:?}"),
         }
@@ -868,6 +878,7 @@ mod tests {
             Request::Georef {
                 pixels: vec![[Some(1.5), None]],
                 sigma_px: 0.5,
+                height_sigma_m: Some(0.02),
             },
         ] {
             let s = serde_json::to_string(&r).unwrap();
@@ -887,7 +898,8 @@ mod tests {
             serde_json::from_str::<Request>(r#"{"request":"georef","pixels":[[1,null]]}"#).unwrap(),
             Request::Georef {
                 pixels: vec![[Some(1.0), None]],
-                sigma_px: 0.0
+                sigma_px: 0.0,
+                height_sigma_m: None,
             }
         );
         assert!(
@@ -900,6 +912,7 @@ mod tests {
                 MAX_GEOREF_PIXELS
             ],
             sigma_px: 0.0,
+            height_sigma_m: Some(0.123_456_789),
         };
         assert!(serde_json::to_vec(&big).unwrap().len() < MAX_REQUEST_BYTES as usize);
     }

@@ -6,8 +6,8 @@
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::geo::georef::{
-    self, Ellipse, HeightSurface, LookupTable, MapPoint, Params, PoseWithCovariance, Status,
-    Surface, LUT_CHANNELS,
+    self, Ellipse, HeightIndex, HeightSurface, LookupTable, MapPoint, Params, PoseWithCovariance,
+    Status, Surface, LUT_CHANNELS,
 };
 use crate::map::{Crs, Raster};
 use crate::posefile::{pose_covariance_of, PoseFile};
@@ -49,31 +49,101 @@ pub fn to_csv(pixels: &[[f64; 2]], points: &[MapPoint]) -> String {
     s
 }
 
-/// One pixel's JSON record (docs/georef.md).
-pub fn record(px: [f64; 2], m: &MapPoint) -> Value {
-    let num = |v: f64| if v.is_finite() { json!(v) } else { Value::Null };
-    let mut r = json!({"u": num(px[0]), "v": num(px[1]), "status": m.status.name()});
-    if m.status == Status::Ok {
-        let Ellipse {
-            sigma_major_m,
-            sigma_minor_m,
-            angle_deg,
-        } = m.ellipse();
-        r["e"] = json!(m.enh[0]);
-        r["n"] = json!(m.enh[1]);
-        r["h"] = json!(m.enh[2]);
-        if let Some([lat, lon]) = m.lat_lon {
-            r["lat"] = json!(lat);
-            r["lon"] = json!(lon);
+/// One pixel's JSON record (docs/georef.md): `u`, `v` (null when not finite) and `status`, and
+/// for an `ok` pixel its point, ellipse, covariance, range and angle. Fields in name order: the
+/// record serializes as the same record built as a JSON object (whose keys are sorted).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Record {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    angle_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    covariance_enh: Option<[[f64; 3]; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    e: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    h: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    lat: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    lon: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    n: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    off_nadir_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    range_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sigma_major_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sigma_minor_m: Option<f64>,
+    status: &'static str,
+    u: Option<f64>,
+    v: Option<f64>,
+}
+
+impl Record {
+    /// The record of pixel `px` georeferenced as `m`.
+    pub fn of(px: [f64; 2], m: &MapPoint) -> Self {
+        let num = |v: f64| v.is_finite().then_some(v);
+        let mut r = Record {
+            angle_deg: None,
+            covariance_enh: None,
+            e: None,
+            h: None,
+            lat: None,
+            lon: None,
+            n: None,
+            off_nadir_deg: None,
+            range_m: None,
+            sigma_major_m: None,
+            sigma_minor_m: None,
+            status: m.status.name(),
+            u: num(px[0]),
+            v: num(px[1]),
+        };
+        if m.status == Status::Ok {
+            let Ellipse {
+                sigma_major_m,
+                sigma_minor_m,
+                angle_deg,
+            } = m.ellipse();
+            r.e = Some(m.enh[0]);
+            r.n = Some(m.enh[1]);
+            r.h = Some(m.enh[2]);
+            if let Some([lat, lon]) = m.lat_lon {
+                r.lat = Some(lat);
+                r.lon = Some(lon);
+            }
+            r.sigma_major_m = Some(sigma_major_m);
+            r.sigma_minor_m = Some(sigma_minor_m);
+            r.angle_deg = Some(angle_deg);
+            r.covariance_enh = Some(m.covariance);
+            r.range_m = Some(m.range_m);
+            r.off_nadir_deg = Some(m.off_nadir_deg);
         }
-        r["sigma_major_m"] = json!(sigma_major_m);
-        r["sigma_minor_m"] = json!(sigma_minor_m);
-        r["angle_deg"] = json!(angle_deg);
-        r["covariance_enh"] = json!(m.covariance);
-        r["range_m"] = json!(m.range_m);
-        r["off_nadir_deg"] = json!(m.off_nadir_deg);
+        r
     }
-    r
+}
+
+/// One pixel's JSON record as a JSON value ([`Record`]).
+pub fn record(px: [f64; 2], m: &MapPoint) -> Value {
+    serde_json::to_value(Record::of(px, m)).unwrap_or(Value::Null)
+}
+
+/// A georef document ([`SCHEMA`]): what `infraloc georef --format json` prints and the service's
+/// `georef` request answers. Fields in name order, as [`Record`]'s.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Document {
+    /// The map's CRS.
+    pub crs: String,
+    /// One record per pixel, in order.
+    pub points: Vec<Record>,
+    /// The pose used (see [`describe_pose`]).
+    pub pose: Value,
+    /// [`SCHEMA`].
+    pub schema: &'static str,
+    /// The surface the rays met: the tile and its smoothing and height σ, or the plane.
+    pub surface: Value,
 }
 
 /// The map point of a [`record`] (the inverse of it, for a client that prints an answer as
@@ -125,6 +195,8 @@ pub struct ServedGeoref {
     timestamp_utc: String,
     camera: Camera,
     height: Raster<f32>,
+    /// The height layer's walking index, built once with the pose.
+    index: HeightIndex,
     crs: Crs,
     tile_id: String,
 }
@@ -149,11 +221,11 @@ impl ServedGeoref {
                 format!("crs {} differs from tile {tile_id}'s {crs}", pose.crs),
             ));
         }
-        if HeightSurface::new(&height).is_none() {
+        let Some(index) = HeightIndex::new(&height) else {
             return Err(Error::Invalid(format!(
                 "tile {tile_id}: the height layer has no valid heights"
             )));
-        }
+        };
         let v = serde_json::to_value(pose).unwrap_or_default();
         Ok(ServedGeoref {
             pose: PoseWithCovariance {
@@ -164,6 +236,7 @@ impl ServedGeoref {
             timestamp_utc: pose.timestamp_utc.clone(),
             camera,
             height,
+            index,
             crs,
             tile_id: tile_id.to_string(),
         })
@@ -175,20 +248,24 @@ impl ServedGeoref {
     }
 
     fn surface(&self) -> Surface<'_> {
-        // Checked in `new`: the layer has valid heights.
-        Surface::Heights(HeightSurface::new(&self.height).unwrap_or_else(|| {
-            unreachable!("the height layer was checked when the pose was served")
-        }))
+        // Built in `new` from this very layer.
+        Surface::Heights(
+            HeightSurface::with_index(&self.height, &self.index).unwrap_or_else(|| {
+                unreachable!("the index was built from the served height layer")
+            }),
+        )
     }
 
     /// The `georef` request's answer body: the [`SCHEMA`] document of the pixels (`None`: a
     /// non-finite coordinate) with `sigma_px`, or the one-line reason the request is refused
     /// (an empty batch, more than [`crate::control::MAX_GEOREF_PIXELS`] pixels, a bad σ).
+    /// `height_sigma_m`: the height layer's σ, `None` for the layer's own estimate.
     pub fn answer(
         &self,
         pixels: &[[Option<f64>; 2]],
         sigma_px: f64,
-    ) -> std::result::Result<Value, String> {
+        height_sigma_m: Option<f64>,
+    ) -> std::result::Result<Document, String> {
         let max = crate::control::MAX_GEOREF_PIXELS;
         if pixels.is_empty() {
             return Err("georef: the batch has no pixels".into());
@@ -204,29 +281,38 @@ impl ServedGeoref {
                 "georef: sigma_px {sigma_px}: must be a finite number ≥ 0"
             ));
         }
+        if let Some(s) = height_sigma_m.filter(|s| !(s.is_finite() && *s >= 0.0)) {
+            return Err(format!(
+                "georef: height_sigma_m {s}: must be a finite number ≥ 0"
+            ));
+        }
         let px: Vec<[f64; 2]> = pixels
             .iter()
             .map(|[u, v]| [u.unwrap_or(f64::NAN), v.unwrap_or(f64::NAN)])
             .collect();
         let params = Params {
             sigma_px,
+            height_sigma_m,
             ..Params::default()
         };
-        let points = georef::georef_batch(
-            &self.camera,
-            &self.pose,
-            &self.surface(),
-            self.crs,
-            &px,
-            &params,
-        );
-        Ok(json!({
-            "schema": SCHEMA,
-            "pose": self.describe,
-            "surface": {"tile_id": self.tile_id},
-            "crs": self.crs.to_string(),
-            "points": px.iter().zip(&points).map(|(p, m)| record(*p, m)).collect::<Vec<_>>(),
-        }))
+        let surface = self.surface();
+        let points =
+            georef::georef_batch(&self.camera, &self.pose, &surface, self.crs, &px, &params);
+        Ok(Document {
+            crs: self.crs.to_string(),
+            points: px
+                .iter()
+                .zip(&points)
+                .map(|(p, m)| Record::of(*p, m))
+                .collect(),
+            pose: self.describe.clone(),
+            schema: SCHEMA,
+            surface: json!({
+                "tile_id": self.tile_id,
+                "smoothing_m": self.index.smoothing_m(),
+                "height_sigma_m": surface.height_sigma_m(&params),
+            }),
+        })
     }
 
     /// The lookup table at `step` px.

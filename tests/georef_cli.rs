@@ -371,4 +371,37 @@ fn bad_input_gets_a_status_or_one_line() {
     assert_eq!(v["pose"]["timestamp_utc"], "2026-11-27T00:00:00Z");
     assert_eq!(v["points"][0]["status"], "ok");
     assert!(v["points"][0]["lat"].as_f64().unwrap() > 48.0);
+    // … and the surface: the smoothing, and the height σ the covariance carries (the plane's
+    // samples have no noise; a given σ is used as given).
+    assert_eq!(v["surface"]["smoothing_m"], 0.15);
+    assert!(
+        v["surface"]["height_sigma_m"].as_f64().unwrap() < 1e-4,
+        "{v}"
+    );
+    let o = georef(
+        &s,
+        "640,480\n",
+        &[
+            "--format",
+            "json",
+            "--height-sigma",
+            "0.05",
+            "--height-smoothing",
+            "0",
+        ],
+    );
+    let w: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(w["surface"]["smoothing_m"], 0.0);
+    assert_eq!(w["surface"]["height_sigma_m"], 0.05);
+    let major = |v: &serde_json::Value| v["points"][0]["sigma_major_m"].as_f64().unwrap();
+    assert!(major(&w) > major(&v), "{w}");
+    // Out-of-range height settings are one line each.
+    one_line(
+        &georef(&s, "1,2\n", &["--height-sigma=-1"]),
+        "--height-sigma -1: must be a finite number ≥ 0",
+    );
+    one_line(
+        &georef(&s, "1,2\n", &["--height-smoothing", "2"]),
+        "--height-smoothing 2: must be in [0, 1] metres",
+    );
 }

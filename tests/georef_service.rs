@@ -8,161 +8,17 @@
 //! SIGHUP, `relocalize --wait --force`): one real localization.
 
 use infraloc::control::{Client, Request, MAX_GEOREF_PIXELS};
-use infraloc::posefile::{read_pose, PoseFile};
+use infraloc::posefile::PoseFile;
 use serde_json::{json, Value};
-use std::io::Write;
 use std::os::unix::fs::MetadataExt;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-const BIN: &str = env!("CARGO_BIN_EXE_infraloc");
-const STORED_AT: &str = "2026-11-01T00:00:00Z";
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
-
-fn simulate(dir: &Path) {
-    let out = Command::new(BIN)
-        .args(["simulate", "--seed", "3", "--preset", "small"])
-        .args(["--difficulty", "hard", "--out"])
-        .arg(dir)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", text(&out.stderr));
-}
-
-fn set(t: &mut toml::Table, sec: &str, k: &str, v: impl Into<toml::Value>) {
-    t.entry(sec.to_string())
-        .or_insert_with(|| toml::Value::Table(Default::default()))
-        .as_table_mut()
-        .unwrap()
-        .insert(k.into(), v.into());
-}
-
-/// The scene's config with absolute scene paths, the pose and socket in `work`; with
-/// `camera_ok` false the camera is an absent v4l2 device (localization fails at once).
-fn write_config(scene: &Path, work: &Path, camera_ok: bool) -> PathBuf {
-    let mut t: toml::Table =
-        toml::from_str(&std::fs::read_to_string(scene.join("infraloc.toml")).unwrap()).unwrap();
-    let abs = |p: &str| scene.join(p).display().to_string();
-    set(&mut t, "camera", "intrinsics-file", abs("camera.yaml"));
-    set(&mut t, "camera", "frames", abs("frames"));
-    if !camera_ok {
-        set(&mut t, "camera", "source", "v4l2");
-        set(&mut t, "camera", "device", "/dev/video-absent");
-        set(&mut t, "camera", "retry-attempts", 1);
-    }
-    set(&mut t, "gps", "path", abs("gps.nmea"));
-    set(&mut t, "map", "tiles", abs("tiles"));
-    set(&mut t, "output", "pose", "pose.json");
-    set(&mut t, "daemon", "socket", "run/control.sock");
-    set(&mut t, "daemon", "retry-initial-s", 600.0);
-    set(&mut t, "daemon", "drift-check-interval-min", 0.0);
-    let cfg = work.join("infraloc.toml");
-    std::fs::write(&cfg, toml::to_string(&t).unwrap()).unwrap();
-    cfg
-}
-
-/// The truth as a served pose file, with a 4-axis covariance (σ 1 cm, 1 cm, 1 cm, 0.05°).
-fn store_truth(scene: &Path, work: &Path) {
-    let t = read_pose(&scene.join("truth.json")).unwrap();
-    let tile = std::fs::read_dir(scene.join("tiles"))
-        .unwrap()
-        .next()
-        .unwrap()
-        .unwrap()
-        .file_name();
-    let mut f = PoseFile::new(
-        &t.pose,
-        t.crs.unwrap(),
-        &tile.to_string_lossy(),
-        STORED_AT.into(),
-    );
-    f.quality = json!({
-        "score": 1.0,
-        "sigma": {"x": 0.01, "y": 0.01, "z": 0.01, "yaw": 0.05},
-        "covariance": {
-            "axes": ["x", "y", "z", "yaw"],
-            "units": ["m", "m", "m", "deg"],
-            "matrix": [[1e-4, 0.0, 0.0, 0.0], [0.0, 1e-4, 0.0, 0.0],
-                       [0.0, 0.0, 1e-4, 0.0], [0.0, 0.0, 0.0, 0.0025]],
-        },
-    });
-    std::fs::write(work.join("pose.json"), f.to_json()).unwrap();
-}
-
-struct Daemon {
-    child: Child,
-    log: PathBuf,
-}
-
-impl Daemon {
-    fn start(cfg: &Path) -> Daemon {
-        let log = cfg.with_file_name("daemon.log");
-        let child = Command::new(BIN)
-            .arg("daemon")
-            .arg("--config")
-            .arg(cfg)
-            .env_remove("NOTIFY_SOCKET")
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(&log).unwrap())
-            .spawn()
-            .unwrap();
-        Daemon { child, log }
-    }
-
-    fn log(&self) -> String {
-        std::fs::read_to_string(&self.log).unwrap_or_default()
-    }
-
-    /// Poll `status --json` until `cond` holds (two minutes at most).
-    fn wait_status(&mut self, cfg: &Path, cond: impl Fn(&Value) -> bool) -> Value {
-        let start = Instant::now();
-        loop {
-            if let Ok(Some(st)) = self.child.try_wait() {
-                panic!("daemon exited ({st}): {}", self.log());
-            }
-            let out = cli(cfg, &["status", "--json"], "");
-            if let Ok(v) = serde_json::from_slice::<Value>(&out.stdout) {
-                if cond(&v) {
-                    return v;
-                }
-            }
-            assert!(
-                start.elapsed() < Duration::from_secs(120),
-                "status never got there: {}; {}",
-                text(&out.stdout),
-                self.log()
-            );
-            std::thread::sleep(Duration::from_millis(100));
-        }
-    }
-}
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-/// `infraloc ARGS --config CFG` with `stdin`.
-fn cli(cfg: &Path, args: &[&str], stdin: &str) -> Output {
-    let mut c = Command::new(BIN)
-        .args(args)
-        .arg("--config")
-        .arg(cfg)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    c.stdin.take().unwrap().write_all(stdin.as_bytes()).unwrap();
-    c.wait_with_output().unwrap()
-}
+#[path = "common/served.rs"]
+mod served;
+use served::{cli, raw, set, simulate, store_truth, text, write_config, Daemon, BIN, STORED_AT};
+use std::io::Write;
 
 fn json_of(out: &Output) -> Value {
     assert!(out.status.success(), "{}", text(&out.stderr));
@@ -175,14 +31,6 @@ fn fails_with(out: &Output, want: &str) {
     assert_eq!(out.status.code(), Some(1), "{e}");
     assert!(e.contains(want) && e.trim_end().lines().count() == 1, "{e}");
     assert!(out.stdout.is_empty());
-}
-
-/// A raw request over the socket, as a pipeline without infraloc's client would send it.
-fn raw(socket: &Path, req: &Value) -> Value {
-    use infraloc::control::{read_frame, write_frame};
-    let mut s = std::os::unix::net::UnixStream::connect(socket).unwrap();
-    write_frame(&mut s, req.to_string().as_bytes()).unwrap();
-    serde_json::from_slice(&read_frame(&mut s, 64 << 20).unwrap().unwrap()).unwrap()
 }
 
 fn lut_meta(work: &Path) -> Option<Value> {
@@ -398,6 +246,29 @@ fn georef_request_and_lookup_table_follow_the_served_pose() {
     assert!(v["error"].as_str().unwrap().contains("sigma_px"), "{v}");
     let v = raw(
         &socket,
+        &json!({"request": "georef", "pixels": [[500, 500]], "height_sigma_m": -0.1}),
+    );
+    assert_eq!(v["ok"], false);
+    assert_eq!(
+        v["error"], "georef: height_sigma_m -0.1: must be a finite number ≥ 0",
+        "{v}"
+    );
+    // The answer names its surface: the smoothing and the height σ estimated from the layer
+    // (the simulator's 3 cm, within the estimator's spread) or the one asked for.
+    let v = raw(
+        &socket,
+        &json!({"request": "georef", "pixels": [[500, 500]]}),
+    );
+    assert_eq!(v["surface"]["smoothing_m"], 0.15, "{v}");
+    let est = v["surface"]["height_sigma_m"].as_f64().unwrap();
+    assert!((0.025..0.035).contains(&est), "{v}");
+    let v = raw(
+        &socket,
+        &json!({"request": "georef", "pixels": [[500, 500]], "height_sigma_m": 0.01}),
+    );
+    assert_eq!(v["surface"]["height_sigma_m"], 0.01, "{v}");
+    let v = raw(
+        &socket,
         &json!({"request": "georef", "pixels": [[1e300, null]]}),
     );
     assert_eq!(v["ok"], true, "{v}");
@@ -405,7 +276,8 @@ fn georef_request_and_lookup_table_follow_the_served_pose() {
     let v = raw(&socket, &json!({"request": "status"}));
     assert_eq!(v["ok"], true, "the service stopped serving: {v}");
 
-    // Latency of a 1,000-pixel request (docs/benchmarks.md): a 40 × 25 grid over the image.
+    // A 1,000-pixel request through the client (its latency: benches/georef_socket.rs): a 40 × 25
+    // grid over the image, every pixel answered in order.
     let (w, h) = (
         meta["image_width"].as_f64().unwrap(),
         meta["image_height"].as_f64().unwrap(),
@@ -417,25 +289,22 @@ fn georef_request_and_lookup_table_follow_the_served_pose() {
         })
         .collect();
     let req = Request::Georef {
-        pixels: grid,
+        pixels: grid.clone(),
         sigma_px: 0.0,
+        height_sigma_m: None,
     };
-    let mut times = Vec::new();
-    for _ in 0..30 {
-        let t = Instant::now();
-        let a = Client::connect(&socket)
-            .unwrap()
-            .call(&req, Duration::from_secs(30), |_| {})
-            .unwrap();
-        times.push(t.elapsed().as_secs_f64() * 1e3);
-        assert_eq!(a.refusal(), None);
+    let a = Client::connect(&socket)
+        .unwrap()
+        .call(&req, Duration::from_secs(30), |_| {})
+        .unwrap();
+    assert_eq!(a.refusal(), None);
+    let v: Value = a.parse("georef answer").unwrap();
+    let points = v["points"].as_array().unwrap();
+    assert_eq!(points.len(), 1000);
+    for (p, px) in points.iter().zip(&grid) {
+        assert_eq!(p["u"].as_f64(), px[0], "{p}");
+        assert_eq!(p["v"].as_f64(), px[1], "{p}");
     }
-    times.sort_by(f64::total_cmp);
-    eprintln!(
-        "georef over the socket, 1000 pixels: median {:.1} ms, max {:.1} ms (30 requests)",
-        times[15], times[29]
-    );
-    assert!(times[15] < 1000.0, "{times:?}");
 
     // The lookup table: its layout, numpy's reading, and each cell = the pixel's georeference.
     let step = meta["step_px"].as_u64().unwrap() as usize;

@@ -10,7 +10,7 @@ use crate::config::Config;
 use crate::control::Request;
 use crate::error::{Error, Result};
 use crate::geo::georef::{self, HeightSurface, Params, PoseWithCovariance, Surface};
-use crate::georef::{describe_pose, point_of_record, record, to_csv, SCHEMA};
+use crate::georef::{describe_pose, point_of_record, to_csv, Document, Record, SCHEMA};
 use crate::map::cache::load_tile;
 use crate::map::Crs;
 use crate::posefile::{parse_pose, pose_covariance_of};
@@ -65,6 +65,14 @@ pub struct Args {
     /// Pixel noise σ (px) added to each point's covariance (a detector's box centre).
     #[arg(long, default_value_t = 0.0)]
     pub sigma_px: f64,
+    /// σ of the surface's height (m), carried along each ray into the covariance (default: the
+    /// height layer's own noise, estimated from the layer; 0 with --plane).
+    #[arg(long)]
+    pub height_sigma: Option<f64>,
+    /// σ (m) of the Gaussian the height layer is smoothed with before rays meet it (default
+    /// 0.15; 0: the layer's samples, bilinear; at most 1).
+    #[arg(long, conflicts_with_all = ["running", "plane"])]
+    pub height_smoothing: Option<f64>,
     /// Largest angle of a ray from nadir, degrees; beyond it a pixel is `grazing` (default 85).
     #[arg(long)]
     pub max_off_nadir: Option<f64>,
@@ -119,6 +127,18 @@ pub(super) fn run(a: Args) -> Result<()> {
             a.sigma_px
         )));
     }
+    if let Some(s) = a.height_sigma.filter(|s| !(s.is_finite() && *s >= 0.0)) {
+        return Err(Error::Invalid(format!(
+            "--height-sigma {s}: must be a finite number ≥ 0"
+        )));
+    }
+    let smoothing = a.height_smoothing.unwrap_or(georef::DEFAULT_SMOOTHING_M);
+    if !(0.0..=georef::MAX_SMOOTHING_M).contains(&smoothing) {
+        return Err(Error::Invalid(format!(
+            "--height-smoothing {smoothing}: must be in [0, {}] metres",
+            georef::MAX_SMOOTHING_M
+        )));
+    }
     let max_off_nadir = a.max_off_nadir.unwrap_or(georef::DEFAULT_MAX_OFF_NADIR_DEG);
     if !(max_off_nadir > 0.0 && max_off_nadir < 90.0) {
         return Err(Error::Invalid(format!(
@@ -154,6 +174,7 @@ pub(super) fn run(a: Args) -> Result<()> {
         max_off_nadir_deg: max_off_nadir,
         sigma_px: a.sigma_px,
         wgs84: true,
+        height_sigma_m: a.height_sigma,
     };
     let tile;
     let (surface, crs, tile_desc) = match a.plane {
@@ -179,22 +200,32 @@ pub(super) fn run(a: Args) -> Result<()> {
                     ));
                 }
             }
-            let s = HeightSurface::new(&tile.height)
+            let s = HeightSurface::with_smoothing(&tile.height, smoothing)
                 .ok_or_else(|| Error::input(&dir, "height layer has no valid heights"))?;
-            (Surface::Heights(s), crs, json!({"tile_id": tile.id}))
+            (
+                Surface::Heights(s),
+                crs,
+                json!({"tile_id": tile.id, "smoothing_m": smoothing}),
+            )
         }
     };
+    let mut tile_desc = tile_desc;
+    tile_desc["height_sigma_m"] = json!(surface.height_sigma_m(&params));
     let points = georef::georef_batch(&camera, &used.pose, &surface, crs, &pixels, &params);
     let text = match a.format {
         Format::Csv => to_csv(&pixels, &points),
         Format::Json => {
-            let doc = json!({
-                "schema": SCHEMA,
-                "pose": used.describe,
-                "surface": tile_desc,
-                "crs": crs.to_string(),
-                "points": pixels.iter().zip(&points).map(|(p, m)| record(*p, m)).collect::<Vec<_>>(),
-            });
+            let doc = Document {
+                crs: crs.to_string(),
+                points: pixels
+                    .iter()
+                    .zip(&points)
+                    .map(|(p, m)| Record::of(*p, m))
+                    .collect(),
+                pose: used.describe,
+                schema: SCHEMA,
+                surface: tile_desc,
+            };
             let mut s = serde_json::to_string_pretty(&doc).unwrap_or_default();
             s.push('\n');
             s
@@ -221,6 +252,7 @@ fn run_on_service(a: &Args) -> Result<()> {
             .map(|p| p.map(|c| c.is_finite().then_some(c)))
             .collect(),
         sigma_px: a.sigma_px,
+        height_sigma_m: a.height_sigma,
     };
     let answer = super::tech::georef_running(a.socket.as_deref(), &a.config, req)?;
     let mut doc: Value = answer.parse("georef answer")?;

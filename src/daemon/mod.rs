@@ -267,8 +267,12 @@ fn make_handler(
             let s = lock(&shared.status).clone();
             (DaemonAnswer::Status(Accepted::new(Box::new(s))), None)
         }
-        Request::Georef { pixels, sigma_px } => match lock(&shared.georef).clone() {
-            GeorefState::Ready(g) => match g.answer(&pixels, sigma_px) {
+        Request::Georef {
+            pixels,
+            sigma_px,
+            height_sigma_m,
+        } => match lock(&shared.georef).clone() {
+            GeorefState::Ready(g) => match g.answer(&pixels, sigma_px, height_sigma_m) {
                 Ok(doc) => (DaemonAnswer::Georef(Accepted::new(doc)), None),
                 Err(e) => refused(e),
             },

@@ -207,7 +207,7 @@ pub(crate) enum DaemonAnswer {
     /// `relocalize` with `wait`: the run's result (`"ok"` inside).
     Result(Box<RunResult>),
     /// `georef`: the `infraloc.georef.v1` document (docs/georef.md).
-    Georef(Accepted<serde_json::Value>),
+    Georef(Accepted<crate::georef::Document>),
     /// Any request not served.
     Refused(Refusal),
 }
