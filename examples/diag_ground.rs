@@ -11,14 +11,30 @@
 //! If the polish from the oracle stays near the oracle and outscores the accepted pose, the
 //! accepted pose is a search failure; if it walks off as far as the accepted pose is, the
 //! objective's optimum itself is that far from the truth (estimator-limited).
+//!
+//! The same question for the smooth estimator (partial-volume sampling, `--sampling pv`): its
+//! L-BFGS ascent (4-DoF, tilt held) from the oracle and from the accepted pose, and a 6-DoF
+//! ascent from the accepted pose, on the same point set; their ground errors and PV objective
+//! values beside the others'.
+//!
+//! And whether an offset is the estimator's or the simulator's modality gap: a gap-free image,
+//! each pixel the tile's reflectivity (bilinear) where the pixel's ray meets the height layer at
+//! the true pose through the given camera, so the image and the LiDAR raster agree exactly at
+//! the truth. The PV ascent and the nearest-pixel polish start at the truth on it; how far they
+//! walk is the estimator's own offset.
 
+use infraloc::camera::Camera;
 use infraloc::camera::CameraModel;
 use infraloc::eval::truth_eval;
+use infraloc::geo::georef::{self, HeightSurface, PoseWithCovariance, Surface};
 use infraloc::localize::mi::kernel::Scratch;
 use infraloc::localize::mi::mutual_information;
 use infraloc::localize::mi::objective::{Evaluator, View};
+use infraloc::localize::mi::smooth::{Pooling, Smooth};
 use infraloc::localize::pipeline::{self, Params};
+use infraloc::localize::refine::gradient::{ascend, AscentConfig};
 use infraloc::localize::refine::polish::{polish_pose, PolishParams};
+use infraloc::map::Tile;
 use infraloc::pose::CamFromMap;
 use infraloc::sim::{self, GivenIntrinsics, Preset};
 
@@ -39,6 +55,14 @@ fn usage() -> ! {
 struct Row {
     ground: [f64; 3],
     mi: [f64; 3],
+    /// Ground error medians (cm) of the PV ascents: from the oracle, from the accepted pose
+    /// (4-DoF) and from the accepted pose (6-DoF).
+    pv_ground: [f64; 3],
+    /// PV value at the oracle and at the end of the ascent from it.
+    pv: [f64; 2],
+    /// Gap-free image: PV ascent's drift from the truth (cm, horizontal) and the nearest-pixel
+    /// polish's.
+    gap_free: [f64; 2],
 }
 
 fn main() -> infraloc::Result<()> {
@@ -110,6 +134,18 @@ fn main() -> infraloc::Result<()> {
                 .map_or(f64::NAN, |q| q.median * 100.0)
         };
         let (ga, go, ge) = (g(&accepted), g(&oracle), g(&end));
+        let est = Smooth::of_evaluator(&camera, &ev, Pooling::Joint);
+        let four = AscentConfig::four_dof();
+        let pv_oracle = ascend(&est, &oracle, &four);
+        let pv_acc = ascend(&est, &accepted, &four);
+        let pv_acc6 = ascend(&est, &accepted, &AscentConfig::six_dof());
+        let pv_ground = [g(&pv_oracle.pose), g(&pv_acc.pose), g(&pv_acc6.pose)];
+        let pv = [est.evaluate(&oracle, false).value, pv_oracle.value];
+        let drift = (pv_oracle.pose.center() - oracle.center()).norm() * 100.0;
+        println!(
+            "      pv ground cm: from-oracle {:.2} from-accepted {:.2} 6dof {:.2} | pv oracle {:.5} end {:.5} | drift {drift:.2} cm ({} , {} evals)",
+            pv_ground[0], pv_ground[1], pv_ground[2], pv[0], pv[1], pv_oracle.stop, pv_oracle.evaluations
+        );
         let (ma, mo, me) = (score(&accepted), score(&oracle), score(&end));
         let dxy = (end.center() - oracle.center()).xy().norm() * 100.0;
         let tilt =
@@ -141,24 +177,138 @@ fn main() -> infraloc::Result<()> {
         println!(
             "{seed:4}  {ga:6.2} {go:6.2} {ge:6.2} | {ma:.5} {mo:.5} {me:.5} | {dxy:5.2} {tilt:.4}"
         );
+        let gap_free = gap_free_drift(&camera, &tile, &truth.pose, &points, &params, &pp)?;
+        println!(
+            "      gap-free image, drift from the truth: pv {:.2} cm, nearest polish {:.2} cm",
+            gap_free[0], gap_free[1]
+        );
         rows.push(Row {
             ground: [ga, go, ge],
             mi: [ma, mo, me],
+            pv_ground,
+            pv,
+            gap_free,
         });
     }
+    summary(&rows);
+    Ok(())
+}
+
+/// The medians over the seeds.
+fn summary(rows: &[Row]) {
     let n = rows.len();
-    let med = |i: usize| {
-        let mut v: Vec<f64> = rows.iter().map(|r| r.ground[i]).collect();
+    let med = |f: &dyn Fn(&Row) -> f64| {
+        let mut v: Vec<f64> = rows.iter().map(f).collect();
         v.sort_by(f64::total_cmp);
         v.get(n / 2).copied().unwrap_or(f64::NAN)
     };
     println!(
         "n {n}: median ground cm accepted {:.2}, oracle {:.2}, from-oracle {:.2}; oracle scores above accepted on {} seeds, from-oracle above accepted on {}",
-        med(0),
-        med(1),
-        med(2),
+        med(&|r| r.ground[0]),
+        med(&|r| r.ground[1]),
+        med(&|r| r.ground[2]),
         rows.iter().filter(|r| r.mi[1] > r.mi[0]).count(),
         rows.iter().filter(|r| r.mi[2] > r.mi[0]).count()
     );
-    Ok(())
+    println!(
+        "pv: median ground cm from-oracle {:.2}, from-accepted {:.2}, 6-DoF from-accepted {:.2}; the ascent from the oracle gains on {} of {n} seeds",
+        med(&|r| r.pv_ground[0]),
+        med(&|r| r.pv_ground[1]),
+        med(&|r| r.pv_ground[2]),
+        rows.iter().filter(|r| r.pv[1] > r.pv[0] + 1e-9).count()
+    );
+    println!(
+        "gap-free image: median drift from the truth cm: pv {:.2}, nearest polish {:.2}",
+        med(&|r| r.gap_free[0]),
+        med(&|r| r.gap_free[1])
+    );
+}
+
+/// The gap-free image of `tile` seen by `camera` at `pose`: each pixel the reflectivity
+/// (bilinear over valid cells) where its ray meets the raw height layer; 0 elsewhere.
+fn gap_free_image(camera: &Camera, tile: &Tile, pose: &CamFromMap) -> Vec<u8> {
+    let (w, h) = (camera.width() as usize, camera.height() as usize);
+    let Some(hs) = HeightSurface::with_smoothing(&tile.height, 0.0) else {
+        return vec![0; w * h];
+    };
+    let pc = PoseWithCovariance {
+        pose: *pose,
+        covariance: None,
+    };
+    let params = georef::Params {
+        wgs84: false,
+        ..georef::Params::default()
+    };
+    let pixels: Vec<[f64; 2]> = (0..w * h)
+        .map(|k| [(k % w) as f64, (k / w) as f64])
+        .collect();
+    let refl = &tile.reflectivity;
+    let g = refl.grid;
+    let at = |c: usize, r: usize| -> Option<f64> {
+        let v = refl.data[r * g.width + c];
+        (refl.nodata != Some(v)).then_some(v as f64)
+    };
+    georef::georef_batch(camera, &pc, &Surface::Heights(hs), g.crs, &pixels, &params)
+        .iter()
+        .map(|m| {
+            if m.status != georef::Status::Ok {
+                return 0;
+            }
+            let (fc, fr) = g.to_pixel(m.enh[0], m.enh[1]);
+            let (c0, r0) = (fc.floor(), fr.floor());
+            if c0 < 0.0 || r0 < 0.0 || c0 + 1.0 >= g.width as f64 || r0 + 1.0 >= g.height as f64 {
+                return 0;
+            }
+            let (u, v) = (fc - c0, fr - r0);
+            let (c0, r0) = (c0 as usize, r0 as usize);
+            match (
+                at(c0, r0),
+                at(c0 + 1, r0),
+                at(c0, r0 + 1),
+                at(c0 + 1, r0 + 1),
+            ) {
+                (Some(a), Some(b), Some(c), Some(d)) => {
+                    let x = a * (1.0 - u) * (1.0 - v)
+                        + b * u * (1.0 - v)
+                        + c * (1.0 - u) * v
+                        + d * u * v;
+                    x.round().clamp(1.0, 255.0) as u8
+                }
+                _ => 0,
+            }
+        })
+        .collect()
+}
+
+/// On the gap-free image at the truth: the PV ascent's (4-DoF) and the nearest-pixel polish's
+/// horizontal drift from the truth, cm.
+fn gap_free_drift(
+    camera: &Camera,
+    tile: &Tile,
+    truth: &CamFromMap,
+    points: &[infraloc::map::GroundPoint],
+    params: &Params,
+    pp: &PolishParams,
+) -> infraloc::Result<[f64; 2]> {
+    let gray = gap_free_image(camera, tile, truth);
+    let mask = camera.valid_mask();
+    let views = [View {
+        gray: &gray,
+        mask: &mask,
+        points,
+    }];
+    let cfg = polish_box(pp, &params.search, tilt_pivot(tile, truth));
+    let ev = Evaluator::pooled(camera, &views, truth, &cfg, 0)?;
+    let est = Smooth::of_evaluator(camera, &ev, Pooling::Joint);
+    let a = ascend(&est, truth, &AscentConfig::four_dof());
+    let (end, _) = polish_pose(
+        camera,
+        &views,
+        truth,
+        tilt_pivot(tile, truth),
+        &params.search,
+        pp,
+    )?;
+    let d = |p: &CamFromMap| (p.center() - truth.center()).xy().norm() * 100.0;
+    Ok([d(&a.pose), d(&end)])
 }
