@@ -36,7 +36,8 @@ use std::time::Instant;
 
 #[path = "common/mod.rs"]
 mod common;
-use common::{parse_preset, scene_inputs, SceneInputs};
+use common::{gap_free_image, parse_preset, scene_inputs, scene_truth, SceneInputs};
+use infraloc::localize::mi::smooth::{Pooling, Sampling};
 
 /// Initialization inside the MI search basin (issue 4): horizontal and yaw error bounds.
 const BASIN_M: f64 = 1.0;
@@ -61,6 +62,9 @@ struct Opts {
     offset_intrinsics: bool,
     search_rounds: Option<usize>,
     fine_off_nadir: Option<f64>,
+    sampling: Sampling,
+    pooling: Pooling,
+    gap_free: bool,
 }
 
 fn usage() -> ! {
@@ -68,6 +72,7 @@ fn usage() -> ! {
         "usage: pipeline_accuracy [--preset small|5mp] [--difficulty hard|easy] --seeds A..B|A,B,C \
          [--frames N] [--json OUT] [--threads N] [--top-k N] [--no-early-stop] [--no-verify] [--init-only]\n  \
          [--mi-off-nadir DEG] [--true-intrinsics] [--offset-intrinsics] [--search-rounds N] [--fine-off-nadir DEG]\n  \
+         [--sampling nearest|pv] [--pooling joint|per-pair] [--gap-free]\n  \
          A..B is inclusive: 1..100 is 100 seeds"
     );
     std::process::exit(2)
@@ -98,6 +103,9 @@ fn opts() -> Opts {
         offset_intrinsics: false,
         search_rounds: None,
         fine_off_nadir: None,
+        sampling: Sampling::Nearest,
+        pooling: Pooling::Joint,
+        gap_free: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(a) = it.next() {
@@ -126,6 +134,9 @@ fn opts() -> Opts {
             }
             "--search-rounds" => o.search_rounds = Some(val().parse().unwrap_or_else(|_| usage())),
             "--mi-off-nadir" => o.mi_off_nadir = Some(val().parse().unwrap_or_else(|_| usage())),
+            "--sampling" => o.sampling = val().parse().unwrap_or_else(|_| usage()),
+            "--pooling" => o.pooling = val().parse().unwrap_or_else(|_| usage()),
+            "--gap-free" => o.gap_free = true,
             _ => usage(),
         }
     }
@@ -176,13 +187,21 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
     let t1 = Instant::now();
     let SceneInputs {
         camera,
-        image,
+        mut image,
         tile,
         prior_xy: xy,
         prior_sigma_m: sigma,
         dir: tmp,
     } = scene_inputs(&scene, o.true_intrinsics)?;
     let dir = tmp.path();
+    // `--gap-free`: the frame is the tile's reflectivity seen at the true pose through the
+    // given camera (docs/accuracy.md, "The estimator or the modality gap").
+    if o.gap_free {
+        let truth = scene_truth(&scene)?;
+        let gray = gap_free_image(&camera, &tile, &truth.pose);
+        image = image::GrayImage::from_raw(image.width(), image.height(), gray)
+            .ok_or_else(|| infraloc::Error::Invalid("gap-free image size".into()))?;
+    }
     // The given intrinsics' stated uncertainty reaches the covariance, as camera.yaml's does.
     let mut params = params.clone();
     if !o.true_intrinsics {
@@ -686,6 +705,7 @@ fn main() {
     if let Some(d) = o.mi_off_nadir {
         params.mi_max_off_nadir_deg = d;
     }
+    params.sampling = (o.sampling, o.pooling);
     println!(
         "{:>5} {:>9} {:>8} {:>8} {:>9} {:>8} {:>8} {:>8} {:>6} {:>7} {:>7}  note",
         "seed",

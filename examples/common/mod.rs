@@ -179,3 +179,67 @@ pub fn scene_truth(scene: &infraloc::sim::Scene) -> infraloc::Result<infraloc::e
         .map_err(|e| infraloc::Error::Invalid(format!("truth.json: {e}")))?;
     infraloc::eval::truth::parse_truth(&text, std::path::Path::new("truth.json"))
 }
+
+/// The gap-free image of `tile` seen by `camera` at `pose`: each pixel the reflectivity
+/// (bilinear over valid cells) where its ray meets the raw height layer; 0 elsewhere. Image and
+/// LiDAR raster agree exactly at `pose`: the simulator's modality gap is gone (docs/accuracy.md,
+/// "The estimator or the modality gap").
+pub fn gap_free_image(
+    camera: &infraloc::camera::Camera,
+    tile: &infraloc::map::Tile,
+    pose: &infraloc::pose::CamFromMap,
+) -> Vec<u8> {
+    use infraloc::camera::CameraModel;
+    use infraloc::geo::georef::{self, HeightSurface, PoseWithCovariance, Surface};
+    let (w, h) = (camera.width() as usize, camera.height() as usize);
+    let Some(hs) = HeightSurface::with_smoothing(&tile.height, 0.0) else {
+        return vec![0; w * h];
+    };
+    let pc = PoseWithCovariance {
+        pose: *pose,
+        covariance: None,
+    };
+    let params = georef::Params {
+        wgs84: false,
+        ..georef::Params::default()
+    };
+    let pixels: Vec<[f64; 2]> = (0..w * h)
+        .map(|k| [(k % w) as f64, (k / w) as f64])
+        .collect();
+    let refl = &tile.reflectivity;
+    let g = refl.grid;
+    let at = |c: usize, r: usize| -> Option<f64> {
+        let v = refl.data[r * g.width + c];
+        (refl.nodata != Some(v)).then_some(v as f64)
+    };
+    georef::georef_batch(camera, &pc, &Surface::Heights(hs), g.crs, &pixels, &params)
+        .iter()
+        .map(|m| {
+            if m.status != georef::Status::Ok {
+                return 0;
+            }
+            let (fc, fr) = g.to_pixel(m.enh[0], m.enh[1]);
+            let (c0, r0) = (fc.floor(), fr.floor());
+            if c0 < 0.0 || r0 < 0.0 || c0 + 1.0 >= g.width as f64 || r0 + 1.0 >= g.height as f64 {
+                return 0;
+            }
+            let (u, v) = (fc - c0, fr - r0);
+            let (c0, r0) = (c0 as usize, r0 as usize);
+            match (
+                at(c0, r0),
+                at(c0 + 1, r0),
+                at(c0, r0 + 1),
+                at(c0 + 1, r0 + 1),
+            ) {
+                (Some(a), Some(b), Some(c), Some(d)) => {
+                    let x = a * (1.0 - u) * (1.0 - v)
+                        + b * u * (1.0 - v)
+                        + c * (1.0 - u) * v
+                        + d * u * v;
+                    x.round().clamp(1.0, 255.0) as u8
+                }
+                _ => 0,
+            }
+        })
+        .collect()
+}

@@ -50,6 +50,13 @@ pub struct Params {
     /// sweep + patch stages, [`initialize`]); `Some` = PnP on that matcher's correspondences
     /// ([`crate::localize::init::matcher::initialize_with`]).
     pub matcher: Option<std::sync::Arc<dyn Matcher>>,
+    /// The MI stage's local estimator: `Nearest` ends with the nearest-pixel refinement (the
+    /// default); `Pv` follows it with the smooth estimator's 4-DoF gradient ascent and its gate
+    /// ([`crate::localize::refine::gradient::smooth_stage`]), pooling as given.
+    pub sampling: (
+        crate::localize::mi::smooth::Sampling,
+        crate::localize::mi::smooth::Pooling,
+    ),
 }
 
 /// Default of [`Params::mi_max_off_nadir_deg`]. The far ground is what pins down tilt and yaw
@@ -77,6 +84,10 @@ impl Default for Params {
             mi_max_off_nadir_deg: MI_MAX_OFF_NADIR_DEG,
             polish: Some(PolishedSearch::default()),
             matcher: None,
+            sampling: (
+                crate::localize::mi::smooth::Sampling::Nearest,
+                crate::localize::mi::smooth::Pooling::Joint,
+            ),
         }
     }
 }
@@ -313,6 +324,46 @@ pub fn quality_gate(o: &Outcome) -> Result<()> {
     ))
 }
 
+/// The MI stage from `start`: the nearest-pixel refinement ([`refine_polished`]) on the ground
+/// points around it, then, with [`Params::sampling`] `Pv`, the smooth estimator's stage.
+fn refine_at(
+    frame: &Frame<'_>,
+    tile: &Tile,
+    p: &Params,
+    start: &CamFromMap,
+) -> Result<(Refinement, Vec<Round>)> {
+    let camera = frame.camera();
+    // Pitch and roll pivot about the ground under the camera (the tile's height layer).
+    let pivot = |pose: &CamFromMap| {
+        let c = pose.center();
+        crate::localize::init::ground::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
+    };
+    let points = mi_points(tile, start, p);
+    let views = [View {
+        gray: frame.gray(),
+        mask: frame.mask(),
+        points: &points,
+    }];
+    let (r, rounds) = refine_polished(
+        camera,
+        &views,
+        start,
+        &p.search,
+        &p.quality,
+        p.polish.as_ref(),
+        &pivot,
+    )?;
+    match p.sampling {
+        (crate::localize::mi::smooth::Sampling::Pv, pooling) => {
+            let (r, _) = crate::localize::refine::gradient::smooth_stage(
+                camera, &views, start, r, &p.search, &p.quality, false, pooling,
+            )?;
+            Ok((r, rounds))
+        }
+        _ => Ok((r, rounds)),
+    }
+}
+
 /// [`localize`] without the quality gate: the outcome whatever the gate would say, so that an
 /// evaluation can still see the stages of a rejected run (`examples/pipeline_accuracy.rs`);
 /// `progress` as there.
@@ -388,27 +439,7 @@ pub(crate) fn localize_ungated(
     drop(verifier);
     let t1 = now();
     progress(StageName::Mi);
-    // Pitch and roll pivot about the ground under the camera (the tile's height layer).
-    let pivot = |pose: &CamFromMap| {
-        let c = pose.center();
-        crate::localize::init::ground::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
-    };
-    let refine = |start: &CamFromMap| {
-        let points = mi_points(tile, start, p);
-        refine_polished(
-            camera,
-            &[View {
-                gray: image,
-                mask: frame.mask(),
-                points: &points,
-            }],
-            start,
-            &p.search,
-            &p.quality,
-            p.polish.as_ref(),
-            &pivot,
-        )
-    };
+    let refine = |start: &CamFromMap| refine_at(frame, tile, p, start);
     let mut init = init;
     let (mut refinement, mut rounds) = refine(&init.pose)?;
     // The verifier could not tell two hypotheses apart (see `VerifySchedule::runner_up_margin`)

@@ -489,7 +489,26 @@ pub fn refine_smooth(
     six_dof: bool,
     pooling: crate::localize::mi::smooth::Pooling,
 ) -> crate::error::Result<(super::rounds::Refinement, SmoothRefinement)> {
-    let (mut r, _) = super::rounds::refine_polished(cam, views, init, cfg, qcfg, None, &|_| None)?;
+    let (r, _) = super::rounds::refine_polished(cam, views, init, cfg, qcfg, None, &|_| None)?;
+    smooth_stage(cam, views, init, r, cfg, qcfg, six_dof, pooling)
+}
+
+/// The smooth estimator's stage after a nearest-pixel refinement `r` that started at `init`:
+/// its gradient ascent from `r`'s pose (in the box of [`AscentConfig`], re-centred while it ends
+/// on the edge, [`ASCENT_ROUNDS`] at most), the observed information at the answer, and the
+/// gate of [`refine_smooth`]. `r` keeps its grid checks and jackknife σ; its pose, offsets and
+/// verdict become the stage's.
+#[allow(clippy::too_many_arguments)]
+pub fn smooth_stage(
+    cam: &crate::camera::Camera,
+    views: &[crate::localize::mi::objective::View<'_>],
+    init: &CamFromMap,
+    mut r: super::rounds::Refinement,
+    cfg: &crate::localize::mi::space::SearchConfig,
+    qcfg: &super::quality::QualityConfig,
+    six_dof: bool,
+    pooling: crate::localize::mi::smooth::Pooling,
+) -> crate::error::Result<(super::rounds::Refinement, SmoothRefinement)> {
     let grid_reason = r.quality.reason.clone();
     let acfg = if six_dof {
         AscentConfig::six_dof()
