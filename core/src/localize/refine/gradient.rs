@@ -622,8 +622,16 @@ fn smooth_gate(
                 // 40–90× smaller than the answers' scatter (docs/refine.md "Sampling"). The gate
                 // judges the largest of it, the sandwich σ and the grid's jackknife σ (∞ where
                 // the jackknife found no peak).
+                // The jackknife's σ as the grid's own gate judges it (the estimate itself,
+                // before the reported σ is widened by the intrinsics' uncertainty).
+                let judged_jack = r
+                    .quality
+                    .covariance
+                    .as_ref()
+                    .map(super::quality::Sigma::judged)
+                    .or(r.quality.sigma);
                 let jack = |axis: &str| -> f64 {
-                    r.quality.sigma.as_ref().map_or(0.0, |s| match axis {
+                    judged_jack.as_ref().map_or(0.0, |s| match axis {
                         "x" => s.x,
                         "y" => s.y,
                         "z" => s.z,
