@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 #[path = "../tests/common/served.rs"]
 mod served;
-use served::{raw, simulate, store_truth, write_config, Daemon};
+use served::{grid_1000, raw, simulate, store_truth, write_config, Daemon};
 
 fn bench_socket(c: &mut Criterion) {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -34,12 +34,7 @@ fn bench_socket(c: &mut Criterion) {
         infraloc::camera::CameraModel::width(&camera) as f64,
         infraloc::camera::CameraModel::height(&camera) as f64,
     );
-    let grid: Vec<[Option<f64>; 2]> = (0..1000)
-        .map(|k| {
-            let (i, j) = ((k % 40) as f64, (k / 40) as f64);
-            [Some((i + 0.5) * w / 40.0), Some((j + 0.5) * h / 25.0)]
-        })
-        .collect();
+    let grid = grid_1000(w, h);
     let georef = Request::Georef {
         pixels: grid,
         sigma_px: 0.0,

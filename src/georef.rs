@@ -125,11 +125,6 @@ impl Record {
     }
 }
 
-/// One pixel's JSON record as a JSON value ([`Record`]).
-pub fn record(px: [f64; 2], m: &MapPoint) -> Value {
-    serde_json::to_value(Record::of(px, m)).unwrap_or(Value::Null)
-}
-
 /// A georef document ([`SCHEMA`]): what `infraloc georef --format json` prints and the service's
 /// `georef` request answers. Fields in name order, as [`Record`]'s.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -146,7 +141,7 @@ pub struct Document {
     pub surface: Value,
 }
 
-/// The map point of a [`record`] (the inverse of it, for a client that prints an answer as
+/// The map point of a [`Record`] read back as JSON (the inverse of it, for a client that prints an answer as
 /// CSV); the error says what is missing.
 pub fn point_of_record(r: &Value) -> std::result::Result<([f64; 2], MapPoint), String> {
     let coord = |k: &str| match &r[k] {
@@ -422,10 +417,13 @@ mod tests {
         m.covariance = [[1e-4, 0.0, 0.0], [0.0, 4e-4, 0.0], [0.0, 0.0, 1e-4]];
         m.range_m = 7.5;
         m.off_nadir_deg = 30.0;
-        let (px, back) = point_of_record(&record([10.5, 20.0], &m)).unwrap();
+        let (px, back) =
+            point_of_record(&serde_json::to_value(Record::of([10.5, 20.0], &m)).unwrap()).unwrap();
         assert_eq!((px, back), ([10.5, 20.0], m));
         let bad = MapPoint::invalid(Status::NonFinite);
-        let (px, back) = point_of_record(&record([f64::NAN, 1.0], &bad)).unwrap();
+        let (px, back) =
+            point_of_record(&serde_json::to_value(Record::of([f64::NAN, 1.0], &bad)).unwrap())
+                .unwrap();
         assert!(px[0].is_nan() && back.status == Status::NonFinite);
         let e = point_of_record(&json!({"u": 1, "v": 2, "status": "fine"})).unwrap_err();
         assert_eq!(e, "unknown status \"fine\"");

@@ -17,7 +17,9 @@ use std::time::{Duration, Instant};
 
 #[path = "common/served.rs"]
 mod served;
-use served::{cli, raw, set, simulate, store_truth, text, write_config, Daemon, BIN, STORED_AT};
+use served::{
+    cli, grid_1000, raw, set, simulate, store_truth, text, write_config, Daemon, BIN, STORED_AT,
+};
 use std::io::Write;
 
 fn json_of(out: &Output) -> Value {
@@ -282,12 +284,7 @@ fn georef_request_and_lookup_table_follow_the_served_pose() {
         meta["image_width"].as_f64().unwrap(),
         meta["image_height"].as_f64().unwrap(),
     );
-    let grid: Vec<[Option<f64>; 2]> = (0..1000)
-        .map(|k| {
-            let (i, j) = ((k % 40) as f64, (k / 40) as f64);
-            [Some((i + 0.5) * w / 40.0), Some((j + 0.5) * h / 25.0)]
-        })
-        .collect();
+    let grid = grid_1000(w, h);
     let req = Request::Georef {
         pixels: grid.clone(),
         sigma_px: 0.0,

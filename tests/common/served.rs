@@ -167,3 +167,14 @@ pub(crate) fn raw(socket: &Path, req: &Value) -> Value {
     write_frame(&mut s, req.to_string().as_bytes()).unwrap();
     serde_json::from_slice(&read_frame(&mut s, 64 << 20).unwrap().unwrap()).unwrap()
 }
+
+/// 1,000 pixels, a 40 × 25 grid of cell centres over a `w` × `h` image: the batch whose
+/// request latency docs/benchmarks.md reports.
+pub(crate) fn grid_1000(w: f64, h: f64) -> Vec<[Option<f64>; 2]> {
+    (0..1000)
+        .map(|k| {
+            let (i, j) = ((k % 40) as f64, (k / 40) as f64);
+            [Some((i + 0.5) * w / 40.0), Some((j + 0.5) * h / 25.0)]
+        })
+        .collect()
+}
