@@ -147,6 +147,7 @@ fn settings() -> Vec<(&'static str, MiConfig)> {
                 binning: Binning::Uniform,
                 objective: Objective::Mi,
                 parzen: false,
+                ..MiConfig::default()
             },
         ),
         (
@@ -157,6 +158,7 @@ fn settings() -> Vec<(&'static str, MiConfig)> {
                 binning: Binning::Uniform,
                 objective: Objective::Mi,
                 parzen: false,
+                ..MiConfig::default()
             },
         ),
         (
@@ -167,6 +169,7 @@ fn settings() -> Vec<(&'static str, MiConfig)> {
                 binning: Binning::Uniform,
                 objective: Objective::Mi,
                 parzen: false,
+                ..MiConfig::default()
             },
         ),
         (
@@ -177,6 +180,7 @@ fn settings() -> Vec<(&'static str, MiConfig)> {
                 binning: Binning::Equalized,
                 objective: Objective::Mi,
                 parzen: false,
+                ..MiConfig::default()
             },
         ),
         ("32 equalized+parzen", MiConfig::default()),

@@ -103,7 +103,7 @@ fn refine_cli_estimator_flags() {
     assert_eq!(
         mi["estimator"],
         serde_json::json!({"bins-reflectivity": 32, "bins-gray": 32, "binning": "equalized",
-            "objective": "mi", "parzen": true}),
+            "objective": "mi", "parzen": true, "pooling": "per-pair"}),
         "{mi}"
     );
     assert_eq!(mi["score"]["objective"], "mi");

@@ -1,10 +1,11 @@
 //! Pooled refinement and the honesty of its uncertainty on synthetic scenes (the real frames are
 //! in tests/real_kitti.rs): several frames of one static camera under different light, pooled into
-//! one joint histogram per pose, and the covariance's coverage of the true error.
+//! one joint histogram per pose or one per frame, and the covariance's coverage of the true error.
 
 use infraloc::camera::{Camera, Mei};
 use infraloc::localize::mi::objective::View;
 use infraloc::localize::mi::space::{pose_at, SearchConfig};
+use infraloc::localize::mi::{MiConfig, Pooling};
 use infraloc::localize::refine::quality::QualityConfig;
 use infraloc::localize::refine::{refine_polished, PolishedSearch, Refinement};
 use infraloc::localize::synth::{forward_view, lidar_rings, render, Texture};
@@ -51,6 +52,11 @@ fn scene(seed: u64, frames: usize, noise: f64) -> Scene {
 }
 
 fn refine(s: &Scene, n: usize, start: [f64; 4]) -> (Refinement, [f64; 4]) {
+    refine_pooled(s, n, start, Pooling::Joint)
+}
+
+/// [`refine`] with the pairs pooled as `pooling` says.
+fn refine_pooled(s: &Scene, n: usize, start: [f64; 4], pooling: Pooling) -> (Refinement, [f64; 4]) {
     let init = pose_at(
         &s.truth,
         &[start[0], start[1], start[2], start[3], 0.0, 0.0],
@@ -67,7 +73,13 @@ fn refine(s: &Scene, n: usize, start: [f64; 4]) -> (Refinement, [f64; 4]) {
         &s.cam,
         &views,
         &init,
-        &SearchConfig::default(),
+        &SearchConfig {
+            mi: MiConfig {
+                pooling,
+                ..MiConfig::default()
+            },
+            ..SearchConfig::default()
+        },
         &QualityConfig::default(),
         Some(&PolishedSearch::four_dof()),
         &|_| None,
@@ -132,6 +144,22 @@ fn pooling_noisy_frames_under_different_light() {
     // The report's pairs and points.
     let rep = four.report(infraloc::localize::mi::space::Mode::Tiled);
     assert_eq!((rep.pairs, rep.pair_points.len()), (4, 4));
+    // Each frame its own histogram: as accurate, and as honest.
+    let (per_pair, ep) = refine_pooled(&s, 4, start, Pooling::PerPair);
+    eprintln!(
+        "four per pair: err {ep:?} σ {:?} accepted {}",
+        per_pair.quality.sigma, per_pair.quality.accepted
+    );
+    assert!(per_pair.quality.accepted, "{:?}", per_pair.quality.reason);
+    assert!(
+        ep[0].hypot(ep[1]) < 0.05 && ep[2].abs() < 0.05 && ep[3].abs() < 0.1,
+        "{ep:?}"
+    );
+    assert!(
+        covered(&per_pair, &ep),
+        "error {ep:?} outside 3σ {:?}",
+        per_pair.quality.sigma
+    );
 }
 
 #[test]

@@ -50,6 +50,7 @@ impl EstimatorArgs {
             binning: self.binning.parse::<Binning>()?,
             objective: self.objective.parse::<Objective>()?,
             parzen: !self.no_parzen,
+            ..MiConfig::default()
         };
         cfg.validate()?;
         Ok(cfg)
@@ -98,6 +99,7 @@ mod tests {
                 binning: Binning::Uniform,
                 objective: Objective::Nmi,
                 parzen: false,
+                ..MiConfig::default()
             }
         );
     }

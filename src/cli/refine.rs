@@ -96,9 +96,11 @@ pub struct Args {
     /// the information covariance beside the jackknife's, docs/refine.md "Estimator").
     #[arg(long, value_name = "nearest|pv", default_value = "nearest")]
     pub sampling: String,
-    /// With `--sampling pv` and several pairs: `joint` (one histogram of all pairs) or `per-pair`
-    /// (each pair its own histogram, the objective the point-weighted sum of their MI).
-    #[arg(long, value_name = "joint|per-pair", default_value = "joint")]
+    /// With several pairs: `per-pair` (each pair its own histogram, the objective the
+    /// point-weighted sum of their MI: frames under different light need not share one
+    /// gray–reflectivity relation) or `joint` (one histogram of all pairs), in the grid search,
+    /// the polish, the jackknife and the smooth stage alike. One pair is the same either way.
+    #[arg(long, value_name = "per-pair|joint", default_value = "per-pair")]
     pub pooling: String,
 }
 
@@ -258,9 +260,12 @@ pub(super) fn run(mut a: Args) -> Result<()> {
     let spec: SearchSpec = a.search.parse()?;
     let qcfg = quality_config(a.max_sigma.as_deref())?;
     let mode: Mode = a.mode.parse()?;
-    let mi = a.estimator.config()?;
     let sampling: Sampling = a.sampling.parse()?;
     let pooling: Pooling = a.pooling.parse()?;
+    let mi = crate::localize::mi::MiConfig {
+        pooling,
+        ..a.estimator.config()?
+    };
     if sampling == Sampling::Pv && a.grid_only {
         return Err(Error::Invalid(
             "--sampling pv with --grid-only: the grid search samples the nearest pixel; pv is its local stage".into(),
@@ -342,7 +347,7 @@ pub(super) fn run(mut a: Args) -> Result<()> {
             (r, rounds, None)
         }
         Sampling::Pv => {
-            let (r, s) = refine_smooth(&cam, &views, &init.pose, &cfg, &qcfg, a.polish, pooling)?;
+            let (r, s) = refine_smooth(&cam, &views, &init.pose, &cfg, &qcfg, a.polish)?;
             (r, Vec::new(), Some(s))
         }
     };
@@ -456,18 +461,13 @@ fn write_pose_out(
         .unwrap_or(0);
     let mut pf = PoseFile::new(&r.pose, crs, tile_id, format_utc(now, None));
     pf.quality = serde_json::to_value(&r.quality).unwrap_or_default();
-    if let (Some(Ok(info)), Some(q)) = (smooth.map(|s| &s.information), pf.quality.as_object_mut())
-    {
-        q.insert(
-            "information".into(),
-            serde_json::to_value(info).unwrap_or_default(),
-        );
-    }
     pf.stages = vec![
         serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.polish, "finish": finish_label }),
     ];
     if smooth.is_some() {
         pf.stages[0]["sampling"] = sampling.name().into();
+    }
+    if smooth.is_some() || a.image.len() > 1 {
         pf.stages[0]["pooling"] = pooling.name().into();
     }
     crate::persist::write_atomic(path, pf.to_json().as_bytes())

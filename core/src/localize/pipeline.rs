@@ -52,11 +52,8 @@ pub struct Params {
     pub matcher: Option<std::sync::Arc<dyn Matcher>>,
     /// The MI stage's local estimator: `Nearest` ends with the nearest-pixel refinement (the
     /// default); `Pv` follows it with the smooth estimator's 4-DoF gradient ascent and its gate
-    /// ([`crate::localize::refine::gradient::smooth_stage`]), pooling as given.
-    pub sampling: (
-        crate::localize::mi::smooth::Sampling,
-        crate::localize::mi::smooth::Pooling,
-    ),
+    /// ([`crate::localize::refine::gradient::smooth_stage`]).
+    pub sampling: crate::localize::mi::smooth::Sampling,
 }
 
 /// Default of [`Params::mi_max_off_nadir_deg`]. The far ground is what pins down tilt and yaw
@@ -84,10 +81,7 @@ impl Default for Params {
             mi_max_off_nadir_deg: MI_MAX_OFF_NADIR_DEG,
             polish: Some(PolishedSearch::default()),
             matcher: None,
-            sampling: (
-                crate::localize::mi::smooth::Sampling::Nearest,
-                crate::localize::mi::smooth::Pooling::Joint,
-            ),
+            sampling: crate::localize::mi::smooth::Sampling::Nearest,
         }
     }
 }
@@ -354,13 +348,13 @@ fn refine_at(
         &pivot,
     )?;
     match p.sampling {
-        (crate::localize::mi::smooth::Sampling::Pv, pooling) => {
+        crate::localize::mi::smooth::Sampling::Pv => {
             let (r, _) = crate::localize::refine::gradient::smooth_stage(
-                camera, &views, start, r, &p.search, &p.quality, false, pooling,
+                camera, &views, start, r, &p.search, &p.quality, false,
             )?;
             Ok((r, rounds))
         }
-        _ => Ok((r, rounds)),
+        crate::localize::mi::smooth::Sampling::Nearest => Ok((r, rounds)),
     }
 }
 

@@ -105,6 +105,47 @@ impl std::str::FromStr for Binning {
     }
 }
 
+/// How several image/point-set pairs are pooled into one objective.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Pooling {
+    /// One joint histogram summed over the pairs.
+    #[default]
+    Joint,
+    /// One histogram per pair; the objective is the point-weighted sum of the pairs' MI.
+    PerPair,
+}
+
+impl Pooling {
+    /// The command-line name (`joint`, `per-pair`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Pooling::Joint => "joint",
+            Pooling::PerPair => "per-pair",
+        }
+    }
+}
+
+impl std::fmt::Display for Pooling {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Pooling {
+    type Err = Error;
+    /// `joint` or `per-pair`; anything else is a one-line error naming `--pooling`.
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "joint" => Ok(Pooling::Joint),
+            "per-pair" => Ok(Pooling::PerPair),
+            _ => Err(Error::Invalid(format!(
+                "--pooling {s:?}: expected joint or per-pair"
+            ))),
+        }
+    }
+}
+
 /// Estimator settings.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
@@ -120,6 +161,9 @@ pub struct MiConfig {
     /// Parzen smoothing: convolve the joint histogram with a 3×3 binomial kernel before the
     /// entropies (reduces the small-sample noise of sparse cells).
     pub parzen: bool,
+    /// With several image/point-set pairs: one joint histogram of all of them, or one per pair
+    /// ([`pooled_information`]). One pair is the same either way.
+    pub pooling: Pooling,
 }
 
 impl Default for MiConfig {
@@ -130,6 +174,7 @@ impl Default for MiConfig {
             binning: Binning::Equalized,
             objective: Objective::Mi,
             parzen: true,
+            pooling: Pooling::Joint,
         }
     }
 }
@@ -203,6 +248,14 @@ impl JointHist {
             cols,
             counts: vec![0; rows * (cols + 1)],
         }
+    }
+
+    /// Add `other`'s counts (same shape) to this histogram's.
+    pub(crate) fn add(&mut self, other: &JointHist) {
+        self.counts
+            .iter_mut()
+            .zip(&other.counts)
+            .for_each(|(a, b)| *a += b);
     }
 
     /// Row stride of `counts`.
@@ -345,6 +398,41 @@ pub fn mutual_information(h: &JointHist, parzen: bool) -> MiValue {
     let mi = (hx + hy - hxy).max(0.0);
     let nmi = if hxy > 0.0 { (hx + hy) / hxy } else { 1.0 };
     MiValue { mi, nmi, n }
+}
+
+/// MI and NMI of one pose under a [`Pooling`]: `hists` holds one joint histogram (returned as
+/// [`mutual_information`] scores it) or one per pair. Per pair, each pair's statistics are weighted
+/// by its share of the points (every point counts in its pair's histogram, on a valid pixel or
+/// in the invalid column), as the smooth estimator weights them; `n` is the points that counted.
+pub fn pooled_information(hists: &[JointHist], parzen: bool) -> MiValue {
+    if let [h] = hists {
+        return mutual_information(h, parzen);
+    }
+    let sizes: Vec<u64> = hists
+        .iter()
+        .map(|h| h.valid_count() + h.invalid_count())
+        .collect();
+    let total = sizes.iter().sum::<u64>();
+    if total == 0 {
+        return MiValue {
+            mi: 0.0,
+            nmi: 1.0,
+            n: 0,
+        };
+    }
+    let mut out = MiValue {
+        mi: 0.0,
+        nmi: 0.0,
+        n: 0,
+    };
+    for (h, &size) in hists.iter().zip(&sizes) {
+        let w = size as f64 / total as f64;
+        let v = mutual_information(h, parzen);
+        out.mi += w * v.mi;
+        out.nmi += w * v.nmi;
+        out.n += v.n;
+    }
+    out
 }
 
 #[cfg(test)]

@@ -14,7 +14,7 @@ use crate::localize::mi::kernel::{
     Scratch,
 };
 use crate::localize::mi::points::{morton_order, validate, GroundPoint, PreparedPoints};
-use crate::localize::mi::{bin_lut, mutual_information, JointHist, MiConfig, MiValue};
+use crate::localize::mi::{bin_lut, pooled_information, JointHist, MiConfig, MiValue, Pooling};
 use crate::pose::CamFromMap;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -372,12 +372,52 @@ impl Evaluator {
         h
     }
 
+    /// Histograms a pose is scored on under the estimator's pooling: one (joint, or a single
+    /// view), or one per view.
+    pub(crate) fn slots(&self) -> usize {
+        match self.mi.pooling {
+            Pooling::PerPair => self.views(),
+            Pooling::Joint => 1,
+        }
+    }
+
+    /// The histogram view `v` adds its points to.
+    fn slot(&self, v: usize) -> usize {
+        match self.mi.pooling {
+            Pooling::PerPair => v,
+            Pooling::Joint => 0,
+        }
+    }
+
+    /// Empty histograms, one per slot.
+    fn empty_slots(&self) -> Vec<JointHist> {
+        vec![JointHist::new(self.mi.bins_reflectivity, self.mi.bins_gray); self.slots()]
+    }
+
+    /// The slots' histograms of a pose at a level, on the fixed point set (what
+    /// [`pooled_information`] scores).
+    pub(crate) fn histograms_at(
+        &self,
+        level: u32,
+        pose: &CamFromMap,
+        scratch: &mut Scratch,
+    ) -> Vec<JointHist> {
+        let lv = &self.levels[level as usize];
+        let mut hs = self.empty_slots();
+        let p = PoseF32::new(pose, self.origin);
+        for (v, part) in lv.parts.iter().enumerate() {
+            let h = &mut hs[self.slot(v)];
+            accumulate(&part.pts, &p, &lv.cam, &part.img, h, scratch);
+        }
+        hs
+    }
+
     /// MI and NMI at continuous offsets from the initial pose (not restricted to the grid's
-    /// cells), on the fixed point set at `level`; for local continuous polishing after the grid
-    /// search ([`crate::localize::refine::polish`]).
+    /// cells), on the fixed point set at `level`, pooled as configured; for local continuous
+    /// polishing after the grid search ([`crate::localize::refine::polish`]).
     pub fn value_at(&self, level: u32, offsets: &[f64; 6], scratch: &mut Scratch) -> MiValue {
         let pose = pose_at_pivot(&self.init, offsets, self.grid.pivot);
-        mutual_information(&self.histogram_at(level, &pose, scratch), self.mi.parzen)
+        pooled_information(&self.histograms_at(level, &pose, scratch), self.mi.parzen)
     }
 
     /// The level-0 point sets cut into `k` jackknife groups: each view's fixed set, in Morton
@@ -400,23 +440,31 @@ impl Evaluator {
         }
     }
 
-    /// Level-0 joint histograms of the pose at `offsets`, one per group of `folds`; their sum is
-    /// the histogram [`Evaluator::value_at`] scores.
+    /// Level-0 histograms of the pose at `offsets`, per group of `folds` the slots' histograms
+    /// (indexed `[group][slot]`); summed over the groups they are what [`Evaluator::value_at`]
+    /// scores.
     pub(crate) fn fold_histograms(
         &self,
         folds: &Folds,
         offsets: &[f64; 6],
         scratch: &mut Scratch,
-    ) -> Vec<JointHist> {
+    ) -> Vec<Vec<JointHist>> {
         let lv = &self.levels[0];
         let pose = PoseF32::new(
             &pose_at_pivot(&self.init, offsets, self.grid.pivot),
             self.origin,
         );
-        let mut out = vec![JointHist::new(self.mi.bins_reflectivity, self.mi.bins_gray); folds.k];
-        for (part, groups) in lv.parts.iter().zip(&folds.parts) {
-            for (h, pts) in out.iter_mut().zip(groups) {
-                accumulate(pts, &pose, &lv.cam, &part.img, h, scratch);
+        let mut out = vec![self.empty_slots(); folds.k];
+        for (v, (part, groups)) in lv.parts.iter().zip(&folds.parts).enumerate() {
+            for (hs, pts) in out.iter_mut().zip(groups) {
+                accumulate(
+                    pts,
+                    &pose,
+                    &lv.cam,
+                    &part.img,
+                    &mut hs[self.slot(v)],
+                    scratch,
+                );
             }
         }
         out
@@ -453,7 +501,7 @@ impl Evaluator {
     }
 
     /// [`Evaluator::value_at`] at level 0 with the groups of `folds` scored in parallel: their
-    /// histograms add up to the one `value_at` scores (integer counts), so the value is the
+    /// histograms add up to the ones `value_at` scores (integer counts), so the value is the
     /// same; for a single optimiser run that should still use every thread.
     pub(crate) fn value_at_split(&self, folds: &Folds, offsets: &[f64; 6]) -> MiValue {
         let lv = &self.levels[0];
@@ -461,65 +509,70 @@ impl Evaluator {
             &pose_at_pivot(&self.init, offsets, self.grid.pivot),
             self.origin,
         );
-        let (rows, cols) = (self.mi.bins_reflectivity, self.mi.bins_gray);
         let jobs: Vec<(usize, usize)> = (0..folds.parts.len())
             .flat_map(|v| (0..folds.k).map(move |g| (v, g)))
             .collect();
-        let h = jobs
+        let hs = jobs
             .par_iter()
             .fold(
-                || (JointHist::new(rows, cols), Scratch::default()),
-                |(mut h, mut scratch), &(v, g)| {
+                || (self.empty_slots(), Scratch::default()),
+                |(mut hs, mut scratch), &(v, g)| {
                     let part = &lv.parts[v];
                     accumulate(
                         &folds.parts[v][g],
                         &pose,
                         &lv.cam,
                         &part.img,
-                        &mut h,
+                        &mut hs[self.slot(v)],
                         &mut scratch,
                     );
-                    (h, scratch)
+                    (hs, scratch)
                 },
             )
-            .map(|(h, _)| h)
+            .map(|(hs, _)| hs)
             .reduce(
-                || JointHist::new(rows, cols),
+                || self.empty_slots(),
                 |mut a, b| {
-                    a.counts
-                        .iter_mut()
-                        .zip(&b.counts)
-                        .for_each(|(x, y)| *x += y);
+                    for (ha, hb) in a.iter_mut().zip(&b) {
+                        ha.add(hb);
+                    }
                     a
                 },
             );
-        mutual_information(&h, self.mi.parzen)
+        pooled_information(&hs, self.mi.parzen)
     }
 
-    /// The level-0 joint histogram at `offsets` of every group of `folds` but `left_out`, in one
-    /// pass: the sum of those groups' [`Evaluator::fold_histograms`] (counts are integers, so
-    /// the order of the sum cannot change them), without scoring the group left out.
-    pub(crate) fn histogram_without(
+    /// The level-0 histograms (per slot) at `offsets` of every group of `folds` but `left_out`,
+    /// in one pass: the sum of those groups' [`Evaluator::fold_histograms`] (counts are
+    /// integers, so the order of the sum cannot change them), without scoring the group left out.
+    pub(crate) fn histograms_without(
         &self,
         folds: &Folds,
         left_out: usize,
         offsets: &[f64; 6],
         scratch: &mut Scratch,
-    ) -> JointHist {
+    ) -> Vec<JointHist> {
         let lv = &self.levels[0];
         let pose = PoseF32::new(
             &pose_at_pivot(&self.init, offsets, self.grid.pivot),
             self.origin,
         );
-        let mut h = JointHist::new(self.mi.bins_reflectivity, self.mi.bins_gray);
-        for (part, groups) in lv.parts.iter().zip(&folds.parts) {
+        let mut hs = self.empty_slots();
+        for (v, (part, groups)) in lv.parts.iter().zip(&folds.parts).enumerate() {
             for (j, pts) in groups.iter().enumerate() {
                 if j != left_out {
-                    accumulate(pts, &pose, &lv.cam, &part.img, &mut h, scratch);
+                    accumulate(
+                        pts,
+                        &pose,
+                        &lv.cam,
+                        &part.img,
+                        &mut hs[self.slot(v)],
+                        scratch,
+                    );
                 }
             }
         }
-        h
+        hs
     }
 
     /// Level 0 of every view (its binned image and fixed point set), the points' origin and the
@@ -540,8 +593,8 @@ impl Evaluator {
 
     /// Score a cell at a level.
     pub fn score(&self, level: u32, idx: u64, scratch: &mut Scratch) -> Scored {
-        let h = self.histogram(level, &self.grid.cell(idx), scratch);
-        let value = mutual_information(&h, self.mi.parzen);
+        let pose = self.pose(&self.grid.cell(idx));
+        let value = pooled_information(&self.histograms_at(level, &pose, scratch), self.mi.parzen);
         Scored {
             idx,
             score: value.get(self.mi.objective),

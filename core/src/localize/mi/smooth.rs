@@ -35,6 +35,7 @@
 
 use super::kernel::{BinnedImage, FastCamera};
 use super::points::PreparedPoints;
+pub use super::Pooling;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::pose::CamFromMap;
@@ -82,47 +83,6 @@ impl std::str::FromStr for Sampling {
             "pv" => Ok(Sampling::Pv),
             _ => Err(Error::Invalid(format!(
                 "--sampling {s:?}: expected nearest or pv"
-            ))),
-        }
-    }
-}
-
-/// How several image/point-set pairs are pooled into one objective.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum Pooling {
-    /// One joint histogram summed over the pairs.
-    #[default]
-    Joint,
-    /// One histogram per pair; the objective is the point-weighted sum of the pairs' MI.
-    PerPair,
-}
-
-impl Pooling {
-    /// The command-line name (`joint`, `per-pair`).
-    pub fn name(self) -> &'static str {
-        match self {
-            Pooling::Joint => "joint",
-            Pooling::PerPair => "per-pair",
-        }
-    }
-}
-
-impl std::fmt::Display for Pooling {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl std::str::FromStr for Pooling {
-    type Err = Error;
-    /// `joint` or `per-pair`; anything else is a one-line error naming `--pooling`.
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "joint" => Ok(Pooling::Joint),
-            "per-pair" => Ok(Pooling::PerPair),
-            _ => Err(Error::Invalid(format!(
-                "--pooling {s:?}: expected joint or per-pair"
             ))),
         }
     }
@@ -400,6 +360,11 @@ impl<'a> Smooth<'a> {
         )
     }
 
+    /// Views (image/point-set pairs).
+    pub fn views(&self) -> usize {
+        self.views.len()
+    }
+
     /// Points in all views.
     pub fn n(&self) -> usize {
         self.views.iter().map(|v| v.pts.len()).sum()
@@ -657,6 +622,24 @@ impl<'a> Smooth<'a> {
                         *a += w * b;
                     }
                 }
+                Self::to_theta(&r, &s)
+            })
+            .collect()
+    }
+
+    /// The gradient of the objective at `pose` cut by view: entry v is view v's points' share
+    /// (∂MI/∂h at the whole histogram, so the entries sum to [`Self::evaluate`]'s gradient). With
+    /// frames of one rig, each its own sweep and light, the frames are the independent units
+    /// whose scatter measures what a frame's systematic errors do to the answer.
+    pub fn view_gradients(&self, pose: &CamFromMap) -> Vec<[f64; 6]> {
+        let (r, t) = self.rt(pose);
+        let weights = self.pool(&self.histograms(&r, &t)).cells;
+        self.views
+            .par_iter()
+            .zip(&weights)
+            .map(|(v, (g, w))| {
+                let part = self.pull_back_range(v, &r, &t, g, 0..v.pts.len());
+                let s = part.map(|b| w * b);
                 Self::to_theta(&r, &s)
             })
             .collect()
@@ -1045,6 +1028,43 @@ mod tests {
             // The patches differ: the score is not spread evenly over the ground.
             let parts = est.cluster_gradients(&at, 8);
             assert!(parts.windows(2).any(|w| w[0] != w[1]));
+            let by_view = est.view_gradients(&at);
+            assert_eq!(by_view.len(), 2);
+            for a in 0..6 {
+                let sum = by_view[0][a] + by_view[1][a];
+                assert!((sum - g[a]).abs() <= 1e-9 * norm, "{pooling} θ{a}");
+            }
+        }
+    }
+
+    /// With five pairs or more the information carries the sandwich of one cluster per pair;
+    /// with fewer, none.
+    #[test]
+    fn frame_clusters_need_five_pairs() {
+        use crate::localize::refine::gradient::{information, FRAME_CLUSTERS_MIN};
+        let cam = mei();
+        let s = scene(&cam, 16);
+        let free = [true, true, true, false, false, true];
+        for k in [FRAME_CLUSTERS_MIN - 1, FRAME_CLUSTERS_MIN] {
+            let m = s.pts.len();
+            let parts: Vec<PreparedPoints> = (0..k)
+                .map(|j| s.pts.range(j * m / k, (j + 1) * m / k))
+                .collect();
+            let views = parts
+                .iter()
+                .map(|pts| SmoothView { img: &s.img, pts })
+                .collect();
+            let est = Smooth::new(&cam, views, s.origin, 16, 16, true, Pooling::PerPair);
+            let info = information(&est, &s.pose, &free).expect("a basin at the truth");
+            match &info.frame_sigma {
+                None => assert!(k < FRAME_CLUSTERS_MIN),
+                Some(f) => {
+                    assert!(k >= FRAME_CLUSTERS_MIN);
+                    assert_eq!(f.len(), 4);
+                    assert!(f.iter().all(|v| v.is_finite() && *v > 0.0), "{f:?}");
+                    assert!(info.describe().contains("frame σ"));
+                }
+            }
         }
     }
 

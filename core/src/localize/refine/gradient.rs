@@ -21,7 +21,7 @@
 use crate::localize::mi::smooth::{step, Smooth};
 use crate::pose::CamFromMap;
 use nalgebra::{DMatrix, Rotation3, Vector3};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// L-BFGS memory (pairs of steps and gradient changes kept).
 pub const MEMORY: usize = 6;
@@ -226,7 +226,7 @@ fn sub(a: &[f64; 6], b: &[f64; 6]) -> [f64; 6] {
 pub const HESSIAN_STEP: [f64; 6] = [0.02, 0.02, 0.02, 1.745e-3, 1.745e-3, 1.745e-3];
 
 /// The observed-information covariance ([`information`]).
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Information {
     /// Axis names (x, y, z, yaw, then pitch, roll when free), as the jackknife's.
     pub axes: Vec<String>,
@@ -246,7 +246,19 @@ pub struct Information {
     pub sandwich_matrix: Vec<Vec<f64>>,
     /// Clusters (compact patches of ground) the sandwich's score scatter is taken over.
     pub clusters: usize,
+    /// With [`FRAME_CLUSTERS_MIN`] or more pairs: the sandwich with each pair as one cluster
+    /// (σ per axis, same axes and units), which sees what a frame's own systematic errors (its
+    /// sweep's skew, its light) do to the answer; patches of one frame share those.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_sigma: Option<Vec<f64>>,
+    /// The frame-clustered covariance (m, deg), row-major.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_matrix: Option<Vec<Vec<f64>>>,
 }
+
+/// Pairs needed for [`Information::frame_sigma`]: the scatter of fewer frames' scores is too
+/// noisy to stand for a covariance over four axes.
+pub const FRAME_CLUSTERS_MIN: usize = 5;
 
 /// Clusters of [`information`]'s sandwich: enough patches for a stable 6 × 6 scatter (≫ 6),
 /// few enough that each patch spans more ground than a texture's correlation length on the
@@ -298,20 +310,25 @@ pub fn information_with_step(
     };
     let cov_theta = chol.inverse();
     // The sandwich over θ: A⁻¹·B·A⁻¹ = (N·A)⁻¹ (N²·B) (N·A)⁻¹ with N·A the information above.
+    let sandwich = |scores: &[[f64; 6]]| -> DMatrix<f64> {
+        let k = scores.len() as f64;
+        let mean: Vec<f64> = (0..d)
+            .map(|i| scores.iter().map(|g| g[idx[i]]).sum::<f64>() / k)
+            .collect();
+        let scatter = DMatrix::from_fn(d, d, |i, j| {
+            let nn = (n as f64).powi(2);
+            nn * k / (k - 1.0).max(1.0)
+                * scores
+                    .iter()
+                    .map(|g| (g[idx[i]] - mean[i]) * (g[idx[j]] - mean[j]))
+                    .sum::<f64>()
+        });
+        &cov_theta * scatter * &cov_theta
+    };
     let scores = est.cluster_gradients(pose, SANDWICH_CLUSTERS);
-    let k = scores.len() as f64;
-    let mean: Vec<f64> = (0..d)
-        .map(|i| scores.iter().map(|g| g[idx[i]]).sum::<f64>() / k)
-        .collect();
-    let scatter = DMatrix::from_fn(d, d, |i, j| {
-        let nn = (n as f64).powi(2);
-        nn * k / (k - 1.0).max(1.0)
-            * scores
-                .iter()
-                .map(|g| (g[idx[i]] - mean[i]) * (g[idx[j]] - mean[j]))
-                .sum::<f64>()
-    });
-    let sandwich_theta = &cov_theta * scatter * &cov_theta;
+    let sandwich_theta = sandwich(&scores);
+    let frame_theta =
+        (est.views() >= FRAME_CLUSTERS_MIN).then(|| sandwich(&est.view_gradients(pose)));
     // θ's axes → the reported axes: x, y, z (same), yaw = rz (rad → deg), pitch and roll through
     // the Jacobian of pose_at's Euler increments.
     let tilt = free[3] || free[4];
@@ -353,6 +370,13 @@ pub fn information_with_step(
     if !sw.iter().all(|v| v.is_finite()) {
         return Err("information: the sandwich covariance is not finite".into());
     }
+    let frame = frame_theta.map(|f| &minv * f * minv.transpose());
+    if frame
+        .as_ref()
+        .is_some_and(|f| !f.iter().all(|v| v.is_finite()))
+    {
+        return Err("information: the frame-clustered covariance is not finite".into());
+    }
     let sigma_of = |m: &DMatrix<f64>| -> Vec<f64> {
         (0..axes.len()).map(|i| m[(i, i)].max(0.0).sqrt()).collect()
     };
@@ -382,6 +406,8 @@ pub fn information_with_step(
         sandwich_sigma: sigma_of(&sw),
         sandwich_matrix: rows_of(&sw),
         clusters: scores.len(),
+        frame_sigma: frame.as_ref().map(sigma_of),
+        frame_matrix: frame.as_ref().map(rows_of),
     })
 }
 
@@ -403,8 +429,11 @@ impl Information {
                 .collect::<Vec<_>>()
                 .join(", ")
         };
+        let frames = self.frame_sigma.as_ref().map_or(String::new(), |f| {
+            format!("; frame σ {} (one cluster per pair)", line(f))
+        });
         format!(
-            "σ {} (Cramér–Rao, N = {}); sandwich σ {} ({} patches)",
+            "σ {} (Cramér–Rao, N = {}); sandwich σ {} ({} patches){frames}",
             line(&self.sigma),
             self.points,
             line(&self.sandwich_sigma),
@@ -487,18 +516,16 @@ pub fn refine_smooth(
     cfg: &crate::localize::mi::space::SearchConfig,
     qcfg: &super::quality::QualityConfig,
     six_dof: bool,
-    pooling: crate::localize::mi::smooth::Pooling,
 ) -> crate::error::Result<(super::rounds::Refinement, SmoothRefinement)> {
     let (r, _) = super::rounds::refine_polished(cam, views, init, cfg, qcfg, None, &|_| None)?;
-    smooth_stage(cam, views, init, r, cfg, qcfg, six_dof, pooling)
+    smooth_stage(cam, views, init, r, cfg, qcfg, six_dof)
 }
 
 /// The smooth estimator's stage after a nearest-pixel refinement `r` that started at `init`:
 /// its gradient ascent from `r`'s pose (in the box of [`AscentConfig`], re-centred while it ends
 /// on the edge, [`ASCENT_ROUNDS`] at most), the observed information at the answer, and the
 /// gate of [`refine_smooth`]. `r` keeps its grid checks and jackknife σ; its pose, offsets and
-/// verdict become the stage's.
-#[allow(clippy::too_many_arguments)]
+/// verdict become the stage's. The pairs pool as `cfg.mi.pooling` says, as in the grid search.
 pub fn smooth_stage(
     cam: &crate::camera::Camera,
     views: &[crate::localize::mi::objective::View<'_>],
@@ -507,8 +534,8 @@ pub fn smooth_stage(
     cfg: &crate::localize::mi::space::SearchConfig,
     qcfg: &super::quality::QualityConfig,
     six_dof: bool,
-    pooling: crate::localize::mi::smooth::Pooling,
 ) -> crate::error::Result<(super::rounds::Refinement, SmoothRefinement)> {
+    let pooling = cfg.mi.pooling;
     let grid_reason = r.quality.reason.clone();
     let acfg = if six_dof {
         AscentConfig::six_dof()
@@ -555,6 +582,7 @@ pub fn smooth_stage(
     r.pose = pose;
     r.offsets = crate::pose::offsets_between(init, &pose);
     smooth_gate(&mut r, &information, qcfg);
+    r.quality.information = information.as_ref().ok().cloned();
     if let Some(v) = mi.first() {
         if pooling == crate::localize::mi::smooth::Pooling::Joint {
             r.quality.mi = *v;
@@ -591,7 +619,8 @@ fn smooth_gate(
         };
         let d = info.axes.len();
         let v = nalgebra::DVector::from_fn(d, |i, _| o[i]);
-        let cov = DMatrix::from_fn(d, d, |i, j| info.sandwich_matrix[i][j]);
+        let m = info.frame_matrix.as_ref().unwrap_or(&info.sandwich_matrix);
+        let cov = DMatrix::from_fn(d, d, |i, j| m[i][j]);
         cov.try_inverse()
             .map(|inv| (v.transpose() * inv * &v)[(0, 0)].sqrt() <= 3.0)
             .unwrap_or(false)
@@ -640,16 +669,18 @@ fn smooth_gate(
                         _ => s.roll.unwrap_or(0.0),
                     })
                 };
+                let frame = |i: usize| info.frame_sigma.as_ref().map_or(0.0, |f| f[i]);
                 let judged: Vec<f64> = info
                     .axes
                     .iter()
                     .zip(info.sigma.iter().zip(&info.sandwich_sigma))
-                    .map(|(a, (s, w))| {
+                    .enumerate()
+                    .map(|(i, (a, (s, w)))| {
                         let j = jack(a);
                         if j.is_nan() {
                             f64::INFINITY
                         } else {
-                            s.max(*w).max(j)
+                            s.max(*w).max(j).max(frame(i))
                         }
                     })
                     .collect();
@@ -662,12 +693,15 @@ fn smooth_gate(
                 {
                     r.quality.accepted = false;
                     r.quality.reason = Some(format!(
-                        "σ {} {:.4} {} over the limit {key}={lim} (information σ {:.4}, sandwich σ {:.4}, jackknife σ {:.4})",
+                        "σ {} {:.4} {} over the limit {key}={lim} (information σ {:.4}, sandwich σ {:.4}, {}jackknife σ {:.4})",
                         info.axes[i],
                         judged[i],
                         info.units[i],
                         info.sigma[i],
                         info.sandwich_sigma[i],
+                        info.frame_sigma
+                            .as_ref()
+                            .map_or(String::new(), |f| format!("frame σ {:.4}, ", f[i])),
                         jack(&info.axes[i])
                     ));
                     r.quality.refused_by = Some(GateCheck::Uncertain);

@@ -219,6 +219,11 @@ pub struct Quality {
     /// The marginal covariance and how it was estimated; `None` until estimated.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub covariance: Option<Uncertainty>,
+    /// The smooth estimator's observed information, sandwich and frame covariances at the
+    /// answer, when that stage ran and its Hessian had a basin
+    /// ([`crate::localize::refine::gradient::information`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub information: Option<crate::localize::refine::gradient::Information>,
     /// Gate verdict.
     pub accepted: bool,
     /// Why the gate rejected (None when accepted).
@@ -448,6 +453,7 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
         poses,
         sigma: None,
         covariance: None,
+        information: None,
         accepted: reason.is_none(),
         reason,
         refused_by,

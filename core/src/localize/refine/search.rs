@@ -684,18 +684,12 @@ mod tests {
             let mut sum = JointHist::new(cfg.mi.bins_reflectivity, cfg.mi.bins_gray);
             for (j, h) in per_group.iter().enumerate() {
                 if j != left_out {
-                    sum.counts
-                        .iter_mut()
-                        .zip(&h.counts)
-                        .for_each(|(a, b)| *a += b);
+                    sum.add(&h[0]);
                 }
             }
-            assert_eq!(
-                plain
-                    .histogram_without(&folds, left_out, &offsets, &mut sc)
-                    .counts,
-                sum.counts
-            );
+            let without = plain.histograms_without(&folds, left_out, &offsets, &mut sc);
+            assert_eq!(without.len(), 1);
+            assert_eq!(without[0].counts, sum.counts);
         }
         let thin = plain.thinned(4);
         assert_eq!(thin.n_points, plain.n_points.div_ceil(4));
@@ -708,6 +702,75 @@ mod tests {
     /// full estimator next to the full search's cell, ranks its peaks by their scores on all
     /// points (so the quality sees the full estimator), and scores fewer point-evaluations; with
     /// no thinning it is the search.
+    /// Per-pair pooling scores each view on its own histogram: two views of one frame give the
+    /// point-weighted mean of the single views' statistics, and the split, the groups' and the
+    /// leave-one-group-out paths agree with it; on one view it is the joint score bit for bit.
+    #[test]
+    fn per_pair_pooling_weights_each_views_own_statistics() {
+        use crate::localize::mi::{pooled_information, Pooling};
+        let (cam, gray, mask, pts, start, cfg) = small_scene();
+        let per_pair = SearchConfig {
+            mi: crate::localize::mi::MiConfig {
+                pooling: Pooling::PerPair,
+                ..cfg.mi
+            },
+            ..cfg
+        };
+        // The frame darkened as another time of day would: same texture, other gray levels.
+        let dim: Vec<u8> = gray.iter().map(|&g| 20 + g / 3).collect();
+        let (a, b) = pts.split_at(pts.len() / 3);
+        let views = [
+            View {
+                gray: &gray,
+                mask: &mask,
+                points: a,
+            },
+            View {
+                gray: &dim,
+                mask: &mask,
+                points: b,
+            },
+        ];
+        let offsets = [0.02, -0.03, 0.01, 0.1, 0.0, 0.0];
+        let mut sc = Scratch::default();
+        let single = |v: &View<'_>| {
+            let ev = Evaluator::pooled(&cam, std::slice::from_ref(v), &start, &cfg, 0).unwrap();
+            (
+                ev.n_points as f64,
+                ev.value_at(0, &offsets, &mut Scratch::default()),
+            )
+        };
+        let (na, va) = single(&views[0]);
+        let (nb, vb) = single(&views[1]);
+        let ev = Evaluator::pooled(&cam, &views, &start, &per_pair, 0).unwrap();
+        assert_eq!(ev.slots(), 2);
+        let v = ev.value_at(0, &offsets, &mut sc);
+        let want = (na * va.mi + nb * vb.mi) / (na + nb);
+        assert!((v.mi - want).abs() < 1e-12, "{} vs {want}", v.mi);
+        assert_eq!(v.n, va.n + vb.n);
+        let joint = Evaluator::pooled(&cam, &views, &start, &cfg, 0).unwrap();
+        assert_eq!(joint.slots(), 1);
+        assert_ne!(joint.value_at(0, &offsets, &mut sc).mi, v.mi);
+        let folds = ev.folds(4);
+        assert_eq!(ev.value_at_split(&folds, &offsets), v);
+        let groups = ev.fold_histograms(&folds, &offsets, &mut sc);
+        for left_out in 0..4 {
+            let mut sum = vec![JointHist::new(cfg.mi.bins_reflectivity, cfg.mi.bins_gray); 2];
+            for (j, hs) in groups.iter().enumerate() {
+                if j != left_out {
+                    sum.iter_mut().zip(hs).for_each(|(s, h)| s.add(h));
+                }
+            }
+            let without = ev.histograms_without(&folds, left_out, &offsets, &mut sc);
+            assert_eq!(without, sum);
+            assert!(pooled_information(&without, true).mi > 0.0);
+        }
+        let one = Evaluator::pooled(&cam, &views[..1], &start, &per_pair, 0).unwrap();
+        assert_eq!(one.value_at(0, &offsets, &mut sc), va);
+        let one_joint = Evaluator::pooled(&cam, &views[..1], &start, &cfg, 0).unwrap();
+        assert_eq!(one.score(0, 3, &mut sc), one_joint.score(0, 3, &mut sc));
+    }
+
     #[test]
     fn a_thinned_finest_level_ends_next_to_the_full_search_scored_on_all_points() {
         let (cam, gray, mask, pts, start, cfg) = small_scene();

@@ -34,7 +34,7 @@ use crate::error::Result;
 use crate::localize::mi::kernel::Scratch;
 use crate::localize::mi::objective::{Evaluator, ImageCache, View};
 use crate::localize::mi::space::{pose_at_pivot, SearchConfig, AXES};
-use crate::localize::mi::{mutual_information, JointHist};
+use crate::localize::mi::{pooled_information, JointHist};
 use crate::localize::pnp::{refine_lm, Correspondence};
 use crate::localize::refine::polish::{box_config, initial_simplex, nelder_mead, PolishParams};
 use crate::pose::angle_difference;
@@ -180,7 +180,7 @@ pub(crate) fn estimate_cached<'a>(
     // once (one pass over all points each), and a group's objective there is the sum of the
     // others' — integer counts, so the very histogram `histogram_without` would build.
     let first = initial_simplex(&p, [0.0; 6]);
-    let first_hists: Vec<Vec<JointHist>> = first
+    let first_hists: Vec<Vec<Vec<JointHist>>> = first
         .par_iter()
         .map(|o| ev.fold_histograms(folds, o, &mut Scratch::default()))
         .collect();
@@ -197,8 +197,8 @@ pub(crate) fn estimate_cached<'a>(
                 let mut f = |o: &[f64; 6]| match first.iter().position(|x| same(x, o)) {
                     Some(i) => value_without(&first_hists[i], Some(left_out), objective, parzen),
                     None => {
-                        let h = ev.histogram_without(folds, left_out, o, &mut scratch);
-                        mutual_information(&h, parzen).get(objective)
+                        let hs = ev.histograms_without(folds, left_out, o, &mut scratch);
+                        pooled_information(&hs, parzen).get(objective)
                     }
                 };
                 let end = nelder_mead(&mut f, &p);
@@ -450,23 +450,26 @@ fn ray_name(u: &[f64]) -> String {
         .collect()
 }
 
-/// The objective on the sum of the groups' histograms `hists`, without group `left_out`.
+/// The objective on the sum of the groups' histograms `hists` (`[group][slot]`), without group
+/// `left_out`, pooled as the evaluator's slots are.
 fn value_without(
-    hists: &[JointHist],
+    hists: &[Vec<JointHist>],
     left_out: Option<usize>,
     objective: crate::localize::mi::Objective,
     parzen: bool,
 ) -> f64 {
-    let mut h = JointHist::new(hists[0].rows, hists[0].cols);
+    let mut sum = hists[0]
+        .iter()
+        .map(|h| JointHist::new(h.rows, h.cols))
+        .collect::<Vec<_>>();
     for (j, hk) in hists.iter().enumerate() {
         if Some(j) != left_out {
-            h.counts
-                .iter_mut()
-                .zip(&hk.counts)
-                .for_each(|(a, b)| *a += b);
+            for (a, b) in sum.iter_mut().zip(hk) {
+                a.add(b);
+            }
         }
     }
-    mutual_information(&h, parzen).get(objective)
+    pooled_information(&sum, parzen).get(objective)
 }
 
 /// The objective's drop from the answer to `at` on all points, and its jackknife standard error
@@ -477,12 +480,12 @@ fn contrast(
     folds: &crate::localize::mi::objective::Folds,
     objective: crate::localize::mi::Objective,
     parzen: bool,
-    base: &[JointHist],
+    base: &[Vec<JointHist>],
     at: &[f64; 6],
     scratch: &mut Scratch,
 ) -> (f64, f64) {
     let hists = ev.fold_histograms(folds, at, scratch);
-    let value = |hs: &[JointHist], left_out| value_without(hs, left_out, objective, parzen);
+    let value = |hs: &[Vec<JointHist>], left_out| value_without(hs, left_out, objective, parzen);
     let k = hists.len();
     let drop = value(base, None) - value(&hists, None);
     let loo: Vec<f64> = (0..k)
