@@ -32,6 +32,19 @@ pub struct Config {
     /// Initialization: which matcher pairs the frame with the map.
     #[serde(default)]
     pub init: InitConfig,
+    /// The MI refinement's local estimator.
+    #[serde(default)]
+    pub refine: RefineConfig,
+}
+
+/// `[refine]`: how the MI refinement's local stage samples the image (docs/refine.md
+/// "Estimator"). The tiled grid search for the global basin is the same either way.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
+pub struct RefineConfig {
+    /// `nearest` (default): the nearest-pixel polish and its jackknife σ; `pv`: then the
+    /// partial-volume estimator's gradient ascent, its information and sandwich σ and its gate.
+    pub sampling: crate::localize::mi::smooth::Sampling,
 }
 
 /// Which matcher initialization uses (`[init] matcher`).

@@ -112,6 +112,24 @@ fn bad_config_exits_78_with_one_line_naming_the_key() {
         err.contains("[init]") && err.contains("matcher-path"),
         "{err}"
     );
+    // An estimator the refinement does not have: one line naming the value and where it is.
+    let bad_sampling = shipped.replace("sampling = \"nearest\"", "sampling = \"bspline\"");
+    assert_ne!(bad_sampling, shipped);
+    std::fs::write(&p, bad_sampling).unwrap();
+    let out = infraloc(&["validate", "--keys-only", "--config", p.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(78), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("bspline") && err.contains("bad.toml"), "{err}");
+    // The partial-volume estimator is a valid choice.
+    let pv = shipped.replace("sampling = \"nearest\"", "sampling = \"pv\"");
+    std::fs::write(&p, pv).unwrap();
+    let out = infraloc(&["validate", "--keys-only", "--config", p.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let missing = infraloc(&["validate", "--config", "/nonexistent/infraloc.toml"]);
     assert_eq!(missing.status.code(), Some(78));
     assert!(String::from_utf8_lossy(&missing.stderr).contains("/nonexistent/infraloc.toml"));
