@@ -1,7 +1,7 @@
 //! Issue 19's small ones through the binary: the `prior:` failure in words with the sentence
 //! counts (checksum errors included), and `gps decode | head` ending quietly. (`rectify
 //! --rotation` with a non-rotation is in tests/rectify_reference.rs, `retry-max-s = inf` in
-//! tests/validate_cli.rs.)
+//! tests/validate_cli.rs.) On the same scene, the node's `[refine] sampling = "pv"` end to end.
 
 mod common;
 
@@ -95,4 +95,68 @@ fn gps_decode_into_a_closed_pipe_exits_quietly() {
         "{err}"
     );
     assert_eq!(out.status.code(), Some(0), "{err}");
+}
+
+/// `[refine] sampling = "pv"` in the node's config runs the smooth stage: the pose file carries
+/// its information (the bound, the patches' sandwich) beside the jackknife's covariance, and the
+/// answer is the one the default run polished further, not another basin.
+#[test]
+fn pv_sampling_from_the_config_reaches_the_pose_file() {
+    let w = tempfile::tempdir().unwrap();
+    let base = std::fs::read_to_string(scene().join("infraloc.toml")).unwrap();
+    // The simulator writes every key, the default sampling included.
+    let with_pv = base.replace("sampling = \"nearest\"", "sampling = \"pv\"");
+    assert_ne!(with_pv, base, "{base}");
+    let cfg = scene().join("pv.toml");
+    std::fs::write(&cfg, with_pv).unwrap();
+    let run = |config: &Path, out: &Path| {
+        let o = Command::new(BIN)
+            .args(["localize", "--config"])
+            .arg(config)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out).unwrap()).unwrap();
+        v
+    };
+    let pv = run(&cfg, &w.path().join("pv.json"));
+    let nearest = run(
+        &scene().join("infraloc.toml"),
+        &w.path().join("nearest.json"),
+    );
+    let info = &pv["quality"]["information"];
+    assert_eq!(
+        info["axes"],
+        serde_json::json!(["x", "y", "z", "yaw"]),
+        "{pv}"
+    );
+    for key in ["sigma", "sandwich_sigma"] {
+        let s = info[key]
+            .as_array()
+            .unwrap_or_else(|| panic!("{key}: {info}"));
+        assert!(
+            s.iter().all(|v| v.as_f64().is_some_and(|x| x > 0.0)),
+            "{info}"
+        );
+    }
+    assert!(nearest["quality"].get("information").is_none(), "{nearest}");
+    let centre = |v: &serde_json::Value| -> Vec<f64> {
+        v["camera_center"]
+            .as_array()
+            .unwrap_or_else(|| panic!("{v}"))
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let (a, b) = (centre(&pv), centre(&nearest));
+    let moved = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    assert!(moved < 0.15, "the PV stage moved the answer {moved} m");
 }
