@@ -449,22 +449,31 @@ impl Evaluator {
         offsets: &[f64; 6],
         scratch: &mut Scratch,
     ) -> Vec<Vec<JointHist>> {
+        self.groups_into(folds, offsets, folds.k, Some, scratch)
+    }
+
+    /// Level-0 slots' histograms at `offsets` into `outputs` sets: group j of `folds` goes to set
+    /// `into(j)`, or nowhere when it is `None`.
+    fn groups_into(
+        &self,
+        folds: &Folds,
+        offsets: &[f64; 6],
+        outputs: usize,
+        into: impl Fn(usize) -> Option<usize>,
+        scratch: &mut Scratch,
+    ) -> Vec<Vec<JointHist>> {
         let lv = &self.levels[0];
         let pose = PoseF32::new(
             &pose_at_pivot(&self.init, offsets, self.grid.pivot),
             self.origin,
         );
-        let mut out = vec![self.empty_slots(); folds.k];
+        let mut out = vec![self.empty_slots(); outputs];
         for (v, (part, groups)) in lv.parts.iter().zip(&folds.parts).enumerate() {
-            for (hs, pts) in out.iter_mut().zip(groups) {
-                accumulate(
-                    pts,
-                    &pose,
-                    &lv.cam,
-                    &part.img,
-                    &mut hs[self.slot(v)],
-                    scratch,
-                );
+            for (j, pts) in groups.iter().enumerate() {
+                if let Some(o) = into(j) {
+                    let h = &mut out[o][self.slot(v)];
+                    accumulate(pts, &pose, &lv.cam, &part.img, h, scratch);
+                }
             }
         }
         out
@@ -552,27 +561,9 @@ impl Evaluator {
         offsets: &[f64; 6],
         scratch: &mut Scratch,
     ) -> Vec<JointHist> {
-        let lv = &self.levels[0];
-        let pose = PoseF32::new(
-            &pose_at_pivot(&self.init, offsets, self.grid.pivot),
-            self.origin,
-        );
-        let mut hs = self.empty_slots();
-        for (v, (part, groups)) in lv.parts.iter().zip(&folds.parts).enumerate() {
-            for (j, pts) in groups.iter().enumerate() {
-                if j != left_out {
-                    accumulate(
-                        pts,
-                        &pose,
-                        &lv.cam,
-                        &part.img,
-                        &mut hs[self.slot(v)],
-                        scratch,
-                    );
-                }
-            }
-        }
-        hs
+        let mut sets =
+            self.groups_into(folds, offsets, 1, |j| (j != left_out).then_some(0), scratch);
+        sets.swap_remove(0)
     }
 
     /// Level 0 of every view (its binned image and fixed point set), the points' origin and the
