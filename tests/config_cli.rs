@@ -100,36 +100,33 @@ fn bad_config_exits_78_with_one_line_naming_the_key() {
     let shipped =
         std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/infraloc.toml"))
             .unwrap();
-    let no_path = shipped.replace("matcher = \"dense-sweep\"", "matcher = \"match-file\"");
-    assert_ne!(no_path, shipped);
-    std::fs::write(&p, no_path).unwrap();
-    // (Keys only: the shipped config's files exist only on a node.)
-    let out = infraloc(&["validate", "--keys-only", "--config", p.to_str().unwrap()]);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(78), "{err}");
+    // The shipped config with one setting changed, validated on its keys alone (the shipped
+    // config's files exist only on a node): the exit code and stderr.
+    let validate_edited = |from: &str, to: &str| -> (Option<i32>, String) {
+        let edited = shipped.replace(from, to);
+        assert_ne!(edited, shipped, "{from} is not in the shipped config");
+        std::fs::write(&p, edited).unwrap();
+        let out = infraloc(&["validate", "--keys-only", "--config", p.to_str().unwrap()]);
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (code, err) = validate_edited("matcher = \"dense-sweep\"", "matcher = \"match-file\"");
+    assert_eq!(code, Some(78), "{err}");
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(
         err.contains("[init]") && err.contains("matcher-path"),
         "{err}"
     );
     // An estimator the refinement does not have: one line naming the value and where it is.
-    let bad_sampling = shipped.replace("sampling = \"nearest\"", "sampling = \"bspline\"");
-    assert_ne!(bad_sampling, shipped);
-    std::fs::write(&p, bad_sampling).unwrap();
-    let out = infraloc(&["validate", "--keys-only", "--config", p.to_str().unwrap()]);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(78), "{err}");
+    let (code, err) = validate_edited("sampling = \"nearest\"", "sampling = \"bspline\"");
+    assert_eq!(code, Some(78), "{err}");
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(err.contains("bspline") && err.contains("bad.toml"), "{err}");
     // The partial-volume estimator is a valid choice.
-    let pv = shipped.replace("sampling = \"nearest\"", "sampling = \"pv\"");
-    std::fs::write(&p, pv).unwrap();
-    let out = infraloc(&["validate", "--keys-only", "--config", p.to_str().unwrap()]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (code, err) = validate_edited("sampling = \"nearest\"", "sampling = \"pv\"");
+    assert_eq!(code, Some(0), "{err}");
     let missing = infraloc(&["validate", "--config", "/nonexistent/infraloc.toml"]);
     assert_eq!(missing.status.code(), Some(78));
     assert!(String::from_utf8_lossy(&missing.stderr).contains("/nonexistent/infraloc.toml"));
