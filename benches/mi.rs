@@ -1,5 +1,6 @@
 //! MI kernel throughput: the fast f32 kernel (project + sample + joint histogram) against the
-//! straightforward f64 version through `CameraModel`, at three point counts.
+//! straightforward f64 version through `CameraModel`, at three point counts, and the smooth
+//! (partial-volume) estimator's value and value + gradient on the same points.
 //!
 //! Two groups of the same benchmarks: `mi_kernel` times wall clock (criterion's default),
 //! `mi_kernel_cpu` the benchmark thread's own CPU time (`CLOCK_THREAD_CPUTIME_ID`). On a shared
@@ -17,6 +18,7 @@ use infraloc::localize::mi::kernel::{
     accumulate, accumulate_scalar, BinnedImage, FastCamera, PoseF32, Scratch,
 };
 use infraloc::localize::mi::points::PreparedPoints;
+use infraloc::localize::mi::smooth::{Pooling, Smooth, SmoothView};
 use infraloc::localize::mi::{bin_lut, Binning, JointHist};
 use infraloc::localize::synth::{ground_points, Texture};
 use infraloc::pose::CamFromMap;
@@ -170,6 +172,22 @@ fn bench_kernel<M: Measurement>(c: &mut Criterion<M>, group: &str) {
             let n = pts.len();
             g.throughput(Throughput::Elements(n as u64));
             let mut scratch = Scratch::default();
+            // The smooth (partial-volume) estimator on the same points and image: its value, and
+            // its value with the 6-DoF gradient (two passes over the points).
+            if n <= 200_000 {
+                let view = SmoothView {
+                    img: &img,
+                    pts: &prepared,
+                };
+                let est = Smooth::new(&cam, vec![view], origin, bins, bins, true, Pooling::Joint);
+                for (what, grad) in [("pv_value", false), ("pv_gradient", true)] {
+                    g.bench_with_input(
+                        BenchmarkId::new(format!("{what}_{name}"), n),
+                        &n,
+                        |b, _| b.iter(|| black_box(est.evaluate(black_box(&pose), grad))),
+                    );
+                }
+            }
             g.bench_with_input(BenchmarkId::new(format!("fast_{name}"), n), &n, |b, _| {
                 b.iter(|| {
                     let mut hist = JointHist::new(bins, bins);

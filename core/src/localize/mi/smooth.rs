@@ -33,7 +33,7 @@
 // Small fixed-size matrices (2×3, 6×6) indexed by row and column read as the formulas do.
 #![allow(clippy::needless_range_loop)]
 
-use super::kernel::{BinnedImage, FastCamera};
+use super::kernel::BinnedImage;
 use super::points::PreparedPoints;
 pub use super::Pooling;
 use crate::camera::Camera;
@@ -43,8 +43,26 @@ use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+mod proj;
+use proj::Proj;
+
 /// Points per parallel block (fixed, so the sums do not depend on the thread count).
 const BLOCK: usize = 4096;
+
+/// Points projected before any of them is sampled (see [`Smooth::histogram`]).
+const CHUNK: usize = 64;
+
+/// ⌊x⌋ without a library call (the baseline x86-64 target has no rounding instruction): exact
+/// for finite |x| < 2⁶³, which bounds every pixel coordinate the models return.
+#[inline]
+fn floor(x: f64) -> f64 {
+    let f = x as i64 as f64;
+    if f > x {
+        f - 1.0
+    } else {
+        f
+    }
+}
 
 /// How a projected point samples the image: the local refinement's and the surface plots'
 /// estimator.
@@ -95,174 +113,6 @@ pub fn step(pose: &CamFromMap, theta: &[f64; 6]) -> CamFromMap {
     let q = Rotation3::new(Vector3::new(theta[3], theta[4], theta[5]));
     let map_from_cam = q * pose.rotation.inverse();
     CamFromMap::from_center(map_from_cam.inverse(), &c)
-}
-
-/// The camera's projection with its analytic Jacobian, in f64.
-#[derive(Debug, Clone, Copy)]
-enum Proj {
-    Mei {
-        /// fx, fy, skew, cx, cy.
-        k: [f64; 5],
-        xi: f64,
-        /// k1, k2, p1, p2.
-        d: [f64; 4],
-        zmin: f64,
-        r2max: f64,
-    },
-    Equidistant {
-        /// fx, fy, alpha, cx, cy.
-        k: [f64; 5],
-        /// k1..k4.
-        d: [f64; 4],
-        theta_max: f64,
-    },
-}
-
-/// On the forward axis the equidistant model's θ_d/ρ tends to 1/z (the camera's own branch).
-const AXIS_EPS: f64 = 1e-12;
-
-impl Proj {
-    fn new(cam: &Camera) -> Self {
-        // The validity limits are the fast kernel's (the same model limits, computed once).
-        match (cam, FastCamera::new(cam, 0)) {
-            (Camera::Mei(m), FastCamera::Mei(f)) => Proj::Mei {
-                k: [m.fx, m.fy, m.skew, m.cx, m.cy],
-                xi: m.xi,
-                d: [m.k1, m.k2, m.p1, m.p2],
-                zmin: f.zmin as f64,
-                r2max: f.r2max as f64,
-            },
-            (Camera::Equidistant(e), FastCamera::Equidistant(f)) => Proj::Equidistant {
-                k: [e.fx, e.fy, e.alpha, e.cx, e.cy],
-                d: [e.k1, e.k2, e.k3, e.k4],
-                theta_max: f.theta_max as f64,
-            },
-            // `FastCamera::new` keeps the model: unreachable, but answered as "not visible".
-            _ => Proj::Equidistant {
-                k: [0.0; 5],
-                d: [0.0; 4],
-                theta_max: -1.0,
-            },
-        }
-    }
-
-    /// Pixel (u, v) of camera-frame point `p` and ∂(u, v)/∂p (rows), or `None` when the model
-    /// does not see it.
-    #[inline]
-    fn project(&self, p: [f64; 3]) -> Option<([f64; 2], [[f64; 3]; 2])> {
-        match *self {
-            Proj::Mei {
-                k,
-                xi,
-                d,
-                zmin,
-                r2max,
-            } => {
-                let n = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-                if !(n > 0.0 && n.is_finite()) {
-                    return None;
-                }
-                let s = [p[0] / n, p[1] / n, p[2] / n];
-                if s[2] <= zmin {
-                    return None;
-                }
-                let den = s[2] + xi;
-                let (x, y) = (s[0] / den, s[1] / den);
-                let r2 = x * x + y * y;
-                if r2 >= r2max {
-                    return None;
-                }
-                let [k1, k2, p1, p2] = d;
-                let radial = 1.0 + k1 * r2 + k2 * r2 * r2;
-                let xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
-                let yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
-                let u = k[0] * xd + k[2] * yd + k[3];
-                let v = k[1] * yd + k[4];
-                // ∂(xd, yd)/∂(x, y).
-                let dr = k1 + 2.0 * k2 * r2; // ∂radial/∂r² / 1
-                let (drx, dry) = (2.0 * x * dr, 2.0 * y * dr);
-                let a = radial + x * drx + 2.0 * p1 * y + 6.0 * p2 * x;
-                let b = x * dry + 2.0 * p1 * x + 2.0 * p2 * y;
-                let c = y * drx + 2.0 * p1 * x + 2.0 * p2 * y;
-                let e = radial + y * dry + 6.0 * p1 * y + 2.0 * p2 * x;
-                // ∂(x, y)/∂s, then ∂s/∂p = (I − s sᵀ)/n.
-                let dxs = [1.0 / den, 0.0, -x / den];
-                let dys = [0.0, 1.0 / den, -y / den];
-                let mut dxp = [0.0; 3];
-                let mut dyp = [0.0; 3];
-                for j in 0..3 {
-                    let mut gx = 0.0;
-                    let mut gy = 0.0;
-                    for i in 0..3 {
-                        let m = (if i == j { 1.0 } else { 0.0 } - s[i] * s[j]) / n;
-                        gx += dxs[i] * m;
-                        gy += dys[i] * m;
-                    }
-                    dxp[j] = gx;
-                    dyp[j] = gy;
-                }
-                let mut ju = [0.0; 3];
-                let mut jv = [0.0; 3];
-                for j in 0..3 {
-                    let dxd = a * dxp[j] + b * dyp[j];
-                    let dyd = c * dxp[j] + e * dyp[j];
-                    ju[j] = k[0] * dxd + k[2] * dyd;
-                    jv[j] = k[1] * dyd;
-                }
-                Some(([u, v], [ju, jv]))
-            }
-            Proj::Equidistant { k, d, theta_max } => {
-                if !(p.iter().all(|v| v.is_finite())) {
-                    return None;
-                }
-                let rho2 = p[0] * p[0] + p[1] * p[1];
-                let rho = rho2.sqrt();
-                if rho2 + p[2] * p[2] == 0.0 {
-                    return None;
-                }
-                let t = rho.atan2(p[2]);
-                if t >= theta_max {
-                    return None;
-                }
-                let (x, y, jx, jy);
-                if p[2] > 0.0 && rho < AXIS_EPS * p[2] {
-                    x = p[0] / p[2];
-                    y = p[1] / p[2];
-                    jx = [1.0 / p[2], 0.0, -x / p[2]];
-                    jy = [0.0, 1.0 / p[2], -y / p[2]];
-                } else {
-                    let [k1, k2, k3, k4] = d;
-                    let t2 = t * t;
-                    let td = t * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))));
-                    let dtd =
-                        1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)));
-                    let s = td / rho;
-                    x = p[0] * s;
-                    y = p[1] * s;
-                    // θ = atan2(ρ, z): ∂θ/∂p = (z·p_x/ρ, z·p_y/ρ, −ρ) / (ρ² + z²).
-                    let q = rho2 + p[2] * p[2];
-                    let dt = [p[2] * p[0] / rho / q, p[2] * p[1] / rho / q, -rho / q];
-                    let drho = [p[0] / rho, p[1] / rho, 0.0];
-                    // s = θ_d(θ)/ρ.
-                    let mut ds = [0.0; 3];
-                    for j in 0..3 {
-                        ds[j] = (dtd * dt[j] * rho - td * drho[j]) / rho2;
-                    }
-                    jx = [s + p[0] * ds[0], p[0] * ds[1], p[0] * ds[2]];
-                    jy = [p[1] * ds[0], s + p[1] * ds[1], p[1] * ds[2]];
-                }
-                let u = k[0] * (x + k[2] * y) + k[3];
-                let v = k[1] * y + k[4];
-                let ju = [
-                    k[0] * (jx[0] + k[2] * jy[0]),
-                    k[0] * (jx[1] + k[2] * jy[1]),
-                    k[0] * (jx[2] + k[2] * jy[2]),
-                ];
-                let jv = [k[1] * jy[0], k[1] * jy[1], k[1] * jy[2]];
-                Some(([u, v], [ju, jv]))
-            }
-        }
-    }
 }
 
 /// One view: its binned level-0 image and its fixed point set.
@@ -389,25 +239,41 @@ impl<'a> Smooth<'a> {
         cols: usize,
         uv: [f64; 2],
     ) -> [(Option<usize>, f64, [f64; 2]); 4] {
-        let (u0, v0) = (uv[0].floor(), uv[1].floor());
+        let (u0, v0) = (floor(uv[0]), floor(uv[1]));
         let (fu, fv) = (uv[0] - u0, uv[1] - v0);
-        let bin = |du: f64, dv: f64| -> Option<usize> {
-            let (x, y) = (u0 + du, v0 + dv);
-            if x < 0.0 || y < 0.0 || x >= img.width as f64 || y >= img.height as f64 {
-                return None;
-            }
-            let b = img.data[y as usize * img.width + x as usize] as usize;
-            (b < cols).then_some(b)
+        let valid = |b: u8| -> Option<usize> { ((b as usize) < cols).then_some(b as usize) };
+        let bins = if u0 >= 0.0
+            && v0 >= 0.0
+            && u0 + 1.0 < img.width as f64
+            && v0 + 1.0 < img.height as f64
+        {
+            // The whole 2 × 2 block is on the image (almost every sample): one bounds check.
+            let i = v0 as usize * img.width + u0 as usize;
+            let (top, bottom) = (
+                &img.data[i..i + 2],
+                &img.data[i + img.width..i + img.width + 2],
+            );
+            [
+                valid(top[0]),
+                valid(top[1]),
+                valid(bottom[0]),
+                valid(bottom[1]),
+            ]
+        } else {
+            let bin = |du: f64, dv: f64| -> Option<usize> {
+                let (x, y) = (u0 + du, v0 + dv);
+                if x < 0.0 || y < 0.0 || x >= img.width as f64 || y >= img.height as f64 {
+                    return None;
+                }
+                valid(img.data[y as usize * img.width + x as usize])
+            };
+            [bin(0.0, 0.0), bin(1.0, 0.0), bin(0.0, 1.0), bin(1.0, 1.0)]
         };
         [
-            (
-                bin(0.0, 0.0),
-                (1.0 - fu) * (1.0 - fv),
-                [-(1.0 - fv), -(1.0 - fu)],
-            ),
-            (bin(1.0, 0.0), fu * (1.0 - fv), [1.0 - fv, -fu]),
-            (bin(0.0, 1.0), (1.0 - fu) * fv, [-fv, 1.0 - fu]),
-            (bin(1.0, 1.0), fu * fv, [fv, fu]),
+            (bins[0], (1.0 - fu) * (1.0 - fv), [-(1.0 - fv), -(1.0 - fu)]),
+            (bins[1], fu * (1.0 - fv), [1.0 - fv, -fu]),
+            (bins[2], (1.0 - fu) * fv, [-fv, 1.0 - fu]),
+            (bins[3], fu * fv, [fv, fu]),
         ]
     }
 
@@ -430,16 +296,26 @@ impl<'a> Smooth<'a> {
                     h: vec![0.0; rows * cols],
                     invalid: 0.0,
                 };
-                for i in b * BLOCK..((b + 1) * BLOCK).min(n) {
-                    let row = v.pts.bin[i] as usize;
-                    let Some((uv, _)) = self.proj.project(Self::cam_point(r, t, v.pts, i)) else {
-                        h.invalid += 1.0;
-                        continue;
-                    };
-                    for (bin, w, _) in Self::samples(v.img, cols, uv) {
-                        match bin {
-                            Some(j) => h.h[row * cols + j] += w,
-                            None => h.invalid += w,
+                // A chunk's projections first, then its samples: the pixel loads of a chunk
+                // are independent, so they overlap instead of each waiting behind a projection.
+                let mut uv = [None; CHUNK];
+                let end = ((b + 1) * BLOCK).min(n);
+                for c0 in (b * BLOCK..end).step_by(CHUNK) {
+                    let m = CHUNK.min(end - c0);
+                    for (c, slot) in uv.iter_mut().enumerate().take(m) {
+                        *slot = self.proj.project_uv(Self::cam_point(r, t, v.pts, c0 + c));
+                    }
+                    for (c, slot) in uv.iter().enumerate().take(m) {
+                        let Some(p) = *slot else {
+                            h.invalid += 1.0;
+                            continue;
+                        };
+                        let row = v.pts.bin[c0 + c] as usize;
+                        for (bin, w, _) in Self::samples(v.img, cols, p) {
+                            match bin {
+                                Some(j) => h.h[row * cols + j] += w,
+                                None => h.invalid += w,
+                            }
                         }
                     }
                 }
@@ -492,34 +368,41 @@ impl<'a> Smooth<'a> {
     ) -> [f64; 6] {
         let cols = self.cols;
         let mut acc = [0.0; 6];
-        for i in range {
-            let row = v.pts.bin[i] as usize;
-            let xc = Self::cam_point(r, t, v.pts, i);
-            let Some((uv, j)) = self.proj.project(xc) else {
-                continue;
-            };
-            let mut a = [0.0; 2];
-            for (bin, _, dw) in Self::samples(v.img, cols, uv) {
-                if let Some(col) = bin {
-                    let gij = g[row * cols + col];
-                    a[0] += gij * dw[0];
-                    a[1] += gij * dw[1];
+        let mut projected = [None; CHUNK];
+        for c0 in range.clone().step_by(CHUNK) {
+            let m = CHUNK.min(range.end - c0);
+            for (c, slot) in projected.iter_mut().enumerate().take(m) {
+                let xc = Self::cam_point(r, t, v.pts, c0 + c);
+                *slot = self.proj.project(xc).map(|(uv, j)| (xc, uv, j));
+            }
+            for (c, slot) in projected.iter().enumerate().take(m) {
+                let Some((xc, uv, j)) = *slot else {
+                    continue;
+                };
+                let row = v.pts.bin[c0 + c] as usize;
+                let mut a = [0.0; 2];
+                for (bin, _, dw) in Self::samples(v.img, cols, uv) {
+                    if let Some(col) = bin {
+                        let gij = g[row * cols + col];
+                        a[0] += gij * dw[0];
+                        a[1] += gij * dw[1];
+                    }
                 }
+                if a == [0.0, 0.0] {
+                    continue;
+                }
+                let b = [
+                    a[0] * j[0][0] + a[1] * j[1][0],
+                    a[0] * j[0][1] + a[1] * j[1][1],
+                    a[0] * j[0][2] + a[1] * j[1][2],
+                ];
+                acc[0] += b[0];
+                acc[1] += b[1];
+                acc[2] += b[2];
+                acc[3] += b[1] * xc[2] - b[2] * xc[1];
+                acc[4] += b[2] * xc[0] - b[0] * xc[2];
+                acc[5] += b[0] * xc[1] - b[1] * xc[0];
             }
-            if a == [0.0, 0.0] {
-                continue;
-            }
-            let b = [
-                a[0] * j[0][0] + a[1] * j[1][0],
-                a[0] * j[0][1] + a[1] * j[1][1],
-                a[0] * j[0][2] + a[1] * j[1][2],
-            ];
-            acc[0] += b[0];
-            acc[1] += b[1];
-            acc[2] += b[2];
-            acc[3] += b[1] * xc[2] - b[2] * xc[1];
-            acc[4] += b[2] * xc[0] - b[0] * xc[2];
-            acc[5] += b[0] * xc[1] - b[1] * xc[0];
         }
         acc
     }
@@ -788,6 +671,15 @@ mod tests {
     }
 
     #[test]
+    fn floor_is_the_library_s_on_pixel_coordinates() {
+        for x in [
+            -2049.5, -1.0, -0.75, -1e-12, 0.0, 1e-12, 0.5, 1.0, 2047.9999, 3.0e9, -4.5e15,
+        ] {
+            assert_eq!(floor(x).to_bits(), x.floor().to_bits(), "{x}");
+        }
+    }
+
+    #[test]
     fn projection_matches_the_camera_and_its_jacobian_central_differences() {
         for cam in [mei(), equidistant()] {
             let proj = Proj::new(&cam);
@@ -800,10 +692,13 @@ mod tests {
                 let pv = Vector3::new(p[0], p[1], p[2]);
                 let Ok(want) = cam.model().project(&pv) else {
                     assert!(proj.project(p).is_none(), "{p:?}");
+                    assert!(proj.project_uv(p).is_none(), "{p:?}");
                     continue;
                 };
                 let (uv, j) = proj.project(p).expect("visible");
                 assert!((uv[0] - want.x).abs() < 1e-9 && (uv[1] - want.y).abs() < 1e-9);
+                // The value passes' projection is the same pixel to the last bit.
+                assert_eq!(proj.project_uv(p), Some(uv), "{p:?}");
                 let h = 1e-6;
                 for c in 0..3 {
                     let (mut a, mut b) = (p, p);
