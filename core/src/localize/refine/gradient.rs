@@ -582,6 +582,9 @@ pub fn smooth_stage(
     r.pose = pose;
     r.offsets = crate::pose::offsets_between(init, &pose);
     smooth_gate(&mut r, &information, qcfg);
+    if let Ok(info) = &information {
+        report_judged(&mut r.quality, info);
+    }
     r.quality.information = information.as_ref().ok().cloned();
     if let Some(v) = mi.first() {
         if pooling == crate::localize::mi::smooth::Pooling::Joint {
@@ -599,6 +602,70 @@ pub fn smooth_stage(
             grid_reason,
         },
     ))
+}
+
+/// The grid's jackknife σ as its own gate judges it (the estimate itself, before the reported
+/// σ is widened by the intrinsics' uncertainty), if it has one.
+fn jackknife_judged(q: &super::quality::Quality) -> Option<super::quality::Sigma> {
+    q.covariance
+        .as_ref()
+        .map(super::quality::Sigma::judged)
+        .or(q.sigma)
+}
+
+/// The σ per axis of `info` that the gate judges: the largest of the Cramér–Rao bound, the
+/// patch sandwich, the frame sandwich (when there is one) and `jack(axis)` (the grid's jackknife
+/// σ, 0 without one); ∞ where the jackknife found no peak (NaN).
+fn judged_sigma(info: &Information, jack: &dyn Fn(&str) -> f64) -> Vec<f64> {
+    let frame = |i: usize| info.frame_sigma.as_ref().map_or(0.0, |f| f[i]);
+    info.axes
+        .iter()
+        .zip(info.sigma.iter().zip(&info.sandwich_sigma))
+        .enumerate()
+        .map(|(i, (a, (s, w)))| {
+            let j = jack(a);
+            if j.is_nan() {
+                f64::INFINITY
+            } else {
+                s.max(*w).max(j).max(frame(i))
+            }
+        })
+        .collect()
+}
+
+/// Widen the reported covariance of `q` (the jackknife's, with the intrinsics' part) so that no
+/// axis's σ is below the σ the gate judged from `info` ([`judged_sigma`]): an axis whose
+/// sandwich or bound exceeds the jackknife has its row and column scaled up (correlations kept).
+/// What the pose file says is then at least what the gate accepted on.
+fn report_judged(q: &mut super::quality::Quality, info: &Information) {
+    let judged_jack = jackknife_judged(q);
+    let jack = |axis: &str| judged_jack.as_ref().map_or(0.0, |s| s.axis(axis));
+    let judged = judged_sigma(info, &jack);
+    let Some(u) = q.covariance.as_mut() else {
+        return;
+    };
+    for (axis, want) in info.axes.iter().zip(&judged) {
+        let Some(k) = u.axes.iter().position(|a| a == axis) else {
+            continue;
+        };
+        let have = u.sigma[k];
+        if !(want.is_finite() && have.is_finite() && *want > have && have > 0.0) {
+            continue;
+        }
+        let f = want / have;
+        for (i, row) in u.matrix.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                if i == k {
+                    *v *= f;
+                }
+                if j == k {
+                    *v *= f;
+                }
+            }
+        }
+        u.sigma[k] = *want;
+    }
+    q.sigma = Some(super::quality::Sigma::of(u));
 }
 
 /// [`refine_smooth`]'s gate on `r`: the grid's global checks stand, its local ones are replaced
@@ -651,39 +718,9 @@ fn smooth_gate(
                 // 40–90× smaller than the answers' scatter (docs/refine.md "Sampling"). The gate
                 // judges the largest of it, the sandwich σ and the grid's jackknife σ (∞ where
                 // the jackknife found no peak).
-                // The jackknife's σ as the grid's own gate judges it (the estimate itself,
-                // before the reported σ is widened by the intrinsics' uncertainty).
-                let judged_jack = r
-                    .quality
-                    .covariance
-                    .as_ref()
-                    .map(super::quality::Sigma::judged)
-                    .or(r.quality.sigma);
-                let jack = |axis: &str| -> f64 {
-                    judged_jack.as_ref().map_or(0.0, |s| match axis {
-                        "x" => s.x,
-                        "y" => s.y,
-                        "z" => s.z,
-                        "yaw" => s.yaw,
-                        "pitch" => s.pitch.unwrap_or(0.0),
-                        _ => s.roll.unwrap_or(0.0),
-                    })
-                };
-                let frame = |i: usize| info.frame_sigma.as_ref().map_or(0.0, |f| f[i]);
-                let judged: Vec<f64> = info
-                    .axes
-                    .iter()
-                    .zip(info.sigma.iter().zip(&info.sandwich_sigma))
-                    .enumerate()
-                    .map(|(i, (a, (s, w)))| {
-                        let j = jack(a);
-                        if j.is_nan() {
-                            f64::INFINITY
-                        } else {
-                            s.max(*w).max(j).max(frame(i))
-                        }
-                    })
-                    .collect();
+                let judged_jack = jackknife_judged(&r.quality);
+                let jack = |axis: &str| judged_jack.as_ref().map_or(0.0, |s| s.axis(axis));
+                let judged = judged_sigma(info, &jack);
                 if let Some((i, (lim, key))) = info
                     .axes
                     .iter()
@@ -715,6 +752,89 @@ fn smooth_gate(
 mod tests {
     use super::*;
     use nalgebra::Point3;
+
+    /// The pose file's σ is at least the σ the gate judged: an axis whose sandwich exceeds the
+    /// jackknife is widened to it with its correlations kept; the others are left alone.
+    #[test]
+    fn the_reported_sigma_is_at_least_the_judged_one() {
+        use super::super::quality::{Quality, Sigma};
+        use super::super::uncertainty::Uncertainty;
+        let axes: Vec<String> = ["x", "y", "z", "yaw"].map(String::from).to_vec();
+        let sd = [0.01, 0.01, 0.02, 0.03];
+        let matrix: Vec<Vec<f64>> = (0..4)
+            .map(|i| {
+                (0..4)
+                    .map(|j| match (i, j) {
+                        _ if i == j => sd[i] * sd[i],
+                        (0, 3) | (3, 0) => 0.5 * sd[0] * sd[3],
+                        _ => 0.0,
+                    })
+                    .collect()
+            })
+            .collect();
+        let u = Uncertainty {
+            axes: axes.clone(),
+            units: ["m", "m", "m", "deg"].map(String::from).to_vec(),
+            sigma: sd.to_vec(),
+            matrix,
+            group_optima: Vec::new(),
+            peak: true,
+            folds: 8,
+            intrinsics: Vec::new(),
+            points: 1000,
+            poses: 0,
+            jackknife: Vec::new(),
+            region: None,
+            gate_sigma: vec![0.008, 0.008, 0.015, 0.025],
+        };
+        let mut q = Quality {
+            mi: 0.3,
+            nmi: 1.0,
+            points: 1000,
+            background: 0.1,
+            second_peak_ratio: None,
+            second_peak_contrast: None,
+            second_peak_offset: None,
+            axes: Vec::new(),
+            poses: 0,
+            sigma: Some(Sigma::of(&u)),
+            covariance: Some(u),
+            information: None,
+            accepted: true,
+            reason: None,
+            refused_by: None,
+        };
+        let diag = |s: [f64; 4]| -> Vec<Vec<f64>> {
+            (0..4)
+                .map(|i| {
+                    (0..4)
+                        .map(|j| if i == j { s[i] * s[i] } else { 0.0 })
+                        .collect()
+                })
+                .collect()
+        };
+        let info = Information {
+            axes,
+            units: ["m", "m", "m", "deg"].map(String::from).to_vec(),
+            sigma: vec![0.001; 4],
+            matrix: diag([0.001; 4]),
+            points: 1000,
+            evaluations: 9,
+            sandwich_sigma: vec![0.03, 0.005, 0.001, 0.01],
+            sandwich_matrix: diag([0.03, 0.005, 0.001, 0.01]),
+            clusters: 32,
+            frame_sigma: None,
+            frame_matrix: None,
+        };
+        report_judged(&mut q, &info);
+        let u = q.covariance.as_ref().unwrap();
+        let s = q.sigma.unwrap();
+        assert_eq!((s.x, s.y, s.z, s.yaw), (0.03, 0.01, 0.02, 0.03), "{s:?}");
+        assert!((u.matrix[0][0] - 0.03f64.powi(2)).abs() < 1e-15);
+        let rho = u.matrix[0][3] / (u.sigma[0] * u.sigma[3]);
+        assert!((rho - 0.5).abs() < 1e-12, "{rho}");
+        assert_eq!(u.matrix[1][1], 1e-4);
+    }
 
     #[test]
     fn theta_between_inverts_step_down_to_tiny_rotations() {

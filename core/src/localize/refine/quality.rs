@@ -234,6 +234,18 @@ pub struct Quality {
 }
 
 impl Sigma {
+    /// σ of a named axis (x, y, z, yaw, pitch, roll); 0 for a tilt that was not estimated.
+    pub(crate) fn axis(&self, axis: &str) -> f64 {
+        match axis {
+            "x" => self.x,
+            "y" => self.y,
+            "z" => self.z,
+            "yaw" => self.yaw,
+            "pitch" => self.pitch.unwrap_or(0.0),
+            _ => self.roll.unwrap_or(0.0),
+        }
+    }
+
     /// From an estimate (axes it did not estimate are 0 for x..yaw, absent for the tilts).
     pub(crate) fn of(u: &Uncertainty) -> Self {
         Self::by_axis(|a| u.sigma_of(a))
