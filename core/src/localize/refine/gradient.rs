@@ -560,6 +560,10 @@ pub fn smooth_stage(
         ascents.push(a);
         if !edge {
             let info = information(&est, &pose, &acfg.free);
+            // The Hessian's evaluations (and the value below) are work done too.
+            let spent = 1 + info.as_ref().map_or(0, |i| i.evaluations);
+            r.stats.poses += spent as u64;
+            r.stats.point_evaluations += (spent * est.n()) as u64;
             let v = est.evaluate(&pose, false);
             last = Some((info, v.mi));
             break;
