@@ -585,9 +585,19 @@ pub fn smooth_stage(
     }
     r.pose = pose;
     r.offsets = crate::pose::offsets_between(init, &pose);
-    smooth_gate(&mut r, &information, qcfg);
-    if let Ok(info) = &information {
-        report_judged(&mut r.quality, info);
+    // The σ the gate judges, once: the gate refuses on it and the report is widened to it.
+    let judged = information
+        .as_ref()
+        .ok()
+        .map(|info| judged_sigma(&r.quality, info));
+    smooth_gate(
+        &mut r,
+        &information,
+        judged.as_deref().unwrap_or_default(),
+        qcfg,
+    );
+    if let (Ok(info), Some(judged)) = (&information, &judged) {
+        report_judged(&mut r.quality, info, judged);
     }
     r.quality.information = information.as_ref().ok().cloned();
     if let Some(v) = mi.first() {
@@ -618,9 +628,11 @@ fn jackknife_judged(q: &super::quality::Quality) -> Option<super::quality::Sigma
 }
 
 /// The σ per axis of `info` that the gate judges: the largest of the Cramér–Rao bound, the
-/// patch sandwich, the frame sandwich (when there is one) and `jack(axis)` (the grid's jackknife
-/// σ, 0 without one); ∞ where the jackknife found no peak (NaN).
-fn judged_sigma(info: &Information, jack: &dyn Fn(&str) -> f64) -> Vec<f64> {
+/// patch sandwich, the frame sandwich (when there is one) and the grid's jackknife σ in `q`
+/// ([`jackknife_judged`], 0 without one); ∞ where the jackknife found no peak (NaN).
+fn judged_sigma(q: &super::quality::Quality, info: &Information) -> Vec<f64> {
+    let judged_jack = jackknife_judged(q);
+    let jack = |axis: &str| judged_jack.as_ref().map_or(0.0, |s| s.axis(axis));
     let frame = |i: usize| info.frame_sigma.as_ref().map_or(0.0, |f| f[i]);
     info.axes
         .iter()
@@ -638,17 +650,14 @@ fn judged_sigma(info: &Information, jack: &dyn Fn(&str) -> f64) -> Vec<f64> {
 }
 
 /// Widen the reported covariance of `q` (the jackknife's, with the intrinsics' part) so that no
-/// axis's σ is below the σ the gate judged from `info` ([`judged_sigma`]): an axis whose
-/// sandwich or bound exceeds the jackknife has its row and column scaled up (correlations kept).
-/// What the pose file says is then at least what the gate accepted on.
-fn report_judged(q: &mut super::quality::Quality, info: &Information) {
-    let judged_jack = jackknife_judged(q);
-    let jack = |axis: &str| judged_jack.as_ref().map_or(0.0, |s| s.axis(axis));
-    let judged = judged_sigma(info, &jack);
+/// axis's σ is below `judged`, the σ the gate judged per axis of `info` ([`judged_sigma`]): an
+/// axis whose sandwich or bound exceeds the jackknife has its row and column scaled up
+/// (correlations kept). What the pose file says is then at least what the gate accepted on.
+fn report_judged(q: &mut super::quality::Quality, info: &Information, judged: &[f64]) {
     let Some(u) = q.covariance.as_mut() else {
         return;
     };
-    for (axis, want) in info.axes.iter().zip(&judged) {
+    for (axis, want) in info.axes.iter().zip(judged) {
         let Some(k) = u.axes.iter().position(|a| a == axis) else {
             continue;
         };
@@ -675,9 +684,11 @@ fn report_judged(q: &mut super::quality::Quality, info: &Information) {
 /// [`refine_smooth`]'s gate on `r`: the grid's global checks stand, its local ones are replaced
 /// by `information`'s (a finite, negative-definite Hessian; the largest of the bound's, the
 /// sandwich's and the jackknife's σ within the limits).
+/// `judged`: [`judged_sigma`] of `information` when it is `Ok` (unread otherwise).
 fn smooth_gate(
     r: &mut super::rounds::Refinement,
     information: &std::result::Result<Information, String>,
+    judged: &[f64],
     qcfg: &super::quality::QualityConfig,
 ) {
     use super::quality::GateCheck;
@@ -724,7 +735,6 @@ fn smooth_gate(
                 // the jackknife found no peak).
                 let judged_jack = jackknife_judged(&r.quality);
                 let jack = |axis: &str| judged_jack.as_ref().map_or(0.0, |s| s.axis(axis));
-                let judged = judged_sigma(info, &jack);
                 if let Some((i, (lim, key))) = info
                     .axes
                     .iter()
@@ -830,7 +840,8 @@ mod tests {
             frame_sigma: None,
             frame_matrix: None,
         };
-        report_judged(&mut q, &info);
+        let judged = judged_sigma(&q, &info);
+        report_judged(&mut q, &info, &judged);
         let u = q.covariance.as_ref().unwrap();
         let s = q.sigma.unwrap();
         assert_eq!((s.x, s.y, s.z, s.yaw), (0.03, 0.01, 0.02, 0.03), "{s:?}");
