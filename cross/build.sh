@@ -3,9 +3,10 @@
 #   cross/build.sh            build target/aarch64-unknown-linux-gnu/release/infraloc (features: v4l,
 #                             the node's camera; the default build has no capture backend)
 #   cross/build.sh --demo     … and run `infraloc demo --preset small` under qemu
-#   cross/build.sh --check    … and run `infraloc self-test` under qemu (the NEON MI kernel must be
-#                             bit-identical to the reference loop; so must the host binary's baseline
-#                             copy on an emulated CPU without FMA), then localize a host-simulated
+#   cross/build.sh --check    … and run `infraloc self-test` under qemu (the NEON MI kernel and PV
+#                             projection must be bit-identical to their references; so must the
+#                             host binary's baseline and portable copies on an emulated CPU
+#                             without AVX2 and FMA), then localize a host-simulated
 #                             scene under qemu: the aarch64 pose must equal the host binary's and be
 #                             within the demo's thresholds (CI runs this)
 #   cross/build.sh --test     … and run the tests under qemu (baud-rate tests skip: qemu-user lacks TCGETS2)

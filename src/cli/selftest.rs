@@ -1,8 +1,9 @@
 //! `infraloc self-test [--poses N] [--workload N [--reference]]` (hidden): checks that the MI
 //! kernel's SIMD copy on this CPU (NEON on aarch64, AVX2 + FMA on x86-64) is bit-identical to the
-//! plain reference loop. CI runs it on the aarch64 binary under qemu-user (`cross/build.sh
+//! plain reference loop, and so is the smooth (PV) estimator's chunk projection (NEON, AVX2 or
+//! its portable lane loop). CI runs it on the aarch64 binary under qemu-user (`cross/build.sh
 //! --check`). `--workload` instead evaluates N poses of the same scene on one thread, for the
-//! instruction counts in docs/benchmarks.md.
+//! instruction counts in docs/benchmarks.md (`--pv`: the smooth estimator's value and gradient).
 
 use crate::error::{Error, Result};
 use crate::localize::mi::kernel;
@@ -19,16 +20,25 @@ pub struct Args {
     /// With --workload: the plain reference loop instead of the dispatched copy.
     #[arg(long, requires = "workload")]
     pub reference: bool,
+    /// With --workload: the smooth (PV) estimator's value and gradient instead of the
+    /// nearest-pixel kernel.
+    #[arg(long, requires = "workload")]
+    pub pv: bool,
 }
 
 /// Run the check (or the workload); a difference is an error naming the pose.
 pub(crate) fn run(a: Args) -> Result<()> {
     if let Some(n) = a.workload {
-        let (points, sum) = kernel::selftest::workload(n, a.reference);
-        let path = if a.reference {
-            "reference"
+        use crate::localize::mi::smooth;
+        let (points, sum) = if a.pv {
+            smooth::pv_workload(n, a.reference)
         } else {
-            kernel::selftest::kernel_path()
+            kernel::selftest::workload(n, a.reference)
+        };
+        let path = match (a.reference, a.pv) {
+            (true, _) => "reference",
+            (false, true) => smooth::lanes_path(),
+            (false, false) => kernel::selftest::kernel_path(),
         };
         println!("workload: {n} poses × {points} points, {path}, checksum {sum}");
         return Ok(());
@@ -37,6 +47,12 @@ pub(crate) fn run(a: Args) -> Result<()> {
     println!(
         "self-test OK: MI kernel ({}) bit-identical to the reference loop, {} poses × {} points",
         r.path, r.poses, r.points
+    );
+    let s = crate::localize::mi::smooth::lanes_self_test(a.poses)
+        .map_err(|m| Error::command("self-test", m))?;
+    println!(
+        "self-test OK: PV projection ({}) bit-identical to the reference, {} poses × {} points",
+        s.path, s.poses, s.points
     );
     Ok(())
 }

@@ -43,7 +43,9 @@ use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+mod lanes;
 mod proj;
+pub use lanes::{lanes_path, self_test as lanes_self_test, workload as pv_workload, LanesTest};
 use proj::Proj;
 
 /// Points per parallel block (fixed, so the sums do not depend on the thread count).
@@ -134,6 +136,9 @@ pub struct Smooth<'a> {
     parzen: bool,
     pooling: Pooling,
     views: Vec<SmoothView<'a>>,
+    /// The value passes project point by point through the scalar reference instead of
+    /// [`lanes::project_chunk`] (the self-test and its workload).
+    reference: bool,
 }
 
 /// The objective at one pose.
@@ -184,7 +189,15 @@ impl<'a> Smooth<'a> {
             parzen,
             pooling,
             views,
+            reference: false,
         }
+    }
+
+    /// This estimator with its value passes on the scalar reference projection (same values bit
+    /// for bit; the self-test compares them, the workload times them).
+    pub fn with_reference_projection(mut self) -> Self {
+        self.reference = true;
+        self
     }
 
     /// The estimator on `ev`'s level 0: the same binned (blurred) images, fixed point sets,
@@ -277,18 +290,11 @@ impl<'a> Smooth<'a> {
         ]
     }
 
-    /// The camera-frame point of `view`'s point `i`.
-    #[inline]
-    fn cam_point(r: &Matrix3<f64>, t: &Vector3<f64>, pts: &PreparedPoints, i: usize) -> [f64; 3] {
-        let p = Vector3::new(pts.x[i] as f64, pts.y[i] as f64, pts.z[i] as f64);
-        let c = r * p + t;
-        [c.x, c.y, c.z]
-    }
-
     /// The PV histogram of one view at `pose`.
     fn histogram(&self, v: &SmoothView<'_>, r: &Matrix3<f64>, t: &Vector3<f64>) -> Hist {
         let (rows, cols) = (self.rows, self.cols);
         let n = v.pts.len();
+        let rt = &lanes::Rt::of(r, t);
         let blocks: Vec<Hist> = (0..n.div_ceil(BLOCK))
             .into_par_iter()
             .map(|b| {
@@ -298,20 +304,24 @@ impl<'a> Smooth<'a> {
                 };
                 // A chunk's projections first, then its samples: the pixel loads of a chunk
                 // are independent, so they overlap instead of each waiting behind a projection.
-                let mut uv = [None; CHUNK];
+                let mut uv = lanes::UvChunk::default();
                 let end = ((b + 1) * BLOCK).min(n);
                 for c0 in (b * BLOCK..end).step_by(CHUNK) {
-                    let m = CHUNK.min(end - c0);
-                    for (c, slot) in uv.iter_mut().enumerate().take(m) {
-                        *slot = self.proj.project_uv(Self::cam_point(r, t, v.pts, c0 + c));
+                    let c1 = (c0 + CHUNK).min(end);
+                    let p = v.pts;
+                    let (xs, ys, zs) = (&p.x[c0..c1], &p.y[c0..c1], &p.z[c0..c1]);
+                    if self.reference {
+                        lanes::project_reference(&self.proj, rt, xs, ys, zs, &mut uv);
+                    } else {
+                        lanes::project_chunk(&self.proj, rt, xs, ys, zs, &mut uv);
                     }
-                    for (c, slot) in uv.iter().enumerate().take(m) {
-                        let Some(p) = *slot else {
+                    for c in 0..c1 - c0 {
+                        if !uv.ok[c] {
                             h.invalid += 1.0;
                             continue;
-                        };
+                        }
                         let row = v.pts.bin[c0 + c] as usize;
-                        for (bin, w, _) in Self::samples(v.img, cols, p) {
+                        for (bin, w, _) in Self::samples(v.img, cols, [uv.u[c], uv.v[c]]) {
                             match bin {
                                 Some(j) => h.h[row * cols + j] += w,
                                 None => h.invalid += w,
@@ -368,20 +378,30 @@ impl<'a> Smooth<'a> {
     ) -> [f64; 6] {
         let cols = self.cols;
         let mut acc = [0.0; 6];
-        let mut projected = [None; CHUNK];
+        let rt = &lanes::Rt::of(r, t);
+        let mut ch = lanes::JacChunk::default();
         for c0 in range.clone().step_by(CHUNK) {
-            let m = CHUNK.min(range.end - c0);
-            for (c, slot) in projected.iter_mut().enumerate().take(m) {
-                let xc = Self::cam_point(r, t, v.pts, c0 + c);
-                *slot = self.proj.project(xc).map(|(uv, j)| (xc, uv, j));
+            let c1 = (c0 + CHUNK).min(range.end);
+            let p = v.pts;
+            let (xs, ys, zs) = (&p.x[c0..c1], &p.y[c0..c1], &p.z[c0..c1]);
+            if self.reference {
+                lanes::project_reference(&self.proj, rt, xs, ys, zs, &mut ch);
+            } else {
+                lanes::project_chunk(&self.proj, rt, xs, ys, zs, &mut ch);
             }
-            for (c, slot) in projected.iter().enumerate().take(m) {
-                let Some((xc, uv, j)) = *slot else {
+            for c in 0..c1 - c0 {
+                if !ch.uv.ok[c] {
                     continue;
-                };
+                }
+                let q = &ch.parts;
+                let xc = [q.xc[0][c], q.xc[1][c], q.xc[2][c]];
+                let j = [
+                    [q.ju[0][c], q.ju[1][c], q.ju[2][c]],
+                    [q.jv[0][c], q.jv[1][c], q.jv[2][c]],
+                ];
                 let row = v.pts.bin[c0 + c] as usize;
                 let mut a = [0.0; 2];
-                for (bin, _, dw) in Self::samples(v.img, cols, uv) {
+                for (bin, _, dw) in Self::samples(v.img, cols, [ch.uv.u[c], ch.uv.v[c]]) {
                     if let Some(col) = bin {
                         let gij = g[row * cols + col];
                         a[0] += gij * dw[0];

@@ -55,11 +55,11 @@ pub(super) fn project_chunk_mei_neon(
         [d2x2, d[2], d[3], d3x2],
         [k[0], k[1], k[2], zmin],
     );
-    // SAFETY: NEON is part of the aarch64-unknown-linux-gnu baseline, so the intrinsics run on every
-    // CPU this code is compiled for; each load reads four f32 of a local [f32; 4].
     // black_box hides the lanes' values from the optimiser, which otherwise sees through the
     // packing, turns every by-lane multiply back into a broadcast of its scalar, and spills again.
     let (m0, m1, m2, m3, m4) = core::hint::black_box((m0, m1, m2, m3, m4));
+    // SAFETY: NEON is part of the aarch64-unknown-linux-gnu baseline, so the intrinsics run on every
+    // CPU this code is compiled for; each load reads four f32 of a local [f32; 4].
     let (m0, m1, m2, m3, m4) = unsafe {
         (
             vld1q_f32(m0.as_ptr()),

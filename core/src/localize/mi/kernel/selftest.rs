@@ -74,7 +74,7 @@ pub(crate) fn test_scene(cam: &Camera) -> (PreparedPoints, BinnedImage, [f64; 3]
     let mask = cam.valid_mask();
     let gray: Vec<u8> = (0..w * h).map(|i| ((i * 7919) % 251) as u8).collect();
     let lut = bin_lut(Binning::Uniform, 32, &[0; 256]);
-    let origin = [10.3, 19.8, 6.0];
+    let origin = test_scene_origin();
     (
         PreparedPoints::new(&pts, origin, &lut),
         BinnedImage::new(w, h, &gray, &mask, &lut, 32),
@@ -82,22 +82,31 @@ pub(crate) fn test_scene(cam: &Camera) -> (PreparedPoints, BinnedImage, [f64; 3]
     )
 }
 
+/// The origin of [`test_scene`]'s shifted points.
+pub(crate) fn test_scene_origin() -> [f64; 3] {
+    [10.3, 19.8, 6.0]
+}
+
 /// Pose `j` of the self-test and workload: the camera 6 m above (10, 20), yaw, tilt and position
 /// varied with `j`.
 pub(crate) fn test_pose(j: usize, origin: [f64; 3]) -> PoseF32 {
+    PoseF32::new(&test_pose_f64(j), origin)
+}
+
+/// [`test_pose`] in f64 (the smooth estimator's self-test).
+pub(crate) fn test_pose_f64(j: usize) -> CamFromMap {
     let t = j as f64;
     let c = Point3::new(
         10.0 + 0.37 * (t * 0.7).sin(),
         20.0 - 0.29 * (t * 1.3).cos(),
         6.0 + 0.1 * (t * 0.5).sin(),
     );
-    let pose = CamFromMap::from_center_ypr(
+    CamFromMap::from_center_ypr(
         &c,
         0.11 * t,
         0.03 * (t * 0.9).sin(),
         -0.04 * (t * 1.1).cos(),
-    );
-    PoseF32::new(&pose, origin)
+    )
 }
 
 /// What [`self_test`] compared.
