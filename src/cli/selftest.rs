@@ -11,9 +11,13 @@ use crate::localize::mi::kernel;
 /// Arguments of `self-test`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Poses compared.
+    /// Poses compared (nearest-pixel kernel).
     #[arg(long, default_value_t = 12)]
     pub poses: usize,
+    /// Poses compared (smooth estimator: every point's projection and Jacobian, then the value
+    /// and gradient; about 40× the nearest-pixel kernel's work per pose).
+    #[arg(long, default_value_t = 3)]
+    pub pv_poses: usize,
     /// Evaluate this many poses (no comparison) and print the points and a checksum.
     #[arg(long)]
     pub workload: Option<usize>,
@@ -48,7 +52,7 @@ pub(crate) fn run(a: Args) -> Result<()> {
         "self-test OK: MI kernel ({}) bit-identical to the reference loop, {} poses × {} points",
         r.path, r.poses, r.points
     );
-    let s = crate::localize::mi::smooth::lanes_self_test(a.poses)
+    let s = crate::localize::mi::smooth::lanes_self_test(a.pv_poses)
         .map_err(|m| Error::command("self-test", m))?;
     println!(
         "self-test OK: PV projection ({}) bit-identical to the reference, {} poses × {} points",
