@@ -1,13 +1,15 @@
-//! The value passes' chunk projection: up to [`CHUNK`] points rotated into the camera frame and
-//! projected by the Mei model, in f64, several points per instruction. Three copies of one
-//! arithmetic: a portable lane loop, an AVX2 copy (x86-64, chosen at run time) and an explicit
-//! NEON copy (aarch64). The reference is the scalar pair the gradient passes use,
-//! [`Smooth::cam_point`](super::Smooth) then [`Proj::project_uv`]: every lane performs its IEEE
-//! operations in the same order and association (plain multiplies and adds, never a fused
-//! multiply-add; correctly rounded square root and division), so a visible point's pixel is the
-//! reference's to the last bit and the same points are visible. [`self_test`] checks that on the
-//! running CPU (`infraloc self-test`, which CI also runs on the aarch64 binary under qemu and on
-//! the x86-64 binary on an emulated CPU without AVX2).
+//! The smooth estimator's chunk projection: up to [`CHUNK`] points rotated into the camera frame
+//! and projected by the Mei model in f64, several points per instruction — the pixel for the value
+//! passes; pixel, camera-frame point and the Jacobian's rows for the gradient passes. One body
+//! ([`mei_step`]) is written over a lane type ([`Lanes`]) and compiled three times: the portable
+//! loop (one lane), an AVX2 copy (x86-64, four lanes, chosen at run time) and a NEON copy
+//! (aarch64, two lanes). The reference is the scalar [`camera_point`] then [`Proj::project_uv`] or
+//! [`Proj::project`]: every lane performs its IEEE operations in the same order and association
+//! (plain multiplies and adds, never a fused multiply-add; correctly rounded square root and
+//! division), so a visible point's pixel and Jacobian are the reference's to the last bit and the
+//! same points are visible. [`self_test`] checks that on the running CPU (`infraloc self-test`,
+//! which CI also runs on the aarch64 binary under qemu and on the x86-64 binary on an emulated
+//! CPU without AVX2).
 //!
 //! The equidistant model needs `atan2`, which has no vector instruction; its chunks go through the
 //! scalar reference point by point.
@@ -50,7 +52,7 @@ struct Mei {
     r2max: f64,
 }
 
-/// Which copy [`project_chunk`] runs for the Mei model on this CPU: `neon` (aarch64),
+/// Which copy the smooth estimator's chunk projection runs for the Mei model on this CPU: `neon` (aarch64),
 /// `avx2` (x86-64 with AVX2, detected at run time) or `portable`.
 pub fn lanes_path() -> &'static str {
     #[cfg(target_arch = "aarch64")]
@@ -399,7 +401,7 @@ pub(super) struct JacParts {
     pub(super) jv: [[f64; CHUNK]; 3],
 }
 
-/// A chunk with its Jacobian ([`project_chunk_jac`]).
+/// A chunk with its Jacobian (what [`project_chunk`] fills for the gradient passes).
 #[derive(Debug, Clone, Copy)]
 pub(super) struct JacChunk {
     pub(super) uv: UvChunk,
@@ -679,10 +681,12 @@ pub struct LanesTest {
     pub poses: usize,
 }
 
-/// Check, on this CPU, that [`project_chunk`]'s Mei copy (and the portable lane loop) gives the
-/// reference's visibility and, for every visible point, its pixel bit for bit, over `poses`
-/// poses of the nearest-pixel kernel's self-test scene (a `5mp` Mei camera; points behind and
-/// past the 92.5° limit included). `Err` names the first pose and point that differ.
+/// Check, on this CPU, that the smooth estimator's Mei chunk projection ([`lanes_path`]'s copy
+/// and the portable lane loop) gives the reference's visibility and, for every visible point, its
+/// pixel, camera point and Jacobian bit for bit, and that the estimator's value and gradient are
+/// the reference's, over `poses` poses of the nearest-pixel kernel's self-test scene (a `5mp` Mei
+/// camera; points behind and past the 92.5° limit included). `Err` names the first pose (and
+/// point) that differs.
 pub fn self_test(poses: usize) -> std::result::Result<LanesTest, String> {
     use crate::localize::mi::kernel::selftest::{test_camera_mei, test_pose_f64, test_scene};
     let cam = test_camera_mei();
