@@ -290,6 +290,24 @@ impl<'a> Smooth<'a> {
         ]
     }
 
+    /// Project a chunk of points ([`lanes::project_chunk`], or point by point through the
+    /// reference when the estimator was built [`Self::with_reference_projection`]).
+    #[inline]
+    fn project_chunk<O: lanes::ChunkOut>(
+        &self,
+        rt: &lanes::Rt,
+        xs: &[f32],
+        ys: &[f32],
+        zs: &[f32],
+        out: &mut O,
+    ) {
+        if self.reference {
+            lanes::project_reference(&self.proj, rt, xs, ys, zs, out);
+        } else {
+            lanes::project_chunk(&self.proj, rt, xs, ys, zs, out);
+        }
+    }
+
     /// The PV histogram of one view at `pose`.
     fn histogram(&self, v: &SmoothView<'_>, r: &Matrix3<f64>, t: &Vector3<f64>) -> Hist {
         let (rows, cols) = (self.rows, self.cols);
@@ -310,11 +328,7 @@ impl<'a> Smooth<'a> {
                     let c1 = (c0 + CHUNK).min(end);
                     let p = v.pts;
                     let (xs, ys, zs) = (&p.x[c0..c1], &p.y[c0..c1], &p.z[c0..c1]);
-                    if self.reference {
-                        lanes::project_reference(&self.proj, rt, xs, ys, zs, &mut uv);
-                    } else {
-                        lanes::project_chunk(&self.proj, rt, xs, ys, zs, &mut uv);
-                    }
+                    self.project_chunk(rt, xs, ys, zs, &mut uv);
                     for c in 0..c1 - c0 {
                         if !uv.ok[c] {
                             h.invalid += 1.0;
@@ -384,11 +398,7 @@ impl<'a> Smooth<'a> {
             let c1 = (c0 + CHUNK).min(range.end);
             let p = v.pts;
             let (xs, ys, zs) = (&p.x[c0..c1], &p.y[c0..c1], &p.z[c0..c1]);
-            if self.reference {
-                lanes::project_reference(&self.proj, rt, xs, ys, zs, &mut ch);
-            } else {
-                lanes::project_chunk(&self.proj, rt, xs, ys, zs, &mut ch);
-            }
+            self.project_chunk(rt, xs, ys, zs, &mut ch);
             for c in 0..c1 - c0 {
                 if !ch.uv.ok[c] {
                     continue;

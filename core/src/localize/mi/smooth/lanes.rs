@@ -76,6 +76,45 @@ pub(super) fn project_chunk<O: ChunkOut>(
     zs: &[f32],
     out: &mut O,
 ) {
+    let Some(m) = mei_of(proj) else {
+        return project_reference(proj, rt, xs, ys, zs, out);
+    };
+    #[cfg(target_arch = "aarch64")]
+    {
+        mei_neon(rt, &m, xs, ys, zs, out);
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked on the line above).
+            unsafe { mei_avx2(rt, &m, xs, ys, zs, out) };
+        } else {
+            mei_portable(rt, &m, xs, ys, zs, out);
+        }
+    }
+    #[cfg(not(any(target_arch = "aarch64", target_arch = "x86_64")))]
+    {
+        mei_portable(rt, &m, xs, ys, zs, out);
+    }
+}
+
+/// [`project_chunk`] with the portable lane loop whatever the CPU (the self-test's second copy).
+fn project_portable<O: ChunkOut>(
+    proj: &Proj,
+    rt: &Rt,
+    xs: &[f32],
+    ys: &[f32],
+    zs: &[f32],
+    out: &mut O,
+) {
+    match mei_of(proj) {
+        Some(m) => mei_portable(rt, &m, xs, ys, zs, out),
+        None => project_reference(proj, rt, xs, ys, zs, out),
+    }
+}
+
+/// The Mei model's constants of `proj`, if it is that model.
+fn mei_of(proj: &Proj) -> Option<Mei> {
     match *proj {
         Proj::Mei {
             k,
@@ -83,33 +122,14 @@ pub(super) fn project_chunk<O: ChunkOut>(
             d,
             zmin,
             r2max,
-        } => {
-            let m = Mei {
-                k,
-                xi,
-                d,
-                zmin,
-                r2max,
-            };
-            #[cfg(target_arch = "aarch64")]
-            {
-                mei_neon(rt, &m, xs, ys, zs, out);
-            }
-            #[cfg(target_arch = "x86_64")]
-            {
-                if std::arch::is_x86_feature_detected!("avx2") {
-                    // SAFETY: the CPU has AVX2 (checked on the line above).
-                    unsafe { mei_avx2(rt, &m, xs, ys, zs, out) };
-                } else {
-                    mei_portable(rt, &m, xs, ys, zs, out);
-                }
-            }
-            #[cfg(not(any(target_arch = "aarch64", target_arch = "x86_64")))]
-            {
-                mei_portable(rt, &m, xs, ys, zs, out);
-            }
-        }
-        Proj::Equidistant { .. } => project_reference(proj, rt, xs, ys, zs, out),
+        } => Some(Mei {
+            k,
+            xi,
+            d,
+            zmin,
+            r2max,
+        }),
+        Proj::Equidistant { .. } => None,
     }
 }
 
@@ -708,23 +728,7 @@ pub fn self_test(poses: usize) -> std::result::Result<LanesTest, String> {
             let (mut got, mut port, mut want) =
                 (UvChunk::default(), UvChunk::default(), UvChunk::default());
             project_chunk(&proj, &rt, xs, ys, zs, &mut got);
-            if let Proj::Mei {
-                k,
-                xi,
-                d,
-                zmin,
-                r2max,
-            } = proj
-            {
-                let m = Mei {
-                    k,
-                    xi,
-                    d,
-                    zmin,
-                    r2max,
-                };
-                mei_portable(&rt, &m, xs, ys, zs, &mut port);
-            }
+            project_portable(&proj, &rt, xs, ys, zs, &mut port);
             project_reference(&proj, &rt, xs, ys, zs, &mut want);
             for i in 0..e - c0 {
                 for (name, c) in [(lanes_path(), &got), ("portable", &port)] {
@@ -785,25 +789,7 @@ fn same_jacobians(
         JacChunk::default(),
     );
     project_chunk(proj, rt, xs, ys, zs, &mut got);
-    if let Proj::Mei {
-        k,
-        xi,
-        d,
-        zmin,
-        r2max,
-    } = *proj
-    {
-        let m = Mei {
-            k,
-            xi,
-            d,
-            zmin,
-            r2max,
-        };
-        mei_portable(rt, &m, xs, ys, zs, &mut port);
-    } else {
-        project_reference(proj, rt, xs, ys, zs, &mut port);
-    }
+    project_portable(proj, rt, xs, ys, zs, &mut port);
     project_reference(proj, rt, xs, ys, zs, &mut want);
     let bits = |c: &JacChunk, i: usize| -> Vec<u64> {
         let q = &c.parts;
