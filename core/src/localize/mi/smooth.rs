@@ -136,7 +136,7 @@ pub struct Smooth<'a> {
     parzen: bool,
     pooling: Pooling,
     views: Vec<SmoothView<'a>>,
-    /// The value passes project point by point through the scalar reference instead of
+    /// Both passes project point by point through the scalar reference instead of
     /// [`lanes::project_chunk`] (the self-test and its workload).
     reference: bool,
 }
@@ -193,8 +193,8 @@ impl<'a> Smooth<'a> {
         }
     }
 
-    /// This estimator with its value passes on the scalar reference projection (same values bit
-    /// for bit; the self-test compares them, the workload times them).
+    /// This estimator with its value and gradient passes on the scalar reference projection
+    /// (same values bit for bit; the self-test compares them, the workload times them).
     pub fn with_reference_projection(mut self) -> Self {
         self.reference = true;
         self

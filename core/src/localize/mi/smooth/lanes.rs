@@ -718,37 +718,17 @@ pub fn self_test(poses: usize) -> std::result::Result<LanesTest, String> {
         for c0 in (0..pts.len()).step_by(CHUNK) {
             let e = (c0 + CHUNK).min(pts.len());
             let (xs, ys, zs) = (&pts.x[c0..e], &pts.y[c0..e], &pts.z[c0..e]);
-            if let Err(i) = same_jacobians(&proj, &rt, xs, ys, zs) {
-                return Err(format!(
-                    "pose {j}, point {}: the {} PV Jacobian differs from the reference",
-                    c0 + i,
-                    lanes_path()
-                ));
-            }
-            let (mut got, mut port, mut want) =
-                (UvChunk::default(), UvChunk::default(), UvChunk::default());
-            project_chunk(&proj, &rt, xs, ys, zs, &mut got);
-            project_portable(&proj, &rt, xs, ys, zs, &mut port);
-            project_reference(&proj, &rt, xs, ys, zs, &mut want);
-            for i in 0..e - c0 {
-                for (name, c) in [(lanes_path(), &got), ("portable", &port)] {
-                    let same = c.ok[i] == want.ok[i]
-                        && (!want.ok[i]
-                            || (c.u[i].to_bits() == want.u[i].to_bits()
-                                && c.v[i].to_bits() == want.v[i].to_bits()));
-                    if !same {
-                        return Err(format!(
-                            "pose {j}, point {}: the {name} PV projection differs from the reference",
-                            c0 + i
-                        ));
-                    }
-                }
-                if want.ok[i] {
-                    seen += 1;
-                } else {
-                    lost += 1;
-                }
-            }
+            let differs = |what: &str, (i, copy): (usize, &str)| {
+                format!(
+                    "pose {j}, point {}: the {copy} PV {what} differs from the reference",
+                    c0 + i
+                )
+            };
+            let visible = same_chunks::<UvChunk>(&proj, &rt, xs, ys, zs)
+                .map_err(|e| differs("projection", e))?;
+            same_chunks::<JacChunk>(&proj, &rt, xs, ys, zs).map_err(|e| differs("Jacobian", e))?;
+            seen += visible;
+            lost += e - c0 - visible;
         }
     }
     if seen == 0 || lost == 0 {
@@ -773,40 +753,43 @@ pub fn self_test(poses: usize) -> std::result::Result<LanesTest, String> {
     })
 }
 
-/// Whether [`project_chunk`] with the Jacobian (this CPU's copy and the portable loop) equals
-/// the reference bit for bit on these points: visibility, pixel, camera point and both rows
-/// where seen. `Err` is the first point that differs.
-fn same_jacobians(
+/// Whether [`project_chunk`] into an `O` ([`UvChunk`], or [`JacChunk`] with the Jacobian) on
+/// this CPU's copy and on the portable loop equals the reference bit for bit on these points:
+/// visibility, and where seen the pixel (and the camera point and both rows). `Ok`: how many the
+/// reference sees; `Err`: the first point that differs and the copy.
+fn same_chunks<O: ChunkOut + Default>(
     proj: &Proj,
     rt: &Rt,
     xs: &[f32],
     ys: &[f32],
     zs: &[f32],
-) -> std::result::Result<(), usize> {
-    let (mut got, mut port, mut want) = (
-        JacChunk::default(),
-        JacChunk::default(),
-        JacChunk::default(),
-    );
+) -> std::result::Result<usize, (usize, &'static str)> {
+    let (mut got, mut port, mut want) = (O::default(), O::default(), O::default());
     project_chunk(proj, rt, xs, ys, zs, &mut got);
     project_portable(proj, rt, xs, ys, zs, &mut port);
     project_reference(proj, rt, xs, ys, zs, &mut want);
-    let bits = |c: &JacChunk, i: usize| -> Vec<u64> {
-        let q = &c.parts;
-        let mut v = vec![c.uv.u[i].to_bits(), c.uv.v[i].to_bits()];
-        for a in [&q.xc, &q.ju, &q.jv] {
-            v.extend(a.iter().map(|r| r[i].to_bits()));
-        }
-        v
-    };
-    for i in 0..chunk_len(xs, ys, zs) {
-        for c in [&got, &port] {
-            if c.uv.ok[i] != want.uv.ok[i] || (want.uv.ok[i] && bits(c, i) != bits(&want, i)) {
-                return Err(i);
+    let bits = |c: &mut O, i: usize| -> (bool, Vec<u64>) {
+        let uv = c.uv();
+        let (ok, mut v) = (uv.ok[i], vec![uv.u[i].to_bits(), uv.v[i].to_bits()]);
+        if let Some(q) = c.jac() {
+            for a in [&q.xc, &q.ju, &q.jv] {
+                v.extend(a.iter().map(|r| r[i].to_bits()));
             }
         }
+        (ok, v)
+    };
+    let mut seen = 0;
+    for i in 0..chunk_len(xs, ys, zs) {
+        let (ok, reference) = bits(&mut want, i);
+        for (copy, c) in [(lanes_path(), &mut got), ("portable", &mut port)] {
+            let (c_ok, c_bits) = bits(c, i);
+            if c_ok != ok || (ok && c_bits != reference) {
+                return Err((i, copy));
+            }
+        }
+        seen += usize::from(ok);
     }
-    Ok(())
+    Ok(seen)
 }
 
 /// The self-test scene's estimator: one view, 32 × 32 bins with Parzen smoothing, its points'
@@ -911,7 +894,10 @@ mod tests {
         for c0 in (0..pts.len()).step_by(CHUNK) {
             let e = (c0 + CHUNK).min(pts.len());
             let (xs, ys, zs) = (&pts.x[c0..e], &pts.y[c0..e], &pts.z[c0..e]);
-            assert_eq!(same_jacobians(&proj, &rt, xs, ys, zs), Ok(()), "chunk {c0}");
+            assert!(
+                same_chunks::<JacChunk>(&proj, &rt, xs, ys, zs).is_ok(),
+                "chunk {c0}"
+            );
             let mut got = UvChunk::default();
             project_chunk(&proj, &rt, xs, ys, zs, &mut got);
             seen += got.ok[..e - c0].iter().filter(|&&o| o).count();
@@ -959,7 +945,10 @@ mod tests {
                 got.u[m..].iter().all(|&u| u == -7.0),
                 "m = {m}: wrote past the chunk"
             );
-            assert_eq!(same_jacobians(&proj, &rt, xs, ys, zs), Ok(()), "m = {m}");
+            assert!(
+                same_chunks::<JacChunk>(&proj, &rt, xs, ys, zs).is_ok(),
+                "m = {m}"
+            );
         }
     }
 }
