@@ -338,13 +338,19 @@ fn refine_at(
         mask: frame.mask(),
         points: &points,
     }];
+    // Before the smooth stage the searches find the basin; the polish and the gradient ascent
+    // take it from there.
+    let polish = match p.sampling {
+        crate::localize::mi::smooth::Sampling::Pv => p.polish.map(PolishedSearch::basin),
+        crate::localize::mi::smooth::Sampling::Nearest => p.polish,
+    };
     let (r, rounds) = refine_polished(
         camera,
         &views,
         start,
         &p.search,
         &p.quality,
-        p.polish.as_ref(),
+        polish.as_ref(),
         &pivot,
     )?;
     match p.sampling {

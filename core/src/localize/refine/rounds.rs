@@ -7,7 +7,7 @@ use crate::localize::mi::objective::{Evaluator, ImageCache, SearchStats, View};
 use crate::localize::mi::points::GroundPoint;
 use crate::localize::mi::space::{Mode, SearchConfig, MAX_LEVEL};
 use crate::localize::refine::quality::{apply_uncertainty, assess, Quality, QualityConfig};
-use crate::localize::refine::search::search_thinned;
+use crate::localize::refine::search::search_to;
 use crate::localize::refine::uncertainty::{estimate_cached, UncertaintyConfig};
 use crate::pose::CamFromMap;
 use serde::Serialize;
@@ -102,18 +102,20 @@ pub(crate) fn refine_masked(
 ) -> Result<Refinement> {
     let views = [View { gray, mask, points }];
     let cache = ImageCache::default();
-    let r = search_views(cam, &views, init, cfg, qcfg, 1, &cache)?;
+    let r = search_views(cam, &views, init, cfg, qcfg, (1, 0), &cache)?;
     with_uncertainty(cam, &views, r, cfg, qcfg, None, &cache)
 }
 
 /// The grid search and its quality on pooled views, without the uncertainty estimate.
+/// `(thinning, level)`: the finest level's point stride and the level the search stops at
+/// ([`search_to`]).
 fn search_views<'a>(
     cam: &Camera,
     views: &[View<'a>],
     init: &CamFromMap,
     cfg: &SearchConfig,
     qcfg: &QualityConfig,
-    thinning: usize,
+    (thinning, level): (usize, u32),
     cache: &ImageCache<'a>,
 ) -> Result<Refinement> {
     // `Evaluator::pooled` checks the images' and masks' sizes.
@@ -123,7 +125,7 @@ fn search_views<'a>(
         MAX_LEVEL
     };
     let ev = Evaluator::pooled_cached(cam, views, init, cfg, levels, cache)?;
-    let res = search_thinned(&ev, cfg, thinning);
+    let res = search_to(&ev, cfg, thinning, level);
     let quality = assess(&ev, &res, qcfg);
     if !res.pose.translation.iter().all(|v| v.is_finite()) {
         return Err(Error::stage(
@@ -238,6 +240,11 @@ pub struct PolishedSearch {
     /// [`crate::localize::refine::search::search_thinned`]: the 6-DoF polish on all points that follows sets the
     /// answer, so the grid cell it starts from needs less than the full point set.
     pub search_thinning: usize,
+    /// The level the searches stop at ([`crate::localize::refine::search::search_to`]; 0: the
+    /// finest step). A search that a continuous local stage follows, from the basin's cell to
+    /// the peak, need not climb to the finest cell: 1 for the smooth estimator's path
+    /// ([`PolishedSearch::basin`]).
+    pub basin_level: u32,
 }
 
 impl Default for PolishedSearch {
@@ -248,6 +255,7 @@ impl Default for PolishedSearch {
             search_rounds: SEARCH_ROUNDS,
             repolish_when_moved: false,
             search_thinning: SEARCH_THINNING,
+            basin_level: 0,
         }
     }
 }
@@ -283,9 +291,26 @@ impl PolishedSearch {
             // Its grid cell can be the peak itself (a forward view's along-track hump, above):
             // the search keeps every point.
             search_thinning: 1,
+            basin_level: 0,
+        }
+    }
+
+    /// These settings with the searches stopping at lattice level [`BASIN_LEVEL`]: for the
+    /// smooth estimator's path, whose polish and gradient ascent start from the basin's cell.
+    pub fn basin(self) -> Self {
+        PolishedSearch {
+            basin_level: BASIN_LEVEL,
+            ..self
         }
     }
 }
+
+/// The level the searches stop at before the smooth estimator's stage
+/// ([`PolishedSearch::basin`]): steps of 4 cm and 0.1° with the default grid, on the level's
+/// half-resolution image. Below it the nearest-pixel surface's ripples (a pixel's jump) are as
+/// large as the step, and on a low pole its climbs were most of a localization (`5mp` 4: the
+/// first search's level-0 windows and climbs 7 of its 10 CPU-s).
+pub const BASIN_LEVEL: u32 = 1;
 
 /// The name of what follows the grid search, for reports and pose files: `6-dof` (a polish that
 /// moves the tilt), `4-dof` (one that holds it) or `none`.
@@ -356,7 +381,7 @@ pub fn refine_polished(
     // one image preparation.
     let cache = ImageCache::default();
     let Some(p) = p else {
-        let r = search_views(cam, views, init, cfg, qcfg, 1, &cache)?;
+        let r = search_views(cam, views, init, cfg, qcfg, (1, 0), &cache)?;
         return Ok((
             with_uncertainty(cam, views, r, cfg, qcfg, None, &cache)?,
             Vec::new(),
@@ -368,7 +393,15 @@ pub fn refine_polished(
     // Work done by all the searches and polishes: the reported evaluation ratio counts it all.
     let (mut poses, mut point_evaluations) = (0u64, 0u64);
     loop {
-        let mut r = search_views(cam, views, &start, cfg, qcfg, p.search_thinning, &cache)?;
+        let mut r = search_views(
+            cam,
+            views,
+            &start,
+            cfg,
+            qcfg,
+            (p.search_thinning, p.basin_level),
+            &cache,
+        )?;
         poses += r.stats.poses;
         point_evaluations += r.stats.point_evaluations;
         let mut polish = Vec::new();

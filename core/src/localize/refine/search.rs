@@ -78,6 +78,23 @@ pub fn search(ev: &Evaluator, cfg: &SearchConfig) -> SearchResult {
 /// the full estimator, most often the unthinned search's cell, and its score, the second-peak
 /// test and the quality's profiles all use the full estimator.
 pub(crate) fn search_thinned(ev: &Evaluator, cfg: &SearchConfig, thinning: usize) -> SearchResult {
+    search_to(ev, cfg, thinning, 0)
+}
+
+/// [`search_thinned`] whose tiled descent and climbs stop at lattice `level` (steps 2^level
+/// finest cells, the level's image and point subsample; 0: [`search_thinned`]): the grid finds
+/// the basin, and a continuous local stage that follows sets the answer. The climbs' peaks are
+/// scored again at level 0 on all points and the best of them climbs on all points at the
+/// finest step, without the wide look ([`finish_on_all_points`]): the answer is a local maximum
+/// of the full estimator, and its score, the second-peak test and the quality's profiles see
+/// the full estimator, as after a level-0 search. A grid small enough to be surveyed at a finer
+/// level than `level` is searched to level 0.
+pub(crate) fn search_to(
+    ev: &Evaluator,
+    cfg: &SearchConfig,
+    thinning: usize,
+    level: u32,
+) -> SearchResult {
     let g = ev.grid;
     let mut stats = SearchStats {
         exhaustive_point_evaluations: g.cells().saturating_mul(ev.n_points as u64),
@@ -87,8 +104,8 @@ pub(crate) fn search_thinned(ev: &Evaluator, cfg: &SearchConfig, thinning: usize
         Mode::Exhaustive => exhaustive(ev, &mut stats),
         Mode::Tiled => {
             let stride = thinning.min(ev.n_points / cfg.coarse_min_points.max(1));
-            let fine = (stride >= 2).then(|| ev.thinned(stride));
-            tiled(ev, fine.as_ref(), cfg, &mut stats)
+            let fine = (stride >= 2 && level == 0).then(|| ev.thinned(stride));
+            tiled(ev, fine.as_ref(), cfg, level, &mut stats)
         }
     };
     let cell = g.cell(best.idx);
@@ -151,68 +168,32 @@ fn tiled(
     ev: &Evaluator,
     fine: Option<&Evaluator>,
     cfg: &SearchConfig,
+    basin_level: u32,
     stats: &mut SearchStats,
 ) -> (Scored, Vec<Scored>) {
     let g = ev.grid;
     let top = (ev.levels.len() as u32 - 1).min(coarsest_level(&g, cfg.coarse_budget));
     stats.coarsest_level = top;
+    if basin_level > 0 && basin_level <= top {
+        return tiled_to_basin(ev, cfg, top, basin_level, stats);
+    }
     // A survey at level 0 (a small grid) scores all points already: nothing to thin.
     let fine = fine.filter(|_| top > 0);
     // The evaluator of the finest level's windows and climbs.
     let ev0 = fine.unwrap_or(ev);
     let k = cfg.top_k.max(1);
 
-    // Survey of the whole box at the coarsest level. The lattice is enumerated x-slowest, so
-    // contiguous chunks of it are tiles of the search space; score_many runs them in parallel.
-    let mut lattice: Vec<Cell> = vec![[0; 6]];
-    for i in 0..6 {
-        let ax = g.lattice_axis(i, top);
-        lattice = lattice
-            .into_iter()
-            .flat_map(|c| {
-                ax.iter().map(move |&v| {
-                    let mut d = c;
-                    d[i] = v;
-                    d
-                })
-            })
-            .collect();
-    }
-    let idxs: Vec<u64> = lattice.iter().map(|c| g.index(c)).collect();
-    let survey = ev.score_many(top, &idxs, stats);
-    let mut cands = top_local_maxima(&g, &survey, 1i64 << top, k);
+    let survey = ev.score_many(top, &survey_lattice(&g, top), stats);
+    let cands = top_local_maxima(&g, &survey, 1i64 << top, k);
+    let (cands, last) = descend(ev, ev0, cands, top, 0, k, stats);
     // Level-0 scores already computed (by the last descent step, or the survey when the grid is
     // small enough to survey at level 0): the climbs start inside those windows and would score
     // most of them again. A score is a pure function of (level, cell), so reusing one changes
     // only the count, never a result.
-    let mut cache: HashMap<u64, Scored> = HashMap::new();
-    if top == 0 {
-        cache.extend(survey.iter().map(|s| (s.idx, *s)));
-    }
-
-    // Descend: each candidate is re-examined on a ±2-step window of the next finer lattice.
-    for level in (0..top).rev() {
-        let f = 1i64 << level;
-        let mut union: Vec<u64> = cands
-            .iter()
-            .flat_map(|&c| window(&g, &g.cell(c), f))
-            .collect();
-        union.sort_unstable();
-        union.dedup();
-        let scored = if level == 0 {
-            ev0.score_many(0, &union, stats)
-        } else {
-            ev.score_many(level, &union, stats)
-        };
-        if level == 0 {
-            cache.extend(scored.iter().map(|s| (s.idx, *s)));
-        }
-        // The next candidates: the top-k local maxima of everything scored at this level. Taking
-        // only each window's best would collapse overlapping windows onto one cell and drop the
-        // runner-up hills that the finer levels sometimes prove better (a near-tie of two ripples
-        // of the objective).
-        cands = top_local_maxima(&g, &scored, f, k);
-    }
+    let mut cache: HashMap<u64, Scored> = if top == 0 { &survey } else { &last }
+        .iter()
+        .map(|s| (s.idx, *s))
+        .collect();
 
     // Hill-climb each candidate to a local maximum of the finest grid. The climbs run one after
     // the other (each step scores its cells in parallel) and share one cache: candidates are often
@@ -238,24 +219,128 @@ fn tiled(
     peaks.sort_unstable_by_key(|s| s.idx);
     peaks.dedup_by_key(|s| s.idx);
     if fine.is_some() {
-        // The peaks' scores on all points, and the best of them climbed on all points to a cell
-        // no neighbour beats: the answer is a local maximum of the full estimator, as without
-        // the thinning (the wide look stays with the thinned climbs: on all points it would cost
-        // more than the thinning saves).
+        // The wide look stays with the thinned climbs: on all points it would cost more than the
+        // thinning saves.
         let idxs: Vec<u64> = peaks.iter().map(|s| s.idx).collect();
-        peaks = ev.score_many(0, &idxs, stats);
-        sort_best_first(&mut peaks);
-        let mut full: HashMap<u64, Scored> = peaks.iter().map(|s| (s.idx, *s)).collect();
-        let (top, evals) = climb_with(ev, peaks[0].idx, cfg.max_climb, &mut full, false);
-        stats.poses += evals;
-        stats.point_evaluations += evals * ev.points_at(0) as u64;
-        peaks.push(top);
-        peaks.sort_unstable_by_key(|s| s.idx);
-        peaks.dedup_by_key(|s| s.idx);
+        peaks = finish_on_all_points(ev, &idxs, cfg, stats);
     }
     sort_best_first(&mut peaks);
     let best = peaks[0];
     (best, peaks[1..].to_vec())
+}
+
+/// The cells of the whole box's lattice at `level`. It is enumerated x-slowest, so contiguous
+/// chunks of it are tiles of the search space; `score_many` runs them in parallel.
+fn survey_lattice(g: &Grid, level: u32) -> Vec<u64> {
+    let mut lattice: Vec<Cell> = vec![[0; 6]];
+    for i in 0..6 {
+        let ax = g.lattice_axis(i, level);
+        lattice = lattice
+            .into_iter()
+            .flat_map(|c| {
+                ax.iter().map(move |&v| {
+                    let mut d = c;
+                    d[i] = v;
+                    d
+                })
+            })
+            .collect();
+    }
+    lattice.iter().map(|c| g.index(c)).collect()
+}
+
+/// The descent from the candidates `cands` of level `top` to level `to`: each candidate is
+/// re-examined on a ±2-step window of the next finer lattice, and the top-`k` local maxima of
+/// all that was scored there go on. Level 0 is scored by `ev0` (the thinned evaluator of
+/// [`search_thinned`], or `ev`), the others by `ev`. Returns the candidates at `to` and every
+/// score of that level (empty when `to == top`).
+fn descend(
+    ev: &Evaluator,
+    ev0: &Evaluator,
+    mut cands: Vec<u64>,
+    top: u32,
+    to: u32,
+    k: usize,
+    stats: &mut SearchStats,
+) -> (Vec<u64>, Vec<Scored>) {
+    let g = ev.grid;
+    let mut last = Vec::new();
+    for level in (to..top).rev() {
+        let f = 1i64 << level;
+        let mut union: Vec<u64> = cands
+            .iter()
+            .flat_map(|&c| window(&g, &g.cell(c), f))
+            .collect();
+        union.sort_unstable();
+        union.dedup();
+        let scorer = if level == 0 { ev0 } else { ev };
+        let scored = scorer.score_many(level, &union, stats);
+        // Taking only each window's best would collapse overlapping windows onto one cell and
+        // drop the runner-up hills that the finer levels sometimes prove better (a near-tie of
+        // two ripples of the objective).
+        cands = top_local_maxima(&g, &scored, f, k);
+        last = scored;
+    }
+    (cands, last)
+}
+
+/// The survey at level `top`, the descent to level `basin` (`0 < basin <= top`), the climbs on
+/// that level's lattice and image, and the climbs' peaks scored at level 0 on all points, best
+/// first (see [`search_to`]).
+fn tiled_to_basin(
+    ev: &Evaluator,
+    cfg: &SearchConfig,
+    top: u32,
+    basin: u32,
+    stats: &mut SearchStats,
+) -> (Scored, Vec<Scored>) {
+    let g = ev.grid;
+    let k = cfg.top_k.max(1);
+    let survey = ev.score_many(top, &survey_lattice(&g, top), stats);
+    let cands = top_local_maxima(&g, &survey, 1i64 << top, k);
+    let (cands, last) = descend(ev, ev, cands, top, basin, k, stats);
+    // Scores at the basin level, shared by the climbs (as the level-0 cache of [`tiled`]).
+    let mut cache: HashMap<u64, Scored> = if top == basin { &survey } else { &last }
+        .iter()
+        .map(|s| (s.idx, *s))
+        .collect();
+    let f = 1i64 << basin;
+    let n = ev.points_at(basin) as u64;
+    let mut peaks: Vec<u64> = Vec::new();
+    for &c in &cands {
+        let (peak, evals) = climb_on(ev, basin, f, c, cfg.max_climb, &mut cache, true);
+        stats.poses += evals;
+        stats.point_evaluations += evals * n;
+        peaks.push(peak.idx);
+    }
+    peaks.sort_unstable();
+    peaks.dedup();
+    let mut peaks = finish_on_all_points(ev, &peaks, cfg, stats);
+    sort_best_first(&mut peaks);
+    (peaks[0], peaks[1..].to_vec())
+}
+
+/// The climbs' `peaks` scored at level 0 on all points, and the best of them climbed on all
+/// points (steepest ascent, no wide look) to a cell no neighbour beats: the answer is a local
+/// maximum of the full estimator on the finest grid, as an unthinned level-0 search's is.
+/// Returns the peaks and that cell, once each, unordered.
+fn finish_on_all_points(
+    ev: &Evaluator,
+    peaks: &[u64],
+    cfg: &SearchConfig,
+    stats: &mut SearchStats,
+) -> Vec<Scored> {
+    // score_many at level 0 records the points the peaks lose.
+    let mut peaks = ev.score_many(0, peaks, stats);
+    sort_best_first(&mut peaks);
+    let mut full: HashMap<u64, Scored> = peaks.iter().map(|s| (s.idx, *s)).collect();
+    let (top, evals) = climb_with(ev, peaks[0].idx, cfg.max_climb, &mut full, false);
+    stats.poses += evals;
+    stats.point_evaluations += evals * ev.points_at(0) as u64;
+    peaks.push(top);
+    peaks.sort_unstable_by_key(|s| s.idx);
+    peaks.dedup_by_key(|s| s.idx);
+    peaks
 }
 
 /// The best `k` (best first) of the `scored` cells that beat each of their lattice-`f` neighbours
@@ -340,6 +425,20 @@ fn climb_with(
     cache: &mut HashMap<u64, Scored>,
     wide: bool,
 ) -> (Scored, u64) {
+    climb_on(ev, 0, 1, start, max_iter, cache, wide)
+}
+
+/// [`climb_with`] on lattice `f` (= 2^`level` finest cells) with the scores of `level`; `cache`
+/// holds that level's scores.
+fn climb_on(
+    ev: &Evaluator,
+    level: u32,
+    f: i64,
+    start: u64,
+    max_iter: usize,
+    cache: &mut HashMap<u64, Scored>,
+    wide: bool,
+) -> (Scored, u64) {
     let g = ev.grid;
     let mut evals = 0u64;
     // Scores of `idxs`, the ones not seen yet scored in parallel (the climb itself is sequential,
@@ -353,14 +452,14 @@ fn climb_with(
         missing.sort_unstable();
         missing.dedup();
         evals += missing.len() as u64;
-        for s in ev.score_cells(0, &missing) {
+        for s in ev.score_cells(level, &missing) {
             cache.insert(s.idx, s);
         }
         idxs.iter().map(|i| cache[i]).collect()
     };
     let mut cur = score(&[start])[0];
     for _ in 0..max_iter {
-        let nb: Vec<u64> = neighbours(&g, &g.cell(cur.idx), 1)
+        let nb: Vec<u64> = neighbours(&g, &g.cell(cur.idx), f)
             .iter()
             .map(|n| g.index(n))
             .collect();
@@ -368,7 +467,7 @@ fn climb_with(
             Some(b) if better(&b, &cur) => cur = b,
             _ if !wide => break,
             _ => {
-                let wide = window_r(&g, &g.cell(cur.idx), 1, WIDE_LOOK);
+                let wide = window_r(&g, &g.cell(cur.idx), f, WIDE_LOOK);
                 match best_of(&score(&wide)) {
                     Some(b) if better(&b, &cur) => cur = b,
                     _ => break,
@@ -820,6 +919,54 @@ mod tests {
             thin.stats.point_evaluations,
             full.stats.point_evaluations
         );
+    }
+
+    #[test]
+    fn a_search_to_level_one_ends_on_a_local_maximum_next_to_the_full_search() {
+        let (cam, gray, mask, pts, start, cfg) = small_scene();
+        let views = [View {
+            gray: &gray,
+            mask: &mask,
+            points: &pts,
+        }];
+        let ev = Evaluator::pooled(&cam, &views, &start, &cfg, MAX_LEVEL).unwrap();
+        let full = search(&ev, &cfg);
+        assert!(full.stats.coarsest_level >= 1);
+        // Level 0 is the plain search, bit for bit.
+        let zero = search_to(&ev, &cfg, 1, 0);
+        assert_eq!(
+            (zero.best, &zero.other_peaks, zero.stats),
+            (full.best, &full.other_peaks, full.stats)
+        );
+        let basin = search_to(&ev, &cfg, 1, 1);
+        let g = ev.grid();
+        let cell = g.cell(basin.best.idx);
+        // Scored at level 0 on all points, as are the other peaks (worse than it), and a local
+        // maximum of that estimator on the finest grid.
+        let rescored = |s: &Scored| ev.score_cells(0, &[s.idx])[0];
+        assert_eq!(basin.best, rescored(&basin.best));
+        for p in &basin.other_peaks {
+            assert_eq!(*p, rescored(p));
+            assert!(p.score <= basin.best.score);
+        }
+        let around: Vec<u64> = neighbours(g, &cell, 1).iter().map(|c| g.index(c)).collect();
+        for n in ev.score_cells(0, &around) {
+            assert!(better(&basin.best, &n), "{n:?} beats {:?}", basin.best);
+        }
+        // In the full search's basin: within one level-1 step on every axis.
+        let b = g.cell(full.best.idx);
+        for i in 0..4 {
+            assert!((cell[i] - b[i]).abs() <= 2, "axis {i}: {cell:?} vs {b:?}");
+        }
+        assert!(
+            basin.stats.point_evaluations < full.stats.point_evaluations * 3 / 4,
+            "{} vs {}",
+            basin.stats.point_evaluations,
+            full.stats.point_evaluations
+        );
+        // A level beyond the survey's is searched to level 0.
+        let deep = search_to(&ev, &cfg, 1, MAX_LEVEL + 1);
+        assert_eq!(deep.best, full.best);
     }
 
     /// `surely_visible` may only leave points to the lattice test, never keep one that some pose
