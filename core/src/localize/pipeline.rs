@@ -51,8 +51,9 @@ pub struct Params {
     /// ([`crate::localize::init::matcher::initialize_with`]).
     pub matcher: Option<std::sync::Arc<dyn Matcher>>,
     /// The MI stage's local estimator: `Nearest` ends with the nearest-pixel refinement (the
-    /// default); `Pv` follows it with the smooth estimator's 4-DoF gradient ascent and its gate
-    /// ([`crate::localize::refine::gradient::smooth_stage`]).
+    /// default); `Pv` runs that refinement with its searches stopping at the basin
+    /// ([`PolishedSearch::basin`]) and follows it with the smooth estimator's 4-DoF gradient
+    /// ascent and its gate ([`crate::localize::refine::gradient::smooth_stage`]).
     pub sampling: crate::localize::mi::smooth::Sampling,
 }
 
