@@ -6,7 +6,7 @@
 //!
 //! Defaults (see `docs/refine.md` for the measurements): 32 × 32 bins with histogram-equalised
 //! (quantile) bin edges, binomial Parzen smoothing of the joint histogram, MI objective on a fixed
-//! point set (the bias remedy, see [`crate::localize::search`]).
+//! point set (the bias remedy, see [`crate::localize::refine::search`]).
 
 pub mod kernel;
 pub mod objective;
