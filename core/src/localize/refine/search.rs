@@ -163,7 +163,8 @@ fn sort_best_first(v: &mut [Scored]) {
     v.sort_by(|a, b| b.score.total_cmp(&a.score).then_with(|| a.idx.cmp(&b.idx)));
 }
 
-/// Coarse-to-fine over sub-lattices.
+/// Coarse-to-fine over sub-lattices, down to lattice `basin_level` ([`search_to`]; a level
+/// beyond the survey's is 0).
 fn tiled(
     ev: &Evaluator,
     fine: Option<&Evaluator>,
@@ -174,53 +175,56 @@ fn tiled(
     let g = ev.grid;
     let top = (ev.levels.len() as u32 - 1).min(coarsest_level(&g, cfg.coarse_budget));
     stats.coarsest_level = top;
-    if basin_level > 0 && basin_level <= top {
-        return tiled_to_basin(ev, cfg, top, basin_level, stats);
-    }
-    // A survey at level 0 (a small grid) scores all points already: nothing to thin.
-    let fine = fine.filter(|_| top > 0);
+    let basin = if basin_level <= top { basin_level } else { 0 };
+    // A survey at level 0 (a small grid) scores all points already: nothing to thin; nor does a
+    // search that stops above level 0.
+    let fine = fine.filter(|_| top > 0 && basin == 0);
     // The evaluator of the finest level's windows and climbs.
     let ev0 = fine.unwrap_or(ev);
     let k = cfg.top_k.max(1);
 
     let survey = ev.score_many(top, &survey_lattice(&g, top), stats);
     let cands = top_local_maxima(&g, &survey, 1i64 << top, k);
-    let (cands, last) = descend(ev, ev0, cands, top, 0, k, stats);
-    // Level-0 scores already computed (by the last descent step, or the survey when the grid is
-    // small enough to survey at level 0): the climbs start inside those windows and would score
-    // most of them again. A score is a pure function of (level, cell), so reusing one changes
-    // only the count, never a result.
-    let mut cache: HashMap<u64, Scored> = if top == 0 { &survey } else { &last }
+    let (cands, last) = descend(ev, ev0, cands, top, basin, k, stats);
+    // Scores of the basin's level already computed (by the last descent step, or the survey when
+    // the grid is small enough to survey at that level): the climbs start inside those windows
+    // and would score most of them again. A score is a pure function of (level, cell), so reusing
+    // one changes only the count, never a result.
+    let mut cache: HashMap<u64, Scored> = if top == basin { &survey } else { &last }
         .iter()
         .map(|s| (s.idx, *s))
         .collect();
 
-    // Hill-climb each candidate to a local maximum of the finest grid. The climbs run one after
-    // the other (each step scores its cells in parallel) and share one cache: candidates are often
-    // close, and their climbs meet. A cached score is the same number as a recomputed one, so the
-    // sharing changes only the count, and the order is fixed, so the count is deterministic too.
+    // Hill-climb each candidate to a local maximum of the basin's lattice. The climbs run one
+    // after the other (each step scores its cells in parallel) and share one cache: candidates
+    // are often close, and their climbs meet. A cached score is the same number as a recomputed
+    // one, so the sharing changes only the count, and the order is fixed, so the count is
+    // deterministic too.
+    let climber = if basin == 0 { ev0 } else { ev };
     let climbs: Vec<(Scored, u64)> = cands
         .iter()
-        .map(|&c| climb(ev0, c, cfg.max_climb, &mut cache))
+        .map(|&c| climb(climber, basin, c, cfg.max_climb, &mut cache, true))
         .collect();
-    let n0 = ev0.points_at(0) as u64;
+    let n = climber.points_at(basin) as u64;
     for (_, evals) in &climbs {
         stats.poses += evals;
-        stats.point_evaluations += evals * n0;
+        stats.point_evaluations += evals * n;
     }
-    // The cache holds every level-0 score, the climbs' own among them: score_many only saw the
-    // descent's, and a climb can walk to a pose the descent never scored.
-    let lost = cache
-        .values()
-        .map(|s| 1.0 - s.value.n as f64 / n0.max(1) as f64)
-        .fold(0.0, f64::max);
-    stats.max_lost_fraction = stats.max_lost_fraction.max(lost);
+    if basin == 0 {
+        // The cache holds every level-0 score, the climbs' own among them: score_many only saw
+        // the descent's, and a climb can walk to a pose the descent never scored.
+        let lost = cache
+            .values()
+            .map(|s| 1.0 - s.value.n as f64 / n.max(1) as f64)
+            .fold(0.0, f64::max);
+        stats.max_lost_fraction = stats.max_lost_fraction.max(lost);
+    }
     let mut peaks: Vec<Scored> = climbs.into_iter().map(|(s, _)| s).collect();
     peaks.sort_unstable_by_key(|s| s.idx);
     peaks.dedup_by_key(|s| s.idx);
-    if fine.is_some() {
-        // The wide look stays with the thinned climbs: on all points it would cost more than the
-        // thinning saves.
+    if fine.is_some() || basin > 0 {
+        // The wide look stays with the thinned or coarser climbs: on all points at the finest
+        // step it would cost more than they save.
         let idxs: Vec<u64> = peaks.iter().map(|s| s.idx).collect();
         peaks = finish_on_all_points(ev, &idxs, cfg, stats);
     }
@@ -284,42 +288,6 @@ fn descend(
     (cands, last)
 }
 
-/// The survey at level `top`, the descent to level `basin` (`0 < basin <= top`), the climbs on
-/// that level's lattice and image, and the climbs' peaks scored at level 0 on all points, best
-/// first (see [`search_to`]).
-fn tiled_to_basin(
-    ev: &Evaluator,
-    cfg: &SearchConfig,
-    top: u32,
-    basin: u32,
-    stats: &mut SearchStats,
-) -> (Scored, Vec<Scored>) {
-    let g = ev.grid;
-    let k = cfg.top_k.max(1);
-    let survey = ev.score_many(top, &survey_lattice(&g, top), stats);
-    let cands = top_local_maxima(&g, &survey, 1i64 << top, k);
-    let (cands, last) = descend(ev, ev, cands, top, basin, k, stats);
-    // Scores at the basin level, shared by the climbs (as the level-0 cache of [`tiled`]).
-    let mut cache: HashMap<u64, Scored> = if top == basin { &survey } else { &last }
-        .iter()
-        .map(|s| (s.idx, *s))
-        .collect();
-    let f = 1i64 << basin;
-    let n = ev.points_at(basin) as u64;
-    let mut peaks: Vec<u64> = Vec::new();
-    for &c in &cands {
-        let (peak, evals) = climb_on(ev, basin, f, c, cfg.max_climb, &mut cache, true);
-        stats.poses += evals;
-        stats.point_evaluations += evals * n;
-        peaks.push(peak.idx);
-    }
-    peaks.sort_unstable();
-    peaks.dedup();
-    let mut peaks = finish_on_all_points(ev, &peaks, cfg, stats);
-    sort_best_first(&mut peaks);
-    (peaks[0], peaks[1..].to_vec())
-}
-
 /// The climbs' `peaks` scored at level 0 on all points, and the best of them climbed on all
 /// points (steepest ascent, no wide look) to a cell no neighbour beats: the answer is a local
 /// maximum of the full estimator on the finest grid, as an unthinned level-0 search's is.
@@ -334,7 +302,7 @@ fn finish_on_all_points(
     let mut peaks = ev.score_many(0, peaks, stats);
     sort_best_first(&mut peaks);
     let mut full: HashMap<u64, Scored> = peaks.iter().map(|s| (s.idx, *s)).collect();
-    let (top, evals) = climb_with(ev, peaks[0].idx, cfg.max_climb, &mut full, false);
+    let (top, evals) = climb(ev, 0, peaks[0].idx, cfg.max_climb, &mut full, false);
     stats.poses += evals;
     stats.point_evaluations += evals * ev.points_at(0) as u64;
     peaks.push(top);
@@ -400,45 +368,23 @@ fn window_r(g: &Grid, c: &Cell, f: i64, r: [i64; 6]) -> Vec<u64> {
 /// 1776 more full-resolution poses per look (≈ doubling the default search); this costs 250.
 const WIDE_LOOK: [i64; 6] = [2, 2, 2, 3, 3, 3];
 
-/// Steepest-ascent on the finest grid from `start` until no neighbour is better, then a wider look:
-/// if a cell within [`WIDE_LOOK`] steps beats the peak, climb on from it. The MI surface over a
-/// nearest-pixel sampler has small pose-to-pose ripples; the wide look steps over them so that the
-/// result is the maximum of its neighbourhood (±2 positions, ±3 angles), as the exhaustive search
-/// would see it. Returns
-/// the peak and the number of poses scored that were not in `cache` (level-0 scores, shared
-/// between the climbs of one search).
+/// Steepest ascent on lattice `level` (steps of 2^`level` finest cells, that level's scores)
+/// from `start` until no neighbour is better, then, with `wide`, a wider look: if a cell within
+/// [`WIDE_LOOK`] steps beats the peak, climb on from it. The MI surface over a nearest-pixel
+/// sampler has small pose-to-pose ripples; the wide look steps over them so that the result is
+/// the maximum of its neighbourhood (±2 positions, ±3 angles), as the exhaustive search would
+/// see it; without it the climb ends on a cell no neighbour beats. Returns the peak and the
+/// number of poses scored that were not in `cache` (the level's scores, shared between the
+/// climbs of one search).
 fn climb(
     ev: &Evaluator,
-    start: u64,
-    max_iter: usize,
-    cache: &mut HashMap<u64, Scored>,
-) -> (Scored, u64) {
-    climb_with(ev, start, max_iter, cache, true)
-}
-
-/// [`climb`], with the wide look or (`wide` false) plain steepest ascent to a cell no neighbour
-/// beats.
-fn climb_with(
-    ev: &Evaluator,
-    start: u64,
-    max_iter: usize,
-    cache: &mut HashMap<u64, Scored>,
-    wide: bool,
-) -> (Scored, u64) {
-    climb_on(ev, 0, 1, start, max_iter, cache, wide)
-}
-
-/// [`climb_with`] on lattice `f` (= 2^`level` finest cells) with the scores of `level`; `cache`
-/// holds that level's scores.
-fn climb_on(
-    ev: &Evaluator,
     level: u32,
-    f: i64,
     start: u64,
     max_iter: usize,
     cache: &mut HashMap<u64, Scored>,
     wide: bool,
 ) -> (Scored, u64) {
+    let f = 1i64 << level;
     let g = ev.grid;
     let mut evals = 0u64;
     // Scores of `idxs`, the ones not seen yet scored in parallel (the climb itself is sequential,
