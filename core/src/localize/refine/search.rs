@@ -176,9 +176,9 @@ fn tiled(
     let top = (ev.levels.len() as u32 - 1).min(coarsest_level(&g, cfg.coarse_budget));
     stats.coarsest_level = top;
     let basin = if basin_level <= top { basin_level } else { 0 };
-    // A survey at level 0 (a small grid) scores all points already: nothing to thin; nor does a
-    // search that stops above level 0.
-    let fine = fine.filter(|_| top > 0 && basin == 0);
+    // A survey at level 0 (a small grid) scores all points already: nothing to thin. (A search
+    // that stops above level 0 has no thinned evaluator: `search_to` builds none.)
+    let fine = fine.filter(|_| top > 0);
     // The evaluator of the finest level's windows and climbs.
     let ev0 = fine.unwrap_or(ev);
     let k = cfg.top_k.max(1);
