@@ -120,10 +120,12 @@ fn a_useless_or_broken_match_file_fails_in_one_line_and_keeps_the_pose() {
     // Every row an outlier: no pose agrees with enough of them.
     write_matches(dir, 5);
     let e = fails("all outliers");
+    // The stage is named once; the random temporary directory may spell "pnp" too.
+    let without_dir = e.replace(&*dir.to_string_lossy(), "");
     assert!(
         e.starts_with("infraloc: pnp: match-file ")
             && e.contains("matches.csv: ")
-            && e.matches("pnp").count() == 1,
+            && without_dir.matches("pnp").count() == 1,
         "{e}"
     );
     // A file that is not a match file names the file and the line.
