@@ -558,6 +558,11 @@ impl<'a> Smooth<'a> {
             .collect()
     }
 
+    /// Evaluations (value + gradient) that [`Smooth::hessian`] makes: two per free parameter.
+    pub fn hessian_evaluations(free: &[bool; 6]) -> usize {
+        2 * free.iter().filter(|f| **f).count()
+    }
+
     /// The objective's Hessian at `pose` over the free parameters (θ of [`step`]), by central
     /// differences of the analytic gradient with steps `h` (m, rad); rows and columns of fixed
     /// parameters are 0. Symmetrised.

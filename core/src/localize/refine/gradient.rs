@@ -213,14 +213,16 @@ pub fn ascend_with(
             q.iter_mut().zip(t).for_each(|(qi, ti)| *qi -= a * ti);
             alphas.push((a, rho));
         }
-        let gamma = hist
-            .last()
-            .map_or(1.0 / dot(&g, &g).sqrt().max(1e-300), |(s, t)| {
-                dot(s, t) / dot(t, t)
-            });
         let mut d: [f64; 6] = match &metric {
             Some(m) => m.apply(&q),
-            None => std::array::from_fn(|k| gamma * q[k]),
+            None => {
+                let gamma = hist
+                    .last()
+                    .map_or(1.0 / dot(&g, &g).sqrt().max(1e-300), |(s, t)| {
+                        dot(s, t) / dot(t, t)
+                    });
+                std::array::from_fn(|k| gamma * q[k])
+            }
         };
         for ((s, t), (a, rho)) in hist.iter().zip(alphas.iter().rev()) {
             let b = rho * dot(t, &d);
@@ -481,7 +483,7 @@ pub fn information_with_step(
         sigma: sigma_of(&cov),
         matrix: rows_of(&cov),
         points: n,
-        evaluations: 2 * d + 1,
+        evaluations: Smooth::hessian_evaluations(free) + 1,
         sandwich_sigma: sigma_of(&sw),
         sandwich_matrix: rows_of(&sw),
         clusters: scores.len(),
@@ -637,7 +639,7 @@ pub fn smooth_stage(
         // gradient's pixel steps, most of a plain ascent's evaluations.
         let h = est.hessian(&pose, &acfg.free, &HESSIAN_STEP);
         let a = ascend_with(&est, &pose, &acfg, Some(&h));
-        let spent = a.evaluations + 2 * acfg.free.iter().filter(|f| **f).count();
+        let spent = a.evaluations + Smooth::hessian_evaluations(&acfg.free);
         r.stats.poses += spent as u64;
         r.stats.point_evaluations += (spent * est.n()) as u64;
         pose = a.pose;
