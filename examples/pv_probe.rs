@@ -3,42 +3,35 @@
 //! the data has a basin there and how wide (docs/refine.md "Estimator").
 //!
 //! ```sh
-//! cargo run --release --example pv_probe -- CAM.yaml POSE.json joint|per-pair IMG BIN [IMG BIN …]
+//! cargo run --release --example pv_probe -- CAM.yaml POSE.json[@DX,DY,DZ,DYAW] joint|per-pair IMG BIN [IMG BIN …]
 //! ```
 
-use infraloc::camera::{load_camera, CameraModel};
-use infraloc::localize::mi::objective::{Evaluator, View};
+use infraloc::camera::load_camera;
+use infraloc::localize::mi::objective::Evaluator;
 use infraloc::localize::mi::smooth::{Pooling, Smooth};
 use infraloc::localize::mi::space::SearchConfig;
-use infraloc::points_io::read_points;
-use infraloc::posefile::read_pose;
 use nalgebra::DMatrix;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+#[path = "common/mod.rs"]
+mod common;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().skip(1).collect();
     if a.len() < 5 || (a.len() - 3) % 2 != 0 {
-        return Err("usage: pv_probe CAM POSE joint|per-pair IMG BIN [IMG BIN …]".into());
+        return Err(
+            "usage: pv_probe CAM POSE[@DX,DY,DZ,DYAW] joint|per-pair IMG BIN [IMG BIN …]".into(),
+        );
     }
     let cam = load_camera(Path::new(&a[0]))?;
-    let pose = read_pose(Path::new(&a[1]))?.pose;
+    let pose = common::pose_arg(&a[1])?;
     let pooling: Pooling = a[2].parse()?;
-    let mask = cam.valid_mask();
-    let mut grays = Vec::new();
-    let mut sets = Vec::new();
-    for pair in a[3..].chunks(2) {
-        grays.push(image::open(&pair[0])?.to_luma8().into_raw());
-        sets.push(read_points(Path::new(&pair[1]))?);
-    }
-    let views: Vec<View<'_>> = grays
-        .iter()
-        .zip(&sets)
-        .map(|(g, p)| View {
-            gray: g,
-            mask: &mask,
-            points: p,
-        })
+    let pairs: Vec<_> = a[3..]
+        .chunks(2)
+        .map(|p| (PathBuf::from(&p[0]), PathBuf::from(&p[1])))
         .collect();
+    let real = common::RealPairs::read(&cam, &pairs)?;
+    let views = real.views();
     let cfg = SearchConfig {
         spec: "x=0.15:0.01,y=0.15:0.01,z=0.15:0.01,yaw=0.5:0.05".parse()?,
         ..Default::default()
@@ -52,7 +45,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     let free = [true, true, true, false, false, true];
     let names = ["x", "y", "z", "yaw"];
-    for (m, deg) in [(0.01, 0.05), (0.02, 0.1), (0.04, 0.2), (0.08, 0.4)] {
+    for (m, deg) in [
+        (0.01, 0.05),
+        (0.02, 0.1),
+        (0.04, 0.2),
+        (0.08, 0.4),
+        (0.16, 0.8),
+    ] {
         let r = f64::to_radians(deg);
         let h = est.hessian(&pose, &free, &[m, m, m, r, r, r]);
         // Unitless: per (step)² so the eigen-directions compare the axes fairly.

@@ -243,3 +243,66 @@ pub fn gap_free_image(
         })
         .collect()
 }
+
+/// Real image/point-set pairs for the estimator probes (`pv_probe`, `pv_region`): each pair's
+/// gray image (row-major, the camera's size) and its points, read from the `[IMAGE, POINTS]`
+/// path pairs.
+pub struct RealPairs {
+    /// Gray images.
+    pub grays: Vec<Vec<u8>>,
+    /// Point sets.
+    pub sets: Vec<Vec<infraloc::map::GroundPoint>>,
+    /// The camera's valid mask.
+    pub mask: Vec<u8>,
+}
+
+impl RealPairs {
+    /// Read the pairs for `cam`.
+    pub fn read(
+        cam: &Camera,
+        pairs: &[(std::path::PathBuf, std::path::PathBuf)],
+    ) -> Result<Self, Box<dyn std::error::Error>> {
+        use infraloc::camera::CameraModel;
+        let (mut grays, mut sets) = (Vec::new(), Vec::new());
+        for (img, pts) in pairs {
+            grays.push(image::open(img)?.to_luma8().into_raw());
+            sets.push(infraloc::points_io::read_points(pts)?);
+        }
+        Ok(RealPairs {
+            grays,
+            sets,
+            mask: cam.valid_mask(),
+        })
+    }
+
+    /// The pairs as the estimator's views.
+    pub fn views(&self) -> Vec<infraloc::localize::mi::objective::View<'_>> {
+        self.grays
+            .iter()
+            .zip(&self.sets)
+            .map(|(g, p)| infraloc::localize::mi::objective::View {
+                gray: g,
+                mask: &self.mask,
+                points: p,
+            })
+            .collect()
+    }
+}
+
+/// A pose argument of the estimator probes: `POSE.json` or `POSE.json@DX,DY,DZ,DYAW`, the pose
+/// file's pose moved by offsets (m, m, m, deg) as `refine`'s report gives them.
+pub fn pose_arg(arg: &str) -> Result<infraloc::pose::CamFromMap, Box<dyn std::error::Error>> {
+    let (file, moved) = arg.split_once('@').unwrap_or((arg, ""));
+    let pose = infraloc::posefile::read_pose(std::path::Path::new(file))?.pose;
+    if moved.is_empty() {
+        return Ok(pose);
+    }
+    let o: Vec<f64> = moved.split(',').map(str::parse).collect::<Result<_, _>>()?;
+    if o.len() != 4 {
+        return Err(format!("{arg}: POSE@DX,DY,DZ,DYAW takes four offsets").into());
+    }
+    Ok(infraloc::localize::mi::space::pose_at(
+        &pose,
+        &[o[0], o[1], o[2], o[3], 0.0, 0.0],
+    ))
+}

@@ -315,36 +315,7 @@ impl<'a> Smooth<'a> {
         let rt = &lanes::Rt::of(r, t);
         let blocks: Vec<Hist> = (0..n.div_ceil(BLOCK))
             .into_par_iter()
-            .map(|b| {
-                let mut h = Hist {
-                    h: vec![0.0; rows * cols],
-                    invalid: 0.0,
-                };
-                // A chunk's projections first, then its samples: the pixel loads of a chunk
-                // are independent, so they overlap instead of each waiting behind a projection.
-                let mut uv = lanes::UvChunk::default();
-                let end = ((b + 1) * BLOCK).min(n);
-                for c0 in (b * BLOCK..end).step_by(CHUNK) {
-                    let c1 = (c0 + CHUNK).min(end);
-                    let p = v.pts;
-                    let (xs, ys, zs) = (&p.x[c0..c1], &p.y[c0..c1], &p.z[c0..c1]);
-                    self.project_chunk(rt, xs, ys, zs, &mut uv);
-                    for c in 0..c1 - c0 {
-                        if !uv.ok[c] {
-                            h.invalid += 1.0;
-                            continue;
-                        }
-                        let row = v.pts.bin[c0 + c] as usize;
-                        for (bin, w, _) in Self::samples(v.img, cols, [uv.u[c], uv.v[c]]) {
-                            match bin {
-                                Some(j) => h.h[row * cols + j] += w,
-                                None => h.invalid += w,
-                            }
-                        }
-                    }
-                }
-                h
-            })
+            .map(|b| self.histogram_range(v, rt, b * BLOCK..((b + 1) * BLOCK).min(n)))
             .collect();
         let mut out = Hist {
             h: vec![0.0; rows * cols],
@@ -355,6 +326,43 @@ impl<'a> Smooth<'a> {
             out.invalid += b.invalid;
         }
         out
+    }
+
+    /// The PV histogram of the points `range` of `v` at the pose `rt`.
+    fn histogram_range(
+        &self,
+        v: &SmoothView<'_>,
+        rt: &lanes::Rt,
+        range: std::ops::Range<usize>,
+    ) -> Hist {
+        let cols = self.cols;
+        let mut h = Hist {
+            h: vec![0.0; self.rows * cols],
+            invalid: 0.0,
+        };
+        // A chunk's projections first, then its samples: the pixel loads of a chunk are
+        // independent, so they overlap instead of each waiting behind a projection.
+        let mut uv = lanes::UvChunk::default();
+        for c0 in range.clone().step_by(CHUNK) {
+            let c1 = (c0 + CHUNK).min(range.end);
+            let p = v.pts;
+            let (xs, ys, zs) = (&p.x[c0..c1], &p.y[c0..c1], &p.z[c0..c1]);
+            self.project_chunk(rt, xs, ys, zs, &mut uv);
+            for c in 0..c1 - c0 {
+                if !uv.ok[c] {
+                    h.invalid += 1.0;
+                    continue;
+                }
+                let row = v.pts.bin[c0 + c] as usize;
+                for (bin, w, _) in Self::samples(v.img, cols, [uv.u[c], uv.v[c]]) {
+                    match bin {
+                        Some(j) => h.h[row * cols + j] += w,
+                        None => h.invalid += w,
+                    }
+                }
+            }
+        }
+        h
     }
 
     /// Σ over `view`'s points of the pose gradient of Σ_cells g_ij·h_ij (g: `rows × cols`).
@@ -538,6 +546,44 @@ impl<'a> Smooth<'a> {
                 Self::to_theta(&r, &s)
             })
             .collect()
+    }
+
+    /// The PV histograms at `pose` cut into `k` clusters of points, as
+    /// [`Self::cluster_gradients`] cuts them (cluster j: the j-th of `k` contiguous Morton runs of
+    /// every view's fixed set): `[cluster][view]` joint masses, `rows × cols` row-major. Their
+    /// sum over the clusters is each view's histogram, so an objective without one cluster is
+    /// [`Self::value_of`] of the others' sum: what a delete-a-patch jackknife of a difference of
+    /// values needs (the confidence region's test in
+    /// [`crate::localize::refine::uncertainty`]).
+    pub fn cluster_histograms(&self, pose: &CamFromMap, k: usize) -> Vec<Vec<Vec<f64>>> {
+        let k = k.max(1);
+        let (r, t) = self.rt(pose);
+        let rt = &lanes::Rt::of(&r, &t);
+        (0..k)
+            .into_par_iter()
+            .map(|j| {
+                self.views
+                    .iter()
+                    .map(|v| {
+                        let m = v.pts.len();
+                        self.histogram_range(v, rt, j * m / k..(j + 1) * m / k).h
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// The objective of per-view joint masses `hists` (`[view]`, as [`Self::cluster_histograms`]
+    /// gives them, summed over any clusters), pooled as this estimator pools.
+    pub fn value_of(&self, hists: &[Vec<f64>]) -> f64 {
+        let hs: Vec<Hist> = hists
+            .iter()
+            .map(|h| Hist {
+                h: h.clone(),
+                invalid: 0.0,
+            })
+            .collect();
+        self.pool(&hs).value
     }
 
     /// The gradient of the objective at `pose` cut by view: entry v is view v's points' share
@@ -879,23 +925,26 @@ mod tests {
         }
     }
 
+    /// The scene's points cut in two halves, as two views' point sets.
+    fn halves(pts: &PreparedPoints) -> [PreparedPoints; 2] {
+        [
+            pts.range(0, pts.len() / 2),
+            pts.range(pts.len() / 2, pts.len()),
+        ]
+    }
+
+    /// Two views of one image, one per half.
+    fn two_views<'a>(img: &'a BinnedImage, halves: &'a [PreparedPoints; 2]) -> Vec<SmoothView<'a>> {
+        halves.iter().map(|pts| SmoothView { img, pts }).collect()
+    }
+
     #[test]
     fn pose_gradient_matches_central_differences_for_both_models_and_poolings() {
         for cam in [mei(), equidistant()] {
             let s = scene(&cam, 16);
-            let half = s.pts.range(0, s.pts.len() / 2);
-            let rest = s.pts.range(s.pts.len() / 2, s.pts.len());
+            let halves = halves(&s.pts);
             for pooling in [Pooling::Joint, Pooling::PerPair] {
-                let views = vec![
-                    SmoothView {
-                        img: &s.img,
-                        pts: &half,
-                    },
-                    SmoothView {
-                        img: &s.img,
-                        pts: &rest,
-                    },
-                ];
+                let views = two_views(&s.img, &halves);
                 let est = Smooth::new(&cam, views, s.origin, 16, 16, true, pooling);
                 // Off the optimum, so the gradient is not ~0.
                 let at = step(&s.pose, &[0.03, -0.02, 0.01, 0.004, -0.003, 0.01]);
@@ -923,22 +972,12 @@ mod tests {
     }
 
     #[test]
-    fn cluster_gradients_sum_to_the_gradient() {
+    fn clusters_sum_to_the_gradient_and_the_objective() {
         let cam = mei();
         let s = scene(&cam, 16);
-        let half = s.pts.range(0, s.pts.len() / 2);
-        let rest = s.pts.range(s.pts.len() / 2, s.pts.len());
+        let halves = halves(&s.pts);
         for pooling in [Pooling::Joint, Pooling::PerPair] {
-            let views = vec![
-                SmoothView {
-                    img: &s.img,
-                    pts: &half,
-                },
-                SmoothView {
-                    img: &s.img,
-                    pts: &rest,
-                },
-            ];
+            let views = two_views(&s.img, &halves);
             let est = Smooth::new(&cam, views, s.origin, 16, 16, true, pooling);
             let at = step(&s.pose, &[0.03, -0.02, 0.01, 0.004, -0.003, 0.01]);
             let g = est.evaluate(&at, true).grad.unwrap();
@@ -963,6 +1002,41 @@ mod tests {
             for a in 0..6 {
                 let sum = by_view[0][a] + by_view[1][a];
                 assert!((sum - g[a]).abs() <= 1e-9 * norm, "{pooling} θ{a}");
+            }
+            // The patches' histograms sum to the views' and give the objective.
+            let want = est.evaluate(&at, false);
+            for k in [1, 7, 32] {
+                let parts = est.cluster_histograms(&at, k);
+                assert_eq!(parts.len(), k);
+                assert!(parts.iter().all(|p| p.len() == 2 && p[0].len() == 16 * 16));
+                let sum_of = |skip: Option<usize>| -> Vec<Vec<f64>> {
+                    let mut sum = vec![vec![0.0; 16 * 16]; 2];
+                    for (j, p) in parts.iter().enumerate() {
+                        if Some(j) == skip {
+                            continue;
+                        }
+                        for (a, b) in sum.iter_mut().zip(p) {
+                            a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+                        }
+                    }
+                    sum
+                };
+                let all = sum_of(None);
+                let mass: f64 = all.iter().flatten().sum();
+                assert!(
+                    (mass - want.valid).abs() <= 1e-9 * want.valid,
+                    "{pooling} k={k}"
+                );
+                let v = est.value_of(&all);
+                assert!(
+                    (v - want.value).abs() <= 1e-12 * want.value.abs().max(1.0),
+                    "{pooling} k={k}: {v} vs {}",
+                    want.value
+                );
+                if k > 1 {
+                    // Leaving a patch out changes the histogram, hence the objective.
+                    assert_ne!(est.value_of(&sum_of(Some(0))), v, "{pooling} k={k}");
+                }
             }
         }
     }
