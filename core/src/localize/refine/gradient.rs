@@ -23,7 +23,7 @@
 
 use crate::localize::mi::smooth::{step, Smooth};
 use crate::pose::CamFromMap;
-use nalgebra::{DMatrix, Rotation3, Vector3};
+use nalgebra::{DMatrix, DVector, Rotation3, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// L-BFGS memory (pairs of steps and gradient changes kept).
@@ -382,10 +382,19 @@ pub fn information_with_step(
     if !info.iter().all(|v| v.is_finite()) {
         return Err("information: the MI Hessian is not finite".into());
     }
+    let (axes, minv) = reported_axes(pose, free)?;
     let Some(chol) = info.clone().cholesky() else {
-        let min_eig = info.clone().symmetric_eigenvalues().min();
+        let eig = info.clone().symmetric_eigen();
+        let (k, min_eig) = eig
+            .eigenvalues
+            .iter()
+            .copied()
+            .enumerate()
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap_or((0, 0.0));
+        let along = upward_direction(&(&minv * eig.eigenvectors.column(k)), &axes, step);
         return Err(format!(
-            "information: the MI Hessian is not negative definite over the free axes (no basin; largest curvature {:.3e})",
+            "information: the MI Hessian is not negative definite over the free axes (no basin along {along}; largest curvature {:.3e})",
             -min_eig
         ));
     };
@@ -410,39 +419,6 @@ pub fn information_with_step(
     let sandwich_theta = sandwich(&scores);
     let frame_theta =
         (est.views() >= FRAME_CLUSTERS_MIN).then(|| sandwich(&est.view_gradients(pose)));
-    // θ's axes → the reported axes: x, y, z (same), yaw = rz (rad → deg), pitch and roll through
-    // the Jacobian of pose_at's Euler increments.
-    let tilt = free[3] || free[4];
-    let axes: Vec<&str> = if tilt {
-        vec!["x", "y", "z", "yaw", "pitch", "roll"]
-    } else {
-        vec!["x", "y", "z", "yaw"]
-    };
-    // M: d θ / d(reported offsets), columns per reported axis, rows per θ index (all six).
-    let mut m = DMatrix::<f64>::zeros(6, axes.len());
-    for (c, _) in axes.iter().enumerate() {
-        // Reported offsets: x, y, z (m), yaw, pitch, roll (deg) of pose_at.
-        let mut off = [0.0; 6];
-        let h = 1e-6;
-        off[c] = h;
-        let plus = theta_between(pose, &crate::localize::mi::space::pose_at(pose, &off));
-        off[c] = -h;
-        let minus = theta_between(pose, &crate::localize::mi::space::pose_at(pose, &off));
-        for r in 0..6 {
-            m[(r, c)] = (plus[r] - minus[r]) / (2.0 * h);
-        }
-    }
-    let m_free = DMatrix::from_fn(d, axes.len(), |i, j| m[(idx[i], j)]);
-    if m_free.nrows() != m_free.ncols() {
-        return Err(format!(
-            "information: {} free parameters but {} reported axes",
-            d,
-            axes.len()
-        ));
-    }
-    let Some(minv) = m_free.clone().try_inverse() else {
-        return Err("information: the axes' Jacobian is singular".into());
-    };
     let cov = &minv * cov_theta * minv.transpose();
     if !cov.iter().all(|v| v.is_finite()) {
         return Err("information: the covariance is not finite".into());
@@ -490,6 +466,80 @@ pub fn information_with_step(
         frame_sigma: frame.as_ref().map(sigma_of),
         frame_matrix: frame.as_ref().map(rows_of),
     })
+}
+
+/// The axes `information` reports for the free parameters `free` (x, y, z, yaw, and pitch and
+/// roll when the tilt is free) and the inverse of M = dθ/d(reported offsets) over them: θ's x, y,
+/// z are the offsets', yaw is rz (rad → deg), pitch and roll go through the Jacobian of
+/// [`crate::localize::mi::space::pose_at`]'s Euler increments.
+fn reported_axes(
+    pose: &CamFromMap,
+    free: &[bool; 6],
+) -> Result<(Vec<&'static str>, DMatrix<f64>), String> {
+    let idx: Vec<usize> = (0..6).filter(|&k| free[k]).collect();
+    let tilt = free[3] || free[4];
+    let axes: Vec<&str> = if tilt {
+        vec!["x", "y", "z", "yaw", "pitch", "roll"]
+    } else {
+        vec!["x", "y", "z", "yaw"]
+    };
+    // M: d θ / d(reported offsets), columns per reported axis, rows per θ index (all six).
+    let mut m = DMatrix::<f64>::zeros(6, axes.len());
+    for (c, _) in axes.iter().enumerate() {
+        // Reported offsets: x, y, z (m), yaw, pitch, roll (deg) of pose_at.
+        let mut off = [0.0; 6];
+        let h = 1e-6;
+        off[c] = h;
+        let plus = theta_between(pose, &crate::localize::mi::space::pose_at(pose, &off));
+        off[c] = -h;
+        let minus = theta_between(pose, &crate::localize::mi::space::pose_at(pose, &off));
+        for r in 0..6 {
+            m[(r, c)] = (plus[r] - minus[r]) / (2.0 * h);
+        }
+    }
+    let m_free = DMatrix::from_fn(idx.len(), axes.len(), |i, j| m[(idx[i], j)]);
+    if m_free.nrows() != m_free.ncols() {
+        return Err(format!(
+            "information: {} free parameters but {} reported axes",
+            idx.len(),
+            axes.len()
+        ));
+    }
+    let Some(minv) = m_free.try_inverse() else {
+        return Err("information: the axes' Jacobian is singular".into());
+    };
+    Ok((axes, minv))
+}
+
+/// A direction `o` of the reported offsets (m, deg) for people: each axis in units of the
+/// Hessian's step on it (`step`: m, rad), so that metres and degrees compare, as a unit vector
+/// whose components of 0.2 or more are named, e.g. "x +0.88, yaw −0.29 (steps of 2 cm / 0.10°)".
+fn upward_direction(o: &DVector<f64>, axes: &[&str], step: &[f64; 6]) -> String {
+    let unit = |i: usize| if i < 3 { step[i] } else { step[i].to_degrees() };
+    let v: Vec<f64> = (0..axes.len()).map(|i| o[i] / unit(i)).collect();
+    let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if !(norm > 0.0 && norm.is_finite()) {
+        return "an undetermined direction".into();
+    }
+    // The sign of an eigenvector is arbitrary: the largest component is shown positive.
+    let big = v
+        .iter()
+        .copied()
+        .max_by(|a, b| a.abs().total_cmp(&b.abs()))
+        .unwrap_or(1.0);
+    let s = big.signum() / norm;
+    let parts: Vec<String> = axes
+        .iter()
+        .zip(&v)
+        .filter(|(_, x)| (**x * s).abs() >= 0.2)
+        .map(|(a, x)| format!("{a} {:+.2}", x * s))
+        .collect();
+    format!(
+        "{} (steps of {:.0} cm / {:.2}°)",
+        parts.join(", "),
+        100.0 * step[0],
+        step[3].to_degrees()
+    )
 }
 
 impl Information {
@@ -853,6 +903,28 @@ fn smooth_gate(
 mod tests {
     use super::*;
     use nalgebra::Point3;
+
+    /// A "no basin" refusal names its direction in steps of the Hessian (metres and degrees
+    /// compared), with the sign of its largest component, and leaves out the small ones.
+    #[test]
+    fn the_upward_direction_is_named_in_steps() {
+        let axes = ["x", "y", "z", "yaw"];
+        // 2 cm along x and 0.1° of yaw: one step each.
+        let o = DVector::from_vec(vec![0.02, 0.0, 0.001, 0.1]);
+        let want = "x +0.71, yaw +0.71 (steps of 2 cm / 0.10°)";
+        assert_eq!(upward_direction(&o, &axes, &HESSIAN_STEP), want);
+        assert_eq!(upward_direction(&(-o), &axes, &HESSIAN_STEP), want);
+        let o = DVector::from_vec(vec![0.0, -0.04, 0.0, 0.1]);
+        assert_eq!(
+            upward_direction(&o, &axes, &HESSIAN_STEP),
+            "y +0.89, yaw -0.45 (steps of 2 cm / 0.10°)"
+        );
+        let zero = DVector::from_vec(vec![0.0; 4]);
+        assert_eq!(
+            upward_direction(&zero, &axes, &HESSIAN_STEP),
+            "an undetermined direction"
+        );
+    }
 
     /// The pose file's σ is at least the σ the gate judged: an axis whose sandwich exceeds the
     /// jackknife is widened to it with its correlations kept; the others are left alone.
