@@ -384,15 +384,14 @@ pub fn information_with_step(
     }
     let (axes, minv) = reported_axes(pose, free)?;
     let Some(chol) = info.clone().cholesky() else {
-        let eig = info.clone().symmetric_eigen();
-        let (k, min_eig) = eig
-            .eigenvalues
-            .iter()
-            .copied()
-            .enumerate()
-            .min_by(|a, b| a.1.total_cmp(&b.1))
-            .unwrap_or((0, 0.0));
-        let along = upward_direction(&(&minv * eig.eigenvectors.column(k)), &axes, step);
+        let min_eig = info.clone().symmetric_eigenvalues().min();
+        // The direction is sought in steps of the Hessian (metres and radians made comparable):
+        // in θ's own units a radian of yaw would outweigh a metre.
+        let scale = DMatrix::from_diagonal(&DVector::from_fn(d, |i, _| step[idx[i]]));
+        let eig = (&scale * &info * &scale).symmetric_eigen();
+        let k = eig.eigenvalues.imin();
+        let theta = &scale * eig.eigenvectors.column(k);
+        let along = upward_direction(&(&minv * theta), &axes, step);
         return Err(format!(
             "information: the MI Hessian is not negative definite over the free axes (no basin along {along}; largest curvature {:.3e})",
             -min_eig
