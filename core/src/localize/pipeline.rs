@@ -52,8 +52,10 @@ pub struct Params {
     pub matcher: Option<std::sync::Arc<dyn Matcher>>,
     /// The MI stage's local estimator: `Nearest` ends with the nearest-pixel refinement (the
     /// default); `Pv` runs that refinement with its searches stopping at the basin
-    /// ([`PolishedSearch::basin`]) and follows it with the smooth estimator's 4-DoF gradient
-    /// ascent and its gate ([`crate::localize::refine::gradient::smooth_stage`]).
+    /// ([`PolishedSearch::basin`]), the start's tilt polished first when PnP's tilt σ says it is
+    /// uncertain ([`PolishedSearch::settle_uncertain_tilt`]), and follows it with the smooth
+    /// estimator's 4-DoF gradient ascent and its gate
+    /// ([`crate::localize::refine::gradient::smooth_stage`]).
     pub sampling: crate::localize::mi::smooth::Sampling,
 }
 
@@ -143,6 +145,10 @@ pub struct PnpDetail {
     pub inliers: usize,
     /// Its reprojection RMS, px (NaN → `null` for a verified sweep pose).
     pub rms_px: f64,
+    /// Its tilt σ from the residuals, degrees (NaN → `null` for a verified sweep pose): with
+    /// `sampling = "pv"` a start whose 3σ exceeds the re-search threshold has its tilt polished
+    /// before the first search ([`PolishedSearch::settle_uncertain_tilt`]).
+    pub tilt_sigma_deg: f64,
     /// Sweep candidates whose fine stage ran.
     pub candidates: usize,
     /// Rank of the chosen candidate in the sweep's list.
@@ -186,6 +192,7 @@ impl PnpDetail {
             matches: init.matches,
             inliers: init.inliers,
             rms_px: init.rms_px,
+            tilt_sigma_deg: init.tilt_sigma_deg,
             candidates: init.candidates_tried,
             candidate_rank: init.candidate_rank,
             matcher: matcher.to_string(),
@@ -319,13 +326,15 @@ pub fn quality_gate(o: &Outcome) -> Result<()> {
     ))
 }
 
-/// The MI stage from `start`: the nearest-pixel refinement ([`refine_polished`]) on the ground
-/// points around it, then, with [`Params::sampling`] `Pv`, the smooth estimator's stage.
+/// The MI stage from `start`, whose tilt σ is `tilt_sigma_deg` (NaN: unknown): the nearest-pixel
+/// refinement ([`refine_polished`]) on the ground points around it, then, with
+/// [`Params::sampling`] `Pv`, the smooth estimator's stage.
 fn refine_at(
     frame: &Frame<'_>,
     tile: &Tile,
     p: &Params,
     start: &CamFromMap,
+    tilt_sigma_deg: f64,
 ) -> Result<(Refinement, Vec<Round>)> {
     let camera = frame.camera();
     // Pitch and roll pivot about the ground under the camera (the tile's height layer).
@@ -340,9 +349,11 @@ fn refine_at(
         points: &points,
     }];
     // Before the smooth stage the searches find the basin; the polish and the gradient ascent
-    // take it from there.
+    // take it from there. A start whose tilt is uncertain has it settled first.
     let polish = match p.sampling {
-        crate::localize::mi::smooth::Sampling::Pv => p.polish.map(PolishedSearch::basin),
+        crate::localize::mi::smooth::Sampling::Pv => p
+            .polish
+            .map(|q| q.basin().settle_uncertain_tilt(tilt_sigma_deg)),
         crate::localize::mi::smooth::Sampling::Nearest => p.polish,
     };
     let (r, rounds) = refine_polished(
@@ -440,9 +451,9 @@ pub(crate) fn localize_ungated(
     drop(verifier);
     let t1 = now();
     progress(StageName::Mi);
-    let refine = |start: &CamFromMap| refine_at(frame, tile, p, start);
+    let refine = |start: &InitResult| refine_at(frame, tile, p, &start.pose, start.tilt_sigma_deg);
     let mut init = init;
-    let (mut refinement, mut rounds) = refine(&init.pose)?;
+    let (mut refinement, mut rounds) = refine(&init)?;
     // The verifier could not tell two hypotheses apart (see `VerifySchedule::runner_up_margin`)
     // and the gate refused the one it preferred: where the runner-up lies outside that search's
     // box, the refinement there is new evidence, and the gate chooses. A first refinement that
@@ -452,7 +463,7 @@ pub(crate) fn localize_ungated(
     if let Some(alt) = runner_up.filter(|a| {
         !refinement.quality.accepted && outside_box(&p.search.spec, &init.pose, &a.pose)
     }) {
-        match refine(&alt.pose) {
+        match refine(&alt) {
             Ok((second, second_rounds)) if second.quality.accepted => {
                 other = Some(OtherHypothesis::new(&init, refusal(&refinement), true));
                 (init, refinement, rounds) = (*alt, second, second_rounds);

@@ -392,6 +392,9 @@ pub struct InitResult {
     pub inliers: usize,
     /// PnP reprojection RMS of the last iteration, px (NaN when the pose is a verified sweep pose).
     pub rms_px: f64,
+    /// The last PnP's tilt σ from its residuals, degrees
+    /// ([`crate::localize::pnp::tilt_sigma_deg`]; NaN when the pose is a verified sweep pose).
+    pub tilt_sigma_deg: f64,
     /// Candidates whose fine stage ran (fewer than the sweep kept when one was convincing early).
     pub candidates_tried: usize,
     /// Rank of [`Self::candidate`] in the sweep's list, 0 = the sweep's best.
@@ -416,6 +419,7 @@ impl InitResult {
             matches: f.matches,
             inliers: f.inliers,
             rms_px: f.rms_px,
+            tilt_sigma_deg: f.tilt_sigma_deg,
             candidates_tried: 0,
             candidate_rank: rank,
             mi: mi.map(|m| (m, None)),
@@ -436,6 +440,8 @@ pub struct FineOutcome {
     pub inliers: usize,
     /// Its reprojection RMS, px.
     pub rms_px: f64,
+    /// Its tilt σ, degrees ([`crate::localize::pnp::tilt_sigma_deg`]).
+    pub tilt_sigma_deg: f64,
     /// A later, finer iteration failed: this is the last iteration that gave a PnP pose.
     pub partial: bool,
 }
@@ -515,6 +521,7 @@ fn fine_stage_partial<R: rand::Rng>(
                     matches: corr.len(),
                     inliers: r.inliers.len(),
                     rms_px: r.rms_px,
+                    tilt_sigma_deg: r.tilt_sigma_deg,
                     partial: false,
                 });
             }
@@ -888,6 +895,7 @@ fn sweep_result(
         matches: 0,
         inliers: 0,
         rms_px: f64::NAN,
+        tilt_sigma_deg: f64::NAN,
         candidates_tried: 0,
         candidate_rank: rank,
         mi: Some((s.mi, None)),

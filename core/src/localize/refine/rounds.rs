@@ -245,6 +245,12 @@ pub struct PolishedSearch {
     /// the peak, need not climb to the finest cell: 1 for the smooth estimator's path
     /// ([`PolishedSearch::basin`]).
     pub basin_level: u32,
+    /// Polish once from the start, before the first search (the polish's settings from the start
+    /// alone, no tilt starts), when the polish frees the tilt. The searches hold their start's
+    /// roll and pitch; when the start's tilt is a degree or more off (PnP on a low pole), the
+    /// first search's optimum is a compromise that the polish then walks away from, and a second
+    /// search follows. Settled first, the first search is made at the polished tilt.
+    pub settle_tilt_first: bool,
 }
 
 impl Default for PolishedSearch {
@@ -256,6 +262,7 @@ impl Default for PolishedSearch {
             repolish_when_moved: false,
             search_thinning: SEARCH_THINNING,
             basin_level: 0,
+            settle_tilt_first: false,
         }
     }
 }
@@ -292,6 +299,7 @@ impl PolishedSearch {
             // the search keeps every point.
             search_thinning: 1,
             basin_level: 0,
+            settle_tilt_first: false,
         }
     }
 
@@ -300,6 +308,19 @@ impl PolishedSearch {
     pub fn basin(self) -> Self {
         PolishedSearch {
             basin_level: BASIN_LEVEL,
+            ..self
+        }
+    }
+
+    /// These settings with the start's tilt polished before the first search
+    /// (`settle_tilt_first`) when the start's own tilt σ, `tilt_sigma_deg` (PnP's, from its
+    /// reprojection residuals), puts 3σ beyond the tilt move that would send the polish's result
+    /// to a second search ([`RESEARCH_MOVE_DEG`]): a second search is then likely, and settling
+    /// the tilt first makes it unneeded. A start whose tilt is known that well (or whose σ is
+    /// unknown, NaN) keeps its path.
+    pub fn settle_uncertain_tilt(self, tilt_sigma_deg: f64) -> Self {
+        PolishedSearch {
+            settle_tilt_first: 3.0 * tilt_sigma_deg > RESEARCH_MOVE_DEG,
             ..self
         }
     }
@@ -345,6 +366,10 @@ pub(crate) const RESEARCH_MOVE_DEG: f64 = 0.5;
 pub struct Round {
     /// Why this search ran: `init` (the first), `polish moved` or `edge`.
     pub start: &'static str,
+    /// The polish of the start before the first search
+    /// ([`PolishedSearch::settle_tilt_first`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub settle: Option<crate::localize::refine::polish::PolishRecord>,
     /// The polishes after it.
     pub polish: Vec<crate::localize::refine::polish::PolishRecord>,
 }
@@ -361,6 +386,8 @@ pub struct Round {
 /// `init` (a start metres off walks to the edge in every search and is still refused). The
 /// answer is the last polished pose with the last search's quality, its `offsets` taken from
 /// `init`. `pivot` gives the tilt pivot depth for a pose (see [`crate::localize::refine::polish::polish_pose`]).
+/// With `p.settle_tilt_first` the start is polished once before the first search, and the
+/// searches begin from that pose (the first round's `settle`).
 /// With `p = None`: the one 4-DoF search, no polish, no rounds (PnP's tilt kept). After each
 /// search, a polish that ended on its box's edge (or, with `repolish_when_moved`, moved) polishes
 /// again from its end, without the tilt starts, at most `p.polish_rounds` polishes.
@@ -392,6 +419,26 @@ pub fn refine_polished(
     let mut why = "init";
     // Work done by all the searches and polishes: the reported evaluation ratio counts it all.
     let (mut poses, mut point_evaluations) = (0u64, 0u64);
+    let mut settle = None;
+    if p.settle_tilt_first && (p.polish.is_free(4) || p.polish.is_free(5)) {
+        let params = crate::localize::refine::polish::PolishParams {
+            tilt_starts_deg: 0.0,
+            ..p.polish
+        };
+        let (pose, record) = crate::localize::refine::polish::polish_pose_cached(
+            cam,
+            views,
+            &start,
+            pivot(&start),
+            cfg,
+            &params,
+            &cache,
+        )?;
+        poses += record.all_evaluations() as u64;
+        point_evaluations += record.point_evaluations();
+        settle = Some(record);
+        start = pose;
+    }
     loop {
         let mut r = search_views(
             cam,
@@ -439,7 +486,11 @@ pub fn refine_polished(
         }
         let moved = polish_moved(&polish);
         let edge = !r.quality.accepted && r.quality.axes.iter().any(|a| a.on_edge);
-        rounds.push(Round { start: why, polish });
+        rounds.push(Round {
+            start: why,
+            settle: settle.take(),
+            polish,
+        });
         let next = match (moved, edge) {
             _ if rounds.len() >= p.search_rounds.max(1) => None,
             (true, _) => Some("polish moved"),
@@ -504,6 +555,27 @@ mod tests {
             pivot_m: Some(5.0),
             screening: None,
         }
+    }
+
+    /// The start's tilt is settled first exactly when its 3σ exceeds the re-search threshold; an
+    /// unknown σ (a verified sweep pose) keeps the path.
+    #[test]
+    fn an_uncertain_start_tilt_is_settled_first() {
+        let p = PolishedSearch::default().basin();
+        assert!(!p.settle_tilt_first);
+        let edge = RESEARCH_MOVE_DEG / 3.0;
+        assert!(p.settle_uncertain_tilt(edge * 1.01).settle_tilt_first);
+        assert!(!p.settle_uncertain_tilt(edge * 0.99).settle_tilt_first);
+        assert!(!p.settle_uncertain_tilt(f64::NAN).settle_tilt_first);
+        // Only that flag changes.
+        let s = p.settle_uncertain_tilt(1.0);
+        assert_eq!(
+            PolishedSearch {
+                settle_tilt_first: false,
+                ..s
+            },
+            p
+        );
     }
 
     #[test]
