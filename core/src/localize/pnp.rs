@@ -368,11 +368,7 @@ pub fn refine_lm(
         r
     };
     let apply = |p: &CamFromMap, d: &DVector<f64>| -> CamFromMap {
-        let dr = Rotation3::new(Vector3::new(d[0], d[1], d[2]));
-        CamFromMap::new(
-            dr * p.rotation,
-            dr * p.translation + Vector3::new(d[3], d[4], d[5]),
-        )
+        left_increment(p, &[d[0], d[1], d[2], d[3], d[4], d[5]])
     };
     let mut pose = *init;
     let mut r = residuals(&pose);
