@@ -9,7 +9,7 @@
 //! ```
 //! POSE, moved by the offsets when given (m, m, m, deg; as `refine`'s report `offsets`), is the
 //! pose probed around; PAIRS is a pairs file (`IMAGE<TAB>POINTS` per line, paths relative to its
-//! directory, as `kitti import --pairs-out` writes it).
+//! directory, as `kitti import --pairs-out` writes it and `refine --pairs` reads it).
 
 use infraloc::camera::load_camera;
 use infraloc::localize::mi::objective::Evaluator;
@@ -33,16 +33,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let cam = load_camera(Path::new(&a[0]))?;
     let answer = common::pose_arg(&a[1])?;
     let pooling: Pooling = a[2].parse()?;
-    let listed = std::fs::read_to_string(&a[3])?;
-    let base = Path::new(&a[3]).parent().unwrap_or(Path::new("."));
-    let mut pairs = Vec::new();
-    for line in listed
-        .lines()
-        .filter(|l| !l.starts_with('#') && !l.is_empty())
-    {
-        let (img, pts) = line.split_once('\t').ok_or("pairs: IMAGE<TAB>POINTS")?;
-        pairs.push((base.join(img), base.join(pts)));
-    }
+    let listed = Path::new(&a[3]);
+    let pairs = infraloc::cli::pairs::parse(&std::fs::read_to_string(listed)?, listed)?;
     let real = common::RealPairs::read(&cam, &pairs)?;
     let views = real.views();
     // The region's box (±30 cm, ±0.9°): its fixed point set is what every probe sees.

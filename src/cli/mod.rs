@@ -9,7 +9,7 @@ mod gps;
 mod kitti;
 mod localize;
 pub mod man;
-mod pairs;
+pub mod pairs;
 mod plot;
 mod progress;
 mod project;

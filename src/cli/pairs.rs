@@ -23,7 +23,7 @@ pub(crate) fn format(pairs: &[(PathBuf, PathBuf)]) -> String {
 }
 
 /// Parse a pairs file's text; `origin` names it in errors and anchors relative paths.
-pub(crate) fn parse(text: &str, origin: &Path) -> Result<Vec<(PathBuf, PathBuf)>> {
+pub fn parse(text: &str, origin: &Path) -> Result<Vec<(PathBuf, PathBuf)>> {
     let base = origin.parent().unwrap_or(Path::new(""));
     let at = |p: &str| {
         let p = Path::new(p);
