@@ -98,8 +98,9 @@ fn gps_decode_into_a_closed_pipe_exits_quietly() {
 }
 
 /// `[refine] sampling = "pv"` in the node's config runs the smooth stage: the pose file carries
-/// its information (the bound, the patches' sandwich) beside the jackknife's covariance, and the
-/// answer is the one the default run polished further, not another basin.
+/// its information over all six axes (the bound, the patches' sandwich), its covariance is the
+/// information's (no jackknife ran) and covers at least what the gate judged, and the answer is
+/// the one the default run polished further, not another basin.
 #[test]
 fn pv_sampling_from_the_config_reaches_the_pose_file() {
     let w = tempfile::tempdir().unwrap();
@@ -128,21 +129,32 @@ fn pv_sampling_from_the_config_reaches_the_pose_file() {
         &w.path().join("nearest.json"),
     );
     let info = &pv["quality"]["information"];
-    assert_eq!(
-        info["axes"],
-        serde_json::json!(["x", "y", "z", "yaw"]),
-        "{pv}"
-    );
-    for key in ["sigma", "sandwich_sigma"] {
-        let s = info[key]
+    let axes = serde_json::json!(["x", "y", "z", "yaw", "pitch", "roll"]);
+    assert_eq!(info["axes"], axes, "{pv}");
+    let floats = |v: &serde_json::Value, key: &str| -> Vec<f64> {
+        v[key]
             .as_array()
-            .unwrap_or_else(|| panic!("{key}: {info}"));
+            .unwrap_or_else(|| panic!("{key}: {v}"))
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let (bound, sandwich) = (floats(info, "sigma"), floats(info, "sandwich_sigma"));
+    assert!(bound.iter().chain(&sandwich).all(|x| *x > 0.0), "{info}");
+    let cov = &pv["quality"]["covariance"];
+    assert_eq!(cov["source"], "information", "{cov}");
+    assert_eq!(cov["axes"], axes, "{cov}");
+    for (i, s) in floats(cov, "sigma").iter().enumerate() {
         assert!(
-            s.iter().all(|v| v.as_f64().is_some_and(|x| x > 0.0)),
-            "{info}"
+            *s >= bound[i].max(sandwich[i]) && s.is_finite(),
+            "axis {i}: {cov}"
         );
     }
     assert!(nearest["quality"].get("information").is_none(), "{nearest}");
+    assert_eq!(
+        nearest["quality"]["covariance"]["source"], "jackknife",
+        "{nearest}"
+    );
     let centre = |v: &serde_json::Value| -> Vec<f64> {
         v["camera_center"]
             .as_array()

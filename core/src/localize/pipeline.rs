@@ -351,9 +351,11 @@ fn refine_at(
     // Before the smooth stage the searches find the basin; the polish and the gradient ascent
     // take it from there. A start whose tilt is uncertain has it settled first.
     let polish = match p.sampling {
-        crate::localize::mi::smooth::Sampling::Pv => p
-            .polish
-            .map(|q| q.basin().settle_uncertain_tilt(tilt_sigma_deg)),
+        crate::localize::mi::smooth::Sampling::Pv => p.polish.map(|q| {
+            q.basin()
+                .without_jackknife()
+                .settle_uncertain_tilt(tilt_sigma_deg)
+        }),
         crate::localize::mi::smooth::Sampling::Nearest => p.polish,
     };
     let (r, rounds) = refine_polished(
@@ -367,8 +369,14 @@ fn refine_at(
     )?;
     match p.sampling {
         crate::localize::mi::smooth::Sampling::Pv => {
+            // The polish estimated the tilt: the information covers it too.
+            let free = if polish.is_some_and(|q| q.polish.is_free(4) || q.polish.is_free(5)) {
+                crate::localize::refine::gradient::SmoothFree::FourAfterSix
+            } else {
+                crate::localize::refine::gradient::SmoothFree::Four
+            };
             let (r, _) = crate::localize::refine::gradient::smooth_stage(
-                camera, &views, start, r, &p.search, &p.quality, false,
+                camera, &views, start, r, &p.search, &p.quality, free,
             )?;
             Ok((r, rounds))
         }

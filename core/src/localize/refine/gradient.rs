@@ -648,14 +648,54 @@ pub fn refine_smooth(
     six_dof: bool,
 ) -> crate::error::Result<(super::rounds::Refinement, SmoothRefinement)> {
     let (r, _) = super::rounds::refine_polished(cam, views, init, cfg, qcfg, None, &|_| None)?;
-    smooth_stage(cam, views, init, r, cfg, qcfg, six_dof)
+    let free = if six_dof {
+        SmoothFree::Six
+    } else {
+        SmoothFree::Four
+    };
+    smooth_stage(cam, views, init, r, cfg, qcfg, free)
+}
+
+/// The axes of [`smooth_stage`]: which its ascent moves and which its information covers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SmoothFree {
+    /// x, y, z and yaw, the tilt held (`refine`'s default).
+    Four,
+    /// All six (`refine --polish`).
+    Six,
+    /// The ascent over x, y, z and yaw at the tilt an earlier 6-DoF polish estimated (the
+    /// node's), the information over all six: the answer's tilt is an estimate too, and a nadir
+    /// camera's tilt trades against its position, so a σ over four axes at a held tilt would miss
+    /// that valley (docs/accuracy.md "Which σ covers").
+    FourAfterSix,
+}
+
+impl SmoothFree {
+    /// The ascent's settings.
+    fn ascent(self) -> AscentConfig {
+        match self {
+            SmoothFree::Six => AscentConfig::six_dof(),
+            SmoothFree::Four | SmoothFree::FourAfterSix => AscentConfig::four_dof(),
+        }
+    }
+
+    /// The axes of θ the information covers.
+    fn information(self) -> [bool; 6] {
+        match self {
+            SmoothFree::Four => AscentConfig::four_dof().free,
+            SmoothFree::Six | SmoothFree::FourAfterSix => [true; 6],
+        }
+    }
 }
 
 /// The smooth estimator's stage after a nearest-pixel refinement `r` that started at `init`:
-/// its gradient ascent from `r`'s pose (in the box of [`AscentConfig`], re-centred while it ends
-/// on the edge, [`ASCENT_ROUNDS`] at most), the observed information at the answer, and the
-/// gate of [`refine_smooth`]. `r` keeps its grid checks and jackknife σ; its pose, offsets and
-/// verdict become the stage's. The pairs pool as `cfg.mi.pooling` says, as in the grid search.
+/// its gradient ascent from `r`'s pose over the axes of `free` (in the box of [`AscentConfig`],
+/// re-centred while it ends on the edge, [`ASCENT_ROUNDS`] at most), the observed information at
+/// the answer, and the gate of [`refine_smooth`]. `r` keeps its grid checks and its jackknife σ
+/// when it has one; its pose, offsets and verdict become the stage's. When `r` has no σ (the
+/// node's path, [`super::rounds::PolishedSearch::without_jackknife`]), the reported covariance is
+/// the information's ([`information_covariance`]). The pairs pool as `cfg.mi.pooling` says, as in
+/// the grid search.
 pub fn smooth_stage(
     cam: &crate::camera::Camera,
     views: &[crate::localize::mi::objective::View<'_>],
@@ -663,15 +703,11 @@ pub fn smooth_stage(
     mut r: super::rounds::Refinement,
     cfg: &crate::localize::mi::space::SearchConfig,
     qcfg: &super::quality::QualityConfig,
-    six_dof: bool,
+    free: SmoothFree,
 ) -> crate::error::Result<(super::rounds::Refinement, SmoothRefinement)> {
     let pooling = cfg.mi.pooling;
     let grid_reason = r.quality.reason.clone();
-    let acfg = if six_dof {
-        AscentConfig::six_dof()
-    } else {
-        AscentConfig::four_dof()
-    };
+    let acfg = free.ascent();
     let local = crate::localize::mi::space::SearchConfig {
         spec: local_spec(&acfg),
         ..*cfg
@@ -695,7 +731,7 @@ pub fn smooth_stage(
         let edge = a.stop == "edge";
         ascents.push(a);
         if !edge {
-            let info = information(&est, &pose, &acfg.free);
+            let info = information(&est, &pose, &free.information());
             // The Hessian's evaluations (and the value below) are work done too.
             let spent = 1 + info.as_ref().map_or(0, |i| i.evaluations);
             r.stats.poses += spent as u64;
@@ -725,7 +761,7 @@ pub fn smooth_stage(
     let judged = information
         .as_ref()
         .ok()
-        .map(|info| judged_sigma(&r.quality, info));
+        .map(|info| judged_sigma(&r.quality, info, cfg));
     smooth_gate(
         &mut r,
         &information,
@@ -733,7 +769,18 @@ pub fn smooth_stage(
         qcfg,
     );
     if let (Ok(info), Some(judged)) = (&information, &judged) {
-        report_judged(&mut r.quality, info, judged);
+        if r.quality.covariance.is_some() {
+            report_judged(&mut r.quality, info, judged);
+        } else {
+            // No jackknife ran: the information's covariance is the answer's, with the camera
+            // file's intrinsics uncertainty added as the jackknife's is.
+            let deltas = qcfg.intrinsics_sigma.as_ref().map(|s| {
+                crate::localize::refine::uncertainty::intrinsics_deltas(cam, views, &pose, s)
+            });
+            let u = information_covariance(info, judged, deltas.as_deref());
+            r.quality.sigma = Some(super::quality::Sigma::of(&u));
+            r.quality.covariance = Some(u);
+        }
     }
     r.quality.information = information.as_ref().ok().cloned();
     if let Some(v) = mi.first() {
@@ -764,9 +811,15 @@ fn jackknife_judged(q: &super::quality::Quality) -> Option<super::quality::Sigma
 }
 
 /// The σ per axis of `info` that the gate judges: the largest of the Cramér–Rao bound, the
-/// patch sandwich, the frame sandwich (when there is one) and the grid's jackknife σ in `q`
-/// ([`jackknife_judged`], 0 without one); ∞ where the jackknife found no peak (NaN).
-fn judged_sigma(q: &super::quality::Quality, info: &Information) -> Vec<f64> {
+/// patch sandwich, the frame sandwich (when there is one), the grid's jackknife σ in `q`
+/// ([`jackknife_judged`], 0 without one) and the jackknife's floor, half the search's finest
+/// step ([`crate::localize::refine::uncertainty::sigma_floor`]: where a jackknife ran, its σ is
+/// floored there already); ∞ where the jackknife found no peak (NaN).
+fn judged_sigma(
+    q: &super::quality::Quality,
+    info: &Information,
+    cfg: &crate::localize::mi::space::SearchConfig,
+) -> Vec<f64> {
     let judged_jack = jackknife_judged(q);
     let jack = |axis: &str| judged_jack.as_ref().map_or(0.0, |s| s.axis(axis));
     let frame = |i: usize| info.frame_sigma.as_ref().map_or(0.0, |f| f[i]);
@@ -779,10 +832,63 @@ fn judged_sigma(q: &super::quality::Quality, info: &Information) -> Vec<f64> {
             if j.is_nan() {
                 f64::INFINITY
             } else {
-                s.max(*w).max(j).max(frame(i))
+                let floor = crate::localize::refine::uncertainty::sigma_floor(cfg, a);
+                s.max(*w).max(j).max(frame(i)).max(floor)
             }
         })
         .collect()
+}
+
+/// The reported covariance when the information gives it (no jackknife ran): the patch
+/// sandwich's, each axis scaled up to the σ the gate judged (`judged`, [`judged_sigma`];
+/// correlations kept), widened to the Student-t quantile of its K − 1 degrees of freedom as the
+/// jackknife's is ([`crate::localize::refine::uncertainty::student_t_3sigma`]), then the
+/// intrinsics' part added (`deltas`, [`crate::localize::refine::uncertainty::intrinsics_deltas`]).
+/// `gate_sigma` is `judged`.
+pub(crate) fn information_covariance(
+    info: &Information,
+    judged: &[f64],
+    deltas: Option<&[[f64; 6]]>,
+) -> crate::localize::refine::uncertainty::Uncertainty {
+    let d = info.axes.len();
+    let base = &info.sandwich_matrix;
+    let f: Vec<f64> = (0..d)
+        .map(|i| {
+            let have = base[i][i].max(0.0).sqrt();
+            if have > 0.0 && judged[i] > have {
+                judged[i] / have
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let widen = (crate::localize::refine::uncertainty::student_t_3sigma(
+        info.clusters.saturating_sub(1).max(1),
+    ) / 3.0)
+        .powi(2);
+    let matrix: Vec<Vec<f64>> = (0..d)
+        .map(|i| (0..d).map(|j| base[i][j] * f[i] * f[j] * widen).collect())
+        .collect();
+    let mut u = crate::localize::refine::uncertainty::Uncertainty {
+        axes: info.axes.clone(),
+        units: info.units.clone(),
+        sigma: (0..d).map(|i| matrix[i][i].max(0.0).sqrt()).collect(),
+        matrix,
+        group_optima: Vec::new(),
+        peak: true,
+        folds: 0,
+        intrinsics: Vec::new(),
+        points: info.points,
+        poses: info.evaluations,
+        jackknife: Vec::new(),
+        region: None,
+        gate_sigma: judged.to_vec(),
+        source: crate::localize::refine::uncertainty::CovarianceSource::Information,
+    };
+    if let Some(deltas) = deltas {
+        crate::localize::refine::uncertainty::add_intrinsics(&mut u, deltas);
+    }
+    u
 }
 
 /// Widen the reported covariance of `q` (the jackknife's, with the intrinsics' part) so that no
@@ -867,10 +973,9 @@ fn smooth_gate(
                 };
                 // The Cramér–Rao σ counts every point as independent; on real frames it was
                 // 40–90× smaller than the answers' scatter (docs/refine.md "Sampling"). The gate
-                // judges the largest of it, the sandwich σ and the grid's jackknife σ (∞ where
-                // the jackknife found no peak).
+                // judges the largest of it, the sandwich σ, the grid's jackknife σ where one ran
+                // (∞ where it found no peak) and the search's floor.
                 let judged_jack = jackknife_judged(&r.quality);
-                let jack = |axis: &str| judged_jack.as_ref().map_or(0.0, |s| s.axis(axis));
                 if let Some((i, (lim, key))) = info
                     .axes
                     .iter()
@@ -878,18 +983,20 @@ fn smooth_gate(
                     .map(|(i, a)| (i, limit(a)))
                     .find(|(i, (lim, _))| !(judged[*i] <= *lim))
                 {
+                    let axis = &info.axes[i];
                     r.quality.accepted = false;
                     r.quality.reason = Some(format!(
-                        "σ {} {:.4} {} over the limit {key}={lim} (information σ {:.4}, sandwich σ {:.4}, {}jackknife σ {:.4})",
-                        info.axes[i],
+                        "σ {axis} {:.4} {} over the limit {key}={lim} (information σ {:.4}, sandwich σ {:.4}{}{})",
                         judged[i],
                         info.units[i],
                         info.sigma[i],
                         info.sandwich_sigma[i],
                         info.frame_sigma
                             .as_ref()
-                            .map_or(String::new(), |f| format!("frame σ {:.4}, ", f[i])),
-                        jack(&info.axes[i])
+                            .map_or(String::new(), |f| format!(", frame σ {:.4}", f[i])),
+                        judged_jack
+                            .as_ref()
+                            .map_or(String::new(), |s| format!(", jackknife σ {:.4}", s.axis(axis)))
                     ));
                     r.quality.refused_by = Some(GateCheck::Uncertain);
                 }
@@ -927,9 +1034,31 @@ mod tests {
 
     /// The pose file's σ is at least the σ the gate judged: an axis whose sandwich exceeds the
     /// jackknife is widened to it with its correlations kept; the others are left alone.
+    /// An accepted grid quality with the jackknife's estimate `covariance` (and its σ), if any.
+    fn accepted_quality(
+        covariance: Option<super::super::uncertainty::Uncertainty>,
+    ) -> super::super::quality::Quality {
+        super::super::quality::Quality {
+            mi: 0.3,
+            nmi: 1.0,
+            points: 1000,
+            background: 0.1,
+            second_peak_ratio: None,
+            second_peak_contrast: None,
+            second_peak_offset: None,
+            axes: Vec::new(),
+            poses: 0,
+            sigma: covariance.as_ref().map(super::super::quality::Sigma::of),
+            covariance,
+            information: None,
+            accepted: true,
+            reason: None,
+            refused_by: None,
+        }
+    }
+
     #[test]
     fn the_reported_sigma_is_at_least_the_judged_one() {
-        use super::super::quality::{Quality, Sigma};
         use super::super::uncertainty::Uncertainty;
         let axes: Vec<String> = ["x", "y", "z", "yaw"].map(String::from).to_vec();
         let sd = [0.01, 0.01, 0.02, 0.03];
@@ -958,24 +1087,9 @@ mod tests {
             jackknife: Vec::new(),
             region: None,
             gate_sigma: vec![0.008, 0.008, 0.015, 0.025],
+            source: crate::localize::refine::uncertainty::CovarianceSource::Jackknife,
         };
-        let mut q = Quality {
-            mi: 0.3,
-            nmi: 1.0,
-            points: 1000,
-            background: 0.1,
-            second_peak_ratio: None,
-            second_peak_contrast: None,
-            second_peak_offset: None,
-            axes: Vec::new(),
-            poses: 0,
-            sigma: Some(Sigma::of(&u)),
-            covariance: Some(u),
-            information: None,
-            accepted: true,
-            reason: None,
-            refused_by: None,
-        };
+        let mut q = accepted_quality(Some(u));
         let diag = |s: [f64; 4]| -> Vec<Vec<f64>> {
             (0..4)
                 .map(|i| {
@@ -998,7 +1112,11 @@ mod tests {
             frame_sigma: None,
             frame_matrix: None,
         };
-        let judged = judged_sigma(&q, &info);
+        let judged = judged_sigma(
+            &q,
+            &info,
+            &crate::localize::mi::space::SearchConfig::default(),
+        );
         report_judged(&mut q, &info, &judged);
         let u = q.covariance.as_ref().unwrap();
         let s = q.sigma.unwrap();
@@ -1007,6 +1125,69 @@ mod tests {
         let rho = u.matrix[0][3] / (u.sigma[0] * u.sigma[3]);
         assert!((rho - 0.5).abs() < 1e-12, "{rho}");
         assert_eq!(u.matrix[1][1], 1e-4);
+    }
+
+    /// Without a jackknife the reported covariance is the sandwich's shape at the judged σ:
+    /// every axis at least its judged σ (the search's floor included), correlations kept, widened
+    /// by the sandwich's Student-t factor, and the intrinsics' part added on top.
+    #[test]
+    fn the_information_s_covariance_stands_where_no_jackknife_ran() {
+        use super::super::quality::Sigma;
+        use super::super::uncertainty::CovarianceSource;
+        let axes: Vec<String> = ["x", "y", "z", "yaw", "pitch", "roll"]
+            .map(String::from)
+            .to_vec();
+        let sd = [0.004, 0.02, 0.003, 0.01, 0.05, 0.03];
+        let sandwich: Vec<Vec<f64>> = (0..6)
+            .map(|i| {
+                (0..6)
+                    .map(|j| match (i, j) {
+                        _ if i == j => sd[i] * sd[i],
+                        (0, 4) | (4, 0) => -0.9 * sd[0] * sd[4],
+                        _ => 0.0,
+                    })
+                    .collect()
+            })
+            .collect();
+        let info = Information {
+            axes,
+            units: ["m", "m", "m", "deg", "deg", "deg"]
+                .map(String::from)
+                .to_vec(),
+            sigma: vec![0.001; 6],
+            matrix: sandwich.clone(),
+            points: 1000,
+            evaluations: 13,
+            sandwich_sigma: sd.to_vec(),
+            sandwich_matrix: sandwich,
+            clusters: 32,
+            frame_sigma: None,
+            frame_matrix: None,
+        };
+        let q = accepted_quality(None);
+        let judged = judged_sigma(
+            &q,
+            &info,
+            &crate::localize::mi::space::SearchConfig::default(),
+        );
+        // The default search's floor: half of 2 cm and of 0.05°.
+        assert_eq!(judged, vec![0.01, 0.02, 0.01, 0.025, 0.05, 0.03]);
+        let t = (super::super::uncertainty::student_t_3sigma(31) / 3.0).powi(2);
+        let u = information_covariance(&info, &judged, None);
+        assert_eq!(u.source, CovarianceSource::Information);
+        assert_eq!(u.gate_sigma, judged);
+        for i in 0..6 {
+            assert!(
+                (u.matrix[i][i] - judged[i] * judged[i] * t).abs() < 1e-15,
+                "{i}"
+            );
+        }
+        let rho = u.matrix[0][4] / (u.sigma[0] * u.sigma[4]);
+        assert!((rho + 0.9).abs() < 1e-12, "{rho}");
+        let d = [[0.0, 0.0, 0.02, 0.0, 0.0, 0.0]; 1];
+        let w = information_covariance(&info, &judged, Some(&d));
+        assert!((w.matrix[2][2] - (u.matrix[2][2] + 4e-4)).abs() < 1e-15);
+        assert_eq!(Sigma::of(&w).x, u.sigma[0]);
     }
 
     #[test]

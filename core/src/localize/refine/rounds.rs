@@ -251,6 +251,11 @@ pub struct PolishedSearch {
     /// first search's optimum is a compromise that the polish then walks away from, and a second
     /// search follows. Settled first, the first search is made at the polished tilt.
     pub settle_tilt_first: bool,
+    /// Estimate the answer's uncertainty after the last round: the jackknife of Nelder–Mead
+    /// re-optimisations and its region test ([`crate::localize::refine::uncertainty`]). Off where
+    /// a later stage estimates it from the answer's information instead
+    /// ([`PolishedSearch::without_jackknife`]); the answer's quality then has no σ yet.
+    pub jackknife: bool,
 }
 
 impl Default for PolishedSearch {
@@ -263,6 +268,7 @@ impl Default for PolishedSearch {
             search_thinning: SEARCH_THINNING,
             basin_level: 0,
             settle_tilt_first: false,
+            jackknife: true,
         }
     }
 }
@@ -300,6 +306,7 @@ impl PolishedSearch {
             search_thinning: 1,
             basin_level: 0,
             settle_tilt_first: false,
+            jackknife: true,
         }
     }
 
@@ -308,6 +315,16 @@ impl PolishedSearch {
     pub fn basin(self) -> Self {
         PolishedSearch {
             basin_level: BASIN_LEVEL,
+            ..self
+        }
+    }
+
+    /// These settings without the jackknife and its region after the last round: for the smooth
+    /// estimator's path, whose information over all six axes at its own answer gives the σ
+    /// ([`crate::localize::refine::gradient::smooth_stage`]).
+    pub fn without_jackknife(self) -> Self {
+        PolishedSearch {
+            jackknife: false,
             ..self
         }
     }
@@ -508,6 +525,9 @@ pub fn refine_polished(
                 r.offsets = crate::pose::offsets_between(init, &r.pose);
                 r.stats.poses = poses;
                 r.stats.point_evaluations = point_evaluations;
+                if !p.jackknife {
+                    return Ok((r, rounds));
+                }
                 // A finish that moved the tilt has its tilt uncertain too: the jackknife frees it.
                 let tilt = (p.polish.is_free(4) || p.polish.is_free(5)).then(|| pivot(&r.pose));
                 return Ok((

@@ -100,6 +100,24 @@ pub struct Uncertainty {
     /// part; unbounded where `matrix` is.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub gate_sigma: Vec<f64>,
+    /// Where the covariance comes from: the jackknife above, or the smooth estimator's observed
+    /// information (its fields then empty: no groups, folds 0, no region).
+    #[serde(default)]
+    pub source: CovarianceSource,
+}
+
+/// What an [`Uncertainty`]'s covariance was estimated by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CovarianceSource {
+    /// The jackknife of Nelder–Mead re-optimisations on the nearest-pixel objective
+    /// ([`estimate`]).
+    #[default]
+    Jackknife,
+    /// The smooth estimator's observed information over all the answer's axes: the largest of
+    /// its Cramér–Rao bound, patch and frame sandwiches and the search's floor
+    /// ([`crate::localize::refine::gradient::information_covariance`]).
+    Information,
 }
 
 impl Uncertainty {
@@ -278,6 +296,7 @@ pub(crate) fn estimate_cached<'a>(
         jackknife,
         region: Some(reg),
         gate_sigma,
+        source: CovarianceSource::Jackknife,
     })
 }
 
@@ -407,6 +426,14 @@ pub struct Region {
 fn step_units(search: &SearchConfig, d: usize) -> Vec<f64> {
     let axes = search.spec.axes();
     (0..d).map(|i| axes[i.min(3)].step).collect()
+}
+
+/// The σ floor of a named axis (x, y, z, yaw, pitch, roll): half the search's finest step on it
+/// (tilts the yaw's), as [`estimate`] floors the jackknife's. An unknown name has none (0).
+pub(crate) fn sigma_floor(search: &SearchConfig, axis: &str) -> f64 {
+    AXES.iter()
+        .position(|a| *a == axis)
+        .map_or(0.0, |i| 0.5 * step_units(search, i + 1)[i])
 }
 
 /// The rays: every free axis both ways, and every pair of free axes in all four sign
@@ -732,6 +759,7 @@ mod tests {
             jackknife: Vec::new(),
             region: None,
             gate_sigma: Vec::new(),
+            source: CovarianceSource::Jackknife,
         };
         add_intrinsics(&mut u, &d);
         assert!(
