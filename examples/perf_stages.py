@@ -21,6 +21,7 @@ STAGES = [
     ("initializer: fine patches", ["init::fine::match_anchors"]),
     ("initializer: LiDAR verifier", ["init::verify::"]),
     ("initializer: the rest", ["localize::init::"]),
+    ("intrinsics propagation", ["uncertainty::intrinsics_deltas"]),
     ("jackknife region", ["refine::uncertainty::region"]),
     ("jackknife groups", ["refine::uncertainty::"]),
     ("smooth stage", ["mi::smooth::", "refine::gradient::"]),

@@ -43,7 +43,8 @@ pub struct Config {
 #[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
 pub struct RefineConfig {
     /// `nearest` (default): the nearest-pixel polish and its jackknife σ; `pv`: then the
-    /// partial-volume estimator's gradient ascent, its information and sandwich σ and its gate.
+    /// partial-volume estimator's gradient ascent, its information and sandwich σ over all six
+    /// axes in place of the jackknife, and its gate.
     pub sampling: crate::localize::mi::smooth::Sampling,
 }
 

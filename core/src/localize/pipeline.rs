@@ -53,8 +53,9 @@ pub struct Params {
     /// The MI stage's local estimator: `Nearest` ends with the nearest-pixel refinement (the
     /// default); `Pv` runs that refinement with its searches stopping at the basin
     /// ([`PolishedSearch::basin`]), the start's tilt polished first when PnP's tilt σ says it is
-    /// uncertain ([`PolishedSearch::settle_uncertain_tilt`]), and follows it with the smooth
-    /// estimator's 4-DoF gradient ascent and its gate
+    /// uncertain ([`PolishedSearch::settle_uncertain_tilt`]) and no jackknife after it
+    /// ([`PolishedSearch::without_jackknife`]), and follows it with the smooth estimator's 4-DoF
+    /// gradient ascent, its information over all six axes (the σ) and its gate
     /// ([`crate::localize::refine::gradient::smooth_stage`]).
     pub sampling: crate::localize::mi::smooth::Sampling,
 }

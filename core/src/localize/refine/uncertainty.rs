@@ -1,4 +1,7 @@
-//! The uncertainty of a refined pose: the marginal covariance of [x, y, z, yaw].
+//! The uncertainty of a refined pose: the marginal covariance of [x, y, z, yaw(, pitch, roll)],
+//! by the jackknife below ([`estimate`]); the node's smooth path takes it from the observed
+//! information instead ([`crate::localize::refine::gradient::information_covariance`]), in the
+//! same [`Uncertainty`] with [`CovarianceSource::Information`].
 //!
 //! Two things make a single MI optimum less certain than its peak's sharpness suggests, and both
 //! are measured here instead of assumed:
@@ -73,19 +76,22 @@ pub struct Uncertainty {
     /// Marginal covariance in the map frame (m, deg), row-major.
     pub matrix: Vec<Vec<f64>>,
     /// Each group's optimum without it: the change of the camera centre (m) and angles (deg)
-    /// from the reported pose, per axis.
+    /// from the reported pose, per axis (empty for the information's estimate).
     pub group_optima: Vec<Vec<f64>>,
-    /// Whether every group's re-optimisation found a peak inside its box (else σ is ∞).
+    /// Whether every group's re-optimisation found a peak inside its box (else σ is ∞); for the
+    /// information's estimate, that its Hessian had a basin (always, or there is no estimate).
     pub peak: bool,
-    /// Jackknife groups used.
+    /// Jackknife groups used (0 for the information's estimate).
     pub folds: usize,
     /// Per 1σ intrinsics mode (focal scale, cx, cy) stated by the camera file, the change of the
     /// answer it makes (same axes and units); empty when the file states no uncertainty.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub intrinsics: Vec<Vec<f64>>,
-    /// Points in the re-optimisation box's fixed set, all views.
+    /// Points in the re-optimisation box's fixed set, all views (the information's: the
+    /// smooth stage's set).
     pub points: usize,
-    /// Poses scored (every group's re-optimisation and the region's probes).
+    /// Poses scored (every group's re-optimisation and the region's probes; for the
+    /// information's estimate, its Hessian's and cluster scores' evaluations).
     pub poses: usize,
     /// The jackknife's own covariance (floored at half the finest step per axis), before the
     /// Student-t widening.
@@ -95,9 +101,10 @@ pub struct Uncertainty {
     /// unbounded; its ellipsoid is reported for diagnosis, not added to `matrix`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub region: Option<Region>,
-    /// The σ the gate judges (same axes): the jackknife's estimate, without the Student-t
-    /// widening that makes the reported `sigma`'s 3σ bounds cover and without the intrinsics'
-    /// part; unbounded where `matrix` is.
+    /// The σ the gate judges (same axes): the jackknife's estimate (or the information's judged
+    /// σ, the largest of its bound, sandwiches and the floor), without the Student-t widening
+    /// that makes the reported `sigma`'s 3σ bounds cover and without the intrinsics' part;
+    /// unbounded where `matrix` is.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub gate_sigma: Vec<f64>,
     /// Where the covariance comes from: the jackknife above, or the smooth estimator's observed
