@@ -371,7 +371,7 @@ fn refine_at(
     match p.sampling {
         crate::localize::mi::smooth::Sampling::Pv => {
             // The polish estimated the tilt: the information covers it too.
-            let free = if polish.is_some_and(|q| q.polish.is_free(4) || q.polish.is_free(5)) {
+            let free = if polish.is_some_and(|q| q.polish.frees_tilt()) {
                 crate::localize::refine::gradient::SmoothFree::FourAfterSix
             } else {
                 crate::localize::refine::gradient::SmoothFree::Four

@@ -59,6 +59,12 @@ impl PolishParams {
         self.initial_step[i] > 0.0 && self.bound[i] > 0.0
     }
 
+    /// Whether the polish moves the tilt (pitch or roll): its answer's tilt is then an estimate,
+    /// which the uncertainty must cover too.
+    pub(crate) fn frees_tilt(&self) -> bool {
+        self.is_free(4) || self.is_free(5)
+    }
+
     /// The default box and stopping rule over x, y, z and yaw only, roll and pitch held (no tilt
     /// starts): the continuous finish of a 4-DoF refinement ([`crate::localize::refine::PolishedSearch::four_dof`]).
     pub fn four_dof() -> Self {

@@ -355,7 +355,7 @@ pub const BASIN_LEVEL: u32 = 1;
 pub fn finish_name(finish: Option<&PolishedSearch>) -> &'static str {
     match finish {
         None => "none",
-        Some(p) if p.polish.is_free(4) || p.polish.is_free(5) => "6-dof",
+        Some(p) if p.polish.frees_tilt() => "6-dof",
         Some(_) => "4-dof",
     }
 }
@@ -437,7 +437,7 @@ pub fn refine_polished(
     // Work done by all the searches and polishes: the reported evaluation ratio counts it all.
     let (mut poses, mut point_evaluations) = (0u64, 0u64);
     let mut settle = None;
-    if p.settle_tilt_first && (p.polish.is_free(4) || p.polish.is_free(5)) {
+    if p.settle_tilt_first && p.polish.frees_tilt() {
         let params = crate::localize::refine::polish::PolishParams {
             tilt_starts_deg: 0.0,
             ..p.polish
@@ -529,7 +529,7 @@ pub fn refine_polished(
                     return Ok((r, rounds));
                 }
                 // A finish that moved the tilt has its tilt uncertain too: the jackknife frees it.
-                let tilt = (p.polish.is_free(4) || p.polish.is_free(5)).then(|| pivot(&r.pose));
+                let tilt = p.polish.frees_tilt().then(|| pivot(&r.pose));
                 return Ok((
                     with_uncertainty(cam, views, r, cfg, qcfg, tilt, &cache)?,
                     rounds,

@@ -192,7 +192,7 @@ pub(crate) fn estimate_cached<'a>(
     for (t, u) in p.tolerance.iter_mut().zip(step_units(search, 6)) {
         *t = t.max(JACKKNIFE_TOLERANCE_STEPS * u);
     }
-    let tilt = p.is_free(4) || p.is_free(5);
+    let tilt = p.frees_tilt();
     let ev = Evaluator::pooled_cached(cam, views, pose, &box_config(search, &p, pivot), 0, cache)?;
     let k = ucfg.folds.max(2);
     let folds = ev.folds(k);
