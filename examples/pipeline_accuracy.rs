@@ -102,7 +102,7 @@ fn opts() -> Opts {
         offset_intrinsics: false,
         search_rounds: None,
         fine_off_nadir: None,
-        sampling: Sampling::Nearest,
+        sampling: Sampling::Pv,
         gap_free: false,
     };
     let mut it = std::env::args().skip(1);

@@ -289,8 +289,9 @@ pub(crate) fn attitude_from_control_points(
     ))
 }
 
-/// Run one trial from `start` (offsets from the truth): the grid search, then `finish` (as
-/// `infraloc refine`: by default [`PolishedSearch::four_dof`]; `None` answers the grid's cell).
+/// Run one trial from `start` (offsets from the truth): the grid search, then, with `finish`,
+/// the smooth estimator's local stage (as `infraloc refine`: 4-DoF, or 6-DoF when `finish`'s
+/// polish frees the tilt); `None` answers the grid's cell.
 /// `now` returns seconds from any origin (injected so that this module reads no clock of its
 /// own).
 #[allow(clippy::too_many_arguments)]
@@ -310,19 +311,27 @@ pub(crate) fn run_trial(
     );
     let t0 = now();
     let points = sel.points(scene.tile, &init);
-    let (r, _) = refine_polished(
-        scene.camera,
-        &[View {
-            gray: scene.gray,
-            mask: scene.mask,
-            points: &points,
-        }],
-        &init,
-        cfg,
-        qcfg,
-        finish,
-        &|_| None,
-    )
+    let views = [View {
+        gray: scene.gray,
+        mask: scene.mask,
+        points: &points,
+    }];
+    // As `infraloc refine`: the smooth estimator's local stage after the grid search, or the
+    // grid's cell alone.
+    let r = match finish {
+        Some(f) => crate::localize::refine::local::refine_smooth(
+            scene.camera,
+            &views,
+            &init,
+            cfg,
+            qcfg,
+            f.polish.frees_tilt(),
+        )
+        .map(|(r, _)| r),
+        None => {
+            refine_polished(scene.camera, &views, &init, cfg, qcfg, None, &|_| None).map(|(r, _)| r)
+        }
+    }
     .map_err(|e| Error::command("study", format!("trial {index}: {e}")))?;
     let seconds = now() - t0;
     let result = offsets_from(scene.truth, &r.pose);

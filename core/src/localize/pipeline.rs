@@ -56,7 +56,7 @@ pub struct Params {
     /// uncertain ([`PolishedSearch::settle_uncertain_tilt`]) and no jackknife after it
     /// ([`PolishedSearch::without_jackknife`]), and follows it with the smooth estimator's 4-DoF
     /// gradient ascent, its information over all six axes (the σ) and its gate
-    /// ([`crate::localize::refine::gradient::smooth_stage`]).
+    /// ([`crate::localize::refine::local::smooth_stage`]).
     pub sampling: crate::localize::mi::smooth::Sampling,
 }
 
@@ -85,7 +85,7 @@ impl Default for Params {
             mi_max_off_nadir_deg: MI_MAX_OFF_NADIR_DEG,
             polish: Some(PolishedSearch::default()),
             matcher: None,
-            sampling: crate::localize::mi::smooth::Sampling::Nearest,
+            sampling: crate::localize::mi::smooth::Sampling::Pv,
         }
     }
 }
@@ -372,11 +372,11 @@ fn refine_at(
         crate::localize::mi::smooth::Sampling::Pv => {
             // The polish estimated the tilt: the information covers it too.
             let free = if polish.is_some_and(|q| q.polish.frees_tilt()) {
-                crate::localize::refine::gradient::SmoothFree::FourAfterSix
+                crate::localize::refine::local::SmoothFree::FourAfterSix
             } else {
-                crate::localize::refine::gradient::SmoothFree::Four
+                crate::localize::refine::local::SmoothFree::Four
             };
-            let (r, _) = crate::localize::refine::gradient::smooth_stage(
+            let (r, _) = crate::localize::refine::local::smooth_stage(
                 camera, &views, start, r, &p.search, &p.quality, free,
             )?;
             Ok((r, rounds))
