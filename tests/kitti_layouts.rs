@@ -175,7 +175,7 @@ fn kitti360_cameras_match_the_independent_chain_and_projections() {
             assert!(n_in > 50, "camera {n}: {n_in} points");
             assert!(worst < 1e-6, "camera {n}: {worst} px from cv2.omnidir");
             // KITTI-360's devkit drops p1, p2: it differs by the tangential term only (measured
-            // in docs/refine.md "Real data": up to about 1 px at the edge of the 185° disc).
+            // in docs/kitti.md "Camera and pose": up to about 1 px at the edge of the 185° disc).
             let devkit = pixels(&want["devkit"]);
             let (worst, _) = compare("KITTI-360 devkit (k1, k2 only)", &devkit);
             assert!(

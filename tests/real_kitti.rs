@@ -498,7 +498,7 @@ fn judge(r: &Run) {
     );
     // Generous bounds for what the gate lets through on real frames: the single-frame MI maximum
     // lies 0.1–0.5 m and up to 1° from the calibration along the lateral–yaw (and along-track)
-    // valley (docs/refine.md "Real data"); a wrong alignment lies metres off.
+    // valley (docs/accuracy.md "Real data"); a wrong alignment lies metres off.
     if r.accepted {
         // along/across are map x/y turned by the heading, so they are judged together against
         // the x/y σ.

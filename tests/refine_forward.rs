@@ -1,7 +1,7 @@
 //! MI refinement with a forward-looking pinhole (Mei ξ = 0) over a spinning LiDAR's ground
 //! rings: the geometry of issue 3's real-data check (a vehicle camera), on synthetic scenes.
 //! The study behind it: `cargo run --release --example forward_pinhole -- --seeds 1..50`
-//! (docs/refine.md "Forward-looking cameras").
+//! (docs/accuracy.md "Forward-looking cameras").
 
 use infraloc::camera::{Camera, CameraModel, Mei};
 use infraloc::localize::mi::objective::View;
