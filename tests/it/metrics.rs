@@ -1,8 +1,8 @@
 //! The service's metrics file (docs/fleet.md): its text passes Prometheus's own parser, and its
 //! writes are atomic: writers killed with SIGKILL in a loop never leave a partial `infraloc.prom`
-//! for a reader to see. The file read from a running service is in tests/daemon_e2e.rs.
+//! for a reader to see. The file read from a running service is in tests/it/daemon_e2e.rs.
 
-mod common;
+use crate::common;
 
 use infraloc::daemon::metrics;
 use infraloc::daemon::status::{
@@ -261,7 +261,8 @@ fn a_killed_writer_never_leaves_a_partial_file() {
         let mut child = Command::new(&exe)
             .args([
                 "--exact",
-                "metrics_writer_child",
+                // The child is a test of this binary, named by its module path.
+                "metrics::metrics_writer_child",
                 "--ignored",
                 "--test-threads=1",
             ])
