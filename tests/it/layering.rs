@@ -437,7 +437,10 @@ fn every_test_file_is_a_module_of_the_one_binary() {
             stray.push(p.display().to_string());
         }
     }
-    assert!(stray.is_empty(), "move into tests/it/ as modules: {stray:?}");
+    assert!(
+        stray.is_empty(),
+        "move into tests/it/ as modules: {stray:?}"
+    );
     let main = std::fs::read_to_string(tests.join("it/main.rs")).unwrap();
     let declared: Vec<&str> = main
         .lines()
@@ -457,6 +460,9 @@ fn every_test_file_is_a_module_of_the_one_binary() {
             missing.push(name);
         }
     }
-    assert!(missing.is_empty(), "no `mod` line in tests/it/main.rs: {missing:?}");
+    assert!(
+        missing.is_empty(),
+        "no `mod` line in tests/it/main.rs: {missing:?}"
+    );
     assert!(declared.len() > 40, "{} modules declared", declared.len());
 }

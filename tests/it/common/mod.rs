@@ -257,3 +257,15 @@ pub fn infraloc(args: &[&str]) -> std::process::Output {
 pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
+
+/// Wait until `child` (spawned with a piped stdout) prints a line containing `ready`: the crash
+/// tests time their kills from there, not from the spawn, so a child slow to start under load is
+/// still killed while it writes.
+pub fn wait_until_ready(child: &mut std::process::Child) {
+    use std::io::BufRead;
+    let mut out = std::io::BufReader::new(child.stdout.take().expect("a piped stdout"));
+    let mut line = String::new();
+    while out.read_line(&mut line).unwrap() > 0 && !line.contains("ready") {
+        line.clear();
+    }
+}
