@@ -10,7 +10,7 @@
 //! Skipped under qemu-user (`INFRALOC_QEMU=1`): qemu does not emulate the termios2 baud-rate
 //! ioctls (TCGETS2) that opening a serial port needs.
 
-mod common;
+use crate::common;
 
 use infraloc::gnss::Fix;
 use infraloc::gps_serial::{self, GpsState, SerialReader, SerialSettings};

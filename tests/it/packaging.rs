@@ -3,7 +3,7 @@
 //! the GigE Vision drop-in example verifies cleanly on top of the service with its exposure recorded
 //! in docs/install.md.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -9,7 +9,7 @@
 //!   have the same date too);
 //! - every GGA/RMC we call "no fix" is followed by a TPV with mode ≤ 1, and every fix by mode ≥ 2.
 
-mod common;
+use crate::common;
 
 use common::{nmea_dir, nmea_logs, Reference};
 use infraloc::gnss::framing::LineFramer;

@@ -11,7 +11,7 @@
 //! the tests fail under `CI=true` and are skipped (with the reason printed) otherwise.
 #![cfg(feature = "aravis")]
 
-mod common;
+use crate::common;
 
 use infraloc::capture::{
     capture, AravisSettings, AravisSource, CaptureSettings, FrameSource, RetryPolicy, SystemClock,

@@ -1,6 +1,6 @@
 //! A served pose for the georeferencing checks: the real `infraloc daemon` on a simulated scene,
 //! the scene's truth stored as the served pose, the camera an absent device (so the stored pose
-//! stays served). Shared by `tests/georef_service.rs` and `benches/georef_socket.rs`.
+//! stays served). Shared by `tests/it/georef_service.rs` and `benches/georef_socket.rs`.
 #![allow(dead_code)]
 
 use infraloc::posefile::{read_pose, PoseFile};
@@ -19,10 +19,14 @@ pub(crate) fn text(b: &[u8]) -> String {
     String::from_utf8_lossy(b).into_owned()
 }
 
+/// The `simulate` arguments of the served scene.
+pub(crate) const SCENE: [&str; 6] = ["--seed", "3", "--preset", "small", "--difficulty", "hard"];
+
 pub(crate) fn simulate(dir: &Path) {
     let out = Command::new(BIN)
-        .args(["simulate", "--seed", "3", "--preset", "small"])
-        .args(["--difficulty", "hard", "--out"])
+        .arg("simulate")
+        .args(SCENE)
+        .arg("--out")
         .arg(dir)
         .output()
         .unwrap();

@@ -1,6 +1,6 @@
 //! Prior acquisition from the configured sources (`gps_serial::acquire_prior`) on real logs.
 
-mod common;
+use crate::common;
 
 use infraloc::config::{GpsConfig, GpsSourceKind};
 use infraloc::gnss::PriorOutcome;

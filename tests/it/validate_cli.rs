@@ -3,26 +3,18 @@
 //! may appear later (a device, the state directory) is a warning; the service refuses the same
 //! config at start and creates its own state directory.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_infraloc");
 
-/// `infraloc simulate --seed 3 --preset small`, once for the file.
+/// `infraloc simulate --seed 3 --preset small`, shared with the other modules (read only: the
+/// configs and outputs are in work directories).
 fn scene() -> &'static Path {
-    static SCENE: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
-    &SCENE
-        .get_or_init(|| {
-            let d = tempfile::tempdir().unwrap();
-            let dir = d.path().join("scene");
-            common::simulate(BIN, &dir, &["--seed", "3", "--preset", "small"]);
-            (d, dir)
-        })
-        .1
+    common::shared_scene(BIN, &["--seed", "3", "--preset", "small"])
 }
 
 /// A work dir with the scene's config made absolute (pose, socket in the work dir), `edit`

@@ -7,7 +7,7 @@
 //! (bad config, missing tile, silent GPS, absent camera) each run a fresh daemon against a good
 //! stored pose and check the status names the stage and the pose file is untouched.
 
-mod common;
+use crate::common;
 
 use infraloc::posefile::{read_pose, PoseFile};
 use serde_json::Value;
@@ -689,11 +689,7 @@ fn far_tiles() -> (tempfile::TempDir, String) {
     let d = tempfile::tempdir().unwrap();
     let src = scene().join("tiles/sim-0001");
     let dst = d.path().join("sim-0001");
-    std::fs::create_dir_all(&dst).unwrap();
-    for e in std::fs::read_dir(&src).unwrap() {
-        let e = e.unwrap();
-        std::fs::copy(e.path(), dst.join(e.file_name())).unwrap();
-    }
+    common::copy_tree(&src, &dst);
     let m = dst.join("tile.toml");
     let mut t: toml::Table = toml::from_str(&std::fs::read_to_string(&m).unwrap()).unwrap();
     for layer in ["satellite", "reflectivity", "height"] {

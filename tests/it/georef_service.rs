@@ -15,10 +15,9 @@ use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-#[path = "common/served.rs"]
-mod served;
-use served::{
-    cli, grid_1000, raw, set, simulate, store_truth, text, write_config, Daemon, BIN, STORED_AT,
+use crate::common;
+use crate::common::served::{
+    cli, grid_1000, raw, set, store_truth, text, write_config, Daemon, BIN, SCENE, STORED_AT,
 };
 use std::io::Write;
 
@@ -113,7 +112,7 @@ fn csv(pixels: &[[f64; 2]]) -> String {
 fn georef_request_and_lookup_table_follow_the_served_pose() {
     let tmp = tempfile::tempdir().unwrap();
     let (scene, work) = (tmp.path().join("scene"), tmp.path().join("work"));
-    simulate(&scene);
+    common::simulate(BIN, &scene, &SCENE);
     std::fs::create_dir(&work).unwrap();
     let cfg = write_config(&scene, &work, false);
     store_truth(&scene, &work);
@@ -396,7 +395,7 @@ fn d_log_has(work: &Path, what: &str) -> bool {
 fn without_a_served_pose_georef_is_refused_and_no_table_written() {
     let tmp = tempfile::tempdir().unwrap();
     let (scene, work) = (tmp.path().join("scene"), tmp.path().join("work"));
-    simulate(&scene);
+    common::simulate(BIN, &scene, &SCENE);
     std::fs::create_dir(&work).unwrap();
     let cfg = write_config(&scene, &work, false);
     let mut d = Daemon::start(&cfg);

@@ -7,6 +7,8 @@
 //! - No import cycle between modules of either crate, `localize/init/` never imports
 //!   `localize/refine/`, and the service reaches the search and objective code only through the
 //!   core's drift check (`.ci/module_cycles.py`).
+//! - The integration tests are one binary (docs/architecture.md "Tests"): no test file directly
+//!   in `tests/`, and every file of `tests/it/` a module of its `main.rs`.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -421,4 +423,46 @@ fn no_function_over_150_lines_and_no_file_over_1200() {
         "over {MAX_FN_LINES} lines a function or {MAX_FILE_LINES} a file (cut it into named steps):\n{}",
         long.join("\n")
     );
+}
+
+/// A file directly in `tests/` would be a test binary of its own, linking the whole crate again;
+/// a file in `tests/it/` without its `mod` line would not be compiled at all, its tests lost.
+#[test]
+fn every_test_file_is_a_module_of_the_one_binary() {
+    let tests = root().join("tests");
+    let mut stray = Vec::new();
+    for e in std::fs::read_dir(&tests).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "rs") {
+            stray.push(p.display().to_string());
+        }
+    }
+    assert!(
+        stray.is_empty(),
+        "move into tests/it/ as modules: {stray:?}"
+    );
+    let main = std::fs::read_to_string(tests.join("it/main.rs")).unwrap();
+    let declared: Vec<&str> = main
+        .lines()
+        .filter_map(|l| l.strip_prefix("mod ")?.strip_suffix(';'))
+        .collect();
+    let mut missing = Vec::new();
+    for e in std::fs::read_dir(tests.join("it")).unwrap() {
+        let p = e.unwrap().path();
+        let name = if p.is_dir() {
+            p.file_name().unwrap().to_string_lossy().into_owned()
+        } else if p.extension().is_some_and(|x| x == "rs") {
+            p.file_stem().unwrap().to_string_lossy().into_owned()
+        } else {
+            continue;
+        };
+        if name != "main" && !declared.contains(&name.as_str()) {
+            missing.push(name);
+        }
+    }
+    assert!(
+        missing.is_empty(),
+        "no `mod` line in tests/it/main.rs: {missing:?}"
+    );
+    assert!(declared.len() > 40, "{} modules declared", declared.len());
 }

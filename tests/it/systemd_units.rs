@@ -3,7 +3,7 @@
 //! on MANPATH, as the .deb puts them in /usr/share/man), and the service's offline security
 //! exposure stays ≤ 2.0.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

@@ -1,5 +1,5 @@
 //! `infraloc kitti import` in the layouts people hold KITTI in (the object benchmark is in
-//! tests/real_kitti.rs):
+//! tests/it/real_kitti.rs):
 //! - KITTI-360 (the real `../shared/data/real/kitti360_0000`): the chain through
 //!   `calib_cam_to_velo.txt` and `calib_cam_to_pose.txt` for cameras 00–03 against an independent
 //!   numpy computation, the perspective cameras against `P_rect · R_rect · X`, the MEI fisheyes
@@ -15,7 +15,7 @@
 //! (`CI=true`) and print a `SKIPPED` line otherwise; `INFRALOC_SHARED_DATA` points at another
 //! `shared/data`. The references need python3 with numpy and cv2 (`.ci/setup`).
 
-mod common;
+use crate::common;
 
 use common::{infraloc, s};
 
@@ -389,6 +389,7 @@ fn refine_drive(
 }
 
 #[test]
+#[ignore = "slow tier: a pooled refinement on the real KITTI-360 frames"]
 fn pooled_refine_over_kitti360_from_kitti_import() {
     let Some(dir) = kitti360_dir("pooled_refine_over_kitti360_from_kitti_import") else {
         return;
@@ -466,6 +467,7 @@ fn pooled_refine_over_kitti360_from_kitti_import() {
 /// (different light in each) ran 0.3–0.5 m away (docs/refine.md "Pooled refinement"); the σ of
 /// one cluster per frame is reported, and an accepted answer lies inside its 3σ.
 #[test]
+#[ignore = "slow tier: per-pair pooling on the real KITTI-360 frames"]
 fn per_pair_pooling_over_kitti360_lands_within_the_calibrations_decimetre() {
     let Some(dir) =
         kitti360_dir("per_pair_pooling_over_kitti360_lands_within_the_calibrations_decimetre")

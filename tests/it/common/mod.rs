@@ -1,8 +1,12 @@
-//! Shared helpers of the integration tests: where the real GNSS logs are, gpsd's `.chk`, and a
-//! simulated scene.
+//! Shared helpers of the integration tests: where the real GNSS logs are, gpsd's `.chk`, the
+//! simulated scenes (each simulated once per run), and the served pose of `served`.
 #![allow(dead_code, unreachable_pub)]
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::{Mutex, OnceLock, PoisonError};
+
+pub mod served;
 
 /// `rel` under `shared/data` beside the clone (as CI lays it out); `INFRALOC_SHARED_DATA`
 /// overrides the `shared/data` directory for other layouts. Not checked for existence.
@@ -88,21 +92,77 @@ pub fn iso_to_unix_ms(s: &str) -> i64 {
     days * 86_400_000 + (t[0] * 3600 + t[1] * 60 + t[2]) * 1000 + ms
 }
 
-/// Run `BIN simulate ARGS --out DIR` (the scene the localize tests start from); a failed
-/// simulation fails the test with its stderr.
+/// A scene directory per distinct `simulate` argument list, simulated once per test run and
+/// shared by every module that asks for the same preset and seed (a small scene takes ~10 s of
+/// the two cores; the modules asked for the same ones several times over).
+struct Scenes {
+    /// Holds every shared scene; a static is never dropped, so it lasts the whole run.
+    root: tempfile::TempDir,
+    /// Each argument list's scene, built by the first caller while later ones wait on its cell.
+    by_args: Mutex<HashMap<Vec<String>, &'static OnceLock<PathBuf>>>,
+}
+
+/// The scene `BIN simulate ARGS` makes, simulated on first use and shared read-only for the rest
+/// of the run; a failed simulation fails the test with its stderr. Tests that change files of
+/// their scene take their own copy with [`simulate`] instead.
+pub fn shared_scene(bin: &str, args: &[&str]) -> &'static Path {
+    static SCENES: OnceLock<Scenes> = OnceLock::new();
+    let scenes = SCENES.get_or_init(|| Scenes {
+        root: tempfile::tempdir().expect("temporary directory for the shared scenes"),
+        by_args: Mutex::default(),
+    });
+    let (index, cell) = {
+        // Only map operations run under the lock, so a panicking test cannot poison it midway.
+        let mut map = scenes
+            .by_args
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let index = map.len();
+        let key = args.iter().map(|a| a.to_string()).collect();
+        let cell = *map
+            .entry(key)
+            .or_insert_with(|| Box::leak(Box::new(OnceLock::new())));
+        (index, cell)
+    };
+    cell.get_or_init(|| {
+        let dir = scenes.root.path().join(format!("scene-{index}"));
+        let out = std::process::Command::new(bin)
+            .arg("simulate")
+            .args(args)
+            .arg("--out")
+            .arg(&dir)
+            .output()
+            .expect("run infraloc simulate");
+        assert!(
+            out.status.success(),
+            "simulate {args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        dir
+    })
+}
+
+/// The scene `BIN simulate ARGS --out DIR` makes (the scene the localize tests start from), as a
+/// copy of [`shared_scene`] that the test may change; a failed simulation fails the test with its
+/// stderr. The simulator's output does not depend on its directory (`simulate_cli` checks two
+/// runs byte for byte), so the copy is what simulating into `dir` would have written.
 pub fn simulate(bin: &str, dir: &Path, args: &[&str]) {
-    let out = std::process::Command::new(bin)
-        .arg("simulate")
-        .args(args)
-        .arg("--out")
-        .arg(dir)
-        .output()
-        .expect("run infraloc simulate");
-    assert!(
-        out.status.success(),
-        "simulate {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    copy_tree(shared_scene(bin, args), dir);
+}
+
+/// Copy the directory tree `from` to `to` (created, with its parents).
+pub fn copy_tree(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap_or_else(|e| panic!("{}: {e}", to.display()));
+    for e in std::fs::read_dir(from).unwrap_or_else(|e| panic!("{}: {e}", from.display())) {
+        let e = e.unwrap();
+        let dest = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_tree(&e.path(), &dest);
+        } else {
+            std::fs::copy(e.path(), &dest)
+                .unwrap_or_else(|err| panic!("{} → {}: {err}", e.path().display(), dest.display()));
+        }
+    }
 }
 
 /// Run `BIN localize` on a simulated scene in `dir` (its `infraloc.toml`), writing
@@ -196,4 +256,16 @@ pub fn infraloc(args: &[&str]) -> std::process::Output {
 /// A path as an argument (the tests' paths are UTF-8).
 pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
+}
+
+/// Wait until `child` (spawned with a piped stdout) prints a line containing `ready`: the crash
+/// tests time their kills from there, not from the spawn, so a child slow to start under load is
+/// still killed while it writes.
+pub fn wait_until_ready(child: &mut std::process::Child) {
+    use std::io::BufRead;
+    let mut out = std::io::BufReader::new(child.stdout.take().expect("a piped stdout"));
+    let mut line = String::new();
+    while out.read_line(&mut line).unwrap() > 0 && !line.contains("ready") {
+        line.clear();
+    }
 }

@@ -1,8 +1,8 @@
 //! The service's metrics file (docs/fleet.md): its text passes Prometheus's own parser, and its
 //! writes are atomic: writers killed with SIGKILL in a loop never leave a partial `infraloc.prom`
-//! for a reader to see. The file read from a running service is in tests/daemon_e2e.rs.
+//! for a reader to see. The file read from a running service is in tests/it/daemon_e2e.rs.
 
-mod common;
+use crate::common;
 
 use infraloc::daemon::metrics;
 use infraloc::daemon::status::{
@@ -208,6 +208,9 @@ fn metrics_writer_child() {
     let Some(dir) = std::env::var_os("INFRALOC_METRICS_WRITER_DIR") else {
         return;
     };
+    // Tell the parent the writing loop is starting: the kill moments count from here, so a child
+    // slow to start under load is not killed before it writes.
+    println!("ready");
     let mut n = 0u64;
     loop {
         // Each write differs (the uptime), and a long stage list makes each write several KB.
@@ -261,15 +264,18 @@ fn a_killed_writer_never_leaves_a_partial_file() {
         let mut child = Command::new(&exe)
             .args([
                 "--exact",
-                "metrics_writer_child",
+                // The child is a test of this binary, named by its module path.
+                "metrics::metrics_writer_child",
                 "--ignored",
                 "--test-threads=1",
+                "--nocapture",
             ])
             .env("INFRALOC_METRICS_WRITER_DIR", d.path())
-            .stdout(Stdio::null())
+            .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn()
             .unwrap();
+        common::wait_until_ready(&mut child);
         // xorshift: a seeded spread of kill moments, 20-120 ms into the writer's life.
         rng_state ^= rng_state << 13;
         rng_state ^= rng_state >> 7;

@@ -4,7 +4,7 @@
 //! here is what an offline matcher would hand over: the scene's control points (fisheye pixel ↔
 //! map point) with pixel noise, a third of them without a height, and 40 % outliers.
 
-mod common;
+use crate::common;
 
 use rand::{Rng, SeedableRng};
 use std::io::Write;

@@ -6,7 +6,7 @@
 //! --tiles` and `plot mi-surface --tiles` look tiles up as `localize` does: a covering tile whose
 //! layer is corrupt is passed over for the next one.
 
-mod common;
+use crate::common;
 
 use infraloc::map::cache::{load_tile, write_tile};
 use std::path::{Path, PathBuf};
@@ -31,14 +31,6 @@ fn tile_dir() -> PathBuf {
     let tiles = scene().join("tiles");
     let e = std::fs::read_dir(&tiles).unwrap().next().unwrap().unwrap();
     e.path()
-}
-
-fn copy_dir(src: &Path, dst: &Path) {
-    std::fs::create_dir_all(dst).unwrap();
-    for e in std::fs::read_dir(src).unwrap() {
-        let e = e.unwrap();
-        std::fs::copy(e.path(), dst.join(e.file_name())).unwrap();
-    }
 }
 
 /// `localize` with `tiles` as the cache, writing over a pose file that holds `OLD`.
@@ -87,7 +79,7 @@ fn an_all_nan_height_layer_fails_in_the_tile_stage_naming_the_layer() {
 fn a_corrupt_tile_elsewhere_is_skipped_and_reported() {
     let w = tempfile::tempdir().unwrap();
     let cache = w.path().join("tiles");
-    copy_dir(&tile_dir(), &cache.join(tile_dir().file_name().unwrap()));
+    common::copy_tree(&tile_dir(), &cache.join(tile_dir().file_name().unwrap()));
     // A second tile directory with a truncated manifest, sorted before the good one.
     std::fs::create_dir_all(cache.join("aaa-broken")).unwrap();
     std::fs::write(
@@ -117,7 +109,7 @@ fn a_manifest_in_the_wrong_utm_zone_is_a_crs_mismatch() {
     let w = tempfile::tempdir().unwrap();
     let cache = w.path().join("tiles");
     let dst = cache.join(tile_dir().file_name().unwrap());
-    copy_dir(&tile_dir(), &dst);
+    common::copy_tree(&tile_dir(), &dst);
     let m = std::fs::read_to_string(dst.join("tile.toml")).unwrap();
     let crs = m
         .lines()
@@ -203,13 +195,13 @@ fn refine_and_plot_pass_over_a_corrupt_covering_tile_as_localize_does() {
     let w = tempfile::tempdir().unwrap();
     let good = w.path().join("good");
     let name = tile_dir().file_name().unwrap().to_owned();
-    copy_dir(&tile_dir(), &good.join(&name));
+    common::copy_tree(&tile_dir(), &good.join(&name));
     // The same tile again under an id sorted first (same extent, so it is the first choice),
     // its height layer cut short.
     let both = w.path().join("both");
-    copy_dir(&tile_dir(), &both.join(&name));
+    common::copy_tree(&tile_dir(), &both.join(&name));
     let broken = both.join("aaa-broken");
-    copy_dir(&tile_dir(), &broken);
+    common::copy_tree(&tile_dir(), &broken);
     let m = std::fs::read_to_string(broken.join("tile.toml")).unwrap();
     let id = format!("id = \"{}\"", name.to_string_lossy());
     assert!(m.contains(&id), "{m}");

@@ -4,7 +4,7 @@
 //! in turn, passes the gate and is the answer, and the report names both. Seed 169: both
 //! hypotheses' refinements are refused; the error gives both reasons and nothing is written.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

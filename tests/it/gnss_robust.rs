@@ -2,7 +2,7 @@
 //! real logs: noise between sentences and arbitrary read chunking change nothing; a sentence cut
 //! off by the next one is lost alone; random bytes never panic and lines stay bounded.
 
-mod common;
+use crate::common;
 
 use infraloc::gnss::framing::{LineFramer, MAX_LINE};
 use infraloc::gnss::{Decoder, Fix};

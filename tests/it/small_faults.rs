@@ -3,7 +3,7 @@
 //! --rotation` with a non-rotation is in tests/rectify_reference.rs, `retry-max-s = inf` in
 //! tests/validate_cli.rs.) On the same scene, the node's `[refine] sampling = "pv"` end to end.
 
-mod common;
+use crate::common;
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
