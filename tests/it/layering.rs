@@ -119,6 +119,36 @@ fn no_import_cycle_and_the_rooms_keep_their_rules() {
     assert!(text.contains("no import cycle"), "{text}");
 }
 
+/// The cycle check sees a cycle that only `super::` paths between two leaf files make (`a/b.rs`
+/// and `a/c.rs` naming each other as `super::c` and `super::b`), and names both modules.
+#[test]
+fn the_cycle_check_finds_a_cycle_of_super_paths_between_leaf_files() {
+    let dir = std::env::temp_dir().join(format!("infraloc-cycle-{}", std::process::id()));
+    let write = |rel: &str, text: &str| {
+        let p = dir.join(rel);
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::write(p, text).unwrap();
+    };
+    write("core/src/lib.rs", "pub mod a;\n");
+    write("core/src/a/mod.rs", "pub mod b;\npub mod c;\n");
+    write("core/src/a/b.rs", "use super::c::C;\npub struct B;\n");
+    write("core/src/a/c.rs", "use super::b::B;\npub struct C;\n");
+    write("src/lib.rs", "\n");
+    let out = Command::new("python3")
+        .arg(root().join(".ci/module_cycles.py"))
+        .arg("--root")
+        .arg(&dir)
+        .output()
+        .expect("python3 runs .ci/module_cycles.py");
+    std::fs::remove_dir_all(&dir).unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(1), "{text}");
+    assert!(
+        text.contains("cycle: infraloc_core::a::b <-> infraloc_core::a::c"),
+        "{text}"
+    );
+}
+
 /// The longest a function may be: from its `fn` line to its closing brace.
 const MAX_FN_LINES: usize = 150;
 /// The longest a source file may be, its test code aside.
