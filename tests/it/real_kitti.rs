@@ -520,7 +520,6 @@ fn judge(r: &Run) {
 }
 
 #[test]
-#[ignore = "slow tier: MI surfaces of the real KITTI frames"]
 fn plot_mi_surface_on_real_frames_shows_the_lateral_yaw_valley() {
     let Some(dir) = kitti_dir("plot_mi_surface_on_real_frames_shows_the_lateral_yaw_valley") else {
         return;
@@ -645,7 +644,6 @@ fn roughness(mi: &[f64]) -> (f64, usize) {
 /// the nearest-pixel curve turns 89 times with steps up to 0.0010 nats, PV's 19 times with steps
 /// up to 0.0004. The assertions leave a factor of two of margin on both.
 #[test]
-#[ignore = "slow tier: MI profiles of a real KITTI frame"]
 fn pv_sampling_is_smooth_where_the_nearest_pixel_jumps() {
     let Some(dir) = kitti_dir("pv_sampling_is_smooth_where_the_nearest_pixel_jumps") else {
         return;
