@@ -455,15 +455,25 @@ fn no_function_over_150_lines_and_no_file_over_1200() {
     );
 }
 
-/// A file directly in `tests/` would be a test binary of its own, linking the whole crate again;
-/// a file in `tests/it/` without its `mod` line would not be compiled at all, its tests lost.
+/// A file directly in `tests/` would be a test binary of its own, linking the whole crate again
+/// (`SEPARATE` says which may, and why); a file in `tests/it/` without its `mod` line would not
+/// be compiled at all, its tests lost.
+/// Test binaries that stay apart from `tests/it`, with the reason.
+const SEPARATE: [(&str, &str); 1] = [(
+    "pose_store_crash.rs",
+    "its soak kills a child within milliseconds of its ready line: no other test may compete for the CPU",
+)];
+
 #[test]
 fn every_test_file_is_a_module_of_the_one_binary() {
     let tests = root().join("tests");
     let mut stray = Vec::new();
     for e in std::fs::read_dir(&tests).unwrap() {
         let p = e.unwrap().path();
-        if p.extension().is_some_and(|x| x == "rs") {
+        let separate = p
+            .file_name()
+            .is_some_and(|n| SEPARATE.iter().any(|(f, _)| n == *f));
+        if p.extension().is_some_and(|x| x == "rs") && !separate {
             stray.push(p.display().to_string());
         }
     }
@@ -494,5 +504,5 @@ fn every_test_file_is_a_module_of_the_one_binary() {
         missing.is_empty(),
         "no `mod` line in tests/it/main.rs: {missing:?}"
     );
-    assert!(declared.len() > 40, "{} modules declared", declared.len());
+    assert!(declared.len() > 39, "{} modules declared", declared.len());
 }

@@ -38,7 +38,6 @@ mod matcher;
 mod metrics;
 mod packaging;
 mod polish_synthetic;
-mod pose_store_crash;
 mod quality_gate;
 mod real_kitti;
 mod rectify_reference;

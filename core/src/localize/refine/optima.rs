@@ -53,11 +53,11 @@ const SAME: [f64; 6] = [0.02, 0.02, 0.02, 0.1, 0.1, 0.1];
 const CLIMB_BOX: f64 = 1.6;
 
 /// Iterations of each competitor's ascent at most: it needs to reach a peak, not polish it.
-const MAX_ITER: usize = 30;
+const MAX_ITER: usize = 20;
 
 /// Points the competitors' ascents climb on at most (a regular thinning of the fixed set): they
 /// locate the optima; the test between each and the answer uses every point.
-const CLIMB_POINTS: usize = 40_000;
+const CLIMB_POINTS: usize = 16_000;
 
 /// One optimum that competes with the answer.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
