@@ -235,6 +235,15 @@ impl Summary {
     }
 }
 
+/// The LiDAR points of a study's trials.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Ground<'a> {
+    /// The map tile: each trial selects its points around its start, as the pipeline does.
+    Tile(&'a Tile),
+    /// One fixed point set in the pose's frame (a LiDAR sweep from the camera's own mast).
+    Points(&'a [crate::map::GroundPoint]),
+}
+
 /// What a study needs: the scene in memory.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Scene<'a> {
@@ -245,8 +254,8 @@ pub(crate) struct Scene<'a> {
     /// The camera's validity mask ([`crate::camera::CameraModel::valid_mask`]), computed once for
     /// all trials.
     pub mask: &'a [u8],
-    /// Map tile.
-    pub tile: &'a Tile,
+    /// Where each trial's LiDAR points come from.
+    pub ground: Ground<'a>,
     /// True pose: errors are measured against it.
     pub truth: &'a CamFromMap,
     /// The pose the start offsets are applied to: the truth, or the truth with another roll and
@@ -310,7 +319,10 @@ pub(crate) fn run_trial(
         &[start[0], start[1], start[2], start[3], 0.0, 0.0],
     );
     let t0 = now();
-    let points = sel.points(scene.tile, &init);
+    let points = match scene.ground {
+        Ground::Tile(tile) => sel.points(tile, &init),
+        Ground::Points(p) => p.to_vec(),
+    };
     let views = [View {
         gray: scene.gray,
         mask: scene.mask,

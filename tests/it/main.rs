@@ -20,6 +20,7 @@ mod config_cli;
 mod control_socket;
 mod daemon_e2e;
 mod demo_cli;
+mod gantry_sim;
 mod gdal_reads_tiles;
 mod geo_reference;
 mod georef_cli;
