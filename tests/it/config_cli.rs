@@ -120,12 +120,12 @@ fn bad_config_exits_78_with_one_line_naming_the_key() {
         "{err}"
     );
     // An estimator the refinement does not have: one line naming the value and where it is.
-    let (code, err) = validate_edited("sampling = \"nearest\"", "sampling = \"bspline\"");
+    let (code, err) = validate_edited("sampling = \"pv\"", "sampling = \"bspline\"");
     assert_eq!(code, Some(78), "{err}");
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(err.contains("bspline") && err.contains("bad.toml"), "{err}");
-    // The partial-volume estimator is a valid choice.
-    let (code, err) = validate_edited("sampling = \"nearest\"", "sampling = \"pv\"");
+    // The nearest-pixel local stage is a valid choice beside the default partial volume.
+    let (code, err) = validate_edited("sampling = \"pv\"", "sampling = \"nearest\"");
     assert_eq!(code, Some(0), "{err}");
     let missing = infraloc(&["validate", "--config", "/nonexistent/infraloc.toml"]);
     assert_eq!(missing.status.code(), Some(78));

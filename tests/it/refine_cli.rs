@@ -325,7 +325,12 @@ fn refine_cli_polish_recovers_a_wrong_tilt() {
     let (ok, err) = refine(dir, &search);
     assert!(ok, "{err}");
     let plain = rot_err(dir);
-    let (ok, err) = refine(dir, &[&search[..], &["--polish"]].concat());
+    // The Nelder–Mead polish and its search rounds are the nearest-pixel local stage's
+    // (`--sampling nearest`); the default stage's 6-DoF ascent is checked below.
+    let (ok, err) = refine(
+        dir,
+        &[&search[..], &["--polish", "--sampling", "nearest"]].concat(),
+    );
     assert!(ok, "{err}");
     let polished = rot_err(dir);
     let report: serde_json::Value =
@@ -344,6 +349,20 @@ fn refine_cli_polish_recovers_a_wrong_tilt() {
     eprintln!("rotation error: 4-DoF {plain:.3}°, polished {polished:.3}°");
     assert!(plain > 1.0, "the 4-DoF search cannot tilt: {plain}°");
     assert!(polished < 0.3, "polished rotation error {polished}°");
+    // The default stage with --polish ascends over all six axes from the grid's cell: the tilt
+    // moves, and the result (accepted or refused) is one line either way.
+    let out = refine_output(dir, &[&search[..], &["--polish"]].concat());
+    let report = read_report(dir);
+    assert_eq!(report["finish"], "6-dof-gradient", "{report}");
+    let theta = &report["smooth"]["ascents"][0]["theta"];
+    let tilt_moved = theta[3].as_f64().unwrap().hypot(theta[4].as_f64().unwrap());
+    assert!(tilt_moved > 0.0, "{report}");
+    if !out.status.success() {
+        assert_eq!(
+            String::from_utf8_lossy(&out.stderr).trim().lines().count(),
+            1
+        );
+    }
 }
 
 /// `pitch=`/`roll=` in `--search` make the grid 6-DoF (off by default): from a start whose tilt
@@ -393,6 +412,54 @@ fn refine_cli_grid_searches_pitch_and_roll_when_asked() {
 }
 
 /// A refine run with arbitrary arguments after `refine`.
+/// `--starts 3`: three refinements, the first from `--init` and two spread around it, each
+/// reported with its verdict; the accepted answers are compared within their combined 3σ; the
+/// default stage reports the competing optima it looked for; a bad `--start-spread` is one line.
+#[test]
+fn refine_cli_self_check_from_several_starts() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    write_scene(dir);
+    let out = refine_output(dir, &["--starts", "3"]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let report = read_report(dir);
+    let check = &report["self_check"];
+    let starts = check["starts"].as_array().expect("the self-check's starts");
+    assert_eq!(starts.len(), 3, "{report}");
+    assert_eq!(starts[0]["start"][0].as_f64(), Some(0.0));
+    assert!(
+        (starts[1]["start"][0].as_f64().unwrap() - 0.2).abs() < 1e-9,
+        "{report}"
+    );
+    for k in 1..=3 {
+        assert!(stdout.contains(&format!("start {k} at")), "{stdout}");
+    }
+    assert!(stdout.contains("self-check: "), "{stdout}");
+    let accepted = starts.iter().filter(|s| s["accepted"] == true).count();
+    assert_eq!(check["accepted"].as_u64(), Some(accepted as u64));
+    assert_eq!(out.status.success(), check["agree"] == true && accepted > 0);
+    let optima = &report["quality"]["optima"];
+    assert!(optima["starts"].as_u64().unwrap() >= 6, "{report}");
+    for o in optima["found"].as_array().unwrap() {
+        let (d, se, z) = (
+            o["delta_mi"].as_f64().unwrap(),
+            o["se"].as_f64().unwrap(),
+            o["z"].as_f64().unwrap(),
+        );
+        assert!(
+            (d / se - z).abs() < 1e-9 && o["separated"] == (z > 2.0),
+            "{o}"
+        );
+    }
+    let (ok, err) = refine(dir, &["--starts", "2", "--start-spread", "xy=-1"]);
+    assert!(
+        !ok && err.trim().lines().count() == 1 && err.contains("--start-spread"),
+        "{err}"
+    );
+    let (ok, err) = refine(dir, &["--starts", "0"]);
+    assert!(!ok && err.contains("--starts 0"), "{err}");
+}
+
 fn refine_args(args: &[String]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_infraloc"))
         .arg("refine")

@@ -97,7 +97,7 @@ fn gps_decode_into_a_closed_pipe_exits_quietly() {
     assert_eq!(out.status.code(), Some(0), "{err}");
 }
 
-/// `[refine] sampling = "pv"` in the node's config runs the smooth stage: the pose file carries
+/// `[refine] sampling = "pv"` (the default) in the node's config runs the smooth stage: the pose file carries
 /// its information over all six axes (the bound, the patches' sandwich), its covariance is the
 /// information's (no jackknife ran) and covers at least what the gate judged, and the answer is
 /// the one the default run polished further, not another basin.
@@ -105,11 +105,11 @@ fn gps_decode_into_a_closed_pipe_exits_quietly() {
 fn pv_sampling_from_the_config_reaches_the_pose_file() {
     let w = tempfile::tempdir().unwrap();
     let base = std::fs::read_to_string(scene().join("infraloc.toml")).unwrap();
-    // The simulator writes every key, the default sampling included.
-    let with_pv = base.replace("sampling = \"nearest\"", "sampling = \"pv\"");
-    assert_ne!(with_pv, base, "{base}");
-    let cfg = scene().join("pv.toml");
-    std::fs::write(&cfg, with_pv).unwrap();
+    // The simulator writes every key, the default sampling (pv) included.
+    let with_nearest = base.replace("sampling = \"pv\"", "sampling = \"nearest\"");
+    assert_ne!(with_nearest, base, "{base}");
+    let nearest_cfg = scene().join("nearest.toml");
+    std::fs::write(&nearest_cfg, with_nearest).unwrap();
     let run = |config: &Path, out: &Path| {
         let o = Command::new(BIN)
             .args(["localize", "--config"])
@@ -123,11 +123,8 @@ fn pv_sampling_from_the_config_reaches_the_pose_file() {
             serde_json::from_str(&std::fs::read_to_string(out).unwrap()).unwrap();
         v
     };
-    let pv = run(&cfg, &w.path().join("pv.json"));
-    let nearest = run(
-        &scene().join("infraloc.toml"),
-        &w.path().join("nearest.json"),
-    );
+    let pv = run(&scene().join("infraloc.toml"), &w.path().join("pv.json"));
+    let nearest = run(&nearest_cfg, &w.path().join("nearest.json"));
     let info = &pv["quality"]["information"];
     let axes = serde_json::json!(["x", "y", "z", "yaw", "pitch", "roll"]);
     assert_eq!(info["axes"], axes, "{pv}");

@@ -373,6 +373,7 @@ pub fn information_covariance(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::localize::mi::smooth::step;
     use nalgebra::Point3;
 
     /// A "no basin" refusal names its direction in steps of the Hessian (metres and degrees

@@ -405,6 +405,7 @@ mod tests {
             sigma: covariance.as_ref().map(super::super::quality::Sigma::of),
             covariance,
             information: None,
+            optima: None,
             accepted: true,
             reason: None,
             refused_by: None,
