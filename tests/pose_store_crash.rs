@@ -7,7 +7,6 @@
 // child's ready line, which only holds when no other test competes for the CPU (cargo runs test
 // binaries one after another). It shares the one binary's helpers.
 #[path = "it/common/mod.rs"]
-#[allow(dead_code)]
 mod common;
 use infraloc::map::Crs;
 use infraloc::pose::CamFromMap;

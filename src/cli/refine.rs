@@ -335,22 +335,7 @@ pub(super) fn run(mut a: Args) -> Result<()> {
         intrinsics_sigma: crate::camera::load_intrinsics_sigma(&a.camera)?,
         ..qcfg
     };
-    let mut grays = Vec::with_capacity(a.image.len());
-    for path in &a.image {
-        let (w, h, gray) = load_gray(path)?;
-        if (w, h) != (cam.width(), cam.height()) {
-            return Err(Error::input(
-                path,
-                format!(
-                    "image is {w}×{h} but the camera {} is {}×{} (every pooled image must be the camera's size)",
-                    a.camera.display(),
-                    cam.width(),
-                    cam.height()
-                ),
-            ));
-        }
-        grays.push(gray);
-    }
+    let grays = load_grays(&a, &cam)?;
     let (w, h) = (cam.width(), cam.height());
     let init = read_pose(&a.init)?;
     if let Some(n) = &init.note {
@@ -685,4 +670,25 @@ impl SelfCheck {
             ),
         }
     }
+}
+
+/// Every `--image` as gray, each checked to be the camera's size.
+fn load_grays(a: &Args, cam: &crate::camera::Camera) -> Result<Vec<Vec<u8>>> {
+    let mut grays = Vec::with_capacity(a.image.len());
+    for path in &a.image {
+        let (w, h, gray) = load_gray(path)?;
+        if (w, h) != (cam.width(), cam.height()) {
+            return Err(Error::input(
+                path,
+                format!(
+                    "image is {w}×{h} but the camera {} is {}×{} (every pooled image must be the camera's size)",
+                    a.camera.display(),
+                    cam.width(),
+                    cam.height()
+                ),
+            ));
+        }
+        grays.push(gray);
+    }
+    Ok(grays)
 }

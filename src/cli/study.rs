@@ -188,30 +188,7 @@ pub(super) fn run(a: Args) -> Result<()> {
         trials.push(t);
     }
     let sum = Summary::of(&trials);
-    let row = |name: &str, s: &crate::eval::study::Spread, scale: f64, unit: &str| {
-        println!(
-            "{name:<11} median {:>7.3} {unit}  p95 {:>7.3} {unit}  max {:>7.3} {unit}",
-            s.median * scale,
-            s.p95 * scale,
-            s.max * scale
-        );
-    };
-    println!("study: {} trials on {}", sum.trials, a.scene.display());
-    row("horizontal", &sum.horizontal_m, 100.0, "cm");
-    row("height", &sum.height_m, 100.0, "cm");
-    row("yaw", &sum.yaw_deg, 1.0, "° ");
-    println!(
-        "within {:.0} cm horizontal, {:.0} cm height and {}° yaw: {:.1} % ({} of {}); gate rejections: {}; time {:.1} s ({:.2} s median per trial)",
-        SUCCESS_HORIZONTAL_M * 100.0,
-        SUCCESS_HEIGHT_M * 100.0,
-        SUCCESS_YAW_DEG,
-        sum.success_fraction * 100.0,
-        trials.iter().filter(|t| t.success).count(),
-        sum.trials,
-        sum.gate_rejections,
-        sum.seconds_total,
-        sum.seconds_median
-    );
+    print_summary(&a.scene, &sum, &trials);
     let doc = json!({
         "scene": a.scene,
         "seed": a.seed,
@@ -246,4 +223,32 @@ pub(super) fn run(a: Args) -> Result<()> {
     super::plot::save_png(&img, &png)?;
     println!("study: wrote {} and {}", png.display(), jpath.display());
     Ok(())
+}
+
+/// The study's summary for people: the spread of each error and the fraction within bounds.
+fn print_summary(scene: &std::path::Path, sum: &Summary, trials: &[crate::eval::study::Trial]) {
+    let row = |name: &str, s: &crate::eval::study::Spread, scale: f64, unit: &str| {
+        println!(
+            "{name:<11} median {:>7.3} {unit}  p95 {:>7.3} {unit}  max {:>7.3} {unit}",
+            s.median * scale,
+            s.p95 * scale,
+            s.max * scale
+        );
+    };
+    println!("study: {} trials on {}", sum.trials, scene.display());
+    row("horizontal", &sum.horizontal_m, 100.0, "cm");
+    row("height", &sum.height_m, 100.0, "cm");
+    row("yaw", &sum.yaw_deg, 1.0, "° ");
+    println!(
+        "within {:.0} cm horizontal, {:.0} cm height and {}° yaw: {:.1} % ({} of {}); gate rejections: {}; time {:.1} s ({:.2} s median per trial)",
+        SUCCESS_HORIZONTAL_M * 100.0,
+        SUCCESS_HEIGHT_M * 100.0,
+        SUCCESS_YAW_DEG,
+        sum.success_fraction * 100.0,
+        trials.iter().filter(|t| t.success).count(),
+        sum.trials,
+        sum.gate_rejections,
+        sum.seconds_total,
+        sum.seconds_median
+    );
 }

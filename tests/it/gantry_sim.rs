@@ -91,7 +91,8 @@ fn same_seed_same_bytes() {
     ] {
         assert!(names.iter().any(|n| n == want), "missing {want}: {names:?}");
     }
-    // The study's outputs may have been written into the shared scene meanwhile.
+    // The study's outputs may have been written into the shared scene meanwhile (the other tests
+    // write nothing else there).
     let keep = |f: &&(PathBuf, Vec<u8>)| !f.0.to_string_lossy().starts_with("study");
     let a: Vec<_> = a.iter().filter(keep).collect();
     let b: Vec<_> = b.iter().filter(keep).collect();
@@ -226,6 +227,9 @@ fn sweep_has_64_rings_and_lies_on_the_image_at_the_truth() {
 #[test]
 fn refine_runs_and_answers_or_names_its_refusal() {
     let p = scene().join("perspective");
+    // The report goes outside the shared scene, which `same_seed_same_bytes` compares.
+    let tmp = tempfile::tempdir().unwrap();
+    let report_path = tmp.path().join("report.json");
     let out = run(
         &[
             "refine",
@@ -240,7 +244,7 @@ fn refine_runs_and_answers_or_names_its_refusal() {
             "--search",
             SEARCH,
             "--report",
-            "report.json",
+            report_path.to_str().unwrap(),
         ],
         &p,
     );
@@ -252,7 +256,7 @@ fn refine_runs_and_answers_or_names_its_refusal() {
         assert!(stderr.lines().count() == 1, "{stderr}");
     }
     let report: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(p.join("report.json")).unwrap()).unwrap();
+        serde_json::from_slice(&std::fs::read(&report_path).unwrap()).unwrap();
     assert!(
         report["quality"]["points"].as_u64().unwrap() > 1000,
         "{report}"

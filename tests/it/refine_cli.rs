@@ -185,15 +185,17 @@ fn refine_cli_end_to_end_and_bad_input() {
         serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["quality"]["accepted"], true);
     assert!(report["evaluation_ratio"].as_f64().unwrap() > 1.0);
-    // By default a 4-DoF polish follows the search: one round, roll and pitch untouched.
-    assert_eq!(report["finish"], "4-dof");
-    let rounds = report["rounds"].as_array().unwrap();
-    assert_eq!(rounds.len(), 1, "{rounds:?}");
-    let moved = &rounds[0]["polish"][0]["offsets"];
-    assert_eq!(
-        (moved[4].as_f64(), moved[5].as_f64()),
-        (Some(0.0), Some(0.0))
-    );
+    // By default the smooth estimator's 4-DoF ascent follows the search: roll and pitch
+    // untouched, and the competing optima were looked for.
+    assert_eq!(report["finish"], "4-dof-gradient");
+    for asc in report["smooth"]["ascents"].as_array().unwrap() {
+        assert_eq!(
+            (asc["theta"][3].as_f64(), asc["theta"][4].as_f64()),
+            (Some(0.0), Some(0.0)),
+            "{asc}"
+        );
+    }
+    assert!(report["quality"]["optima"]["starts"].as_u64().unwrap() > 0);
     let tilt = |p: &infraloc::pose::CamFromMap| {
         let (_, pitch, roll) = p.yaw_pitch_roll();
         (pitch, roll)

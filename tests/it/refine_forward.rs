@@ -190,7 +190,7 @@ fn refine_cli_forward_camera_from_kitti_style_files() {
     );
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
-    assert_eq!(report["finish"], "4-dof");
+    assert_eq!(report["finish"], "4-dof-gradient");
     assert_eq!(report["quality"]["accepted"], true);
     // Every point of the scan was read (none lost to the reflectance scaling).
     assert_eq!(report["points_input"].as_u64(), Some(s.points.len() as u64));
