@@ -2,6 +2,9 @@
 //! ([`super::ascent`]) of the partial-volume MI, the observed information at the answer
 //! ([`super::information`]), and the σ the gate judges ([`super::quality::smooth_gate`]).
 
+// Small fixed-size matrices indexed by row and column read as the formulas do.
+#![allow(clippy::needless_range_loop)]
+
 use super::ascent::{ascend_with, Ascent, AscentConfig};
 use super::information::{information, information_covariance, Information, HESSIAN_STEP};
 use crate::localize::mi::smooth::Smooth;
