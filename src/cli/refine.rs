@@ -319,10 +319,7 @@ pub(super) fn run(mut a: Args) -> Result<()> {
     } else {
         sampling
     };
-    if a.starts == 0 {
-        return Err(Error::Invalid("--starts 0: at least one start".into()));
-    }
-    let spread = start_spread(a.start_spread.as_deref())?;
+    let spread = start_spread(a.starts, a.start_spread.as_deref())?;
     if !a.points.is_empty() && a.points.len() != a.image.len() {
         return Err(Error::Invalid(format!(
             "--image given {} times but --points {} times: pooled pairs need one point file per image, paired in order",
@@ -529,8 +526,12 @@ fn write_pose_out(
 /// One refinement's outcome: the result, its search rounds and the smooth stage's record.
 type Run = (Refinement, Vec<Round>, Option<SmoothRefinement>);
 
-/// `--start-spread`'s xy, z (m) and yaw (deg), defaults [`START_SPREAD`].
-fn start_spread(spec: Option<&str>) -> Result<[f64; 3]> {
+/// `--start-spread`'s xy, z (m) and yaw (deg), defaults [`START_SPREAD`], for `starts` starts
+/// (at least one).
+fn start_spread(starts: usize, spec: Option<&str>) -> Result<[f64; 3]> {
+    if starts == 0 {
+        return Err(Error::Invalid("--starts 0: at least one start".into()));
+    }
     let mut s = START_SPREAD;
     for (k, v) in key_values("--start-spread", spec, &["xy", "z", "yaw"], true)? {
         match k {
