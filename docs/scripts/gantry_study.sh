@@ -41,4 +41,18 @@ within_acc = sum(t["success"] for t in acc)
 print(f"| {last - first + 1} scenes | {len(trials)} | {spread('horizontal_m', 100)} | "
       f"{spread('height_m', 100)} | {spread('yaw_deg', 1)} | {100 * within / len(trials):.0f} % | "
       f"{len(trials) - len(acc)} | {within_acc} of {len(acc)} |")
+# σ against the truth, per axis (x, y, z in m, yaw in °): 3σ coverage and the median of
+# |error| / σ, over the accepted trials and over every trial that reported a σ.
+axes = ["x", "y", "z", "yaw"]
+for name, sel in (("accepted", acc), ("all with a σ", trials)):
+    sel = [t for t in sel if t.get("sigma")]
+    if not sel:
+        print(f"{name}: no σ")
+        continue
+    cov, ratio = [], []
+    for k, a in enumerate(axes):
+        r = sorted(abs(t["result"][k]) / t["sigma"][a] for t in sel if t["sigma"][a] > 0)
+        cov.append(f"{a} {100 * sum(v <= 3 for v in r) / len(sel):.0f} %")
+        ratio.append(f"{a} {r[len(r) // 2]:.2f}" if r else f"{a} -")
+    print(f"{name} ({len(sel)}): 3σ coverage {', '.join(cov)}; median |error|/σ {', '.join(ratio)}")
 PY

@@ -153,6 +153,11 @@ pub(crate) struct Trial {
     pub mi: f64,
     /// Points in the fixed set.
     pub points: usize,
+    /// The σ the refinement reported (the covariance the pose file would carry, competing
+    /// optima included), accepted or not; absent when it made none. Read against `result`
+    /// for coverage.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma: Option<crate::pose::Sigma>,
     /// Wall time of the refinement, seconds (the only field that varies between identical runs).
     pub seconds: f64,
 }
@@ -363,6 +368,7 @@ pub(crate) fn run_trial(
         reason: r.quality.reason.clone(),
         mi: r.quality.mi,
         points: r.points.1,
+        sigma: r.quality.sigma,
         seconds,
     })
 }
