@@ -6,12 +6,12 @@
 //! six renders of the same view with independent sensor noise (the frames a node pools). Each
 //! pair is a render with its own copy of the points, so n pairs carry n times the points. Start
 //! 0.4 / −0.3 / 0.2 m and 1.5° off the truth, default `SearchConfig` and `QualityConfig`; the run
-//! is what `infraloc refine` does after reading its inputs: search, quality, uncertainty
-//! (jackknife and region), in a one-thread pool so that CPU time is the work.
+//! is what `infraloc refine` does after reading its inputs: the grid search, then the smooth
+//! stage (gradient ascent, information, competing optima), in a one-thread pool so that CPU
+//! time is the work.
 //!
 //! Printed per pool size: the fastest of `REPEATS` runs' CPU seconds, the point-evaluations, and
-//! both per pair (linear growth: the per-pair figures stay flat), and the uncertainty estimate's
-//! share of the point-evaluations (the jackknife's groups, the region's probes). Also checked: a pool of one is
+//! both per pair (linear growth: the per-pair figures stay flat). Also checked: a pool of one is
 //! bit-for-bit [`refine`]'s answer (pooling costs a single pair nothing).
 //!
 //! Run: `cargo bench --bench pooled`. Figures: docs/benchmarks.md "Pooled refinement".
@@ -20,7 +20,7 @@ use infraloc::camera::CameraModel;
 use infraloc::localize::mi::objective::View;
 use infraloc::localize::mi::space::SearchConfig;
 use infraloc::localize::refine::quality::QualityConfig;
-use infraloc::localize::refine::{refine, refine_polished};
+use infraloc::localize::refine::{refine, refine_smooth};
 use infraloc::localize::synth::{ground_points, render, Texture};
 use infraloc::pose::CamFromMap;
 use nalgebra::{Point3, Vector3};
@@ -58,9 +58,9 @@ fn main() {
         points.len()
     );
     println!(
-        "| pairs | CPU s | point-evals | CPU s per pair | point-evals per pair | jackknife / region share | accepted | error (cm) |"
+        "| pairs | CPU s | point-evals | CPU s per pair | point-evals per pair | accepted | error (cm) |"
     );
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|");
     let mut single = None;
     for n in [1usize, 3, 6] {
         let views: Vec<View> = frames[..n]
@@ -76,7 +76,7 @@ fn main() {
         for _ in 0..REPEATS {
             let c0 = cpu_s();
             let (r, _) = pool
-                .install(|| refine_polished(&cam, &views, &init, &cfg, &qcfg, None, &|_| None))
+                .install(|| refine_smooth(&cam, &views, &init, &cfg, &qcfg, false))
                 .expect("pooled refinement");
             let cpu = cpu_s() - c0;
             if best.as_ref().is_none_or(|b| cpu < b.0) {
@@ -85,22 +85,10 @@ fn main() {
         }
         let (cpu, r) = best.expect("REPEATS ≥ 1");
         let evals = r.stats.point_evaluations as f64;
-        // The uncertainty's share of the work: the jackknife's groups and the region's probes.
-        let u = r
-            .quality
-            .covariance
-            .as_ref()
-            .expect("an uncertainty estimate");
-        let g = u.region.as_ref().expect("a region");
-        let region = (g.poses * g.points) as f64;
-        let jackknife =
-            ((u.poses - g.poses) * u.points) as f64 * (u.folds - 1) as f64 / u.folds as f64;
         println!(
-            "| {n} | {cpu:.2} | {evals:.3e} | {:.2} | {:.3e} | {:.0} % / {:.0} % | {} | {:.2} |",
+            "| {n} | {cpu:.2} | {evals:.3e} | {:.2} | {:.3e} | {} | {:.2} |",
             cpu / n as f64,
             evals / n as f64,
-            100.0 * jackknife / evals,
-            100.0 * region / evals,
             r.quality.accepted,
             100.0 * (r.pose.center() - truth.center()).norm()
         );

@@ -7,7 +7,7 @@
 //! (`RAYON_NUM_THREADS=2` for the node's two cores). Each run is a whole drift check, as the
 //! service makes it every `drift-check-interval-min`; the first run includes what a process
 //! computes once per camera (the validity mask). Then the search once more, taken apart stage by
-//! stage, and for comparison the jackknife uncertainty a localization adds (not part of the check).
+//! stage.
 
 use infraloc::app::{camera_and_frame, Overrides};
 use infraloc::camera::CameraModel;
@@ -16,10 +16,8 @@ use infraloc::localize::mi::objective::{Evaluator, View};
 use infraloc::localize::mi::space::{SearchConfig, MAX_LEVEL};
 use infraloc::localize::pipeline::{mi_points, Params};
 use infraloc::localize::refine::drift::{drift_search, DriftParams, DriftThresholds, DRIFT_SPEC};
-use infraloc::localize::refine::polish::PolishParams;
 use infraloc::localize::refine::quality::{assess, QualityConfig};
 use infraloc::localize::refine::search::search;
-use infraloc::localize::refine::uncertainty::{estimate, UncertaintyConfig};
 use infraloc::map::cache::load_tile;
 use infraloc::posefile::PoseFile;
 use std::path::Path;
@@ -101,23 +99,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let c3 = cpu_s();
     let q = assess(&ev, &res, &qcfg);
     let c4 = cpu_s();
-    let u = estimate(
-        &camera,
-        &views,
-        &res.pose,
-        &search_cfg,
-        &PolishParams::four_dof(),
-        None,
-        &UncertaintyConfig {
-            folds: qcfg.jackknife_folds,
-            ..Default::default()
-        },
-    )?;
-    let c5 = cpu_s();
     println!(
         "stages (CPU s): mask {:.3}, evaluator {:.3}, search {:.3} ({} poses, {:.3e} point-evaluations), \
-         assess {:.3} ({} poses); not in the check: uncertainty {:.3} ({} poses × {} points); \
-         {} of {} tile points, {} in the fixed set; accepted {}",
+         assess {:.3} ({} poses); {} of {} tile points, {} in the fixed set; accepted {}",
         c1 - c0,
         c2 - c1,
         c3 - c2,
@@ -125,9 +109,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         res.stats.point_evaluations as f64,
         c4 - c3,
         q.poses,
-        c5 - c4,
-        u.poses,
-        u.points,
         points.len(),
         all_points.len(),
         ev.n_points,

@@ -37,7 +37,6 @@ use std::time::Instant;
 #[path = "common/mod.rs"]
 mod common;
 use common::{gap_free_image, parse_preset, scene_inputs, scene_truth, SceneInputs};
-use infraloc::localize::mi::smooth::Sampling;
 
 /// Initialization inside the MI search basin (issue 4): horizontal and yaw error bounds.
 const BASIN_M: f64 = 1.0;
@@ -62,7 +61,6 @@ struct Opts {
     offset_intrinsics: bool,
     search_rounds: Option<usize>,
     fine_off_nadir: Option<f64>,
-    sampling: Sampling,
     gap_free: bool,
 }
 
@@ -71,7 +69,7 @@ fn usage() -> ! {
         "usage: pipeline_accuracy [--preset small|5mp] [--difficulty hard|easy] --seeds A..B|A,B,C \
          [--frames N] [--json OUT] [--threads N] [--top-k N] [--no-early-stop] [--no-verify] [--init-only]\n  \
          [--mi-off-nadir DEG] [--true-intrinsics] [--offset-intrinsics] [--search-rounds N] [--fine-off-nadir DEG]\n  \
-         [--sampling nearest|pv] [--gap-free]\n  \
+         [--gap-free]\n  \
          A..B is inclusive: 1..100 is 100 seeds"
     );
     std::process::exit(2)
@@ -102,7 +100,6 @@ fn opts() -> Opts {
         offset_intrinsics: false,
         search_rounds: None,
         fine_off_nadir: None,
-        sampling: Sampling::Pv,
         gap_free: false,
     };
     let mut it = std::env::args().skip(1);
@@ -132,7 +129,6 @@ fn opts() -> Opts {
             }
             "--search-rounds" => o.search_rounds = Some(val().parse().unwrap_or_else(|_| usage())),
             "--mi-off-nadir" => o.mi_off_nadir = Some(val().parse().unwrap_or_else(|_| usage())),
-            "--sampling" => o.sampling = val().parse().unwrap_or_else(|_| usage()),
             "--gap-free" => o.gap_free = true,
             _ => usage(),
         }
@@ -702,7 +698,6 @@ fn main() {
     if let Some(d) = o.mi_off_nadir {
         params.mi_max_off_nadir_deg = d;
     }
-    params.sampling = o.sampling;
     println!(
         "{:>5} {:>9} {:>8} {:>8} {:>9} {:>8} {:>8} {:>8} {:>6} {:>7} {:>7}  note",
         "seed",

@@ -8,8 +8,8 @@
 //! 4000×3000: focal length and centre scale with the width), 10.4 m above a textured ground, LiDAR
 //! ground points within 25 m on a square grid of `SPACING_M` (0.2 / 0.1 / 0.05 m ≈ 49 k / 196 k /
 //! 785 k points), start 0.4 / −0.3 / 0.2 m and 1.5° off. Timed: `localize::refine::refine` (the
-//! camera's validity mask, the evaluator, the search, the quality profiles and the jackknife
-//! uncertainty), in a rayon pool of `THREADS` (default 2). Printed: wall and process CPU seconds,
+//! camera's validity mask, the evaluator, the grid search and its checks, then the smooth stage:
+//! ascent, information and competing optima), in a rayon pool of `THREADS` (default 2). Printed: wall and process CPU seconds,
 //! the peak RSS of the refinement alone (the peak is reset after the scene is rendered, through
 //! `/proc/self/clear_refs`) and the process's peak, and the answer's error.
 

@@ -311,7 +311,6 @@ pub(crate) fn run(
             intrinsics_sigma,
             ..cfg.quality
         },
-        sampling: cfg.refine.sampling,
         ..Params::default()
     };
     let crs = tile.reflectivity.grid.crs;

@@ -26,26 +26,17 @@ pub struct Config {
     /// The service (`infraloc daemon`): control socket, schedules, drift check.
     #[serde(default)]
     pub daemon: DaemonConfig,
-    /// The MI result's gate: σ limits and how the uncertainty is estimated.
+    /// The MI result's gate: σ limits and the grid search's checks.
     #[serde(default)]
     pub quality: crate::localize::refine::quality::QualityConfig,
     /// Initialization: which matcher pairs the frame with the map.
     #[serde(default)]
     pub init: InitConfig,
-    /// The MI refinement's local estimator.
-    #[serde(default)]
-    pub refine: RefineConfig,
-}
-
-/// `[refine]`: how the MI refinement's local stage samples the image (docs/refine.md
-/// "Estimator"). The tiled grid search for the global basin is the same either way.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
-pub struct RefineConfig {
-    /// `pv` (default): after the nearest-pixel search for the basin, the partial-volume
-    /// estimator's gradient ascent, its information and sandwich σ over all six axes, the
-    /// competing optima, and its gate; `nearest`: the nearest-pixel polish and its jackknife σ.
-    pub sampling: crate::localize::mi::smooth::Sampling,
+    /// `[refine]`, the retired switch between the local estimators (there is one now): still
+    /// read, so that an older config keeps its node running, and named by [`Config::check`];
+    /// never written.
+    #[serde(default, skip_serializing)]
+    pub refine: Option<serde::de::IgnoredAny>,
 }
 
 /// Which matcher initialization uses (`[init] matcher`).
@@ -778,6 +769,18 @@ impl Config {
     /// Semantic warnings: legal but probably not what was meant.
     pub fn check(&self) -> Vec<String> {
         let mut w = Vec::new();
+        if self.refine.is_some() {
+            w.push(
+                "[refine] is retired and ignored: the smooth estimator is the only local stage; remove the section"
+                    .into(),
+            );
+        }
+        if self.quality.retired_jackknife_folds.is_some() {
+            w.push(
+                "[quality] jackknife-folds is retired and ignored: σ comes from the smooth estimator's information; remove the key"
+                    .into(),
+            );
+        }
         if self.camera.frame_count < 3 {
             w.push(format!(
                 "[camera] frame-count = {}: fewer than 3 frames cannot remove traffic by median",

@@ -5,7 +5,7 @@ use crate::camera::CameraModel;
 use crate::error::{Error, Result};
 use crate::localize::mi::objective::View;
 use crate::localize::mi::points::GroundPoint;
-use crate::localize::mi::smooth::{Pooling, Sampling};
+use crate::localize::mi::smooth::Pooling;
 use crate::localize::mi::space::{Mode, SearchConfig, SearchSpec};
 use crate::localize::mi::MiValue;
 use crate::localize::refine::local::{refine_smooth, SmoothRefinement};
@@ -13,9 +13,7 @@ use crate::localize::refine::optima::{
     disagreement as disagreement_of, self_check_starts, START_SPREAD,
 };
 use crate::localize::refine::quality::QualityConfig;
-use crate::localize::refine::{
-    finish_name, refine_polished, summed_offsets, PolishedSearch, Refinement, Round,
-};
+use crate::localize::refine::{finish_name, refine_polished, Refinement};
 use crate::map::{cache, Crs};
 use crate::points_io::read_points;
 use crate::pose::{offsets_between, CamFromMap};
@@ -75,16 +73,16 @@ pub struct Args {
     /// (left, "before") and at the refined pose (right, "after"), twice the image's width.
     #[arg(long)]
     pub overlay: Option<PathBuf>,
-    /// After the grid search, polish all six pose parameters (roll and pitch too) with the
-    /// pipeline's local Nelder–Mead and search again while the polish moves the pose, as
-    /// `localize` does (docs/refine.md "6-DoF polish"): for an initial pose whose roll/pitch are
-    /// not trusted. Tilts pivot about the ground under the camera (the points' median height)
-    /// unless the optical axis is near horizontal. Without it (and without --grid-only) the
-    /// polish after the search moves x, y, z and yaw only.
+    /// After the grid search, the smooth stage's gradient ascent and its information over all
+    /// six pose parameters (roll and pitch too; docs/refine.md "Estimator"): for an initial pose
+    /// whose roll/pitch are not trusted. Without it (and without --grid-only) the ascent moves
+    /// x, y, z and yaw only, the tilt held.
     #[arg(long, conflicts_with = "grid_only")]
     pub polish: bool,
-    /// Answer the grid search's cell, with no continuous polish after it (the seed's method:
-    /// the exhaustive argmax at the grid's step, on the point set the whole search box sees).
+    /// Answer the grid search's cell, with no local stage after it (the seed's method: the
+    /// exhaustive argmax at the grid's step, on the point set the whole search box sees), judged
+    /// by the grid's checks alone. A diagnostic of the global search: it has no σ, and its pose
+    /// file carries none.
     #[arg(long)]
     pub grid_only: bool,
     /// Largest accepted σ per axis group: xy=M,z=M,yaw=DEG,tilt=DEG (any subset; the rest keep
@@ -95,12 +93,6 @@ pub struct Args {
     /// The MI estimator (bins, objective, binning, Parzen smoothing).
     #[command(flatten)]
     pub estimator: super::estimator::EstimatorArgs,
-    /// How the local stage samples the image: `pv` (partial-volume histogram: gradient ascent
-    /// after the grid search, the information covariance and the competing optima,
-    /// docs/refine.md "Estimator") or `nearest` (the nearest pixel, Nelder–Mead polish,
-    /// jackknife σ). `--grid-only` samples the nearest pixel whatever this says.
-    #[arg(long, value_name = "pv|nearest", default_value = "pv")]
-    pub sampling: String,
     /// A truth-free self-check: refine from N starts, `--init` and N − 1 spread around it
     /// (`--start-spread`), and report whether the accepted answers agree within their combined
     /// 3σ. Answers that disagree refuse the result; otherwise the accepted answer of the highest
@@ -114,22 +106,10 @@ pub struct Args {
     pub start_spread: Option<String>,
     /// With several pairs: `per-pair` (each pair its own histogram, the objective the
     /// point-weighted sum of their MI: frames under different light need not share one
-    /// gray–reflectivity relation) or `joint` (one histogram of all pairs), in the grid search,
-    /// the polish, the jackknife and the smooth stage alike. One pair is the same either way.
+    /// gray–reflectivity relation) or `joint` (one histogram of all pairs), in the grid search
+    /// and the smooth stage alike. One pair is the same either way.
     #[arg(long, value_name = "per-pair|joint", default_value = "per-pair")]
     pub pooling: String,
-}
-
-impl Args {
-    /// What runs after the grid search: `--polish` the 6-DoF polish and search rounds,
-    /// `--grid-only` nothing, by default the 4-DoF polish ([`PolishedSearch::four_dof`]).
-    fn finish(&self) -> Option<PolishedSearch> {
-        match (self.polish, self.grid_only) {
-            (true, _) => Some(PolishedSearch::default()),
-            (false, true) => None,
-            (false, false) => Some(PolishedSearch::four_dof()),
-        }
-    }
 }
 
 fn load_gray(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
@@ -233,9 +213,9 @@ fn point_sets(a: &Args, init: &ReadPose) -> Result<(Vec<Vec<GroundPoint>>, Crs, 
     }
 }
 
-/// What `refine` prints of an accepted result: the move, the MI, the uncertainty and each
-/// polish round's move.
-fn print_result(r: &Refinement, rounds: &[Round], smooth: Option<&SmoothRefinement>) {
+/// What `refine` prints of an accepted result: the move, the MI, the uncertainty, the competing
+/// optima and the smooth stage's ascents.
+fn print_result(r: &Refinement, smooth: Option<&SmoothRefinement>) {
     let o = r.offsets;
     // Pitch and roll only move when the grid searches them or a 6-DoF polish ran.
     let tilt = if o[4] != 0.0 || o[5] != 0.0 {
@@ -287,13 +267,6 @@ fn print_result(r: &Refinement, rounds: &[Round], smooth: Option<&SmoothRefineme
             );
         }
     }
-    for round in rounds {
-        let o = summed_offsets(&round.polish);
-        println!(
-            "polish after the {} search: moved ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°, pitch {:+.3}°, roll {:+.3}°",
-            round.start, o[0], o[1], o[2], o[3], o[4], o[5]
-        );
-    }
 }
 
 /// Run `refine`.
@@ -307,17 +280,10 @@ pub(super) fn run(mut a: Args) -> Result<()> {
     let spec: SearchSpec = a.search.parse()?;
     let qcfg = quality_config(a.max_sigma.as_deref())?;
     let mode: Mode = a.mode.parse()?;
-    let sampling: Sampling = a.sampling.parse()?;
     let pooling: Pooling = a.pooling.parse()?;
     let mi = crate::localize::mi::MiConfig {
         pooling,
         ..a.estimator.config()?
-    };
-    // The grid's cell is the nearest-pixel search's: there is no local stage to sample.
-    let sampling = if a.grid_only {
-        Sampling::Nearest
-    } else {
-        sampling
     };
     let spread = start_spread(a.starts, a.start_spread.as_deref())?;
     if !a.points.is_empty() && a.points.len() != a.image.len() {
@@ -347,17 +313,6 @@ pub(super) fn run(mut a: Args) -> Result<()> {
     };
     // Computed once for the search and the polish (the image size was checked above).
     let mask = cam.valid_mask();
-    // Tilts pivot about the ground under the camera: the points' median height stands for it
-    // (only the 6-DoF polish tilts).
-    let ground = a.polish.then(|| {
-        let mut zs: Vec<f64> = point_sets.iter().flatten().map(|p| p.z).collect();
-        zs.sort_by(f64::total_cmp);
-        zs.get(zs.len() / 2).copied()
-    });
-    let ground = ground.flatten();
-    let pivot =
-        |pose: &crate::pose::CamFromMap| ground.map(|g| pose.center().z - g).filter(|d| *d > 0.5);
-    let finish = a.finish();
     let views: Vec<View<'_>> = grays
         .iter()
         .enumerate()
@@ -367,17 +322,15 @@ pub(super) fn run(mut a: Args) -> Result<()> {
             points: &point_sets[i.min(point_sets.len() - 1)],
         })
         .collect();
+    // The smooth estimator's stage after the grid search; `--grid-only` stops at the grid's
+    // cell, with its checks and no σ.
     let refine_from = |start: &CamFromMap| -> Result<Run> {
-        Ok(match sampling {
-            Sampling::Nearest => {
-                let (r, rounds) =
-                    refine_polished(&cam, &views, start, &cfg, &qcfg, finish.as_ref(), &pivot)?;
-                (r, rounds, None)
-            }
-            Sampling::Pv => {
-                let (r, s) = refine_smooth(&cam, &views, start, &cfg, &qcfg, a.polish)?;
-                (r, Vec::new(), Some(s))
-            }
+        Ok(if a.grid_only {
+            let (r, _) = refine_polished(&cam, &views, start, &cfg, &qcfg, None, &|_| None)?;
+            (r, None)
+        } else {
+            let (r, s) = refine_smooth(&cam, &views, start, &cfg, &qcfg, a.polish)?;
+            (r, Some(s))
         })
     };
     let starts = self_check_starts(&init.pose, a.starts, spread);
@@ -390,7 +343,7 @@ pub(super) fn run(mut a: Args) -> Result<()> {
         c.print();
     }
     let pick = check.as_ref().map_or(0, |c| c.answer);
-    let (mut r, rounds, smooth) = runs.swap_remove(pick);
+    let (mut r, smooth) = runs.swap_remove(pick);
     if let Some(c) = &check {
         if let Some(why) = &c.disagreement {
             r.quality.accepted = false;
@@ -400,7 +353,7 @@ pub(super) fn run(mut a: Args) -> Result<()> {
     let finish_label = match (&smooth, a.polish) {
         (Some(_), true) => "6-dof-gradient",
         (Some(_), false) => "4-dof-gradient",
-        (None, _) => finish_name(finish.as_ref()),
+        (None, _) => finish_name(None),
     };
     if let Some(path) = &a.report {
         let head = ReportHead {
@@ -408,9 +361,8 @@ pub(super) fn run(mut a: Args) -> Result<()> {
             mi,
             finish_label,
             note: init.note.as_deref(),
-            polished: finish.is_some(),
         };
-        write_report(path, &r, &rounds, smooth.as_ref(), &head, check.as_ref())?;
+        write_report(path, &r, smooth.as_ref(), &head, check.as_ref())?;
     }
     if let Some(path) = &a.overlay {
         // `gray` is the camera's size (checked above), so this cannot fail; the error is kept
@@ -430,7 +382,7 @@ pub(super) fn run(mut a: Args) -> Result<()> {
             ),
         ));
     }
-    print_result(&r, &rounds, smooth.as_ref());
+    print_result(&r, smooth.as_ref());
     if let Some(path) = &a.out {
         write_pose_out(
             path,
@@ -440,7 +392,7 @@ pub(super) fn run(mut a: Args) -> Result<()> {
             &tile_id,
             smooth.as_ref(),
             finish_label,
-            (sampling, pooling),
+            pooling,
         )?;
     }
     Ok(())
@@ -452,14 +404,12 @@ struct ReportHead<'a> {
     mi: crate::localize::mi::MiConfig,
     finish_label: &'a str,
     note: Option<&'a str>,
-    polished: bool,
 }
 
 /// The refinement's JSON report at `path`.
 fn write_report(
     path: &Path,
     r: &Refinement,
-    rounds: &[Round],
     smooth: Option<&SmoothRefinement>,
     head: &ReportHead<'_>,
     check: Option<&SelfCheck>,
@@ -481,9 +431,6 @@ fn write_report(
     if let Some(n) = head.note {
         report["notes"] = serde_json::json!([n]);
     }
-    if head.polished {
-        report["rounds"] = serde_json::to_value(rounds).unwrap_or_default();
-    }
     if let Some(c) = check {
         report["self_check"] = serde_json::to_value(c).unwrap_or_default();
     }
@@ -503,7 +450,7 @@ fn write_pose_out(
     tile_id: &str,
     smooth: Option<&SmoothRefinement>,
     finish_label: &str,
-    (sampling, pooling): (Sampling, Pooling),
+    pooling: Pooling,
 ) -> Result<()> {
     let now = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -514,17 +461,15 @@ fn write_pose_out(
     pf.stages = vec![
         serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.polish, "finish": finish_label }),
     ];
-    if smooth.is_some() {
-        pf.stages[0]["sampling"] = sampling.name().into();
-    }
     if smooth.is_some() || a.image.len() > 1 {
         pf.stages[0]["pooling"] = pooling.name().into();
     }
     crate::persist::write_atomic(path, pf.to_json().as_bytes())
 }
 
-/// One refinement's outcome: the result, its search rounds and the smooth stage's record.
-type Run = (Refinement, Vec<Round>, Option<SmoothRefinement>);
+/// One refinement's outcome: the result and the smooth stage's record (none with
+/// `--grid-only`).
+type Run = (Refinement, Option<SmoothRefinement>);
 
 /// `--start-spread`'s xy, z (m) and yaw (deg), defaults [`START_SPREAD`], for `starts` starts
 /// (at least one).
@@ -584,7 +529,7 @@ impl SelfCheck {
         let outcomes: Vec<StartOutcome> = starts
             .iter()
             .zip(runs)
-            .map(|(s, (r, _, _))| StartOutcome {
+            .map(|(s, (r, _))| StartOutcome {
                 start: offsets_between(init, s),
                 offsets: offsets_between(init, &r.pose),
                 accepted: r.quality.accepted,

@@ -119,14 +119,20 @@ fn bad_config_exits_78_with_one_line_naming_the_key() {
         err.contains("[init]") && err.contains("matcher-path"),
         "{err}"
     );
-    // An estimator the refinement does not have: one line naming the value and where it is.
-    let (code, err) = validate_edited("sampling = \"pv\"", "sampling = \"bspline\"");
-    assert_eq!(code, Some(78), "{err}");
-    assert_eq!(err.trim().lines().count(), 1, "{err}");
-    assert!(err.contains("bspline") && err.contains("bad.toml"), "{err}");
-    // The nearest-pixel local stage is a valid choice beside the default partial volume.
-    let (code, err) = validate_edited("sampling = \"pv\"", "sampling = \"nearest\"");
+    // A config of the release before the one estimator ([refine] sampling, [quality]
+    // jackknife-folds) keeps its node running: valid, and each retired key named in a warning.
+    let (code, err) = validate_edited(
+        "max-saddle-dip = 0.0",
+        "max-saddle-dip = 0.0\njackknife-folds = 8\n\n[refine]\nsampling = \"nearest\"",
+    );
     assert_eq!(code, Some(0), "{err}");
+    assert!(
+        err.lines().any(|l| l.contains("[refine] is retired"))
+            && err
+                .lines()
+                .any(|l| l.contains("jackknife-folds is retired")),
+        "{err}"
+    );
     let missing = infraloc(&["validate", "--config", "/nonexistent/infraloc.toml"]);
     assert_eq!(missing.status.code(), Some(78));
     assert!(String::from_utf8_lossy(&missing.stderr).contains("/nonexistent/infraloc.toml"));

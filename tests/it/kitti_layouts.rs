@@ -477,12 +477,7 @@ fn per_pair_pooling_over_kitti360_lands_within_the_calibrations_decimetre() {
     let tmp = tempfile::tempdir().unwrap();
     let t = tmp.path();
     let (_, pairs, start) = import_drive(&dir, t, "x=0.2,y=-0.25,z=0.08,yaw=1.5");
-    let (o, rep, answer) = refine_drive(
-        t,
-        &start,
-        &pairs,
-        &["--sampling", "pv", "--pooling", "per-pair"],
-    );
+    let (o, rep, answer) = refine_drive(t, &start, &pairs, &["--pooling", "per-pair"]);
     let e = stderr(&o);
     assert_eq!(rep["estimator"]["pooling"], "per-pair", "{rep}");
     let offsets: Vec<f64> = rep["offsets"]

@@ -298,7 +298,7 @@ fn refine_cli_end_to_end_and_bad_input() {
 }
 
 #[test]
-fn refine_cli_polish_recovers_a_wrong_tilt() {
+fn refine_cli_polish_frees_the_tilt() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
     let truth = write_scene(dir);
@@ -327,30 +327,8 @@ fn refine_cli_polish_recovers_a_wrong_tilt() {
     let (ok, err) = refine(dir, &search);
     assert!(ok, "{err}");
     let plain = rot_err(dir);
-    // The Nelder–Mead polish and its search rounds are the nearest-pixel local stage's
-    // (`--sampling nearest`); the default stage's 6-DoF ascent is checked below.
-    let (ok, err) = refine(
-        dir,
-        &[&search[..], &["--polish", "--sampling", "nearest"]].concat(),
-    );
-    assert!(ok, "{err}");
-    let polished = rot_err(dir);
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
-    // The first search's polish, then (the polish moved the tilt > 0.5°) at least one more.
-    let rounds = report["rounds"].as_array().unwrap();
-    assert_eq!(rounds[0]["start"], "init", "{report}");
-    assert!(
-        rounds[0]["polish"][0]["evaluations"].as_u64().unwrap() > 10,
-        "{report}"
-    );
-    assert!(
-        rounds.len() >= 2 && rounds[1]["start"] == "polish moved",
-        "{report}"
-    );
-    eprintln!("rotation error: 4-DoF {plain:.3}°, polished {polished:.3}°");
-    assert!(plain > 1.0, "the 4-DoF search cannot tilt: {plain}°");
-    assert!(polished < 0.3, "polished rotation error {polished}°");
+    eprintln!("rotation error: 4-DoF {plain:.3}°");
+    assert!(plain > 1.0, "the 4-DoF refinement cannot tilt: {plain}°");
     // The default stage with --polish ascends over all six axes from the grid's cell: the tilt
     // moves, and the result (accepted or refused) is one line either way.
     let out = refine_output(dir, &[&search[..], &["--polish"]].concat());
@@ -359,7 +337,11 @@ fn refine_cli_polish_recovers_a_wrong_tilt() {
     let theta = &report["smooth"]["ascents"][0]["theta"];
     let tilt_moved = theta[3].as_f64().unwrap().hypot(theta[4].as_f64().unwrap());
     assert!(tilt_moved > 0.0, "{report}");
-    if !out.status.success() {
+    if out.status.success() {
+        let polished = rot_err(dir);
+        eprintln!("rotation error: 6-DoF {polished:.3}°");
+        assert!(polished < plain, "6-DoF {polished}° vs 4-DoF {plain}°");
+    } else {
         assert_eq!(
             String::from_utf8_lossy(&out.stderr).trim().lines().count(),
             1

@@ -50,14 +50,6 @@ pub struct Params {
     /// sweep + patch stages, [`initialize`]); `Some` = PnP on that matcher's correspondences
     /// ([`crate::localize::init::matcher::initialize_with`]).
     pub matcher: Option<std::sync::Arc<dyn Matcher>>,
-    /// The MI stage's local estimator: `Nearest` ends with the nearest-pixel refinement (the
-    /// default); `Pv` runs that refinement with its searches stopping at the basin
-    /// ([`PolishedSearch::basin`]), the start's tilt polished first when PnP's tilt σ says it is
-    /// uncertain ([`PolishedSearch::settle_uncertain_tilt`]) and no jackknife after it
-    /// ([`PolishedSearch::without_jackknife`]), and follows it with the smooth estimator's 4-DoF
-    /// gradient ascent, its information over all six axes (the σ) and its gate
-    /// ([`crate::localize::refine::local::smooth_stage`]).
-    pub sampling: crate::localize::mi::smooth::Sampling,
 }
 
 /// Default of [`Params::mi_max_off_nadir_deg`]. The far ground is what pins down tilt and yaw
@@ -84,7 +76,6 @@ impl Default for Params {
             mi_max_off_nadir_deg: MI_MAX_OFF_NADIR_DEG,
             polish: Some(PolishedSearch::default()),
             matcher: None,
-            sampling: crate::localize::mi::smooth::Sampling::Pv,
         }
     }
 }
@@ -145,8 +136,8 @@ pub struct PnpDetail {
     pub inliers: usize,
     /// Its reprojection RMS, px (NaN → `null` for a verified sweep pose).
     pub rms_px: f64,
-    /// Its tilt σ from the residuals, degrees (NaN → `null` for a verified sweep pose): with
-    /// `sampling = "pv"` a start whose 3σ exceeds the re-search threshold has its tilt polished
+    /// Its tilt σ from the residuals, degrees (NaN → `null` for a verified sweep pose): a start
+    /// whose 3σ exceeds the re-search threshold has its tilt polished
     /// before the first search ([`PolishedSearch::settle_uncertain_tilt`]).
     pub tilt_sigma_deg: f64,
     /// Sweep candidates whose fine stage ran.
@@ -327,8 +318,11 @@ pub fn quality_gate(o: &Outcome) -> Result<()> {
 }
 
 /// The MI stage from `start`, whose tilt σ is `tilt_sigma_deg` (NaN: unknown): the nearest-pixel
-/// refinement ([`refine_polished`]) on the ground points around it, then, with
-/// [`Params::sampling`] `Pv`, the smooth estimator's stage.
+/// search rounds ([`refine_polished`]) on the ground points around it, stopping at the basin
+/// ([`PolishedSearch::basin`]) with the start's tilt polished first when its σ says it is
+/// uncertain ([`PolishedSearch::settle_uncertain_tilt`]), then the smooth estimator's stage: its
+/// 4-DoF gradient ascent, its information over all six axes, the competing optima (the σ) and
+/// its gate ([`crate::localize::refine::local::smooth_stage`]).
 fn refine_at(
     frame: &Frame<'_>,
     tile: &Tile,
@@ -348,16 +342,10 @@ fn refine_at(
         mask: frame.mask(),
         points: &points,
     }];
-    // Before the smooth stage the searches find the basin; the polish and the gradient ascent
-    // take it from there. A start whose tilt is uncertain has it settled first.
-    let polish = match p.sampling {
-        crate::localize::mi::smooth::Sampling::Pv => p.polish.map(|q| {
-            q.basin()
-                .without_jackknife()
-                .settle_uncertain_tilt(tilt_sigma_deg)
-        }),
-        crate::localize::mi::smooth::Sampling::Nearest => p.polish,
-    };
+    // The searches find the basin; the polish and the gradient ascent take it from there.
+    let polish = p
+        .polish
+        .map(|q| q.basin().settle_uncertain_tilt(tilt_sigma_deg));
     let (r, rounds) = refine_polished(
         camera,
         &views,
@@ -367,21 +355,16 @@ fn refine_at(
         polish.as_ref(),
         &pivot,
     )?;
-    match p.sampling {
-        crate::localize::mi::smooth::Sampling::Pv => {
-            // The polish estimated the tilt: the information covers it too.
-            let free = if polish.is_some_and(|q| q.polish.frees_tilt()) {
-                crate::localize::refine::local::SmoothFree::FourAfterSix
-            } else {
-                crate::localize::refine::local::SmoothFree::Four
-            };
-            let (r, _) = crate::localize::refine::local::smooth_stage(
-                camera, &views, start, r, &p.search, &p.quality, free,
-            )?;
-            Ok((r, rounds))
-        }
-        crate::localize::mi::smooth::Sampling::Nearest => Ok((r, rounds)),
-    }
+    // The polish estimated the tilt: the information covers it too.
+    let free = if polish.is_some_and(|q| q.polish.frees_tilt()) {
+        crate::localize::refine::local::SmoothFree::FourAfterSix
+    } else {
+        crate::localize::refine::local::SmoothFree::Four
+    };
+    let (r, _) = crate::localize::refine::local::smooth_stage(
+        camera, &views, start, r, &p.search, &p.quality, free,
+    )?;
+    Ok((r, rounds))
 }
 
 /// [`localize`] without the quality gate: the outcome whatever the gate would say, so that an

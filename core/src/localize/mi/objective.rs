@@ -33,7 +33,7 @@ pub struct View<'a> {
     pub points: &'a [GroundPoint],
 }
 
-/// Jackknife groups of an evaluator's level-0 points ([`Evaluator::folds`]).
+/// Groups of an evaluator's level-0 points ([`Evaluator::folds`]), scored in parallel.
 #[derive(Debug, Clone)]
 pub(crate) struct Folds {
     parts: Vec<Vec<PreparedPoints>>,
@@ -420,7 +420,7 @@ impl Evaluator {
         pooled_information(&self.histograms_at(level, &pose, scratch), self.mi.parzen)
     }
 
-    /// The level-0 point sets cut into `k` jackknife groups: each view's fixed set, in Morton
+    /// The level-0 point sets cut into `k` groups: each view's fixed set, in Morton
     /// order, in `k` contiguous runs (compact patches of ground); group j is run j of every view.
     /// Indexed `[view][group]`.
     pub(crate) fn folds(&self, k: usize) -> Folds {
@@ -438,45 +438,6 @@ impl Evaluator {
                 .collect(),
             k,
         }
-    }
-
-    /// Level-0 histograms of the pose at `offsets`, per group of `folds` the slots' histograms
-    /// (indexed `[group][slot]`); summed over the groups they are what [`Evaluator::value_at`]
-    /// scores.
-    pub(crate) fn fold_histograms(
-        &self,
-        folds: &Folds,
-        offsets: &[f64; 6],
-        scratch: &mut Scratch,
-    ) -> Vec<Vec<JointHist>> {
-        self.groups_into(folds, offsets, folds.k, Some, scratch)
-    }
-
-    /// Level-0 slots' histograms at `offsets` into `outputs` sets: group j of `folds` goes to set
-    /// `into(j)`, or nowhere when it is `None`.
-    fn groups_into(
-        &self,
-        folds: &Folds,
-        offsets: &[f64; 6],
-        outputs: usize,
-        into: impl Fn(usize) -> Option<usize>,
-        scratch: &mut Scratch,
-    ) -> Vec<Vec<JointHist>> {
-        let lv = &self.levels[0];
-        let pose = PoseF32::new(
-            &pose_at_pivot(&self.init, offsets, self.grid.pivot),
-            self.origin,
-        );
-        let mut out = vec![self.empty_slots(); outputs];
-        for (v, (part, groups)) in lv.parts.iter().zip(&folds.parts).enumerate() {
-            for (j, pts) in groups.iter().enumerate() {
-                if let Some(o) = into(j) {
-                    let h = &mut out[o][self.slot(v)];
-                    accumulate(pts, &pose, &lv.cam, &part.img, h, scratch);
-                }
-            }
-        }
-        out
     }
 
     /// This evaluator's level 0 on every `stride`-th point of each view's fixed set (Morton
@@ -549,21 +510,6 @@ impl Evaluator {
                 },
             );
         pooled_information(&hs, self.mi.parzen)
-    }
-
-    /// The level-0 histograms (per slot) at `offsets` of every group of `folds` but `left_out`,
-    /// in one pass: the sum of those groups' [`Evaluator::fold_histograms`] (counts are
-    /// integers, so the order of the sum cannot change them), without scoring the group left out.
-    pub(crate) fn histograms_without(
-        &self,
-        folds: &Folds,
-        left_out: usize,
-        offsets: &[f64; 6],
-        scratch: &mut Scratch,
-    ) -> Vec<JointHist> {
-        let mut sets =
-            self.groups_into(folds, offsets, 1, |j| (j != left_out).then_some(0), scratch);
-        sets.swap_remove(0)
     }
 
     /// Level 0 of every view (its binned image and fixed point set), the points' origin and the

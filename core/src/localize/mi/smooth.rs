@@ -66,15 +66,14 @@ fn floor(x: f64) -> f64 {
     }
 }
 
-/// How a projected point samples the image: the local refinement's and the surface plots'
-/// estimator.
+/// How a projected point samples the image, for surface plots of either objective the
+/// refinement uses: the grid search's nearest pixel, or the smooth stage's partial volume.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
 pub enum Sampling {
-    /// Nearest-pixel joint histogram (the grid search's kernel), Nelder–Mead polish.
+    /// Nearest-pixel joint histogram (the grid search's kernel).
     Nearest,
-    /// Partial-volume joint histogram ([`Smooth`]), gradient ascent, information covariance and
-    /// the competing optima (the default).
+    /// Partial-volume joint histogram ([`Smooth`]), the local stage's.
     #[default]
     Pv,
 }

@@ -306,10 +306,10 @@ pub fn theta_between(from: &CamFromMap, to: &CamFromMap) -> [f64; 6] {
     [d.x, d.y, d.z, r.x, r.y, r.z]
 }
 
-/// The reported covariance when the information gives it (no jackknife ran): the patch
+/// The reported covariance of the smooth estimator's answer: the patch
 /// sandwich's, each axis scaled up to the σ the gate judged (`judged`, [`judged_sigma`];
 /// correlations kept), widened to the Student-t 3σ quantile of its K − 1 degrees of freedom
-/// (the frames' count − 1 at most where a frame sandwich exists) as the jackknife's is, then the
+/// (the frames' count − 1 at most where a frame sandwich exists), then the
 /// intrinsics' part added (`deltas`, [`crate::localize::refine::uncertainty::intrinsics_deltas`]).
 /// `gate_sigma` is `judged`.
 pub fn information_covariance(
@@ -353,16 +353,10 @@ pub fn information_covariance(
         units: info.units.clone(),
         sigma: (0..d).map(|i| matrix[i][i].max(0.0).sqrt()).collect(),
         matrix,
-        group_optima: Vec::new(),
-        peak: true,
-        folds: 0,
         intrinsics: Vec::new(),
         points: info.points,
         poses: info.evaluations,
-        jackknife: Vec::new(),
-        region: None,
         gate_sigma: judged.to_vec(),
-        source: crate::localize::refine::uncertainty::CovarianceSource::Information,
     };
     if let Some(deltas) = deltas {
         crate::localize::refine::uncertainty::add_intrinsics(&mut u, deltas);

@@ -14,8 +14,6 @@ use serde::Serialize;
 /// What [`refine_smooth`] answers beside the grid search's [`Refinement`].
 #[derive(Debug, Clone, Serialize)]
 pub struct SmoothRefinement {
-    /// Sampling (`pv`) and pooling of the local stage.
-    pub sampling: crate::localize::mi::smooth::Sampling,
     /// Pooling of the pairs.
     pub pooling: crate::localize::mi::smooth::Pooling,
     /// The local ascents, one per round (a round that ended on its box's edge starts another,
@@ -57,6 +55,29 @@ pub fn refine_smooth(
         SmoothFree::Four
     };
     smooth_stage(cam, views, init, r, cfg, qcfg, free)
+}
+
+/// Refine `init` against one frame `gray` (row-major, camera size; the validity mask is the
+/// camera's image circle) and its ground `points`, over x, y, z and yaw: [`refine_smooth`] on one
+/// view. Errors (one line) on empty/invisible/non-finite points, image size ≠ camera size, a bad
+/// search spec or a non-finite value or gradient. A result the gate refuses is returned with
+/// `quality.accepted = false`; the caller decides whether to write it.
+pub fn refine(
+    cam: &crate::camera::Camera,
+    gray: &[u8],
+    points: &[crate::localize::mi::points::GroundPoint],
+    init: &CamFromMap,
+    cfg: &crate::localize::mi::space::SearchConfig,
+    qcfg: &super::quality::QualityConfig,
+) -> crate::error::Result<super::rounds::Refinement> {
+    use crate::camera::CameraModel;
+    let mask = cam.valid_mask();
+    let views = [crate::localize::mi::objective::View {
+        gray,
+        mask: &mask,
+        points,
+    }];
+    refine_smooth(cam, &views, init, cfg, qcfg, false).map(|(r, _)| r)
 }
 
 /// The axes of [`smooth_stage`]: which its ascent moves and which its information covers.
@@ -103,11 +124,10 @@ impl SmoothFree {
 /// The smooth estimator's stage after a nearest-pixel refinement `r` that started at `init`:
 /// its gradient ascent from `r`'s pose over the axes of `free` (in the box of [`AscentConfig`],
 /// re-centred while it ends on the edge, [`ASCENT_ROUNDS`] at most), the observed information at
-/// the answer, and the gate of [`refine_smooth`]. `r` keeps its grid checks and its jackknife σ
-/// when it has one; its pose, offsets and verdict become the stage's. When `r` has no σ (the
-/// node's path, [`super::rounds::PolishedSearch::without_jackknife`]), the reported covariance is
-/// the information's ([`information_covariance`]). The pairs pool as `cfg.mi.pooling` says, as in
-/// the grid search.
+/// the answer, and the gate of [`refine_smooth`]. `r` keeps its grid checks; its pose, offsets
+/// and verdict become the stage's, and its covariance the information's
+/// ([`information_covariance`]) with the competing optima's spread. The pairs pool as
+/// `cfg.mi.pooling` says, as in the grid search.
 pub fn smooth_stage(
     cam: &crate::camera::Camera,
     views: &[crate::localize::mi::objective::View<'_>],
@@ -180,12 +200,12 @@ pub fn smooth_stage(
     r.pose = pose;
     r.offsets = crate::pose::offsets_between(init, &pose);
     // The σ the gate judges, once: the gate refuses on it and the report is widened to it. The
-    // local part (bound, sandwiches, jackknife, floor) shapes the reported covariance; the
+    // local part (bound, sandwiches, floor) shapes the reported covariance; the
     // optima the data cannot tell apart add their spread to both.
     let local_judged = information
         .as_ref()
         .ok()
-        .map(|info| judged_sigma(&r.quality, info, cfg));
+        .map(|info| judged_sigma(info, cfg));
     let judged = match (&information, &local_judged) {
         (Ok(info), Some(j)) => Some(
             info.axes
@@ -207,17 +227,16 @@ pub fn smooth_stage(
         optima.as_ref(),
     );
     if let (Ok(info), Some(local_judged), Some(judged)) = (&information, &local_judged, &judged) {
-        if r.quality.covariance.is_some() {
-            report_judged(&mut r.quality, info, local_judged);
-        } else {
-            // No jackknife ran: the information's covariance is the answer's, with the camera
-            // file's intrinsics uncertainty added as the jackknife's is.
-            let deltas = qcfg.intrinsics_sigma.as_ref().map(|s| {
-                crate::localize::refine::uncertainty::intrinsics_deltas(cam, views, &pose, s)
-            });
-            let u = information_covariance(info, local_judged, deltas.as_deref());
-            r.quality.covariance = Some(u);
-        }
+        // The information's covariance, with the camera file's intrinsics uncertainty added.
+        let deltas = qcfg
+            .intrinsics_sigma
+            .as_ref()
+            .map(|s| crate::localize::refine::uncertainty::intrinsics_deltas(cam, views, &pose, s));
+        r.quality.covariance = Some(information_covariance(
+            info,
+            local_judged,
+            deltas.as_deref(),
+        ));
         if let Some(u) = r.quality.covariance.as_mut() {
             if let Some(o) = &optima {
                 add_spread(u, o);
@@ -226,6 +245,13 @@ pub fn smooth_stage(
                 u.gate_sigma = judged.clone();
             }
             r.quality.sigma = Some(super::quality::Sigma::of(u));
+        }
+        // Each part was finite on its own; their sum is checked too, as the pose file and the
+        // gate would carry it.
+        if r.quality.accepted && !r.quality.covariance.as_ref().is_some_and(|u| u.is_finite()) {
+            r.quality.accepted = false;
+            r.quality.reason = Some("uncertainty: the reported covariance is not finite".into());
+            r.quality.refused_by = Some(super::quality::GateCheck::Uncertain);
         }
     }
     r.quality.optima = optima;
@@ -238,7 +264,6 @@ pub fn smooth_stage(
     Ok((
         r,
         SmoothRefinement {
-            sampling: crate::localize::mi::smooth::Sampling::Pv,
             pooling,
             ascents,
             mi,
@@ -327,173 +352,31 @@ fn add_spread(
 }
 
 /// The σ per axis of `info` that the gate judges: the largest of the Cramér–Rao bound, the
-/// patch sandwich, the frame sandwich (when there is one), the grid's jackknife σ in `q`
-/// ([`jackknife_judged`], 0 without one) and the jackknife's floor, half the search's finest
-/// step ([`crate::localize::refine::uncertainty::sigma_floor`]: where a jackknife ran, its σ is
-/// floored there already); ∞ where the jackknife found no peak (NaN).
-fn judged_sigma(
-    q: &super::quality::Quality,
-    info: &Information,
-    cfg: &crate::localize::mi::space::SearchConfig,
-) -> Vec<f64> {
-    let judged_jack = q.jackknife_judged();
-    let jack = |axis: &str| judged_jack.as_ref().map_or(0.0, |s| s.axis(axis));
+/// patch sandwich, the frame sandwich (when there is one) and the floor, half the search's
+/// finest step ([`crate::localize::refine::uncertainty::sigma_floor`]).
+fn judged_sigma(info: &Information, cfg: &crate::localize::mi::space::SearchConfig) -> Vec<f64> {
     let frame = |i: usize| info.frame_sigma.as_ref().map_or(0.0, |f| f[i]);
     info.axes
         .iter()
         .zip(info.sigma.iter().zip(&info.sandwich_sigma))
         .enumerate()
         .map(|(i, (a, (s, w)))| {
-            let j = jack(a);
-            if j.is_nan() {
-                f64::INFINITY
-            } else {
-                let floor = crate::localize::refine::uncertainty::sigma_floor(cfg, a);
-                s.max(*w).max(j).max(frame(i)).max(floor)
-            }
+            let floor = crate::localize::refine::uncertainty::sigma_floor(cfg, a);
+            s.max(*w).max(frame(i)).max(floor)
         })
         .collect()
-}
-
-/// Widen the reported covariance of `q` (the jackknife's, with the intrinsics' part) so that no
-/// axis's σ is below `judged`, the σ the gate judged per axis of `info` ([`judged_sigma`]): an
-/// axis whose sandwich or bound exceeds the jackknife has its row and column scaled up
-/// (correlations kept). What the pose file says is then at least what the gate accepted on.
-fn report_judged(q: &mut super::quality::Quality, info: &Information, judged: &[f64]) {
-    let Some(u) = q.covariance.as_mut() else {
-        return;
-    };
-    for (axis, want) in info.axes.iter().zip(judged) {
-        let Some(k) = u.axes.iter().position(|a| a == axis) else {
-            continue;
-        };
-        let have = u.sigma[k];
-        if !(want.is_finite() && have.is_finite() && *want > have && have > 0.0) {
-            continue;
-        }
-        let f = want / have;
-        for (i, row) in u.matrix.iter_mut().enumerate() {
-            for (j, v) in row.iter_mut().enumerate() {
-                if i == k {
-                    *v *= f;
-                }
-                if j == k {
-                    *v *= f;
-                }
-            }
-        }
-        u.sigma[k] = *want;
-    }
-    q.sigma = Some(super::quality::Sigma::of(u));
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// An accepted grid quality with the jackknife's estimate `covariance` (and its σ), if any.
-    fn accepted_quality(
-        covariance: Option<super::super::uncertainty::Uncertainty>,
-    ) -> super::super::quality::Quality {
-        super::super::quality::Quality {
-            mi: 0.3,
-            nmi: 1.0,
-            points: 1000,
-            background: 0.1,
-            second_peak_ratio: None,
-            second_peak_contrast: None,
-            second_peak_offset: None,
-            axes: Vec::new(),
-            poses: 0,
-            sigma: covariance.as_ref().map(super::super::quality::Sigma::of),
-            covariance,
-            information: None,
-            optima: None,
-            accepted: true,
-            reason: None,
-            refused_by: None,
-        }
-    }
-
-    /// The pose file's σ is at least the σ the gate judged: an axis whose sandwich exceeds the
-    /// jackknife is widened to it with its correlations kept; the others are left alone.
-    #[test]
-    fn the_reported_sigma_is_at_least_the_judged_one() {
-        use super::super::uncertainty::Uncertainty;
-        let axes: Vec<String> = ["x", "y", "z", "yaw"].map(String::from).to_vec();
-        let sd = [0.01, 0.01, 0.02, 0.03];
-        let matrix: Vec<Vec<f64>> = (0..4)
-            .map(|i| {
-                (0..4)
-                    .map(|j| match (i, j) {
-                        _ if i == j => sd[i] * sd[i],
-                        (0, 3) | (3, 0) => 0.5 * sd[0] * sd[3],
-                        _ => 0.0,
-                    })
-                    .collect()
-            })
-            .collect();
-        let u = Uncertainty {
-            axes: axes.clone(),
-            units: ["m", "m", "m", "deg"].map(String::from).to_vec(),
-            sigma: sd.to_vec(),
-            matrix,
-            group_optima: Vec::new(),
-            peak: true,
-            folds: 8,
-            intrinsics: Vec::new(),
-            points: 1000,
-            poses: 0,
-            jackknife: Vec::new(),
-            region: None,
-            gate_sigma: vec![0.008, 0.008, 0.015, 0.025],
-            source: crate::localize::refine::uncertainty::CovarianceSource::Jackknife,
-        };
-        let mut q = accepted_quality(Some(u));
-        let diag = |s: [f64; 4]| -> Vec<Vec<f64>> {
-            (0..4)
-                .map(|i| {
-                    (0..4)
-                        .map(|j| if i == j { s[i] * s[i] } else { 0.0 })
-                        .collect()
-                })
-                .collect()
-        };
-        let info = Information {
-            axes,
-            units: ["m", "m", "m", "deg"].map(String::from).to_vec(),
-            sigma: vec![0.001; 4],
-            matrix: diag([0.001; 4]),
-            points: 1000,
-            evaluations: 9,
-            sandwich_sigma: vec![0.03, 0.005, 0.001, 0.01],
-            sandwich_matrix: diag([0.03, 0.005, 0.001, 0.01]),
-            clusters: 32,
-            frame_sigma: None,
-            frame_matrix: None,
-        };
-        let judged = judged_sigma(
-            &q,
-            &info,
-            &crate::localize::mi::space::SearchConfig::default(),
-        );
-        report_judged(&mut q, &info, &judged);
-        let u = q.covariance.as_ref().unwrap();
-        let s = q.sigma.unwrap();
-        assert_eq!((s.x, s.y, s.z, s.yaw), (0.03, 0.01, 0.02, 0.03), "{s:?}");
-        assert!((u.matrix[0][0] - 0.03f64.powi(2)).abs() < 1e-15);
-        let rho = u.matrix[0][3] / (u.sigma[0] * u.sigma[3]);
-        assert!((rho - 0.5).abs() < 1e-12, "{rho}");
-        assert_eq!(u.matrix[1][1], 1e-4);
-    }
-
-    /// Without a jackknife the reported covariance is the sandwich's shape at the judged σ:
+    /// The reported covariance is the sandwich's shape at the judged σ:
     /// every axis at least its judged σ (the search's floor included), correlations kept, widened
     /// by the sandwich's Student-t factor, and the intrinsics' part added on top.
     #[test]
-    fn the_information_s_covariance_stands_where_no_jackknife_ran() {
+    fn the_reported_covariance_is_the_sandwich_s_shape_at_the_judged_sigma() {
         use super::super::quality::Sigma;
-        use super::super::uncertainty::CovarianceSource;
         let axes: Vec<String> = ["x", "y", "z", "yaw", "pitch", "roll"]
             .map(String::from)
             .to_vec();
@@ -524,17 +407,11 @@ mod tests {
             frame_sigma: None,
             frame_matrix: None,
         };
-        let q = accepted_quality(None);
-        let judged = judged_sigma(
-            &q,
-            &info,
-            &crate::localize::mi::space::SearchConfig::default(),
-        );
+        let judged = judged_sigma(&info, &crate::localize::mi::space::SearchConfig::default());
         // The default search's floor: half of 2 cm and of 0.05°.
         assert_eq!(judged, vec![0.01, 0.02, 0.01, 0.025, 0.05, 0.03]);
         let t = (super::super::uncertainty::student_t_3sigma(31) / 3.0).powi(2);
         let u = information_covariance(&info, &judged, None);
-        assert_eq!(u.source, CovarianceSource::Information);
         assert_eq!(u.gate_sigma, judged);
         for i in 0..6 {
             assert!(

@@ -1,7 +1,8 @@
-//! Refinement (the seed's step 2): the MI grid [`search`] over the objective of
-//! `localize::mi`, the local 6-DoF [`polish`], the [`quality`] gate, the [`uncertainty`] of the
-//! answer, the [`rounds`] that alternate search and polish, the smooth estimator's [`local`]
-//! stage (its [`ascent`] and the [`information`] covariance), and the service's [`drift`] check.
+//! Refinement (the seed's step 2): the global part, the nearest-pixel MI grid [`search`] over the
+//! objective of `localize::mi`, the Nelder–Mead [`polish`] and the [`rounds`] that alternate
+//! them; the smooth estimator's [`local`] stage, the one local stage and σ source (its
+//! [`ascent`], the [`information`] covariance and the competing [`optima`]); the [`quality`]
+//! gates, the reported [`uncertainty`], and the service's [`drift`] check.
 
 pub mod ascent;
 pub mod drift;
@@ -14,4 +15,5 @@ pub mod rounds;
 pub mod search;
 pub mod uncertainty;
 
+pub use local::{refine, refine_smooth};
 pub use rounds::*;

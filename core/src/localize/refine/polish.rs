@@ -94,6 +94,7 @@ pub(crate) struct Polished {
 /// Maximise `f` from the origin with Nelder–Mead (standard coefficients: reflection 1,
 /// expansion 2, contraction ½, shrink ½), every vertex clamped to ±`bound`. A held parameter
 /// ([`PolishParams::is_free`] false) stays at its start; the simplex spans the others.
+#[cfg(test)]
 pub(crate) fn nelder_mead(f: &mut dyn FnMut(&[f64; 6]) -> f64, p: &PolishParams) -> Polished {
     nelder_mead_from(f, p, [0.0; 6])
 }

@@ -25,7 +25,7 @@ use crate::localize::mi::objective::Evaluator;
 use crate::localize::mi::objective::Scored;
 use crate::localize::mi::space::{Cell, AXES};
 use crate::localize::refine::search::SearchResult;
-use crate::localize::refine::uncertainty::{Uncertainty, UncertaintyConfig, REGION_Z};
+use crate::localize::refine::uncertainty::Uncertainty;
 pub use crate::pose::Sigma;
 use serde::{Deserialize, Serialize};
 
@@ -62,8 +62,10 @@ pub struct QualityConfig {
     pub max_sigma_yaw_deg: f64,
     /// Largest accepted σ of pitch and roll when they are estimated (deg).
     pub max_sigma_tilt_deg: f64,
-    /// Jackknife groups of the uncertainty estimate ([`crate::localize::refine::uncertainty`]).
-    pub jackknife_folds: usize,
+    /// `jackknife-folds`, a key of the retired nearest-pixel σ: still read, so that an older
+    /// config keeps its node running, and named by `validate`'s warnings; never written.
+    #[serde(rename = "jackknife-folds", skip_serializing)]
+    pub retired_jackknife_folds: Option<serde::de::IgnoredAny>,
     /// The camera file's stated intrinsics uncertainty, carried into the covariance
     /// ([`crate::localize::refine::uncertainty::intrinsics_deltas`]); set from the camera file, not a config key.
     #[serde(skip)]
@@ -84,7 +86,7 @@ impl Default for QualityConfig {
             max_sigma_z_m: 0.05,
             max_sigma_yaw_deg: 0.15,
             max_sigma_tilt_deg: 0.5,
-            jackknife_folds: 8,
+            retired_jackknife_folds: None,
             intrinsics_sigma: None,
         }
     }
@@ -113,12 +115,6 @@ impl QualityConfig {
             if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
                 return Err(format!("{key} = {v}: must lie in 0..1"));
             }
-        }
-        if !(2..=64).contains(&self.jackknife_folds) {
-            return Err(format!(
-                "jackknife-folds = {}: must lie in 2..64",
-                self.jackknife_folds
-            ));
         }
         if !(1..=1000).contains(&self.profile_half_steps)
             || !(1..=self.profile_half_steps).contains(&self.fit_half_steps)
@@ -238,126 +234,9 @@ pub struct Quality {
 }
 
 impl Sigma {
-    /// σ of a named axis (x, y, z, yaw, pitch, roll); 0 for a tilt that was not estimated.
-    pub(crate) fn axis(&self, axis: &str) -> f64 {
-        match axis {
-            "x" => self.x,
-            "y" => self.y,
-            "z" => self.z,
-            "yaw" => self.yaw,
-            "pitch" => self.pitch.unwrap_or(0.0),
-            _ => self.roll.unwrap_or(0.0),
-        }
-    }
-
     /// From an estimate (axes it did not estimate are 0 for x..yaw, absent for the tilts).
     pub(crate) fn of(u: &Uncertainty) -> Self {
         Self::by_axis(|a| u.sigma_of(a))
-    }
-
-    /// The σ the gate judges ([`Uncertainty::gate_sigma`]); the reported σ when the estimate
-    /// has none.
-    pub(crate) fn judged(u: &Uncertainty) -> Self {
-        if u.gate_sigma.len() != u.axes.len() {
-            return Self::of(u);
-        }
-        Self::by_axis(|a| u.axes.iter().position(|x| x == a).map(|i| u.gate_sigma[i]))
-    }
-}
-
-/// Attach the uncertainty estimate to `q` and apply the σ part of the gate: a result the other
-/// checks accepted is refused when the objective has no peak over all free axes together, when
-/// the covariance is not finite, or when an axis's σ exceeds its limit. The reason names the axis,
-/// its σ and the limit's key.
-pub(crate) fn apply_uncertainty(q: &mut Quality, u: Uncertainty, cfg: &QualityConfig) {
-    let reported = Sigma::of(&u);
-    let sigma = Sigma::judged(&u);
-    if q.accepted {
-        let limits = [
-            ("x", sigma.x, cfg.max_sigma_xy_m, "max-sigma-xy-m"),
-            ("y", sigma.y, cfg.max_sigma_xy_m, "max-sigma-xy-m"),
-            ("z", sigma.z, cfg.max_sigma_z_m, "max-sigma-z-m"),
-            ("yaw", sigma.yaw, cfg.max_sigma_yaw_deg, "max-sigma-yaw-deg"),
-            (
-                "pitch",
-                sigma.pitch.unwrap_or(0.0),
-                cfg.max_sigma_tilt_deg,
-                "max-sigma-tilt-deg",
-            ),
-            (
-                "roll",
-                sigma.roll.unwrap_or(0.0),
-                cfg.max_sigma_tilt_deg,
-                "max-sigma-tilt-deg",
-            ),
-        ];
-        let open = u
-            .region
-            .as_ref()
-            .and_then(|r| Some((r.open.clone()?, r.open_reach.clone()?, r.z)));
-        let reason = if let Some((ray, reach, z)) = open {
-            // The σ each axis of the ray has at least: its reach over 2z.
-            let bounds: Vec<String> = reach
-                .iter()
-                .zip(&u.axes)
-                .filter(|(v, _)| **v != 0.0)
-                .map(|(v, axis)| format!("σ {axis} ≥ {}", axis_value(axis, v.abs() / (2.0 * z), 1)))
-                .collect();
-            Some(format!(
-                "no peak: along {ray} the MI cannot tell the answer from a pose {} away within its noise (a flat valley): {}, unbounded",
-                describe_offset(&reach, &u.axes),
-                bounds.join(", ")
-            ))
-        } else if !u.peak {
-            Some(
-                "no peak: without one patch of the points the MI optimum walks to the edge of its ±15 cm / ±0.5° box (a flat valley); σ is unbounded"
-                    .to_string(),
-            )
-        } else if !u.is_finite() {
-            Some("uncertainty: the covariance is not finite".to_string())
-        } else {
-            limits
-                .iter()
-                .find(|(_, s, lim, _)| *s > *lim)
-                .map(|(axis, s, lim, key)| {
-                    let (v, l, unit) = if *axis == "yaw" || *axis == "pitch" || *axis == "roll" {
-                        (*s, *lim, "°")
-                    } else {
-                        (100.0 * s, 100.0 * lim, " cm")
-                    };
-                    format!(
-                        "uncertain: σ {axis} {v:.2}{unit} exceeds the limit {l:.2}{unit} ([quality] {key}); {}",
-                        sigma.describe()
-                    )
-                })
-        };
-        if let Some(r) = reason {
-            q.accepted = false;
-            q.reason = Some(r);
-            q.refused_by = Some(GateCheck::Uncertain);
-        }
-    }
-    q.sigma = Some(reported);
-    q.covariance = Some(u);
-}
-
-/// An offset as "30 cm, 0.90°" (its non-zero components, lengths in cm, angles in degrees).
-fn describe_offset(v: &[f64], axes: &[String]) -> String {
-    v.iter()
-        .zip(axes)
-        .filter(|(v, _)| **v != 0.0)
-        .map(|(v, axis)| axis_value(axis, v.abs(), 0))
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
-/// A value of `axis` for people: x, y, z (m) in centimetres with `cm_decimals`, angles in degrees
-/// with two decimals.
-fn axis_value(axis: &str, v: f64, cm_decimals: usize) -> String {
-    if axis == "x" || axis == "y" || axis == "z" {
-        format!("{:.*} cm", cm_decimals, 100.0 * v)
-    } else {
-        format!("{v:.2}°")
     }
 }
 
@@ -685,37 +564,9 @@ fn gate(
     })
 }
 
-impl QualityConfig {
-    /// The uncertainty region's reach for this gate's σ limits, as
-    /// [`UncertaintyConfig::region_bound`] explains.
-    pub(crate) fn region_bound(&self) -> [f64; 6] {
-        let f = 2.0 * REGION_Z * 1.5;
-        let (xy, z) = (self.max_sigma_xy_m, self.max_sigma_z_m);
-        let (yaw, tilt) = (self.max_sigma_yaw_deg, self.max_sigma_tilt_deg);
-        [f * xy, f * xy, f * z, f * yaw, f * tilt, f * tilt]
-    }
-}
-
-impl Default for UncertaintyConfig {
-    fn default() -> Self {
-        UncertaintyConfig {
-            folds: 8,
-            region_bound: QualityConfig::default().region_bound(),
-        }
-    }
-}
-
-impl Quality {
-    /// The grid's jackknife σ as its own gate judges it (the estimate itself, before the reported
-    /// σ is widened by the intrinsics' uncertainty), if it has one.
-    pub(crate) fn jackknife_judged(&self) -> Option<Sigma> {
-        self.covariance.as_ref().map(Sigma::judged).or(self.sigma)
-    }
-}
-
 /// The smooth stage's gate ([`crate::localize::refine::local::smooth_stage`]) on `q`: the grid's global checks stand, its local ones are replaced
 /// by `information`'s (a finite, negative-definite Hessian; the largest of the bound's, the
-/// sandwiches', the jackknife's where one ran, and the search's floor within the limits).
+/// sandwiches' and the search's floor, with the competing optima's spread, within the limits).
 /// `judged`: `judged_sigma` of the local stage of `information` when it is `Ok` (unread otherwise).
 pub(crate) fn smooth_gate(
     q: &mut Quality,
@@ -752,10 +603,8 @@ pub(crate) fn smooth_gate(
                     _ => (qcfg.max_sigma_tilt_deg, "tilt"),
                 };
                 // The Cramér–Rao σ counts every point as independent; on real frames it was
-                // 40–90× smaller than the answers' scatter (docs/refine.md "Sampling"). The gate
-                // judges the largest of it, the sandwich σ, the grid's jackknife σ where one ran
-                // (∞ where it found no peak) and the search's floor.
-                let judged_jack = q.jackknife_judged();
+                // 40–90× smaller than the answers' scatter. The gate judges the largest of it,
+                // the sandwich σs and the search's floor, with the competing optima's spread.
                 if let Some((i, (lim, key))) = info
                     .axes
                     .iter()
@@ -766,7 +615,7 @@ pub(crate) fn smooth_gate(
                     let axis = &info.axes[i];
                     q.accepted = false;
                     q.reason = Some(format!(
-                        "σ {axis} {:.4} {} over the limit {key}={lim} (information σ {:.4}, sandwich σ {:.4}{}{}{})",
+                        "σ {axis} {:.4} {} over the limit {key}={lim} (information σ {:.4}, sandwich σ {:.4}{}{})",
                         judged[i],
                         info.units[i],
                         info.sigma[i],
@@ -774,9 +623,6 @@ pub(crate) fn smooth_gate(
                         info.frame_sigma
                             .as_ref()
                             .map_or(String::new(), |f| format!(", frame σ {:.4}", f[i])),
-                        judged_jack
-                            .as_ref()
-                            .map_or(String::new(), |s| format!(", jackknife σ {:.4}", s.axis(axis))),
                         optima
                             .and_then(|o| o.describe().map(|d| (o.sigma(axis), d)))
                             .map_or(String::new(), |(s, d)| format!(", optima σ {s:.4}; {d}"))

@@ -1,14 +1,14 @@
-//! One-call MI refinement (pure): prepare, search, assess. The CLI (`infraloc refine`) and the
-//! pipeline call this; they only do the file I/O around it.
+//! The global part of the refinement (pure): the nearest-pixel grid search for the basin, the
+//! Nelder–Mead polishes and the rounds that alternate them. Its answer carries the grid's checks
+//! but no σ: the smooth estimator's stage ([`crate::localize::refine::local`]) takes it from
+//! there and gives the covariance.
 
-use crate::camera::{Camera, CameraModel};
+use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::localize::mi::objective::{Evaluator, ImageCache, SearchStats, View};
-use crate::localize::mi::points::GroundPoint;
 use crate::localize::mi::space::{Mode, SearchConfig, MAX_LEVEL};
-use crate::localize::refine::quality::{apply_uncertainty, assess, Quality, QualityConfig};
+use crate::localize::refine::quality::{assess, Quality, QualityConfig};
 use crate::localize::refine::search::search_to;
-use crate::localize::refine::uncertainty::{estimate_cached, UncertaintyConfig};
 use crate::pose::CamFromMap;
 use serde::Serialize;
 
@@ -75,41 +75,7 @@ impl Refinement {
     }
 }
 
-/// Refine `init` against `gray` (row-major, camera size). The validity mask is the camera's image
-/// circle. Errors (one line) on empty/invisible/non-finite points, image size ≠ camera size, bad
-/// search spec. A result that fails the quality gate is returned with `quality.accepted = false`;
-/// the caller decides whether to write it.
-pub fn refine(
-    cam: &Camera,
-    gray: &[u8],
-    points: &[GroundPoint],
-    init: &CamFromMap,
-    cfg: &SearchConfig,
-    qcfg: &QualityConfig,
-) -> Result<Refinement> {
-    // A frame of the wrong size is refused by `Evaluator::new` (one line, both sizes).
-    refine_masked(cam, gray, &cam.valid_mask(), points, init, cfg, qcfg)
-}
-
-/// [`refine`] with the camera's validity mask ([`CameraModel::valid_mask`]) computed by the
-/// caller: callers that refine one camera many times (the pipeline's search + polish, a study's
-/// trials) compute it once — on a 5 MP frame it costs about as much as a small search.
-pub(crate) fn refine_masked(
-    cam: &Camera,
-    gray: &[u8],
-    mask: &[u8],
-    points: &[GroundPoint],
-    init: &CamFromMap,
-    cfg: &SearchConfig,
-    qcfg: &QualityConfig,
-) -> Result<Refinement> {
-    let views = [View { gray, mask, points }];
-    let cache = ImageCache::default();
-    let r = search_views(cam, &views, init, cfg, qcfg, (1, 0), &cache)?;
-    with_uncertainty(cam, &views, r, cfg, qcfg, None, &cache)
-}
-
-/// The grid search and its quality on pooled views, without the uncertainty estimate.
+/// The grid search and its quality on pooled views (no σ: the smooth stage estimates it).
 /// `(thinning, level)`: the finest level's point stride and the level the search stops at
 /// ([`search_to`]).
 pub(crate) fn search_views<'a>(
@@ -151,81 +117,6 @@ pub(crate) fn search_views<'a>(
     })
 }
 
-/// Estimate the answer's uncertainty ([`crate::localize::refine::uncertainty`]) on the same views and estimator,
-/// and apply the σ gate. `tilt_pivot`: `None` holds the answer's tilt (a 4-DoF refinement); `Some`
-/// frees pitch and roll about that pivot ([`polish_pose`]'s), for an answer whose tilt the 6-DoF
-/// polish settled, so the position's σ carries the tilt–position valley.
-///
-/// [`polish_pose`]: crate::localize::refine::polish::polish_pose
-fn with_uncertainty<'a>(
-    cam: &Camera,
-    views: &[View<'a>],
-    mut r: Refinement,
-    cfg: &SearchConfig,
-    qcfg: &QualityConfig,
-    tilt_pivot: Option<Option<f64>>,
-    cache: &ImageCache<'a>,
-) -> Result<Refinement> {
-    let polish = match tilt_pivot {
-        Some(_) => crate::localize::refine::polish::PolishParams {
-            bound: JACKKNIFE_BOUND,
-            ..Default::default()
-        },
-        None => crate::localize::refine::polish::PolishParams::four_dof(),
-    };
-    // The intrinsics' share depends on the pose alone, not on the jackknife: it runs beside it,
-    // filling the pool while the groups' last simplexes end.
-    let (u, intrinsics) = rayon::join(
-        || {
-            estimate_cached(
-                cam,
-                views,
-                &r.pose,
-                cfg,
-                &polish,
-                tilt_pivot.flatten(),
-                &UncertaintyConfig {
-                    folds: qcfg.jackknife_folds,
-                    region_bound: qcfg.region_bound(),
-                },
-                cache,
-            )
-        },
-        || {
-            qcfg.intrinsics_sigma.as_ref().map(|s| {
-                crate::localize::refine::uncertainty::intrinsics_deltas(cam, views, &r.pose, s)
-            })
-        },
-    );
-    let mut u = u?;
-    r.stats.poses += u.poses as u64;
-    // The groups' re-optimisations score (K − 1)/K of the jackknife's set per pose, the region's
-    // probes all of its own set.
-    let (region_poses, region_points) = u
-        .region
-        .as_ref()
-        .map_or((0, 0), |g| (g.poses as u64, g.points as u64));
-    r.stats.point_evaluations +=
-        (u.poses as u64 - region_poses) * (u.points as u64) * (u.folds as u64 - 1) / u.folds as u64
-            + region_poses * region_points;
-    // The gate judges what this run's data supports (the jackknife). The camera file's stated
-    // intrinsics uncertainty is the calibration's, the same for every run: it goes into the
-    // reported σ and covariance (what the detection pipeline inherits) but refusing every run
-    // for it would leave the node without a pose until someone re-calibrates.
-    apply_uncertainty(&mut r.quality, u.clone(), qcfg);
-    if let Some(deltas) = &intrinsics {
-        crate::localize::refine::uncertainty::add_intrinsics(&mut u, deltas);
-        r.quality.sigma = Some(crate::localize::refine::quality::Sigma::of(&u));
-        r.quality.covariance = Some(u);
-    }
-    Ok(r)
-}
-
-/// Each jackknife group's re-optimisation box when the tilt is free: x, y, z ±15 cm, yaw ±0.5°
-/// (the polish's), pitch and roll ±1° — wide enough for the tilt–position valley of a pose that
-/// the 6-DoF polish settled, narrow enough to keep the far field in the fixed point set.
-const JACKKNIFE_BOUND: [f64; 6] = [0.15, 0.15, 0.15, 0.5, 1.0, 1.0];
-
 /// Settings of [`refine_polished`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PolishedSearch {
@@ -259,11 +150,6 @@ pub struct PolishedSearch {
     /// first search's optimum is a compromise that the polish then walks away from, and a second
     /// search follows. Settled first, the first search is made at the polished tilt.
     pub settle_tilt_first: bool,
-    /// Estimate the answer's uncertainty after the last round: the jackknife of Nelder–Mead
-    /// re-optimisations and its region test ([`crate::localize::refine::uncertainty`]). Off where
-    /// a later stage estimates it from the answer's information instead
-    /// ([`PolishedSearch::without_jackknife`]); the answer's quality then has no σ yet.
-    pub jackknife: bool,
 }
 
 impl Default for PolishedSearch {
@@ -276,7 +162,6 @@ impl Default for PolishedSearch {
             search_thinning: SEARCH_THINNING,
             basin_level: 0,
             settle_tilt_first: false,
-            jackknife: true,
         }
     }
 }
@@ -314,7 +199,6 @@ impl PolishedSearch {
             search_thinning: 1,
             basin_level: 0,
             settle_tilt_first: false,
-            jackknife: true,
         }
     }
 
@@ -323,16 +207,6 @@ impl PolishedSearch {
     pub fn basin(self) -> Self {
         PolishedSearch {
             basin_level: BASIN_LEVEL,
-            ..self
-        }
-    }
-
-    /// These settings without the jackknife and its region after the last round: for the smooth
-    /// estimator's path, whose information over all six axes at its own answer gives the σ
-    /// ([`crate::localize::refine::local::smooth_stage`]).
-    pub fn without_jackknife(self) -> Self {
-        PolishedSearch {
-            jackknife: false,
             ..self
         }
     }
@@ -413,7 +287,9 @@ pub struct Round {
 /// `init`. `pivot` gives the tilt pivot depth for a pose (see [`crate::localize::refine::polish::polish_pose`]).
 /// With `p.settle_tilt_first` the start is polished once before the first search, and the
 /// searches begin from that pose (the first round's `settle`).
-/// With `p = None`: the one 4-DoF search, no polish, no rounds (PnP's tilt kept). After each
+/// With `p = None`: the one 4-DoF search, no polish, no rounds (PnP's tilt kept). The answer
+/// has the last search's checks and no σ ([`crate::localize::refine::local::smooth_stage`]
+/// follows). After each
 /// search, a polish that ended on its box's edge (or, with `repolish_when_moved`, moved) polishes
 /// again from its end, without the tilt starts, at most `p.polish_rounds` polishes.
 ///
@@ -434,10 +310,7 @@ pub fn refine_polished(
     let cache = ImageCache::default();
     let Some(p) = p else {
         let r = search_views(cam, views, init, cfg, qcfg, (1, 0), &cache)?;
-        return Ok((
-            with_uncertainty(cam, views, r, cfg, qcfg, None, &cache)?,
-            Vec::new(),
-        ));
+        return Ok((r, Vec::new()));
     };
     let mut rounds = Vec::new();
     let mut start = *init;
@@ -533,15 +406,7 @@ pub fn refine_polished(
                 r.offsets = crate::pose::offsets_between(init, &r.pose);
                 r.stats.poses = poses;
                 r.stats.point_evaluations = point_evaluations;
-                if !p.jackknife {
-                    return Ok((r, rounds));
-                }
-                // A finish that moved the tilt has its tilt uncertain too: the jackknife frees it.
-                let tilt = p.polish.frees_tilt().then(|| pivot(&r.pose));
-                return Ok((
-                    with_uncertainty(cam, views, r, cfg, qcfg, tilt, &cache)?,
-                    rounds,
-                ));
+                return Ok((r, rounds));
             }
         }
     }
