@@ -1,11 +1,16 @@
-//! Geodesy: WGS84 ↔ projected map CRS (UTM). Pure computation, no I/O.
+//! Geodesy: WGS84 ↔ projected map CRS. Pure computation, no I/O.
 //!
-//! The map frame of a tile is a WGS84 UTM zone (EPSG 32601–32660 north, 32701–32760 south). The
-//! projection maths is `proj4rs` (a Rust port of PROJ.4's extended transverse Mercator, `etmerc`,
-//! which PROJ ≥ 6 also uses for `+proj=utm`); `tests/geo_reference.rs` checks it against pyproj on
-//! a global grid to ≤ 1 mm, including zone edges, the equator and points far into the neighbour
-//! zone. Projection objects are built once per zone and cached, because parsing a proj string
-//! costs far more than projecting a point.
+//! The map frame of a tile is a projected CRS in metres named by its EPSG code: a WGS84 UTM zone
+//! (EPSG 32601–32660 north, 32701–32760 south) or any other projected CRS whose definition
+//! `proj4rs` can express (ETRS89 / UTM 258xx, Amersfoort / RD New 28992, RGF93 / Lambert-93 2154,
+//! NAD83 State Planes in metres, …; the EPSG → PROJ.4 table is `proj4rs`'s `crs-definitions`).
+//! The projection maths is `proj4rs` (a Rust port of PROJ.4; for UTM its extended transverse
+//! Mercator, `etmerc`, which PROJ ≥ 6 also uses for `+proj=utm`). A datum other than WGS84 is
+//! reached through the definition's `+towgs84` Helmert parameters, as PROJ does when it has no
+//! grid for the datum. `tests/geo_reference.rs` checks UTM against pyproj on a global grid to
+//! ≤ 1 mm, `tests/geo_national_grids.rs` the national grids over each one's area. Projection
+//! objects are built once per CRS and cached, because parsing a proj string costs far more than
+//! projecting a point.
 
 pub mod georef;
 
@@ -13,7 +18,8 @@ use crate::error::{Error, Result};
 use proj4rs::proj::Proj;
 use proj4rs::transform::{transform, Transform, TransformClosure};
 use serde::{Deserialize, Serialize};
-use std::sync::OnceLock;
+use std::collections::BTreeMap;
+use std::sync::{Mutex, OnceLock};
 
 /// Base of the EPSG codes of WGS84 / UTM north zones (zone N → 32600 + N).
 pub(crate) const UTM_NORTH_BASE: u32 = 32600;
@@ -25,7 +31,9 @@ pub(crate) const UTM_ZONES: u32 = 60;
 const ZONE_WIDTH_DEG: f64 = 6.0;
 
 /// The "supported" part of every unknown-CRS message, so all callers say the same thing.
-pub const SUPPORTED_CRS: &str = "supported: WGS84 UTM 326xx/327xx";
+pub const SUPPORTED_CRS: &str =
+    "supported: projected EPSG CRSs in metres, e.g. WGS84 UTM 326xx/327xx, ETRS89 UTM 258xx, \
+     RD New 28992, Lambert-93 2154, NAD83 State Planes";
 
 /// UTM zone (1..=60) and hemisphere of a WGS84 UTM EPSG code; `None` for any other code.
 pub(crate) fn utm_zone_of(epsg: u32) -> Option<(u32, Hemisphere)> {
@@ -40,6 +48,14 @@ pub(crate) fn utm_zone_of(epsg: u32) -> Option<(u32, Hemisphere)> {
     }
 }
 
+/// UTM zone (1..=60) of a WGS84 UTM CRS; `None` for any other CRS.
+pub fn utm_zone(crs: Crs) -> Option<u32> {
+    match crs {
+        Crs::Epsg(code) => utm_zone_of(code).map(|(z, _)| z),
+        Crs::Local => None,
+    }
+}
+
 /// Hemisphere of a UTM zone (south zones use a 10 000 km false northing).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Hemisphere {
@@ -49,15 +65,91 @@ pub enum Hemisphere {
     South,
 }
 
-/// Check that `crs` is a CRS this crate can relate to WGS84 (a WGS84 UTM zone).
-pub fn check_crs(crs: Crs) -> Result<(u32, Hemisphere)> {
+/// Check that `crs` is a CRS this crate can relate to WGS84: a projected CRS in metres with an
+/// EPSG code (see the module docs).
+pub fn check_crs(crs: Crs) -> Result<()> {
+    projection(crs).map(|_| ())
+}
+
+/// The projection of a map CRS (cached).
+fn projection(crs: Crs) -> Result<&'static Proj> {
     match crs {
-        Crs::Epsg(code) => utm_zone_of(code)
-            .ok_or_else(|| Error::Invalid(format!("unknown EPSG:{code} ({SUPPORTED_CRS})"))),
+        Crs::Epsg(code) => match utm_zone_of(code) {
+            Some((zone, hemi)) => utm_proj(zone, hemi),
+            None => epsg_proj(code),
+        },
         Crs::Local => Err(Error::Invalid(format!(
             "CRS LOCAL has no relation to WGS84 ({SUPPORTED_CRS})"
         ))),
     }
+}
+
+/// Projections of EPSG codes other than WGS84 UTM, built on first use. Each is leaked once, so a
+/// process holds at most one per code it has seen (a handful: the tiles' CRSs).
+static OTHER: Mutex<BTreeMap<u32, std::result::Result<&'static Proj, String>>> =
+    Mutex::new(BTreeMap::new());
+
+/// Definitions that differ from the EPSG table's: PROJ's default WGS84 operation for these CRSs
+/// uses newer Helmert parameters than the table's `+towgs84` (RD New: "Amersfoort to WGS 84 (4)",
+/// 7 mm from the table's "(3)"; rotations in the position-vector convention of `+towgs84`).
+const DEFINITION_OVERRIDES: [(u32, &str); 1] = [(
+    28992,
+    "+proj=sterea +lat_0=52.15616055555555 +lon_0=5.38763888888889 +k=0.9999079 +x_0=155000 \
+     +y_0=463000 +ellps=bessel +towgs84=565.4171,50.3319,465.5524,-0.398957388243134,\
+     0.343987817378283,-1.87740163998045,4.0725 +units=m +no_defs",
+)];
+
+/// Web Mercator codes: projected, nominally metres, but scaled by 1/cos(latitude).
+const WEB_MERCATOR: [u32; 2] = [3857, 900_913];
+
+fn epsg_proj(code: u32) -> Result<&'static Proj> {
+    let mut cache = OTHER.lock().unwrap_or_else(|p| p.into_inner());
+    cache
+        .entry(code)
+        .or_insert_with(|| build_epsg_proj(code).map(|p| &*Box::leak(Box::new(p))))
+        .clone()
+        .map_err(Error::Invalid)
+}
+
+/// The projection of EPSG `code`, refused unless it is projected and in metres.
+fn build_epsg_proj(code: u32) -> std::result::Result<Proj, String> {
+    let unknown = || format!("unknown EPSG:{code} ({SUPPORTED_CRS})");
+    let short = u16::try_from(code).map_err(|_| unknown())?;
+    let built = match DEFINITION_OVERRIDES.iter().find(|(c, _)| *c == code) {
+        Some((_, def)) => Proj::from_proj_string(def),
+        None => Proj::from_epsg_code(short),
+    };
+    let p = built.map_err(|e| match e {
+        proj4rs::errors::Error::ProjectionNotFound => unknown(),
+        e => format!(
+            "EPSG:{code}: its definition is not expressible in proj4rs ({e}); {SUPPORTED_CRS}"
+        ),
+    })?;
+    if WEB_MERCATOR.contains(&code) {
+        return Err(format!(
+            "EPSG:{code} is Web Mercator, whose \"metres\" are true metres only at the equator; \
+             {SUPPORTED_CRS}"
+        ));
+    }
+    if p.is_latlong() {
+        return Err(format!(
+            "EPSG:{code} is a geographic CRS (degrees); a tile needs a projected CRS in metres ({SUPPORTED_CRS})"
+        ));
+    }
+    if p.is_geocent() {
+        return Err(format!(
+            "EPSG:{code} is a geocentric CRS; a tile needs a projected CRS in metres ({SUPPORTED_CRS})"
+        ));
+    }
+    // Raster resolutions, search radii and pose errors are all metres.
+    if p.to_meter() != 1.0 {
+        return Err(format!(
+            "EPSG:{code} is in {} ({} m); a tile needs a projected CRS in metres, e.g. the metre variant of the same zone",
+            p.units(),
+            p.to_meter()
+        ));
+    }
+    Ok(p)
 }
 
 /// Standard UTM zone number (1..=60) of a WGS84 position, including the Norway (32V) and Svalbard
@@ -161,33 +253,51 @@ fn utm_proj(zone: u32, hemi: Hemisphere) -> Result<&'static Proj> {
 
 /// WGS84 latitude/longitude (degrees) → map coordinates (easting, northing in metres) of `crs`.
 pub fn wgs84_to_map(crs: Crs, lat: f64, lon: f64) -> Result<(f64, f64)> {
-    let (zone, hemi) = check_crs(crs)?;
+    let proj = projection(crs)?;
     if !(lat.abs() <= 90.0) || !lon.is_finite() {
         return Err(Error::Invalid(format!(
             "WGS84 position lat={lat}, lon={lon}: latitude must be in [-90, 90], longitude finite"
         )));
     }
     let mut p = Pt(lon.to_radians(), lat.to_radians());
-    transform(longlat()?, utm_proj(zone, hemi)?, &mut p)
+    transform(longlat()?, proj, &mut p)
         .map_err(|e| Error::Invalid(format!("WGS84 lat={lat}, lon={lon} → {crs}: {e}")))?;
     finite_or_err(p.0, p.1, || format!("WGS84 lat={lat}, lon={lon} → {crs}"))
 }
 
 /// Map coordinates of `crs` (easting, northing in metres) → WGS84 (latitude, longitude) degrees.
 pub fn map_to_wgs84(crs: Crs, x: f64, y: f64) -> Result<(f64, f64)> {
-    let (zone, hemi) = check_crs(crs)?;
+    let proj = projection(crs)?;
     if !x.is_finite() || !y.is_finite() {
         return Err(Error::Invalid(format!(
             "{crs} position x={x}, y={y}: coordinates must be finite"
         )));
     }
     let mut p = Pt(x, y);
-    transform(utm_proj(zone, hemi)?, longlat()?, &mut p)
+    transform(proj, longlat()?, &mut p)
         .map_err(|e| Error::Invalid(format!("{crs} x={x}, y={y} → WGS84: {e}")))?;
     let (lon, lat) = finite_or_err(p.0.to_degrees(), p.1.to_degrees(), || {
         format!("{crs} x={x}, y={y} → WGS84")
     })?;
     Ok((lat, lon))
+}
+
+/// Map coordinates of `from` → map coordinates of `to` (both projected, metres), through each
+/// one's datum definition.
+pub fn map_to_map(from: Crs, to: Crs, x: f64, y: f64) -> Result<(f64, f64)> {
+    if from == to {
+        return Ok((x, y));
+    }
+    let (pf, pt) = (projection(from)?, projection(to)?);
+    if !x.is_finite() || !y.is_finite() {
+        return Err(Error::Invalid(format!(
+            "{from} position x={x}, y={y}: coordinates must be finite"
+        )));
+    }
+    let mut p = Pt(x, y);
+    transform(pf, pt, &mut p)
+        .map_err(|e| Error::Invalid(format!("{from} x={x}, y={y} → {to}: {e}")))?;
+    finite_or_err(p.0, p.1, || format!("{from} x={x}, y={y} → {to}"))
 }
 
 fn finite_or_err(a: f64, b: f64, what: impl FnOnce() -> String) -> Result<(f64, f64)> {
@@ -251,14 +361,31 @@ mod tests {
 
     #[test]
     fn unknown_epsg_is_rejected() {
-        for code in [4326, 32600, 32661, 32700, 32761, 3857, 25832] {
+        for code in [32600, 32700, 1, 99_999, 70_000] {
             let e = wgs84_to_map(Crs::Epsg(code), 10.0, 10.0)
                 .unwrap_err()
                 .to_string();
-            assert_eq!(
-                e,
-                format!("unknown EPSG:{code} (supported: WGS84 UTM 326xx/327xx)")
+            assert_eq!(e, format!("unknown EPSG:{code} ({SUPPORTED_CRS})"));
+        }
+        // Geographic (WGS84, ETRS89), feet (NAD83 / New York Long Island ftUS), Web Mercator.
+        for (code, why) in [
+            (4326, "is a geographic CRS"),
+            (4258, "is a geographic CRS"),
+            (
+                2263,
+                "needs a projected CRS in metres, e.g. the metre variant",
+            ),
+            (3857, "Web Mercator"),
+        ] {
+            let e = check_crs(Crs::Epsg(code)).unwrap_err().to_string();
+            assert!(
+                e.starts_with(&format!("EPSG:{code} ")) && e.contains(why),
+                "{e}"
             );
+        }
+        // National grids are accepted.
+        for code in [28992, 25832, 2154, 32118] {
+            check_crs(Crs::Epsg(code)).unwrap();
         }
         assert!(map_to_wgs84(Crs::Local, 0.0, 0.0).is_err());
         assert!(wgs84_to_map(Crs::Epsg(32617), f64::NAN, 0.0).is_err());
