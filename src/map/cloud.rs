@@ -67,7 +67,18 @@ pub(crate) struct Cloud {
 }
 
 fn las_err(path: &Path) -> impl Fn(las::Error) -> Error + '_ {
-    move |e| Error::input(path, format!("not a readable LAS/LAZ file: {e}"))
+    move |e| {
+        let m = e.to_string();
+        // A LAZ file's chunk table sits at its end: a cut file fails while being opened.
+        if m.contains("failed to fill whole buffer") {
+            Error::input(
+                path,
+                format!("truncated: the file ends before the data its header announces ({m})"),
+            )
+        } else {
+            Error::input(path, format!("not a readable LAS/LAZ file: {m}"))
+        }
+    }
 }
 
 /// Open an input and read its header (not its points). `bx` selects an Autoware map's files.
