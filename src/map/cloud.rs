@@ -460,6 +460,75 @@ fn each_point(pd: &las::PointData, mut f: impl FnMut(&CloudPoint)) {
     }
 }
 
+/// Sub-points per cell side written by [`write_lidar_laz`].
+const LAZ_SUB: usize = 2;
+
+/// Write a tile's LiDAR layers as a LAZ point cloud (LAS 1.2, point format 3, CRS as GeoTIFF
+/// keys): per cell with data `LAZ_SUB`² ground points (class 2) spread over the cell, each with
+/// the cell's height and reflectivity (× 257, the 16-bit intensity of LAS) and the colour of the
+/// satellite pixel under it (× 257). `tile build` on the file gives back the tile's LiDAR layers.
+pub(crate) fn write_lidar_laz(tile: &super::Tile, path: &Path) -> Result<()> {
+    let g = tile.reflectivity.grid;
+    let Crs::Epsg(code) = g.crs else {
+        return Err(Error::input(path, "a LOCAL tile has no CRS to write"));
+    };
+    let code = u16::try_from(code)
+        .map_err(|_| Error::input(path, format!("EPSG:{code} does not fit a GeoKey")))?;
+    let lerr = |e: las::Error| Error::input(path, format!("LAZ write: {e}"));
+    let mut b = las::Builder::from((1, 2));
+    b.point_format = las::point::Format::new(3).map_err(lerr)?;
+    let t = |offset: f64| las::Transform {
+        scale: 0.001,
+        offset,
+    };
+    b.transforms = las::Vector {
+        x: t(g.x0.floor()),
+        y: t(g.y0.floor()),
+        z: t(0.0),
+    };
+    // GeoKeyDirectory: version 1.1.0, 3 keys: projected model, PixelIsArea, the EPSG code.
+    let keys: [u16; 16] = [1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, code];
+    b.vlrs.push(las::Vlr {
+        user_id: "LASF_Projection".into(),
+        record_id: 34735,
+        description: "GeoKeyDirectoryTag".into(),
+        data: keys.iter().flat_map(|k| k.to_le_bytes()).collect(),
+    });
+    let header = b.into_header().map_err(lerr)?;
+    let mut w = las::Writer::from_path(path, header).map_err(lerr)?;
+    let sat = &tile.satellite;
+    for row in 0..g.height {
+        for col in 0..g.width {
+            let i = row * g.width + col;
+            let (r, z) = (tile.reflectivity.data[i], tile.height.data[i]);
+            if Some(r) == tile.reflectivity.nodata || !z.is_finite() {
+                continue;
+            }
+            let (cx, cy) = g.pixel_center(col, row);
+            for k in 0..LAZ_SUB * LAZ_SUB {
+                let off = |j: usize| ((j as f64 + 0.5) / LAZ_SUB as f64 - 0.5) * g.res;
+                let (x, y) = (cx + off(k % LAZ_SUB), cy + off(k / LAZ_SUB));
+                let (sc, sr) = sat.grid.to_pixel(x, y);
+                let rgb = sat
+                    .get(sc.round().max(0.0) as usize, sr.round().max(0.0) as usize)
+                    .unwrap_or([0; 3]);
+                let c = |v: u8| u16::from(v) * 257;
+                w.write_point(las::Point {
+                    x,
+                    y,
+                    z: f64::from(z),
+                    intensity: u16::from(r) * 257,
+                    classification: las::point::Classification::Ground,
+                    color: Some(las::Color::new(c(rgb[0]), c(rgb[1]), c(rgb[2]))),
+                    ..Default::default()
+                })
+                .map_err(lerr)?;
+            }
+        }
+    }
+    w.close().map_err(lerr)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
