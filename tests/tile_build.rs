@@ -67,16 +67,12 @@ fn reference(name: &str) -> Reference {
 }
 
 fn build(out: &Path, id: &str, extra: &[&str]) -> Output {
-    let mut args = vec![
-        "tile",
-        "build",
-        "--out",
-        out.to_str().unwrap(),
-        "--id",
-        id,
-        "--bbox",
-        BOX,
-    ];
+    build_in(out, id, BOX, extra)
+}
+
+fn build_in(out: &Path, id: &str, bbox: &str, extra: &[&str]) -> Output {
+    let mut args = vec!["tile", "build", "--out", out.to_str().unwrap(), "--id", id, "--bbox", bbox];
+
     args.extend_from_slice(extra);
     infraloc(&args)
 }
@@ -331,4 +327,48 @@ fn bad_inputs_are_refused_with_one_line() {
         ],
     );
     assert_refused(&o, &out, "part.tif", "does not cover the box");
+}
+
+#[test]
+fn orthophoto_in_another_crs_is_warped_as_gdalwarp_does() {
+    let d = refs();
+    let tmp = tempfile::tempdir().unwrap();
+    let laz = d.join("street.laz");
+    built(tmp.path(), "laz", &[laz.to_str().unwrap()]);
+    // A 0.3 m orthophoto in ETRS89 / LAEA Europe (its grid turned against the UTM grid), by GDAL.
+    let ortho = tmp.path().join("ortho3035.tif");
+    let gdalwarp = |args: &[&str], src: &Path, dst: &Path| {
+        let st = Command::new("gdalwarp")
+            .arg("-q")
+            .args(args)
+            .arg(src)
+            .arg(dst)
+            .status()
+            .expect("gdal-bin is needed: see .ci/setup");
+        assert!(st.success());
+    };
+    let sat = tmp.path().join("laz/satellite.tif");
+    gdalwarp(&["-t_srs", "EPSG:3035", "-tr", "0.3", "0.3", "-r", "average", "-et", "0"], &sat, &ortho);
+    let bbox = "691020,5335020,691040,5335040";
+    let out = tmp.path().join("w");
+    let o = build_in(&out, "w", bbox, &[laz.to_str().unwrap(), "--orthophoto", ortho.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ours = infraloc::map::geotiff::read_rgb8(&out.join("w/satellite.tif")).unwrap();
+    // GDAL's bilinear warp of the same orthophoto onto the tile's grid, exact transforms.
+    let theirs_path = tmp.path().join("gdal.tif");
+    gdalwarp(
+        &["-t_srs", "EPSG:25832", "-te", "691020", "5335020", "691040", "5335040", "-tr", "0.1", "0.1",
+          "-r", "bilinear", "-et", "0"],
+        &ortho,
+        &theirs_path,
+    );
+    let theirs = infraloc::map::geotiff::read_rgb8(&theirs_path).unwrap();
+    assert_eq!(ours.grid, theirs.grid);
+    let mut worst = 0;
+    for (a, b) in ours.data.iter().zip(&theirs.data) {
+        for k in 0..3 {
+            worst = worst.max((i32::from(a[k]) - i32::from(b[k])).abs());
+        }
+    }
+    assert!(worst <= 1, "warp differs from gdalwarp by up to {worst}");
 }
