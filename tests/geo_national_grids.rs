@@ -36,7 +36,7 @@ fn national_grids_match_pyproj_to_1mm() {
     }
     assert_eq!(
         per_crs.len(),
-        19,
+        18,
         "CRSs in the reference: {:?}",
         per_crs.keys()
     );

@@ -71,7 +71,16 @@ fn build(out: &Path, id: &str, extra: &[&str]) -> Output {
 }
 
 fn build_in(out: &Path, id: &str, bbox: &str, extra: &[&str]) -> Output {
-    let mut args = vec!["tile", "build", "--out", out.to_str().unwrap(), "--id", id, "--bbox", bbox];
+    let mut args = vec![
+        "tile",
+        "build",
+        "--out",
+        out.to_str().unwrap(),
+        "--id",
+        id,
+        "--bbox",
+        bbox,
+    ];
 
     args.extend_from_slice(extra);
     infraloc(&args)
@@ -194,7 +203,9 @@ fn laz_copc_and_pcd_match_numpy() {
             worst = worst.max((f64::from(z) - road).abs());
         }
     }
-    assert!(worst < 0.1, "filtered height leaves the road by {worst} m");
+    // Within the ground tolerance (0.2 m): beside a removed car on the 2 % slope the opened
+    // surface is raised by up to the slope times the car's length (docs/map.md).
+    assert!(worst < 0.2, "filtered height leaves the road by {worst} m");
 }
 
 #[test]
@@ -348,17 +359,54 @@ fn orthophoto_in_another_crs_is_warped_as_gdalwarp_does() {
         assert!(st.success());
     };
     let sat = tmp.path().join("laz/satellite.tif");
-    gdalwarp(&["-t_srs", "EPSG:3035", "-tr", "0.3", "0.3", "-r", "average", "-et", "0"], &sat, &ortho);
+    gdalwarp(
+        &[
+            "-t_srs",
+            "EPSG:3035",
+            "-tr",
+            "0.3",
+            "0.3",
+            "-r",
+            "average",
+            "-et",
+            "0",
+        ],
+        &sat,
+        &ortho,
+    );
     let bbox = "691020,5335020,691040,5335040";
     let out = tmp.path().join("w");
-    let o = build_in(&out, "w", bbox, &[laz.to_str().unwrap(), "--orthophoto", ortho.to_str().unwrap()]);
+    let o = build_in(
+        &out,
+        "w",
+        bbox,
+        &[
+            laz.to_str().unwrap(),
+            "--orthophoto",
+            ortho.to_str().unwrap(),
+        ],
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let ours = infraloc::map::geotiff::read_rgb8(&out.join("w/satellite.tif")).unwrap();
     // GDAL's bilinear warp of the same orthophoto onto the tile's grid, exact transforms.
     let theirs_path = tmp.path().join("gdal.tif");
     gdalwarp(
-        &["-t_srs", "EPSG:25832", "-te", "691020", "5335020", "691040", "5335040", "-tr", "0.1", "0.1",
-          "-r", "bilinear", "-et", "0"],
+        &[
+            "-t_srs",
+            "EPSG:25832",
+            "-te",
+            "691020",
+            "5335020",
+            "691040",
+            "5335040",
+            "-tr",
+            "0.1",
+            "0.1",
+            "-r",
+            "bilinear",
+            "-et",
+            "0",
+        ],
         &ortho,
         &theirs_path,
     );
