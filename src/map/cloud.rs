@@ -463,7 +463,7 @@ fn each_point(pd: &las::PointData, mut f: impl FnMut(&CloudPoint)) {
 /// Sub-points per cell side written by [`write_lidar_laz`].
 const LAZ_SUB: usize = 2;
 
-/// Write a tile's LiDAR layers as a LAZ point cloud (LAS 1.2, point format 3, CRS as GeoTIFF
+/// Write a tile's LiDAR layers as a LAZ point cloud (LAS 1.2, point format 2, CRS as GeoTIFF
 /// keys): per cell with data `LAZ_SUB`² ground points (class 2) spread over the cell, each with
 /// the cell's height and reflectivity (× 257, the 16-bit intensity of LAS) and the colour of the
 /// satellite pixel under it (× 257). `tile build` on the file gives back the tile's LiDAR layers.
@@ -476,7 +476,8 @@ pub(crate) fn write_lidar_laz(tile: &super::Tile, path: &Path) -> Result<()> {
         .map_err(|_| Error::input(path, format!("EPSG:{code} does not fit a GeoKey")))?;
     let lerr = |e: las::Error| Error::input(path, format!("LAZ write: {e}"));
     let mut b = las::Builder::from((1, 2));
-    b.point_format = las::point::Format::new(3).map_err(lerr)?;
+    // Format 2: coordinates, intensity, class and RGB, no GPS time (the simulator has none).
+    b.point_format = las::point::Format::new(2).map_err(lerr)?;
     let t = |offset: f64| las::Transform {
         scale: 0.001,
         offset,
