@@ -6,7 +6,9 @@ A module is a file (`foo.rs`, or `foo/mod.rs` for the folder). An edge A -> B me
 names an item of B (`crate::b::…`, `super::…`, `infraloc_core::…`). Test modules (`#[cfg(test)]
 mod tests { … }` to the end of the file) and doc comments are left out: tests may reach across.
 Exits 1 and prints every cycle (strongly connected component of more than one module) and every
-broken layering rule; prints a one-line summary otherwise.
+broken layering rule; prints a one-line summary otherwise. `--root DIR` reads the two crates of
+another checkout (`DIR/core/src`, `DIR/src`): the layering test runs it on a tree with a known
+cycle.
 """
 import os
 import re
@@ -67,9 +69,10 @@ def edges(mods):
                 if m[0] == "infraloc" and target == ("infraloc",) and rest:
                     target = resolve(mods, ("infraloc_core",), rest)
             elif head == "super":
-                is_dir = f.endswith("mod.rs") or f.endswith("lib.rs")
-                base = m if is_dir else m[:-1]
-                base = base[:-1]
+                # `super` is the parent of the module the file is, whether the file is a leaf
+                # (`a/b.rs`: module a::b, super = a) or a folder's `mod.rs` (`a/mod.rs`: module a,
+                # super = the crate root).
+                base = m[:-1]
                 while rest and rest[0] == "super":
                     base, rest = base[:-1], rest[1:]
                 target = resolve(mods, base, rest)
@@ -127,6 +130,12 @@ def name(m):
 
 
 def main():
+    global ROOT
+    if len(sys.argv) == 3 and sys.argv[1] == "--root":
+        ROOT = os.path.abspath(sys.argv[2])
+    elif len(sys.argv) != 1:
+        print("usage: module_cycles.py [--root DIR]", file=sys.stderr)
+        return 2
     mods = modules("core", "infraloc_core")
     mods.update(modules(".", "infraloc"))
     graph = edges(mods)

@@ -13,7 +13,7 @@ use serde_json::Value;
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
-#[path = "../tests/common/served.rs"]
+#[path = "../tests/it/common/served.rs"]
 mod served;
 use served::{grid_1000, raw, simulate, store_truth, write_config, Daemon};
 

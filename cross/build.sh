@@ -22,7 +22,7 @@ for arg in "$@"; do
 done
 rustup target list --installed | grep -qx "$TARGET" || rustup target add "$TARGET"
 CARGO=(cargo --config cross/config.toml)
-# The package's features ([package.metadata.deb] features in Cargo.toml; tests/packaging.rs checks).
+# The package's features ([package.metadata.deb] features in Cargo.toml; tests/it/packaging.rs checks).
 FEATURES=(-p infraloc --features v4l)
 
 t0=$SECONDS

@@ -31,7 +31,7 @@ use infraloc::localize::mi::mutual_information;
 use infraloc::localize::mi::objective::{Evaluator, View};
 use infraloc::localize::mi::smooth::{Pooling, Smooth};
 use infraloc::localize::pipeline::{self, Params};
-use infraloc::localize::refine::gradient::{ascend, AscentConfig};
+use infraloc::localize::refine::ascent::{ascend, AscentConfig};
 use infraloc::localize::refine::polish::{polish_pose, PolishParams};
 use infraloc::map::Tile;
 use infraloc::pose::CamFromMap;

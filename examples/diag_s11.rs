@@ -1,6 +1,7 @@
 //! Search failure or objective bias? The MI objective of the pipeline's polish at the accepted
 //! pose, the truth, the oracle and along the straight 6-DoF lines between them, on one fixed
-//! point set (`5mp` `hard` seed 11 was accepted 16 cm / 0.52° off, outside its 3σ).
+//! point set, for a scene whose answer was accepted outside its 3σ (the commands below run it on
+//! `5mp` `hard` seed 11).
 //!
 //! ```sh
 //! cargo run --release --features __internal-test --example pipeline_accuracy -- --preset 5mp --seeds 11 --json s11.json

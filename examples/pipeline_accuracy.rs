@@ -102,7 +102,7 @@ fn opts() -> Opts {
         offset_intrinsics: false,
         search_rounds: None,
         fine_off_nadir: None,
-        sampling: Sampling::Nearest,
+        sampling: Sampling::Pv,
         gap_free: false,
     };
     let mut it = std::env::args().skip(1);
@@ -192,7 +192,7 @@ fn run_seed(o: &Opts, seed: u64, params: &Params) -> infraloc::Result<Value> {
     } = scene_inputs(&scene, o.true_intrinsics)?;
     let dir = tmp.path();
     // `--gap-free`: the frame is the tile's reflectivity seen at the true pose through the
-    // given camera (docs/accuracy.md, "The estimator or the modality gap").
+    // given camera (docs/accuracy.md, "Where the ground error comes from").
     if o.gap_free {
         let truth = scene_truth(&scene)?;
         let gray = gap_free_image(&camera, &tile, &truth.pose);

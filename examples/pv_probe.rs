@@ -69,7 +69,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             print!(" | {:+.2} along ({})", e.eigenvalues[k], dir.join(", "));
         }
         println!();
-        match infraloc::localize::refine::gradient::information_with_step(
+        match infraloc::localize::refine::information::information_with_step(
             &est,
             &pose,
             &free,

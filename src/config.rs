@@ -42,9 +42,9 @@ pub struct Config {
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case", deny_unknown_fields, default)]
 pub struct RefineConfig {
-    /// `nearest` (default): the nearest-pixel polish and its jackknife σ; `pv`: then the
-    /// partial-volume estimator's gradient ascent, its information and sandwich σ over all six
-    /// axes in place of the jackknife, and its gate.
+    /// `pv` (default): after the nearest-pixel search for the basin, the partial-volume
+    /// estimator's gradient ascent, its information and sandwich σ over all six axes, the
+    /// competing optima, and its gate; `nearest`: the nearest-pixel polish and its jackknife σ.
     pub sampling: crate::localize::mi::smooth::Sampling,
 }
 

@@ -26,6 +26,23 @@ pub(crate) struct SceneFiles {
     pub control: Vec<([f64; 3], [f64; 2])>,
 }
 
+/// An error naming `frames` unless the image is the camera's (`yaml`) size.
+fn same_size(gray: &GrayImage, camera: &Camera, frames: &Path, yaml: &str) -> Result<()> {
+    if (gray.width(), gray.height()) == (camera.width(), camera.height()) {
+        return Ok(());
+    }
+    Err(Error::input(
+        frames,
+        format!(
+            "frames are {}×{} but {yaml} is {}×{}",
+            gray.width(),
+            gray.height(),
+            camera.width(),
+            camera.height()
+        ),
+    ))
+}
+
 /// Read a scene directory; each missing or bad part is a one-line error naming it.
 pub(crate) fn load_scene(dir: &Path) -> Result<SceneFiles> {
     if !dir.is_dir() {
@@ -59,18 +76,7 @@ pub(crate) fn load_scene(dir: &Path) -> Result<SceneFiles> {
         .collect::<Result<Vec<_>>>()?;
     let gray =
         crate::capture::temporal_median(&frames).map_err(|e| Error::input(&fdir, e.to_string()))?;
-    if (gray.width(), gray.height()) != (camera.width(), camera.height()) {
-        return Err(Error::input(
-            &fdir,
-            format!(
-                "frames are {}×{} but camera.yaml is {}×{}",
-                gray.width(),
-                gray.height(),
-                camera.width(),
-                camera.height()
-            ),
-        ));
-    }
+    same_size(&gray, &camera, &fdir, "camera.yaml")?;
     let c = truth.pose.center();
     let (lat, lon) = crate::geo::map_to_wgs84(crs, c.x, c.y)?;
     let radius_m = crate::localize::pipeline::Params::default().mi_radius_m;
@@ -81,5 +87,44 @@ pub(crate) fn load_scene(dir: &Path) -> Result<SceneFiles> {
         tile,
         truth: truth.pose,
         control,
+    })
+}
+
+/// The gantry preset's perspective camera and first LiDAR sweep (`simulate --preset gantry`:
+/// perspective/camera.yaml, perspective/frames/000.png, perspective/truth_lidar.json and
+/// lidar/000.pcd): one image and the sweep taken with it, as a real gantry gives them.
+#[derive(Debug, Clone)]
+pub(crate) struct PerspectiveFiles {
+    /// Intrinsics (perspective/camera.yaml).
+    pub camera: Camera,
+    /// The first frame.
+    pub gray: GrayImage,
+    /// The first sweep, in the LiDAR frame.
+    pub points: Vec<crate::map::GroundPoint>,
+    /// True pose of the camera in the LiDAR frame (perspective/truth_lidar.json).
+    pub truth: CamFromMap,
+}
+
+/// Read a gantry scene's perspective camera and sweep; each missing or bad part is a one-line
+/// error naming it (a scene of another preset has no perspective/ directory).
+pub(crate) fn load_perspective(dir: &Path) -> Result<PerspectiveFiles> {
+    let pdir = dir.join("perspective");
+    if !pdir.is_dir() {
+        return Err(Error::input(
+            &pdir,
+            "not found: only `simulate --preset gantry` writes a perspective camera",
+        ));
+    }
+    let camera = load_camera(&pdir.join("camera.yaml"))?;
+    let fp = pdir.join("frames").join("000.png");
+    let gray = crate::capture::load_gray(&fp)?;
+    same_size(&gray, &camera, &fp, "perspective/camera.yaml")?;
+    let points = crate::points_io::read_points(&dir.join("lidar").join("000.pcd"))?;
+    let truth = crate::posefile::read_pose(&pdir.join("truth_lidar.json"))?.pose;
+    Ok(PerspectiveFiles {
+        camera,
+        gray,
+        points,
+        truth,
     })
 }

@@ -6,7 +6,7 @@
 #   cargo build --release && docs/scripts/bad_inputs.sh [target/release/infraloc]
 #
 # The socket cases (slow clients, 2,000 busy tries, panicking handlers) are a Rust test:
-#   cargo test --release --test control_socket
+#   cargo test --release --test it control_socket::
 set -u
 BIN=$(realpath "${1:-target/release/infraloc}")
 W=$(mktemp -d)

@@ -183,7 +183,7 @@ pub fn scene_truth(scene: &infraloc::sim::Scene) -> infraloc::Result<infraloc::e
 /// The gap-free image of `tile` seen by `camera` at `pose`: each pixel the reflectivity
 /// (bilinear over valid cells) where its ray meets the raw height layer; 0 elsewhere. Image and
 /// LiDAR raster agree exactly at `pose`: the simulator's modality gap is gone (docs/accuracy.md,
-/// "The estimator or the modality gap").
+/// "Where the ground error comes from").
 pub fn gap_free_image(
     camera: &infraloc::camera::Camera,
     tile: &infraloc::map::Tile,

@@ -1,5 +1,5 @@
 //! `infraloc kitti import`: a KITTI rig's calibration as infraloc inputs, in the three layouts
-//! people hold KITTI in (docs/refine.md "Real data"):
+//! people hold KITTI in (docs/kitti.md):
 //! - the **object benchmark**: `calib/NNNNNN.txt` (P0..P3, R0_rect, Tr_velo_to_cam) with the
 //!   frame's image for the size;
 //! - **KITTI raw**: a recording day's `calib_cam_to_cam.txt` + `calib_velo_to_cam.txt`, rectified

@@ -1,6 +1,5 @@
 //! Pairs files: the image/point-file pairs of one pooled `refine` (`refine --pairs FILE`), as
-//! `kitti import --drive … --pairs-out FILE` writes them for a drive's frames (docs/refine.md
-//! "Real data").
+//! `kitti import --drive … --pairs-out FILE` writes them for a drive's frames (docs/kitti.md).
 //!
 //! One pair a line: the image, a tab, the point file (or the two separated by spaces when
 //! neither contains one). Blank lines and lines starting with `#` are skipped; a relative path

@@ -8,13 +8,17 @@ use crate::localize::mi::points::GroundPoint;
 use crate::localize::mi::smooth::{Pooling, Sampling};
 use crate::localize::mi::space::{Mode, SearchConfig, SearchSpec};
 use crate::localize::mi::MiValue;
-use crate::localize::refine::gradient::{refine_smooth, SmoothRefinement};
+use crate::localize::refine::local::{refine_smooth, SmoothRefinement};
+use crate::localize::refine::optima::{
+    disagreement as disagreement_of, self_check_starts, START_SPREAD,
+};
 use crate::localize::refine::quality::QualityConfig;
 use crate::localize::refine::{
     finish_name, refine_polished, summed_offsets, PolishedSearch, Refinement, Round,
 };
 use crate::map::{cache, Crs};
 use crate::points_io::read_points;
+use crate::pose::{offsets_between, CamFromMap};
 use crate::posefile::{format_utc, read_pose, PoseFile, ReadPose};
 use std::path::{Path, PathBuf};
 
@@ -91,11 +95,23 @@ pub struct Args {
     /// The MI estimator (bins, objective, binning, Parzen smoothing).
     #[command(flatten)]
     pub estimator: super::estimator::EstimatorArgs,
-    /// How the local stage samples the image: `nearest` (the nearest pixel, Nelder–Mead polish,
-    /// jackknife σ) or `pv` (partial-volume histogram: gradient ascent after the grid search and
-    /// the information covariance beside the jackknife's, docs/refine.md "Estimator").
-    #[arg(long, value_name = "nearest|pv", default_value = "nearest")]
+    /// How the local stage samples the image: `pv` (partial-volume histogram: gradient ascent
+    /// after the grid search, the information covariance and the competing optima,
+    /// docs/refine.md "Estimator") or `nearest` (the nearest pixel, Nelder–Mead polish,
+    /// jackknife σ). `--grid-only` samples the nearest pixel whatever this says.
+    #[arg(long, value_name = "pv|nearest", default_value = "pv")]
     pub sampling: String,
+    /// A truth-free self-check: refine from N starts, `--init` and N − 1 spread around it
+    /// (`--start-spread`), and report whether the accepted answers agree within their combined
+    /// 3σ. Answers that disagree refuse the result; otherwise the accepted answer of the highest
+    /// MI is the result.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub starts: usize,
+    /// The spread of `--starts`: xy=M (radius of the circle the starts stand on), z=M (their
+    /// heights, alternately up and down), yaw=DEG (their yaws, alternately) [default: xy=0.2,
+    /// z=0.1,yaw=1].
+    #[arg(long, value_name = "xy=M,z=M,yaw=DEG")]
+    pub start_spread: Option<String>,
     /// With several pairs: `per-pair` (each pair its own histogram, the objective the
     /// point-weighted sum of their MI: frames under different light need not share one
     /// gray–reflectivity relation) or `joint` (one histogram of all pairs), in the grid search,
@@ -121,9 +137,15 @@ fn load_gray(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
     Ok((g.width(), g.height(), g.into_raw()))
 }
 
-/// The quality gate with `--max-sigma`'s limits.
-fn quality_config(spec: Option<&str>) -> Result<QualityConfig> {
-    let mut q = QualityConfig::default();
+/// The `KEY=VALUE` items of `flag`'s comma-separated `spec`, each KEY one of `keys` and each
+/// VALUE finite and positive (or ≥ 0 with `zero_ok`); one line naming the item otherwise.
+fn key_values(
+    flag: &str,
+    spec: Option<&str>,
+    keys: &[&'static str],
+    zero_ok: bool,
+) -> Result<Vec<(&'static str, f64)>> {
+    let mut out = Vec::new();
     for item in spec
         .unwrap_or("")
         .split(',')
@@ -132,20 +154,35 @@ fn quality_config(spec: Option<&str>) -> Result<QualityConfig> {
     {
         let bad = || {
             Error::Invalid(format!(
-                "--max-sigma {item:?}: expected KEY=VALUE with KEY one of xy, z, yaw, tilt and a positive number"
+                "{flag} {item:?}: expected KEY=VALUE with KEY one of {} and a {}",
+                keys.join(", "),
+                if zero_ok {
+                    "finite number ≥ 0"
+                } else {
+                    "positive number"
+                }
             ))
         };
         let (k, v) = item.split_once('=').ok_or_else(bad)?;
         let v: f64 = v.trim().parse().map_err(|_| bad())?;
-        if !(v.is_finite() && v > 0.0) {
+        let key = keys.iter().find(|c| **c == k.trim()).ok_or_else(bad)?;
+        if !(v.is_finite() && (v > 0.0 || (zero_ok && v == 0.0))) {
             return Err(bad());
         }
-        match k.trim() {
+        out.push((*key, v));
+    }
+    Ok(out)
+}
+
+/// The quality gate with `--max-sigma`'s limits.
+fn quality_config(spec: Option<&str>) -> Result<QualityConfig> {
+    let mut q = QualityConfig::default();
+    for (k, v) in key_values("--max-sigma", spec, &["xy", "z", "yaw", "tilt"], false)? {
+        match k {
             "xy" => q.max_sigma_xy_m = v,
             "z" => q.max_sigma_z_m = v,
             "yaw" => q.max_sigma_yaw_deg = v,
-            "tilt" => q.max_sigma_tilt_deg = v,
-            _ => return Err(bad()),
+            _ => q.max_sigma_tilt_deg = v,
         }
     }
     Ok(q)
@@ -224,6 +261,16 @@ fn print_result(r: &Refinement, rounds: &[Round], smooth: Option<&SmoothRefineme
     if let Some(sig) = &r.quality.sigma {
         println!("uncertainty: {}", sig.describe());
     }
+    if let Some(o) = &r.quality.optima {
+        let told = o.found.iter().filter(|f| f.separated).count();
+        println!(
+            "optima: {} climbs found {} other optim{}, {told} told apart from the answer{}",
+            o.starts,
+            o.found.len(),
+            if o.found.len() == 1 { "um" } else { "a" },
+            o.describe().map_or(String::new(), |d| format!("; {d}"))
+        );
+    }
     if let Some(sm) = smooth {
         if let Ok(info) = &sm.information {
             println!("information: {}", info.describe());
@@ -266,11 +313,13 @@ pub(super) fn run(mut a: Args) -> Result<()> {
         pooling,
         ..a.estimator.config()?
     };
-    if sampling == Sampling::Pv && a.grid_only {
-        return Err(Error::Invalid(
-            "--sampling pv with --grid-only: the grid search samples the nearest pixel; pv is its local stage".into(),
-        ));
-    }
+    // The grid's cell is the nearest-pixel search's: there is no local stage to sample.
+    let sampling = if a.grid_only {
+        Sampling::Nearest
+    } else {
+        sampling
+    };
+    let spread = start_spread(a.starts, a.start_spread.as_deref())?;
     if !a.points.is_empty() && a.points.len() != a.image.len() {
         return Err(Error::Invalid(format!(
             "--image given {} times but --points {} times: pooled pairs need one point file per image, paired in order",
@@ -283,22 +332,7 @@ pub(super) fn run(mut a: Args) -> Result<()> {
         intrinsics_sigma: crate::camera::load_intrinsics_sigma(&a.camera)?,
         ..qcfg
     };
-    let mut grays = Vec::with_capacity(a.image.len());
-    for path in &a.image {
-        let (w, h, gray) = load_gray(path)?;
-        if (w, h) != (cam.width(), cam.height()) {
-            return Err(Error::input(
-                path,
-                format!(
-                    "image is {w}×{h} but the camera {} is {}×{} (every pooled image must be the camera's size)",
-                    a.camera.display(),
-                    cam.width(),
-                    cam.height()
-                ),
-            ));
-        }
-        grays.push(gray);
-    }
+    let grays = load_grays(&a, &cam)?;
     let (w, h) = (cam.width(), cam.height());
     let init = read_pose(&a.init)?;
     if let Some(n) = &init.note {
@@ -333,24 +367,36 @@ pub(super) fn run(mut a: Args) -> Result<()> {
             points: &point_sets[i.min(point_sets.len() - 1)],
         })
         .collect();
-    let (r, rounds, smooth) = match sampling {
-        Sampling::Nearest => {
-            let (r, rounds) = refine_polished(
-                &cam,
-                &views,
-                &init.pose,
-                &cfg,
-                &qcfg,
-                finish.as_ref(),
-                &pivot,
-            )?;
-            (r, rounds, None)
-        }
-        Sampling::Pv => {
-            let (r, s) = refine_smooth(&cam, &views, &init.pose, &cfg, &qcfg, a.polish)?;
-            (r, Vec::new(), Some(s))
-        }
+    let refine_from = |start: &CamFromMap| -> Result<Run> {
+        Ok(match sampling {
+            Sampling::Nearest => {
+                let (r, rounds) =
+                    refine_polished(&cam, &views, start, &cfg, &qcfg, finish.as_ref(), &pivot)?;
+                (r, rounds, None)
+            }
+            Sampling::Pv => {
+                let (r, s) = refine_smooth(&cam, &views, start, &cfg, &qcfg, a.polish)?;
+                (r, Vec::new(), Some(s))
+            }
+        })
     };
+    let starts = self_check_starts(&init.pose, a.starts, spread);
+    let mut runs = Vec::with_capacity(starts.len());
+    for s in &starts {
+        runs.push(refine_from(s)?);
+    }
+    let check = (starts.len() > 1).then(|| SelfCheck::of(&init.pose, &starts, &runs));
+    if let Some(c) = &check {
+        c.print();
+    }
+    let pick = check.as_ref().map_or(0, |c| c.answer);
+    let (mut r, rounds, smooth) = runs.swap_remove(pick);
+    if let Some(c) = &check {
+        if let Some(why) = &c.disagreement {
+            r.quality.accepted = false;
+            r.quality.reason = Some(why.clone());
+        }
+    }
     let finish_label = match (&smooth, a.polish) {
         (Some(_), true) => "6-dof-gradient",
         (Some(_), false) => "4-dof-gradient",
@@ -364,7 +410,7 @@ pub(super) fn run(mut a: Args) -> Result<()> {
             note: init.note.as_deref(),
             polished: finish.is_some(),
         };
-        write_report(path, &r, &rounds, smooth.as_ref(), &head)?;
+        write_report(path, &r, &rounds, smooth.as_ref(), &head, check.as_ref())?;
     }
     if let Some(path) = &a.overlay {
         // `gray` is the camera's size (checked above), so this cannot fail; the error is kept
@@ -416,6 +462,7 @@ fn write_report(
     rounds: &[Round],
     smooth: Option<&SmoothRefinement>,
     head: &ReportHead<'_>,
+    check: Option<&SelfCheck>,
 ) -> Result<()> {
     let (mode, mi, finish_label) = (head.mode, head.mi, head.finish_label);
     let mut report =
@@ -436,6 +483,9 @@ fn write_report(
     }
     if head.polished {
         report["rounds"] = serde_json::to_value(rounds).unwrap_or_default();
+    }
+    if let Some(c) = check {
+        report["self_check"] = serde_json::to_value(c).unwrap_or_default();
     }
     let text = serde_json::to_string_pretty(&report)
         .map_err(|e| Error::Invalid(format!("report: {e}")))?;
@@ -471,4 +521,175 @@ fn write_pose_out(
         pf.stages[0]["pooling"] = pooling.name().into();
     }
     crate::persist::write_atomic(path, pf.to_json().as_bytes())
+}
+
+/// One refinement's outcome: the result, its search rounds and the smooth stage's record.
+type Run = (Refinement, Vec<Round>, Option<SmoothRefinement>);
+
+/// `--start-spread`'s xy, z (m) and yaw (deg), defaults [`START_SPREAD`], for `starts` starts
+/// (at least one).
+fn start_spread(starts: usize, spec: Option<&str>) -> Result<[f64; 3]> {
+    if starts == 0 {
+        return Err(Error::Invalid("--starts 0: at least one start".into()));
+    }
+    let mut s = START_SPREAD;
+    for (k, v) in key_values("--start-spread", spec, &["xy", "z", "yaw"], true)? {
+        match k {
+            "xy" => s[0] = v,
+            "z" => s[1] = v,
+            _ => s[2] = v,
+        }
+    }
+    Ok(s)
+}
+
+/// One start of `--starts` as the report lists it.
+#[derive(Debug, Clone, serde::Serialize)]
+struct StartOutcome {
+    /// The start's offset from `--init`: x, y, z (m), yaw, pitch, roll (deg).
+    start: [f64; 6],
+    /// The answer's offset from `--init`.
+    offsets: [f64; 6],
+    /// Accepted by the gate.
+    accepted: bool,
+    /// The gate's reason when refused.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    reason: Option<String>,
+    /// The answer's σ when it has one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sigma: Option<crate::pose::Sigma>,
+    /// MI at the answer (nats).
+    mi: f64,
+}
+
+/// The truth-free self-check of `--starts`: every start's outcome and whether the accepted
+/// answers agree within their combined 3σ.
+#[derive(Debug, Clone, serde::Serialize)]
+struct SelfCheck {
+    /// Per start, in order (the first is `--init`).
+    starts: Vec<StartOutcome>,
+    /// Accepted answers.
+    accepted: usize,
+    /// The accepted answers agree pairwise within their combined 3σ (vacuous below two).
+    agree: bool,
+    /// Why not, naming the two starts and the axis.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    disagreement: Option<String>,
+    /// The start whose answer is the result: the accepted one of the highest MI, else the first.
+    answer: usize,
+}
+
+impl SelfCheck {
+    fn of(init: &CamFromMap, starts: &[CamFromMap], runs: &[Run]) -> Self {
+        let outcomes: Vec<StartOutcome> = starts
+            .iter()
+            .zip(runs)
+            .map(|(s, (r, _, _))| StartOutcome {
+                start: offsets_between(init, s),
+                offsets: offsets_between(init, &r.pose),
+                accepted: r.quality.accepted,
+                reason: r.quality.reason.clone(),
+                sigma: r.quality.sigma,
+                mi: r.quality.mi,
+            })
+            .collect();
+        let ok: Vec<usize> = (0..runs.len())
+            .filter(|&i| runs[i].0.quality.accepted && runs[i].0.quality.sigma.is_some())
+            .collect();
+        let mut disagreement = None;
+        'pairs: for (n, &i) in ok.iter().enumerate() {
+            for &j in &ok[n + 1..] {
+                let (a, b) = (&runs[i].0, &runs[j].0);
+                let (Some(sa), Some(sb)) = (a.quality.sigma, b.quality.sigma) else {
+                    continue;
+                };
+                if let Some((axis, d, z)) = disagreement_of(&a.pose, &sa, &b.pose, &sb) {
+                    let unit = if ["x", "y", "z"].contains(&axis) {
+                        " m"
+                    } else {
+                        "°"
+                    };
+                    disagreement = Some(format!(
+                        "self-check: the answers from start {} and start {} disagree: {axis} differs by {d:+.3}{unit}, {z:.1} combined σ (> 3)",
+                        i + 1,
+                        j + 1
+                    ));
+                    break 'pairs;
+                }
+            }
+        }
+        let answer = ok
+            .iter()
+            .copied()
+            .max_by(|&i, &j| runs[i].0.quality.mi.total_cmp(&runs[j].0.quality.mi))
+            .unwrap_or(0);
+        SelfCheck {
+            starts: outcomes,
+            accepted: ok.len(),
+            agree: disagreement.is_none(),
+            disagreement,
+            answer,
+        }
+    }
+
+    /// One line per start, then the verdict.
+    fn print(&self) {
+        for (k, s) in self.starts.iter().enumerate() {
+            let o = &s.offsets;
+            let verdict = if s.accepted {
+                s.sigma.map_or("accepted".to_string(), |g| {
+                    format!("accepted, {}", g.describe())
+                })
+            } else {
+                format!("refused: {}", s.reason.as_deref().unwrap_or(""))
+            };
+            println!(
+                "start {} at ({:+.2}, {:+.2}, {:+.2}) m, yaw {:+.2}°: answer ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°, MI {:.4}; {verdict}",
+                k + 1,
+                s.start[0],
+                s.start[1],
+                s.start[2],
+                s.start[3],
+                o[0],
+                o[1],
+                o[2],
+                o[3],
+                s.mi
+            );
+        }
+        match &self.disagreement {
+            Some(d) => println!("{d}"),
+            None => println!(
+                "self-check: {} of {} starts accepted; {}",
+                self.accepted,
+                self.starts.len(),
+                if self.accepted >= 2 {
+                    "their answers agree within their combined 3σ"
+                } else {
+                    "fewer than two accepted answers to compare"
+                }
+            ),
+        }
+    }
+}
+
+/// Every `--image` as gray, each checked to be the camera's size.
+fn load_grays(a: &Args, cam: &crate::camera::Camera) -> Result<Vec<Vec<u8>>> {
+    let mut grays = Vec::with_capacity(a.image.len());
+    for path in &a.image {
+        let (w, h, gray) = load_gray(path)?;
+        if (w, h) != (cam.width(), cam.height()) {
+            return Err(Error::input(
+                path,
+                format!(
+                    "image is {w}×{h} but the camera {} is {}×{} (every pooled image must be the camera's size)",
+                    a.camera.display(),
+                    cam.width(),
+                    cam.height()
+                ),
+            ));
+        }
+        grays.push(gray);
+    }
+    Ok(grays)
 }

@@ -1,10 +1,17 @@
 //! `infraloc simulate`: generate a scene in memory ([`crate::sim`]) and write the scene directory
 //! of docs/interfaces.md, "Scene directory".
 
+use crate::camera::{Camera, CameraModel};
 use crate::config::{Config, GpsSourceKind};
 use crate::error::{Error, Result};
 use crate::map::cache::{write_tile_with, Provenance};
-use crate::sim::{self, Difficulty, GivenIntrinsics, Lens, Preset, Scene, Settings};
+use crate::map::Crs;
+use crate::pose::CamFromMap;
+use crate::posefile::PoseFile;
+use crate::sim::{self, Difficulty, GantryScene, GivenIntrinsics, Lens, Preset, Scene, Settings};
+use nalgebra::Vector3;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use std::fs;
 use std::path::{Path, PathBuf};
 
@@ -16,6 +23,9 @@ pub enum PresetArg {
     /// 2448×2048 Sony IMX264 with a 185° lens.
     #[value(name = "5mp")]
     FiveMp,
+    /// `small`'s fisheye on a 6–9 m gantry, with a perspective camera, a 64-ring LiDAR sweep
+    /// and a low sun (docs/simulator.md, "Gantry preset").
+    Gantry,
 }
 
 /// Difficulty.
@@ -111,6 +121,7 @@ impl Args {
             preset: match self.preset {
                 PresetArg::Small => Preset::Small,
                 PresetArg::FiveMp => Preset::FiveMp,
+                PresetArg::Gantry => Preset::Gantry,
             },
             difficulty: match self.difficulty {
                 DifficultyArg::Easy => Difficulty::Easy,
@@ -198,6 +209,9 @@ pub(super) fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
     let truth = serde_json::to_string_pretty(&scene.truth_json())
         .map_err(|e| Error::Invalid(format!("truth.json: {e}")))?;
     write(&dir.join("truth.json"), truth + "\n")?;
+    if let Some(g) = &scene.gantry {
+        write_gantry(scene, g, dir)?;
+    }
     let mut cfg = Config::default();
     cfg.camera.intrinsics_file = Some(PathBuf::from("camera.yaml"));
     cfg.camera.frames = Some(PathBuf::from("frames"));
@@ -214,6 +228,96 @@ pub(super) fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
             "# Written by `infraloc simulate`: localizes this scene with no other flags.\n{text}"
         ),
     )
+}
+
+/// Largest offset of the gantry's start.json from the truth: x and y, metres.
+const START_XY_M: f64 = 0.4;
+/// Largest z offset of start.json, metres.
+const START_Z_M: f64 = 0.2;
+/// Largest yaw offset of start.json, degrees.
+const START_YAW_DEG: f64 = 1.5;
+
+/// Write one PNG frame of `w`×`h` gray pixels.
+fn write_png(path: &Path, w: u32, h: u32, pixels: &[u8]) -> Result<()> {
+    image::GrayImage::from_raw(w, h, pixels.to_vec())
+        .ok_or_else(|| Error::Invalid(format!("{}: frame buffer size", path.display())))?
+        .save(path)
+        .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))
+}
+
+/// A pose file of the truth (stage `truth`) with the camera's intrinsics.
+fn truth_pose(scene: &Scene, pose: &CamFromMap, crs: Crs, tile: &str, cam: &Camera) -> String {
+    let mut pf = PoseFile::new(pose, crs, tile, scene.capture_time());
+    pf.intrinsics = serde_json::to_value(cam).unwrap_or_default();
+    pf.stages = vec![serde_json::json!({ "name": "truth" })];
+    pf.to_json()
+}
+
+/// The gantry preset's extra files: perspective/ (camera, frames, truths, a start pose, a pairs
+/// file) and lidar/ (one sweep per frame and the LiDAR's pose in the map).
+fn write_gantry(scene: &Scene, g: &GantryScene, dir: &Path) -> Result<()> {
+    let pdir = dir.join("perspective");
+    let fdir = pdir.join("frames");
+    let ldir = dir.join("lidar");
+    for d in [&fdir, &ldir] {
+        fs::create_dir_all(d).map_err(|e| Error::io(d, e))?;
+    }
+    let cam = &g.rig.camera;
+    let (w, h) = (cam.width(), cam.height());
+    let mut pairs = Vec::new();
+    for (i, (f, s)) in g.frames.iter().zip(&g.sweeps).enumerate() {
+        write_png(&fdir.join(frame_name(i)), w, h, f)?;
+        let pcd = format!("{i:03}.pcd");
+        write(&ldir.join(&pcd), sim::gantry::to_pcd(s))?;
+        pairs.push((
+            PathBuf::from("frames").join(frame_name(i)),
+            PathBuf::from("../lidar").join(pcd),
+        ));
+    }
+    write(&pdir.join("pairs.tsv"), super::pairs::format(&pairs))?;
+    write(
+        &pdir.join("camera.yaml"),
+        crate::camera::import::to_opencv_yaml(cam),
+    )?;
+    write(
+        &pdir.join("truth.json"),
+        truth_pose(scene, &g.pose, scene.crs, &scene.tile.id, cam),
+    )?;
+    let in_lidar = g.rig.pose_in_lidar();
+    write(
+        &pdir.join("truth_lidar.json"),
+        truth_pose(scene, &in_lidar, Crs::Local, "", cam),
+    )?;
+    // A start inside refine's default search box, drawn from the scene's seed.
+    let mut rng = ChaCha8Rng::seed_from_u64(scene.settings.seed ^ 0x57A2_7000);
+    let mut u = |a: f64| rng.random_range(-a..=a);
+    let start = in_lidar.perturbed(
+        &Vector3::new(u(START_XY_M), u(START_XY_M), u(START_Z_M)),
+        u(START_YAW_DEG).to_radians(),
+    );
+    let mut pf = PoseFile::new(&start, Crs::Local, "", scene.capture_time());
+    pf.stages = vec![
+        serde_json::json!({ "name": "start", "note": "the truth_lidar.json pose moved by a seeded offset" }),
+    ];
+    write(&pdir.join("start.json"), pf.to_json())?;
+    let rot = g.rig.lidar_rotation.matrix();
+    let o = g.rig.lidar_origin;
+    let lidar = serde_json::json!({
+        "crs": scene.crs.to_string(),
+        "origin_map": [o.x + scene.origin[0], o.y + scene.origin[1], o.z],
+        "rotation_map_from_lidar": [
+            [rot[(0, 0)], rot[(0, 1)], rot[(0, 2)]],
+            [rot[(1, 0)], rot[(1, 1)], rot[(1, 2)]],
+            [rot[(2, 0)], rot[(2, 1)], rot[(2, 2)]],
+        ],
+        "rings": sim::gantry::RINGS,
+        "columns": sim::gantry::COLUMNS,
+        "ring_elevations_deg": [sim::gantry::RING_TOP_DEG, sim::gantry::RING_BOTTOM_DEG],
+        "sweeps": g.sweeps.iter().map(Vec::len).collect::<Vec<_>>(),
+    });
+    let text = serde_json::to_string_pretty(&lidar)
+        .map_err(|e| Error::Invalid(format!("lidar.json: {e}")))?;
+    write(&ldir.join("lidar.json"), text + "\n")
 }
 
 /// `simulate --checkerboard N`: render the views and write them with their truth.
@@ -233,10 +337,7 @@ fn checkerboard(a: &Args, n: usize) -> Result<()> {
     let board = Board { cols, rows, square };
     let views = render(&cam, &board, n, a.seed);
     fs::create_dir_all(&a.out).map_err(|e| Error::io(&a.out, e))?;
-    let (w, h) = (
-        crate::camera::CameraModel::width(&cam),
-        crate::camera::CameraModel::height(&cam),
-    );
+    let (w, h) = (cam.width(), cam.height());
     let object = board.corners();
     let mut full = Vec::new();
     let mut json_views = Vec::new();

@@ -6,13 +6,13 @@
 use crate::camera::CameraModel;
 use crate::error::{Error, Result};
 use crate::eval::study::{
-    attitude_from_control_points, run_trial, Perturbation, PointSelection, Scene, Summary,
+    attitude_from_control_points, run_trial, Ground, Perturbation, PointSelection, Scene, Summary,
     SUCCESS_HEIGHT_M, SUCCESS_HORIZONTAL_M, SUCCESS_YAW_DEG,
 };
 use crate::localize::mi::space::{SearchConfig, SearchSpec};
 use crate::localize::refine::quality::QualityConfig;
 use crate::localize::refine::{finish_name, PolishedSearch};
-use crate::scene::load_scene;
+use crate::scene::{load_perspective, load_scene};
 use serde_json::json;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -59,9 +59,24 @@ pub struct Args {
     /// `refine --grid-only`).
     #[arg(long)]
     pub grid_only: bool,
+    /// Which camera and LiDAR the trials refine: the fisheye against the map tile, or (a
+    /// `--preset gantry` scene) the perspective camera's first frame against the first LiDAR
+    /// sweep, with the truth in the LiDAR frame.
+    #[arg(long, value_enum, default_value = "fisheye")]
+    pub sensor: Sensor,
     /// The MI estimator, as `refine`'s flags.
     #[command(flatten)]
     pub estimator: super::estimator::EstimatorArgs,
+}
+
+/// The camera and LiDAR a study refines.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Sensor {
+    /// The fisheye (temporal median of frames/) against the map tile.
+    Fisheye,
+    /// The gantry's perspective camera against its LiDAR sweep (perspective/, lidar/).
+    Perspective,
 }
 
 /// Where the starts' roll and pitch come from.
@@ -88,7 +103,6 @@ pub(super) fn run(a: Args) -> Result<()> {
     let spec: SearchSpec = a.search.parse()?;
     let mi = a.estimator.config()?;
     let size = super::parse_size(&a.size)?;
-    let scene = load_scene(&a.scene)?;
     let cfg = SearchConfig {
         spec,
         mi,
@@ -96,24 +110,51 @@ pub(super) fn run(a: Args) -> Result<()> {
     };
     let qcfg = QualityConfig::default();
     let sel = PointSelection::default();
-    let base = match a.attitude {
-        Attitude::Truth => scene.truth,
-        Attitude::ControlPoints => {
-            attitude_from_control_points(&scene.camera, &scene.truth, &scene.control)
-                .map_err(|e| Error::input(a.scene.join("truth.json"), e.to_string()))?
+    let (camera, gray, truth, control, tile, points) = match a.sensor {
+        Sensor::Fisheye => {
+            let s = load_scene(&a.scene)?;
+            (
+                s.camera,
+                s.gray,
+                s.truth,
+                Some(s.control),
+                Some(s.tile),
+                Vec::new(),
+            )
+        }
+        Sensor::Perspective => {
+            let p = load_perspective(&a.scene)?;
+            (p.camera, p.gray, p.truth, None, None, p.points)
         }
     };
-    let mask = scene.camera.valid_mask();
+    let ground = match &tile {
+        Some(t) => Ground::Tile(t),
+        None => Ground::Points(&points),
+    };
+    let camera = &camera;
+    let base = match (a.attitude, control) {
+        (Attitude::Truth, _) => truth,
+        (Attitude::ControlPoints, Some(control)) => {
+            attitude_from_control_points(camera, &truth, &control)
+                .map_err(|e| Error::input(a.scene.join("truth.json"), e.to_string()))?
+        }
+        (Attitude::ControlPoints, None) => {
+            return Err(Error::Invalid(
+                "--attitude control-points with --sensor perspective: the perspective camera has no control points; use --attitude truth".into(),
+            ))
+        }
+    };
+    let mask = camera.valid_mask();
     let sc = Scene {
-        camera: &scene.camera,
-        gray: scene.gray.as_raw(),
+        camera,
+        gray: gray.as_raw(),
         mask: &mask,
-        tile: &scene.tile,
-        truth: &scene.truth,
+        ground,
+        truth: &truth,
         base: &base,
     };
     let (_, bp, br) = base.yaw_pitch_roll();
-    let (_, tp, tr) = scene.truth.yaw_pitch_roll();
+    let (_, tp, tr) = truth.yaw_pitch_roll();
     println!(
         "study: starts' pitch/roll differ from the truth by {:+.3}°/{:+.3}° ({:?})",
         (bp - tp).to_degrees(),
@@ -147,34 +188,12 @@ pub(super) fn run(a: Args) -> Result<()> {
         trials.push(t);
     }
     let sum = Summary::of(&trials);
-    let row = |name: &str, s: &crate::eval::study::Spread, scale: f64, unit: &str| {
-        println!(
-            "{name:<11} median {:>7.3} {unit}  p95 {:>7.3} {unit}  max {:>7.3} {unit}",
-            s.median * scale,
-            s.p95 * scale,
-            s.max * scale
-        );
-    };
-    println!("study: {} trials on {}", sum.trials, a.scene.display());
-    row("horizontal", &sum.horizontal_m, 100.0, "cm");
-    row("height", &sum.height_m, 100.0, "cm");
-    row("yaw", &sum.yaw_deg, 1.0, "° ");
-    println!(
-        "within {:.0} cm horizontal, {:.0} cm height and {}° yaw: {:.1} % ({} of {}); gate rejections: {}; time {:.1} s ({:.2} s median per trial)",
-        SUCCESS_HORIZONTAL_M * 100.0,
-        SUCCESS_HEIGHT_M * 100.0,
-        SUCCESS_YAW_DEG,
-        sum.success_fraction * 100.0,
-        trials.iter().filter(|t| t.success).count(),
-        sum.trials,
-        sum.gate_rejections,
-        sum.seconds_total,
-        sum.seconds_median
-    );
+    print_summary(&a.scene, &sum, &trials);
     let doc = json!({
         "scene": a.scene,
         "seed": a.seed,
         "attitude": a.attitude,
+        "sensor": a.sensor,
         "perturbation": pert,
         "search": a.search,
         "finish": finish_name(finish.as_ref()),
@@ -204,4 +223,32 @@ pub(super) fn run(a: Args) -> Result<()> {
     super::plot::save_png(&img, &png)?;
     println!("study: wrote {} and {}", png.display(), jpath.display());
     Ok(())
+}
+
+/// The study's summary for people: the spread of each error and the fraction within bounds.
+fn print_summary(scene: &std::path::Path, sum: &Summary, trials: &[crate::eval::study::Trial]) {
+    let row = |name: &str, s: &crate::eval::study::Spread, scale: f64, unit: &str| {
+        println!(
+            "{name:<11} median {:>7.3} {unit}  p95 {:>7.3} {unit}  max {:>7.3} {unit}",
+            s.median * scale,
+            s.p95 * scale,
+            s.max * scale
+        );
+    };
+    println!("study: {} trials on {}", sum.trials, scene.display());
+    row("horizontal", &sum.horizontal_m, 100.0, "cm");
+    row("height", &sum.height_m, 100.0, "cm");
+    row("yaw", &sum.yaw_deg, 1.0, "° ");
+    println!(
+        "within {:.0} cm horizontal, {:.0} cm height and {}° yaw: {:.1} % ({} of {}); gate rejections: {}; time {:.1} s ({:.2} s median per trial)",
+        SUCCESS_HORIZONTAL_M * 100.0,
+        SUCCESS_HEIGHT_M * 100.0,
+        SUCCESS_YAW_DEG,
+        sum.success_fraction * 100.0,
+        trials.iter().filter(|t| t.success).count(),
+        sum.trials,
+        sum.gate_rejections,
+        sum.seconds_total,
+        sum.seconds_median
+    );
 }

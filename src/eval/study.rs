@@ -235,6 +235,15 @@ impl Summary {
     }
 }
 
+/// The LiDAR points of a study's trials.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Ground<'a> {
+    /// The map tile: each trial selects its points around its start, as the pipeline does.
+    Tile(&'a Tile),
+    /// One fixed point set in the pose's frame (a LiDAR sweep from the camera's own mast).
+    Points(&'a [crate::map::GroundPoint]),
+}
+
 /// What a study needs: the scene in memory.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Scene<'a> {
@@ -245,8 +254,8 @@ pub(crate) struct Scene<'a> {
     /// The camera's validity mask ([`crate::camera::CameraModel::valid_mask`]), computed once for
     /// all trials.
     pub mask: &'a [u8],
-    /// Map tile.
-    pub tile: &'a Tile,
+    /// Where each trial's LiDAR points come from.
+    pub ground: Ground<'a>,
     /// True pose: errors are measured against it.
     pub truth: &'a CamFromMap,
     /// The pose the start offsets are applied to: the truth, or the truth with another roll and
@@ -289,8 +298,9 @@ pub(crate) fn attitude_from_control_points(
     ))
 }
 
-/// Run one trial from `start` (offsets from the truth): the grid search, then `finish` (as
-/// `infraloc refine`: by default [`PolishedSearch::four_dof`]; `None` answers the grid's cell).
+/// Run one trial from `start` (offsets from the truth): the grid search, then, with `finish`,
+/// the smooth estimator's local stage (as `infraloc refine`: 4-DoF, or 6-DoF when `finish`'s
+/// polish frees the tilt); `None` answers the grid's cell.
 /// `now` returns seconds from any origin (injected so that this module reads no clock of its
 /// own).
 #[allow(clippy::too_many_arguments)]
@@ -309,20 +319,31 @@ pub(crate) fn run_trial(
         &[start[0], start[1], start[2], start[3], 0.0, 0.0],
     );
     let t0 = now();
-    let points = sel.points(scene.tile, &init);
-    let (r, _) = refine_polished(
-        scene.camera,
-        &[View {
-            gray: scene.gray,
-            mask: scene.mask,
-            points: &points,
-        }],
-        &init,
-        cfg,
-        qcfg,
-        finish,
-        &|_| None,
-    )
+    let points = match scene.ground {
+        Ground::Tile(tile) => sel.points(tile, &init),
+        Ground::Points(p) => p.to_vec(),
+    };
+    let views = [View {
+        gray: scene.gray,
+        mask: scene.mask,
+        points: &points,
+    }];
+    // As `infraloc refine`: the smooth estimator's local stage after the grid search, or the
+    // grid's cell alone.
+    let r = match finish {
+        Some(f) => crate::localize::refine::local::refine_smooth(
+            scene.camera,
+            &views,
+            &init,
+            cfg,
+            qcfg,
+            f.polish.frees_tilt(),
+        )
+        .map(|(r, _)| r),
+        None => {
+            refine_polished(scene.camera, &views, &init, cfg, qcfg, None, &|_| None).map(|(r, _)| r)
+        }
+    }
     .map_err(|e| Error::command("study", format!("trial {index}: {e}")))?;
     let seconds = now() - t0;
     let result = offsets_from(scene.truth, &r.pose);

@@ -34,7 +34,7 @@ pub(crate) const FORMAT: &str = "infraloc.tile.v1";
 /// Header line of `control_points.csv`.
 pub(crate) const CONTROL_POINTS_HEADER: &str = "id,x,y,z";
 /// How far (degrees of longitude) from a tile zone's central meridian a position is still placed in
-/// that zone's plane for [`find_tile`]: the range `tests/geo_reference.rs` checks against pyproj.
+/// that zone's plane for [`find_tile`]: the range `tests/it/geo_reference.rs` checks against pyproj.
 /// Farther positions get a great-circle distance to the tile centre instead, because transverse
 /// Mercator far outside its zone returns finite but meaningless coordinates.
 const PLANAR_LON_RANGE_DEG: f64 = 9.0;

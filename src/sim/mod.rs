@@ -9,6 +9,7 @@
 pub(crate) mod appearance;
 pub(crate) mod calibrated;
 pub mod checkerboard;
+pub mod gantry;
 pub(crate) mod gps;
 pub(crate) mod layers;
 pub(crate) mod noise;
@@ -71,6 +72,10 @@ pub enum Preset {
     /// 2448×2048 Sony IMX264 (3.45 µm) with a Fujinon FE185C057HA-class 185° lens, f ≈ 540 px.
     #[serde(rename = "5mp")]
     FiveMp,
+    /// A roadside gantry 6–9 m up (docs/simulator.md, "Gantry preset"): `small`'s fisheye plus a
+    /// 1280×800 perspective camera 20–30° below the horizontal, a 64-ring LiDAR sweep from the
+    /// same pole, a low sun and the long shadows of the pole, beam and signs.
+    Gantry,
 }
 
 /// How hard the scene is for the localizer.
@@ -165,6 +170,40 @@ pub struct Acquisition {
     pub approaches: usize,
     /// Moving vehicles and pedestrians per frame.
     pub traffic_vehicles_pedestrians: [usize; 2],
+    /// The gantry preset's sensors (absent in the other presets).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gantry: Option<GantryAcquisition>,
+}
+
+/// What the gantry preset's truth.json records of its sensors.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GantryAcquisition {
+    /// The perspective camera's view direction (clockwise from north) and its pitch below the
+    /// horizontal, degrees.
+    pub perspective_heading_pitch_deg: [f64; 2],
+    /// The LiDAR's height above the ground below it, metres.
+    pub lidar_height_above_ground_m: f64,
+    /// LiDAR rings and columns per sweep.
+    pub lidar_rings_columns: [usize; 2],
+    /// Elevation of the top and bottom ring in the LiDAR frame, degrees.
+    pub lidar_ring_elevations_deg: [f64; 2],
+    /// Returns per sweep (one per frame).
+    pub sweep_points: Vec<usize>,
+    /// Returns of the first sweep that project into the perspective image at the truth.
+    pub sweep_points_in_view: usize,
+}
+
+/// The gantry preset's perspective camera and LiDAR, generated with the scene.
+#[derive(Debug, Clone)]
+pub struct GantryScene {
+    /// The gantry, its sensors and their poses (world's local frame).
+    pub rig: gantry::Rig,
+    /// Perspective camera's true pose in the map CRS.
+    pub pose: CamFromMap,
+    /// Perspective frames, 8-bit gray, row-major (one per fisheye frame, taken at the same time).
+    pub frames: Vec<Vec<u8>>,
+    /// One LiDAR sweep per frame, in the LiDAR frame.
+    pub sweeps: Vec<Vec<gantry::SweepPoint>>,
 }
 
 /// A generated scene, in memory.
@@ -201,6 +240,8 @@ pub struct Scene {
     pub acquisition: Acquisition,
     /// UTC start of the GPS log (also the capture time).
     pub start: gps::UtcStart,
+    /// The gantry preset's perspective camera and LiDAR sweeps.
+    pub gantry: Option<GantryScene>,
 }
 
 /// The scene's map origin: the nominal site moved by up to [`SITE_JITTER`].
@@ -222,7 +263,7 @@ pub fn scene_true_camera(settings: &Settings) -> Camera {
 /// True intrinsics for a preset and lens, with per-unit manufacturing jitter.
 fn true_camera(rng: &mut ChaCha8Rng, preset: Preset, lens: Lens) -> Camera {
     let (w, h, f) = match preset {
-        Preset::Small => (1024u32, 1024u32, 300.0),
+        Preset::Small | Preset::Gantry => (1024u32, 1024u32, 300.0),
         Preset::FiveMp => (2448, 2048, 540.0),
     };
     let f = f * rng.random_range(0.99..1.01);
@@ -443,7 +484,14 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
             (c, Some(sigma))
         }
     };
-    let (pose_local, pose, above) = true_pose(&mut rng, &mut world, hard, origin);
+    let gantry = settings.preset == Preset::Gantry;
+    let (pose_local, pose, above) = true_pose(&mut rng, &mut world, hard, origin, gantry);
+    // The gantry stands in the world before anything is rendered: its shadows fall on every
+    // image, and the satellite sees it.
+    let rig = gantry.then(|| gantry::rig(&world, &pose_local, settings.seed));
+    if let Some(r) = &rig {
+        world.statics.extend_from_slice(&r.solids);
+    }
 
     // Map layers.
     let look = Appearance::new(world.seed);
@@ -463,6 +511,11 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
     // Fisheye frames.
     let overcast = hard && rng.random_bool(0.25);
     let cam_sun = (rng.random_range(0.0..360.0), rng.random_range(18.0..65.0));
+    // The gantry's sun is its rig's: low, behind the perspective camera, never overcast.
+    let (overcast, cam_sun) = match &rig {
+        Some(r) => (false, (r.sun_az_el_deg[0], r.sun_az_el_deg[1])),
+        None => (overcast, cam_sun),
+    };
     let light = if overcast {
         Light::from_az_el(cam_sun.0, cam_sun.1, 0.0, 1.0)
     } else {
@@ -485,10 +538,14 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         (rng.random_range(3..7), rng.random_range(2..6))
     };
     let movers = traffic(&world, &mut rng, nv, np);
-    let frames = (0..settings.frames)
-        .map(|f| {
-            let dynamic = movers_at(&world, &movers, f);
-            let gain = 1.0 + rng.random_range(-0.04..0.04);
+    let gains: Vec<f64> = (0..settings.frames)
+        .map(|_| 1.0 + rng.random_range(-0.04..0.04))
+        .collect();
+    let frames = gains
+        .iter()
+        .enumerate()
+        .map(|(f, gain)| {
+            let dynamic = movers_at(&world, &movers, f as u32);
             base.frame(
                 &view,
                 &dynamic,
@@ -498,6 +555,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
             )
         })
         .collect();
+    let gantry_scene = rig.map(|r| gantry_sensors(r, &view, &sensor, (&movers, &gains), origin));
 
     let gps = gps_log(&mut rng, hard, &pose, crs)?;
 
@@ -522,6 +580,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         camera_height_above_ground_m: above,
         approaches: world.approaches.len(),
         traffic_vehicles_pedestrians: [nv, np],
+        gantry: gantry_scene.as_ref().map(|g| g.acquisition(&world)),
     };
     Ok(Scene {
         settings: *settings,
@@ -539,23 +598,110 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         control_points,
         acquisition,
         start: gps.start,
+        gantry: gantry_scene,
     })
+}
+
+/// The gantry's perspective frames (same traffic, gains and sensor as the fisheye's) and one
+/// LiDAR sweep per frame.
+fn gantry_sensors(
+    rig: gantry::Rig,
+    view: &View,
+    sensor: &Sensor,
+    (movers, gains): (&[Mover], &[f64]),
+    origin: [f64; 2],
+) -> GantryScene {
+    let base = render::static_pass(view, &rig.camera, &rig.pose_local);
+    let exposure = base.auto_exposure();
+    let mut frames = Vec::with_capacity(gains.len());
+    let mut sweeps = Vec::with_capacity(gains.len());
+    for (f, gain) in gains.iter().enumerate() {
+        let dynamic = movers_at(view.world, movers, f as u32);
+        frames.push(base.frame(
+            view,
+            &dynamic,
+            sensor,
+            exposure * gain,
+            mix64(view.world.seed ^ (0x9E0 + f as u64)),
+        ));
+        sweeps.push(gantry::sweep(
+            view.world,
+            view.look,
+            &rig,
+            &[view.statics, &dynamic],
+            mix64(view.world.seed ^ (0x5E0 + f as u64)),
+        ));
+    }
+    let c = rig.pose_local.center();
+    let pose = CamFromMap::from_center(
+        rig.pose_local.rotation,
+        &Point3::new(c.x + origin[0], c.y + origin[1], c.z),
+    );
+    GantryScene {
+        rig,
+        pose,
+        frames,
+        sweeps,
+    }
+}
+
+impl GantryScene {
+    /// The returns of `sweep` that project into the perspective image at the true pose.
+    pub fn in_view(&self, sweep: &[gantry::SweepPoint]) -> usize {
+        let pose = self.rig.pose_in_lidar();
+        let cam = &self.rig.camera;
+        sweep
+            .iter()
+            .filter(|p| {
+                let q = pose.transform(&Point3::new(
+                    p.xyz[0] as f64,
+                    p.xyz[1] as f64,
+                    p.xyz[2] as f64,
+                ));
+                q.z > 0.0
+                    && cam
+                        .project_visible(&q.coords)
+                        .is_ok_and(|px| cam.is_valid_pixel(&px))
+            })
+            .count()
+    }
+
+    /// What truth.json records of the gantry's sensors.
+    fn acquisition(&self, world: &World) -> GantryAcquisition {
+        let o = self.rig.lidar_origin;
+        let heading = 90.0 - self.rig.view_angle.to_degrees();
+        GantryAcquisition {
+            perspective_heading_pitch_deg: [heading.rem_euclid(360.0), self.rig.pitch_down_deg],
+            lidar_height_above_ground_m: o.z - world.height(o.x, o.y),
+            lidar_rings_columns: [gantry::RINGS, gantry::COLUMNS],
+            lidar_ring_elevations_deg: [gantry::RING_TOP_DEG, gantry::RING_BOTTOM_DEG],
+            sweep_points: self.sweeps.iter().map(Vec::len).collect(),
+            sweep_points_in_view: self.sweeps.first().map_or(0, |s| self.in_view(s)),
+        }
+    }
 }
 
 /// The true pose in the world's local frame and in the map frame, and the camera's height above
 /// the ground: a centre within 10 m of the intersection's centre (cleared of solids 4 m around),
-/// 4–12 m up, any yaw, and a tilt of up to 3° (hard) or 0.2°.
+/// 4–12 m up (a gantry: 6–9 m), any yaw, and a tilt of up to 3° (hard) or 0.2°.
 fn true_pose(
     rng: &mut ChaCha8Rng,
     world: &mut World,
     hard: bool,
     origin: [f64; 2],
+    gantry: bool,
 ) -> (CamFromMap, CamFromMap, f64) {
     let r = 10.0 * rng.random::<f64>().sqrt();
     let phi = rng.random_range(0.0..TAU);
     let (cx, cy) = (r * phi.cos(), r * phi.sin());
     world.clear_around(cx, cy, 4.0);
     let above = rng.random_range(4.0..12.0);
+    // The same draw, mapped onto the gantry's range, keeps every later draw in step.
+    let above = if gantry {
+        6.0 + (above - 4.0) * 3.0 / 8.0
+    } else {
+        above
+    };
     let cz = world.height(cx, cy) + above;
     let tilt = if hard {
         3f64.to_radians()
@@ -750,16 +896,7 @@ impl Scene {
     /// truth.json content (docs/interfaces.md, "Scene directory"): a full `infraloc.pose.v1` document of the true pose
     /// (so every pose reader accepts it) plus control points, GPS truth, seed and settings.
     pub fn truth_json(&self) -> serde_json::Value {
-        let s = &self.start;
-        let stamp = format!(
-            "{:04}-{:02}-{:02}T{:02}:{:02}:{:02}Z",
-            s.year,
-            s.month,
-            s.day,
-            s.sec_of_day / 3600,
-            (s.sec_of_day / 60) % 60,
-            s.sec_of_day % 60
-        );
+        let stamp = self.capture_time();
         let mut pf = crate::posefile::PoseFile::new(&self.pose, self.crs, &self.tile.id, stamp);
         pf.intrinsics = serde_json::to_value(&self.camera_true).unwrap_or_default();
         pf.stages = vec![serde_json::json!({ "name": "truth" })];
@@ -778,6 +915,20 @@ impl Scene {
             pf.extra.insert(k.into(), v.unwrap_or_default());
         }
         serde_json::to_value(&pf).unwrap_or_default()
+    }
+
+    /// The capture's UTC time, as pose files write it.
+    pub fn capture_time(&self) -> String {
+        let s = &self.start;
+        format!(
+            "{:04}-{:02}-{:02}T{:02}:{:02}:{:02}Z",
+            s.year,
+            s.month,
+            s.day,
+            s.sec_of_day / 3600,
+            (s.sec_of_day / 60) % 60,
+            s.sec_of_day % 60
+        )
     }
 
     /// Width and height of the frames.

@@ -61,6 +61,8 @@ pub enum Kind {
     VehicleCabin,
     /// Pedestrian.
     Pedestrian,
+    /// Road sign plate (retroreflective sheeting: the brightest LiDAR return).
+    Sign,
 }
 
 /// A solid with its appearance in each band.

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Independent reference for `infraloc kitti import` on KITTI-360 (tests/kitti_layouts.rs).
+"""Independent reference for `infraloc kitti import` on KITTI-360 (tests/it/kitti_layouts.rs).
 
 Usage: kitti360_reference.py CALIBRATION_DIR CAMERA POINTS.json
 

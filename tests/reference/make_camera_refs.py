@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Reference data for the camera models (tests/camera_reference.rs).
+"""Reference data for the camera models (tests/it/camera_reference.rs).
 
 Run from the repository root (needs numpy and opencv-contrib-python-headless<5, and ../shared beside
 the clone for the omnidir calibration data):

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Reference WGS84 <-> UTM coordinates from pyproj (PROJ), for tests/geo_reference.rs.
+"""Reference WGS84 <-> UTM coordinates from pyproj (PROJ), for tests/it/geo_reference.rs.
 
 Writes tests/data/geo/utm_pyproj.csv with columns epsg,lat,lon,x,y: (lat, lon) in degrees projected
 by pyproj into EPSG:epsg. The grid covers every zone of both hemispheres, latitudes -80..84, points

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Reference WGS84 <-> national-grid coordinates from pyproj (PROJ), for tests/geo_national_grids.rs.
+"""Reference WGS84 <-> national-grid coordinates from pyproj (PROJ), for tests/it/geo_national_grids.rs.
 
 Writes tests/data/geo/national_pyproj.csv with columns epsg,lat,lon,x,y: (lat, lon) in degrees
 projected by pyproj into EPSG:epsg with PROJ's default operation (no datum grids installed, so a

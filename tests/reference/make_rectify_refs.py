@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Reference maps and images for tests/rectify_reference.rs, made with OpenCV.
+"""Reference maps and images for tests/it/rectify_reference.rs, made with OpenCV.
 
 For each case: cv2.omnidir.initUndistortRectifyMap(..., RECTIFY_PERSPECTIVE) (or
 cv2.fisheye.initUndistortRectifyMap for the equidistant case) with CV_32FC1 maps, then cv2.remap

@@ -1,5 +1,5 @@
 //! The three KITTI calibration layouts as a camera and that camera's pose in the Velodyne frame
-//! (`infraloc kitti import`, docs/refine.md "Real data"). Pure: file texts in, camera and pose out;
+//! (`infraloc kitti import`, docs/kitti.md). Pure: file texts in, camera and pose out;
 //! every failure an [`Error::Input`] naming the file and the key.
 //!
 //! - **Object benchmark** (`calib/NNNNNN.txt`): `Pi · [R0_rect · (R·X + T); 1]` with

@@ -7,8 +7,8 @@
 //! The projection maths is `proj4rs` (a Rust port of PROJ.4; for UTM its extended transverse
 //! Mercator, `etmerc`, which PROJ ≥ 6 also uses for `+proj=utm`). A datum other than WGS84 is
 //! reached through the definition's `+towgs84` Helmert parameters, as PROJ does when it has no
-//! grid for the datum. `tests/geo_reference.rs` checks UTM against pyproj on a global grid to
-//! ≤ 1 mm, `tests/geo_national_grids.rs` the national grids over each one's area. Projection
+//! grid for the datum. `tests/it/geo_reference.rs` checks UTM against pyproj on a global grid to
+//! ≤ 1 mm, `tests/it/geo_national_grids.rs` the national grids over each one's area. Projection
 //! objects are built once per CRS and cached, because parsing a proj string costs far more than
 //! projecting a point.
 

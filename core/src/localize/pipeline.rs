@@ -56,7 +56,7 @@ pub struct Params {
     /// uncertain ([`PolishedSearch::settle_uncertain_tilt`]) and no jackknife after it
     /// ([`PolishedSearch::without_jackknife`]), and follows it with the smooth estimator's 4-DoF
     /// gradient ascent, its information over all six axes (the σ) and its gate
-    /// ([`crate::localize::refine::gradient::smooth_stage`]).
+    /// ([`crate::localize::refine::local::smooth_stage`]).
     pub sampling: crate::localize::mi::smooth::Sampling,
 }
 
@@ -64,11 +64,10 @@ pub struct Params {
 /// (a tilt moves it most, and yaw has the longest lever arm there), and it is where the detection
 /// pipeline's ground error grows fastest. At 84° the disc reaches [`Params::mi_radius_m`]'s 30 m
 /// for every pole above 3.2 m, so MI sees the ground out to where vehicles are tracked instead of
-/// extrapolating the tilt fitted nearer in. Measured on the simulator's calibrated `hard` scenes
-/// (docs/accuracy.md, "The ground disc out to 30 m on low poles"): on low poles it cuts the tail
-/// of the ground error (`small` 1–100 pooled p95 8.0 → 6.5 cm against 78°, which reaches 30 m
-/// only above 6.4 m), not its median. The price: a low pole's point set grows to a tall pole's
-/// size, and its localization costs 1.35–1.65× more (docs/benchmarks.md).
+/// extrapolating the tilt fitted nearer in. On the simulator's calibrated `hard` scenes it cuts
+/// the tail of a low pole's ground error against 78° (which reaches 30 m only above 6.4 m), not
+/// its median (docs/accuracy.md "Ground disc: 84° off nadir"). The price: a low pole's point set
+/// grows to a tall pole's size (docs/benchmarks.md "Ground disc 84° on low poles").
 pub(crate) const MI_MAX_OFF_NADIR_DEG: f64 = 84.0;
 
 impl Default for Params {
@@ -85,7 +84,7 @@ impl Default for Params {
             mi_max_off_nadir_deg: MI_MAX_OFF_NADIR_DEG,
             polish: Some(PolishedSearch::default()),
             matcher: None,
-            sampling: crate::localize::mi::smooth::Sampling::Nearest,
+            sampling: crate::localize::mi::smooth::Sampling::Pv,
         }
     }
 }
@@ -372,11 +371,11 @@ fn refine_at(
         crate::localize::mi::smooth::Sampling::Pv => {
             // The polish estimated the tilt: the information covers it too.
             let free = if polish.is_some_and(|q| q.polish.frees_tilt()) {
-                crate::localize::refine::gradient::SmoothFree::FourAfterSix
+                crate::localize::refine::local::SmoothFree::FourAfterSix
             } else {
-                crate::localize::refine::gradient::SmoothFree::Four
+                crate::localize::refine::local::SmoothFree::Four
             };
-            let (r, _) = crate::localize::refine::gradient::smooth_stage(
+            let (r, _) = crate::localize::refine::local::smooth_stage(
                 camera, &views, start, r, &p.search, &p.quality, free,
             )?;
             Ok((r, rounds))

@@ -39,8 +39,8 @@ pub struct CoarseParams {
     /// [`CoarseParams::tall_top_k`] candidates join the list. The main sweep's template is what
     /// the lowest height sees (8.2 m of ground at 3 m and 70°), so that no height is favoured by
     /// a smaller, noisier correlation; on a tall pole that is only the ground within ≈ 40° of
-    /// nadir, and a road's edges and markings there can fit better at a wrong scale (`small`
-    /// seed 86: every top candidate at 6.55 m on a 9.96 m pole). The tall sweep's candidates
+    /// nadir, and a road's edges and markings there can fit better at a wrong scale (every top
+    /// candidate of a 10 m pole at 6.5 m). The tall sweep's candidates
     /// compete only in the LiDAR screening and the fine stage, not in the sweep's ranking.
     pub tall_from_m: Option<f64>,
     /// Candidates the tall sweep adds.

@@ -61,8 +61,8 @@ pub struct VerifySchedule {
     pub max_fine: usize,
     /// A tried candidate stands for its sweep pose rather than its PnP pose only if the sweep
     /// pose's MI is higher by more than this fraction: the PnP pose carries tilt and height the
-    /// sweep pose lacks, and MI is nearly flat over a few decimetres (`5mp` seed 4: PnP 0.35 m
-    /// off at MI 0.437, its sweep pose 1.02 m off at 0.440).
+    /// sweep pose lacks, and MI is nearly flat over a few decimetres (a PnP pose 0.35 m off can
+    /// score slightly below its sweep pose 1 m off).
     pub sweep_margin: f64,
     /// The runner-up hypothesis is kept ([`InitResult::runner_up`]) when the best one's MI is
     /// higher by less than this fraction: a margin that thin is within the verifier's own noise

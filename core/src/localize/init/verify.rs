@@ -3,7 +3,7 @@
 //! The initializer's hypotheses come from satellite matching, and its own evidence (PnP inliers)
 //! cannot tell a right pose from a self-consistent wrong one: road markings look alike after a
 //! half turn, and the fine stage converges to agreeing local matches around whatever pose it starts
-//! from (`CHANGELOG.md`, "What fails, and why"). The LiDAR ground reflectivity is a second,
+//! from (`lab/notebook.md`, "What fails, and why"). The LiDAR ground reflectivity is a second,
 //! satellite-independent modality of the same ground, so the MI between it and the fisheye image
 //! at a hypothesis is evidence the satellite matching cannot fake.
 //!
@@ -305,8 +305,8 @@ impl<'a> MiVerifier<'a> {
         let c = pose.center();
         let points = self.p.points;
         let (cam_h, pts) = self.disc_points(&c, 3 * points);
-        // One blur for every step: a blur schedule (half the x/y step) was tried and climbed
-        // fewer simulator candidates into the refinement basin (6 of 13 vs 7 of 13, seeds 1–6).
+        // One blur for every step: a blur schedule (half the x/y step) climbed fewer simulator
+        // candidates into the refinement basin.
         let footprint = self.p.blur_m / cam_h * self.focal;
         let (yaw0, pitch, roll) = pose.yaw_pitch_roll();
         let at = |o: &[f64; 4]| {

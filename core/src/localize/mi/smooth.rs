@@ -72,9 +72,10 @@ fn floor(x: f64) -> f64 {
 #[serde(rename_all = "kebab-case")]
 pub enum Sampling {
     /// Nearest-pixel joint histogram (the grid search's kernel), Nelder–Mead polish.
-    #[default]
     Nearest,
-    /// Partial-volume joint histogram ([`Smooth`]), gradient ascent, information covariance.
+    /// Partial-volume joint histogram ([`Smooth`]), gradient ascent, information covariance and
+    /// the competing optima (the default).
+    #[default]
     Pv,
 }
 
@@ -527,7 +528,7 @@ impl<'a> Smooth<'a> {
     /// compact patch of ground, as the jackknife's groups). ∂MI/∂h is taken at the whole
     /// histogram, so the clusters' gradients sum to [`Self::evaluate`]'s: each is a patch's
     /// share of the score, whose scatter across patches measures how much the answer depends on
-    /// which ground it saw ([`crate::localize::refine::gradient::information`]'s sandwich).
+    /// which ground it saw ([`crate::localize::refine::information::information`]'s sandwich).
     pub fn cluster_gradients(&self, pose: &CamFromMap, k: usize) -> Vec<[f64; 6]> {
         let k = k.max(1);
         let (r, t) = self.rt(pose);
@@ -1046,9 +1047,8 @@ mod tests {
     /// plain ascent as it is.
     #[test]
     fn the_start_s_curvature_shortens_the_ascent_to_the_same_peak() {
-        use crate::localize::refine::gradient::{
-            ascend, ascend_with, information, AscentConfig, HESSIAN_STEP,
-        };
+        use crate::localize::refine::ascent::{ascend, ascend_with, AscentConfig};
+        use crate::localize::refine::information::{information, HESSIAN_STEP};
         let cam = mei();
         let s = scene(&cam, 16);
         let views = vec![SmoothView {
@@ -1092,7 +1092,7 @@ mod tests {
     /// with fewer, none.
     #[test]
     fn frame_clusters_need_five_pairs() {
-        use crate::localize::refine::gradient::{information, FRAME_CLUSTERS_MIN};
+        use crate::localize::refine::information::{information, FRAME_CLUSTERS_MIN};
         let cam = mei();
         let s = scene(&cam, 16);
         let free = [true, true, true, false, false, true];
@@ -1121,7 +1121,7 @@ mod tests {
 
     #[test]
     fn duplicated_points_shrink_the_bound_but_not_the_sandwich() {
-        use crate::localize::refine::gradient::{information, SANDWICH_CLUSTERS};
+        use crate::localize::refine::information::{information, SANDWICH_CLUSTERS};
         let cam = mei();
         let s = scene(&cam, 16);
         // Every point twice, side by side: the same patches, no new information.

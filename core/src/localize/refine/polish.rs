@@ -61,7 +61,7 @@ impl PolishParams {
 
     /// Whether the polish moves the tilt (pitch or roll): its answer's tilt is then an estimate,
     /// which the uncertainty must cover too.
-    pub(crate) fn frees_tilt(&self) -> bool {
+    pub fn frees_tilt(&self) -> bool {
         self.is_free(4) || self.is_free(5)
     }
 

@@ -221,9 +221,13 @@ pub struct Quality {
     pub covariance: Option<Uncertainty>,
     /// The smooth estimator's observed information, sandwich and frame covariances at the
     /// answer, when that stage ran and its Hessian had a basin
-    /// ([`crate::localize::refine::gradient::information`]).
+    /// ([`crate::localize::refine::information::information`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub information: Option<crate::localize::refine::gradient::Information>,
+    pub information: Option<crate::localize::refine::information::Information>,
+    /// The optima that compete with the answer, from the smooth stage
+    /// ([`crate::localize::refine::optima`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub optima: Option<crate::localize::refine::optima::Optima>,
     /// Gate verdict.
     pub accepted: bool,
     /// Why the gate rejected (None when accepted).
@@ -466,6 +470,7 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
         sigma: None,
         covariance: None,
         information: None,
+        optima: None,
         accepted: reason.is_none(),
         reason,
         refused_by,
@@ -696,6 +701,89 @@ impl Default for UncertaintyConfig {
         UncertaintyConfig {
             folds: 8,
             region_bound: QualityConfig::default().region_bound(),
+        }
+    }
+}
+
+impl Quality {
+    /// The grid's jackknife σ as its own gate judges it (the estimate itself, before the reported
+    /// σ is widened by the intrinsics' uncertainty), if it has one.
+    pub(crate) fn jackknife_judged(&self) -> Option<Sigma> {
+        self.covariance.as_ref().map(Sigma::judged).or(self.sigma)
+    }
+}
+
+/// The smooth stage's gate ([`crate::localize::refine::local::smooth_stage`]) on `q`: the grid's global checks stand, its local ones are replaced
+/// by `information`'s (a finite, negative-definite Hessian; the largest of the bound's, the
+/// sandwiches', the jackknife's where one ran, and the search's floor within the limits).
+/// `judged`: `judged_sigma` of the local stage of `information` when it is `Ok` (unread otherwise).
+pub(crate) fn smooth_gate(
+    q: &mut Quality,
+    information: &std::result::Result<crate::localize::refine::information::Information, String>,
+    judged: &[f64],
+    qcfg: &QualityConfig,
+    optima: Option<&crate::localize::refine::optima::Optima>,
+) {
+    // The gate: the grid's global checks stand, the local ones are the information's. The
+    // grid's second peak is no verdict of its own: it was one of the starts of the search for
+    // competing optima, and whether the data tells it apart from the answer is that test's.
+    let global = matches!(
+        q.refused_by,
+        Some(GateCheck::TooFewPoints | GateCheck::PointsLost | GateCheck::OnEdge)
+    );
+    if !global {
+        q.accepted = true;
+        q.reason = None;
+        q.refused_by = None;
+        match information {
+            Err(m) => {
+                q.accepted = false;
+                q.reason = Some(match optima.and_then(|o| o.describe()) {
+                    Some(d) => format!("{m}; {d}"),
+                    None => m.clone(),
+                });
+                q.refused_by = Some(GateCheck::Uncertain);
+            }
+            Ok(info) => {
+                let limit = |axis: &str| match axis {
+                    "x" | "y" => (qcfg.max_sigma_xy_m, "xy"),
+                    "z" => (qcfg.max_sigma_z_m, "z"),
+                    "yaw" => (qcfg.max_sigma_yaw_deg, "yaw"),
+                    _ => (qcfg.max_sigma_tilt_deg, "tilt"),
+                };
+                // The Cramér–Rao σ counts every point as independent; on real frames it was
+                // 40–90× smaller than the answers' scatter (docs/refine.md "Sampling"). The gate
+                // judges the largest of it, the sandwich σ, the grid's jackknife σ where one ran
+                // (∞ where it found no peak) and the search's floor.
+                let judged_jack = q.jackknife_judged();
+                if let Some((i, (lim, key))) = info
+                    .axes
+                    .iter()
+                    .enumerate()
+                    .map(|(i, a)| (i, limit(a)))
+                    .find(|(i, (lim, _))| !(judged[*i] <= *lim))
+                {
+                    let axis = &info.axes[i];
+                    q.accepted = false;
+                    q.reason = Some(format!(
+                        "σ {axis} {:.4} {} over the limit {key}={lim} (information σ {:.4}, sandwich σ {:.4}{}{}{})",
+                        judged[i],
+                        info.units[i],
+                        info.sigma[i],
+                        info.sandwich_sigma[i],
+                        info.frame_sigma
+                            .as_ref()
+                            .map_or(String::new(), |f| format!(", frame σ {:.4}", f[i])),
+                        judged_jack
+                            .as_ref()
+                            .map_or(String::new(), |s| format!(", jackknife σ {:.4}", s.axis(axis))),
+                        optima
+                            .and_then(|o| o.describe().map(|d| (o.sigma(axis), d)))
+                            .map_or(String::new(), |(s, d)| format!(", optima σ {s:.4}; {d}"))
+                    ));
+                    q.refused_by = Some(GateCheck::Uncertain);
+                }
+            }
         }
     }
 }

@@ -28,6 +28,9 @@ pub struct Refinement {
     pub points: (usize, usize),
     /// Per view (image/point-set pair): points given and points in its fixed set.
     pub views: Vec<(usize, usize)>,
+    /// The last search's other local maxima (best first): where the smooth stage looks for
+    /// optima that compete with the answer ([`crate::localize::refine::optima`]).
+    pub peaks: Vec<CamFromMap>,
 }
 
 /// Machine-readable summary (`--report`).
@@ -109,7 +112,7 @@ pub(crate) fn refine_masked(
 /// The grid search and its quality on pooled views, without the uncertainty estimate.
 /// `(thinning, level)`: the finest level's point stride and the level the search stops at
 /// ([`search_to`]).
-fn search_views<'a>(
+pub(crate) fn search_views<'a>(
     cam: &Camera,
     views: &[View<'a>],
     init: &CamFromMap,
@@ -140,6 +143,11 @@ fn search_views<'a>(
         quality,
         points: (ev.n_input, ev.n_points),
         views: ev.view_points.clone(),
+        peaks: res
+            .other_peaks
+            .iter()
+            .map(|p| ev.pose(&ev.grid().cell(p.idx)))
+            .collect(),
     })
 }
 
@@ -321,7 +329,7 @@ impl PolishedSearch {
 
     /// These settings without the jackknife and its region after the last round: for the smooth
     /// estimator's path, whose information over all six axes at its own answer gives the σ
-    /// ([`crate::localize::refine::gradient::smooth_stage`]).
+    /// ([`crate::localize::refine::local::smooth_stage`]).
     pub fn without_jackknife(self) -> Self {
         PolishedSearch {
             jackknife: false,

@@ -1,6 +1,6 @@
 //! The uncertainty of a refined pose: the marginal covariance of [x, y, z, yaw(, pitch, roll)],
 //! by the jackknife below ([`estimate`]); the node's smooth path takes it from the observed
-//! information instead ([`crate::localize::refine::gradient::information_covariance`]), in the
+//! information instead ([`crate::localize::refine::information::information_covariance`]), in the
 //! same [`Uncertainty`] with [`CovarianceSource::Information`].
 //!
 //! Two things make a single MI optimum less certain than its peak's sharpness suggests, and both
@@ -123,7 +123,7 @@ pub enum CovarianceSource {
     Jackknife,
     /// The smooth estimator's observed information over all the answer's axes: the largest of
     /// its Cramér–Rao bound, patch and frame sandwiches and the search's floor
-    /// ([`crate::localize::refine::gradient::information_covariance`]).
+    /// ([`crate::localize::refine::information::information_covariance`]).
     Information,
 }
 

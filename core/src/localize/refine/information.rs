@@ -1,0 +1,429 @@
+//! The covariance of the smooth estimator's answer from its observed information.
+//!
+//! [`information`]: the Cramér–Rao covariance of Pandey et al.: MI estimates the expected
+//! log-likelihood ratio per point, so the observed information of N points is −N·∇²MI and its
+//! inverse bounds the estimate's covariance. ∇²MI is the central difference of the analytic
+//! gradient. Beside it, the cluster-robust ("sandwich") covariances over patches of ground and
+//! over frames. A Hessian that is not negative definite over the free axes (no basin) or any
+//! non-finite entry is a one-line refusal, never a number. [`information_covariance`] turns them
+//! into the answer's reported covariance.
+
+// Small fixed-size matrices (6×6) indexed by row and column read as the formulas do.
+#![allow(clippy::needless_range_loop)]
+
+use crate::localize::mi::smooth::Smooth;
+use crate::pose::CamFromMap;
+use nalgebra::{DMatrix, DVector, Rotation3, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Central-difference steps of the Hessian: 2 cm and 0.1° (m, rad). PV's value is continuous
+/// but its gradient changes in steps as points cross pixels, and real images add texture bumps
+/// of a few centimetres; the curvature that bounds the answer is the basin's, a step of about a
+/// fifth of its width (±10 cm / ±0.5° on the KITTI frames) measures it.
+pub const HESSIAN_STEP: [f64; 6] = [0.02, 0.02, 0.02, 1.745e-3, 1.745e-3, 1.745e-3];
+
+/// The observed-information covariance ([`information`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Information {
+    /// Axis names (x, y, z, yaw, then pitch, roll when free), as the jackknife's.
+    pub axes: Vec<String>,
+    /// Units (m or deg).
+    pub units: Vec<String>,
+    /// Marginal σ per axis.
+    pub sigma: Vec<f64>,
+    /// Covariance (m, deg), row-major.
+    pub matrix: Vec<Vec<f64>>,
+    /// Points N (the fixed sets, all views).
+    pub points: usize,
+    /// Objective evaluations spent on the Hessian.
+    pub evaluations: usize,
+    /// The cluster-robust ("sandwich") σ per axis, same axes and units: see [`information`].
+    pub sandwich_sigma: Vec<f64>,
+    /// The cluster-robust covariance (m, deg), row-major.
+    pub sandwich_matrix: Vec<Vec<f64>>,
+    /// Clusters (compact patches of ground) the sandwich's score scatter is taken over.
+    pub clusters: usize,
+    /// With [`FRAME_CLUSTERS_MIN`] or more pairs: the sandwich with each pair as one cluster
+    /// (σ per axis, same axes and units), which sees what a frame's own systematic errors (its
+    /// sweep's skew, its light) do to the answer; patches of one frame share those.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_sigma: Option<Vec<f64>>,
+    /// The frame-clustered covariance (m, deg), row-major.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_matrix: Option<Vec<Vec<f64>>>,
+}
+
+/// Pairs needed for [`Information::frame_sigma`]: the scatter of fewer frames' scores is too
+/// noisy to stand for a covariance over four axes.
+pub const FRAME_CLUSTERS_MIN: usize = 5;
+
+/// Clusters of [`information`]'s sandwich: enough patches for a stable 6 × 6 scatter (≫ 6),
+/// few enough that each patch spans more ground than a texture's correlation length on the
+/// frames measured (docs/refine.md "Sampling").
+pub const SANDWICH_CLUSTERS: usize = 32;
+
+/// The Cramér–Rao covariance at `pose` over the free axes of `free` (θ of [`step`]): inverse of
+/// −N·∇²(objective), and beside it the cluster-robust ("sandwich", Huber–White) covariance
+/// A⁻¹·B·A⁻¹ with A = −∇²(objective) and B the scatter of the score over
+/// [`SANDWICH_CLUSTERS`] patches of ground ([`Smooth::cluster_gradients`], scaled by K/(K−1)).
+/// The Cramér–Rao bound holds when every point is an independent sample of a correct model;
+/// neighbouring points share pixels and a real frame's gray–reflectivity relation varies over
+/// the ground, and the sandwich counts that: it equals the bound when points are independent
+/// and grows with the correlation within a patch. Both are expressed over the axes the jackknife
+/// reports (x, y, z in m, yaw about the
+/// map's up axis in degrees, and pitch and roll as [`crate::localize::mi::space::pose_at`] adds them, in
+/// degrees). Errors (one line) when the Hessian or the covariance is not finite or the Hessian
+/// is not negative definite over the free axes.
+pub fn information(
+    est: &Smooth<'_>,
+    pose: &CamFromMap,
+    free: &[bool; 6],
+) -> Result<Information, String> {
+    information_with_step(est, pose, free, &HESSIAN_STEP)
+}
+
+/// [`information`] with the Hessian's central-difference steps `step` (m, rad) instead of
+/// [`HESSIAN_STEP`], for measuring the choice.
+pub fn information_with_step(
+    est: &Smooth<'_>,
+    pose: &CamFromMap,
+    free: &[bool; 6],
+    step: &[f64; 6],
+) -> Result<Information, String> {
+    let h = est.hessian(pose, free, step);
+    let idx: Vec<usize> = (0..6).filter(|&k| free[k]).collect();
+    let n = est.n();
+    let d = idx.len();
+    let info = DMatrix::from_fn(d, d, |i, j| -(n as f64) * h[idx[i]][idx[j]]);
+    if !info.iter().all(|v| v.is_finite()) {
+        return Err("information: the MI Hessian is not finite".into());
+    }
+    let (axes, minv) = reported_axes(pose, free)?;
+    let Some(chol) = info.clone().cholesky() else {
+        let min_eig = info.clone().symmetric_eigenvalues().min();
+        // The direction is sought in steps of the Hessian (metres and radians made comparable):
+        // in θ's own units a radian of yaw would outweigh a metre.
+        let scale = DMatrix::from_diagonal(&DVector::from_fn(d, |i, _| step[idx[i]]));
+        let eig = (&scale * &info * &scale).symmetric_eigen();
+        let k = eig.eigenvalues.imin();
+        let theta = &scale * eig.eigenvectors.column(k);
+        let along = upward_direction(&(&minv * theta), &axes, step);
+        return Err(format!(
+            "information: the MI Hessian is not negative definite over the free axes (no basin along {along}; largest curvature {:.3e})",
+            -min_eig
+        ));
+    };
+    let cov_theta = chol.inverse();
+    // The sandwich over θ: A⁻¹·B·A⁻¹ = (N·A)⁻¹ (N²·B) (N·A)⁻¹ with N·A the information above.
+    let sandwich = |scores: &[[f64; 6]]| -> DMatrix<f64> {
+        let k = scores.len() as f64;
+        let mean: Vec<f64> = (0..d)
+            .map(|i| scores.iter().map(|g| g[idx[i]]).sum::<f64>() / k)
+            .collect();
+        let scatter = DMatrix::from_fn(d, d, |i, j| {
+            let nn = (n as f64).powi(2);
+            nn * k / (k - 1.0).max(1.0)
+                * scores
+                    .iter()
+                    .map(|g| (g[idx[i]] - mean[i]) * (g[idx[j]] - mean[j]))
+                    .sum::<f64>()
+        });
+        &cov_theta * scatter * &cov_theta
+    };
+    let scores = est.cluster_gradients(pose, SANDWICH_CLUSTERS);
+    let sandwich_theta = sandwich(&scores);
+    let frame_theta =
+        (est.views() >= FRAME_CLUSTERS_MIN).then(|| sandwich(&est.view_gradients(pose)));
+    let cov = &minv * cov_theta * minv.transpose();
+    if !cov.iter().all(|v| v.is_finite()) {
+        return Err("information: the covariance is not finite".into());
+    }
+    let sw = &minv * sandwich_theta * minv.transpose();
+    if !sw.iter().all(|v| v.is_finite()) {
+        return Err("information: the sandwich covariance is not finite".into());
+    }
+    let frame = frame_theta.map(|f| &minv * f * minv.transpose());
+    if frame
+        .as_ref()
+        .is_some_and(|f| !f.iter().all(|v| v.is_finite()))
+    {
+        return Err("information: the frame-clustered covariance is not finite".into());
+    }
+    let sigma_of = |m: &DMatrix<f64>| -> Vec<f64> {
+        (0..axes.len()).map(|i| m[(i, i)].max(0.0).sqrt()).collect()
+    };
+    let rows_of = |m: &DMatrix<f64>| -> Vec<Vec<f64>> {
+        (0..axes.len())
+            .map(|i| (0..axes.len()).map(|j| m[(i, j)]).collect())
+            .collect()
+    };
+    let units: Vec<String> = axes
+        .iter()
+        .map(|a| {
+            if ["x", "y", "z"].contains(a) {
+                "m"
+            } else {
+                "deg"
+            }
+            .to_string()
+        })
+        .collect();
+    Ok(Information {
+        axes: axes.iter().map(|s| s.to_string()).collect(),
+        units,
+        sigma: sigma_of(&cov),
+        matrix: rows_of(&cov),
+        points: n,
+        evaluations: Smooth::hessian_evaluations(free) + 1,
+        sandwich_sigma: sigma_of(&sw),
+        sandwich_matrix: rows_of(&sw),
+        clusters: scores.len(),
+        frame_sigma: frame.as_ref().map(sigma_of),
+        frame_matrix: frame.as_ref().map(rows_of),
+    })
+}
+
+/// The axes `information` reports for the free parameters `free` (x, y, z, yaw, and pitch and
+/// roll when the tilt is free) and the inverse of M = dθ/d(reported offsets) over them: θ's x, y,
+/// z are the offsets', yaw is rz (rad → deg), pitch and roll go through the Jacobian of
+/// [`crate::localize::mi::space::pose_at`]'s Euler increments.
+fn reported_axes(
+    pose: &CamFromMap,
+    free: &[bool; 6],
+) -> Result<(Vec<&'static str>, DMatrix<f64>), String> {
+    let idx: Vec<usize> = (0..6).filter(|&k| free[k]).collect();
+    let tilt = free[3] || free[4];
+    let axes: Vec<&str> = if tilt {
+        vec!["x", "y", "z", "yaw", "pitch", "roll"]
+    } else {
+        vec!["x", "y", "z", "yaw"]
+    };
+    // M: d θ / d(reported offsets), columns per reported axis, rows per θ index (all six).
+    let mut m = DMatrix::<f64>::zeros(6, axes.len());
+    for (c, _) in axes.iter().enumerate() {
+        // Reported offsets: x, y, z (m), yaw, pitch, roll (deg) of pose_at.
+        let mut off = [0.0; 6];
+        let h = 1e-6;
+        off[c] = h;
+        let plus = theta_between(pose, &crate::localize::mi::space::pose_at(pose, &off));
+        off[c] = -h;
+        let minus = theta_between(pose, &crate::localize::mi::space::pose_at(pose, &off));
+        for r in 0..6 {
+            m[(r, c)] = (plus[r] - minus[r]) / (2.0 * h);
+        }
+    }
+    let m_free = DMatrix::from_fn(idx.len(), axes.len(), |i, j| m[(idx[i], j)]);
+    if m_free.nrows() != m_free.ncols() {
+        return Err(format!(
+            "information: {} free parameters but {} reported axes",
+            idx.len(),
+            axes.len()
+        ));
+    }
+    let Some(minv) = m_free.try_inverse() else {
+        return Err("information: the axes' Jacobian is singular".into());
+    };
+    Ok((axes, minv))
+}
+
+/// A direction `o` of the reported offsets (m, deg) for people: each axis in units of the
+/// Hessian's step on it (`step`: m, rad), so that metres and degrees compare, as a unit vector
+/// whose components of 0.2 or more are named, e.g. "x +0.88, yaw −0.29 (steps of 2 cm / 0.10°)".
+fn upward_direction(o: &DVector<f64>, axes: &[&str], step: &[f64; 6]) -> String {
+    let unit = |i: usize| if i < 3 { step[i] } else { step[i].to_degrees() };
+    let v: Vec<f64> = (0..axes.len()).map(|i| o[i] / unit(i)).collect();
+    let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if !(norm > 0.0 && norm.is_finite()) {
+        return "an undetermined direction".into();
+    }
+    // The sign of an eigenvector is arbitrary: the largest component is shown positive.
+    let big = v
+        .iter()
+        .copied()
+        .max_by(|a, b| a.abs().total_cmp(&b.abs()))
+        .unwrap_or(1.0);
+    let s = big.signum() / norm;
+    let parts: Vec<String> = axes
+        .iter()
+        .zip(&v)
+        .filter(|(_, x)| (**x * s).abs() >= 0.2)
+        .map(|(a, x)| format!("{a} {:+.2}", x * s))
+        .collect();
+    format!(
+        "{} (steps of {:.0} cm / {:.2}°)",
+        parts.join(", "),
+        100.0 * step[0],
+        step[3].to_degrees()
+    )
+}
+
+impl Information {
+    /// One line for people: σ per axis in cm and degrees.
+    pub fn describe(&self) -> String {
+        let line = |sigma: &[f64]| -> String {
+            self.axes
+                .iter()
+                .zip(sigma)
+                .zip(&self.units)
+                .map(|((a, s), u)| {
+                    if u == "m" {
+                        format!("{a} {:.1} cm", 100.0 * s)
+                    } else {
+                        format!("{a} {s:.3}°")
+                    }
+                })
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let frames = self.frame_sigma.as_ref().map_or(String::new(), |f| {
+            format!("; frame σ {} (one cluster per pair)", line(f))
+        });
+        format!(
+            "σ {} (Cramér–Rao, N = {}); sandwich σ {} ({} patches){frames}",
+            line(&self.sigma),
+            self.points,
+            line(&self.sandwich_sigma),
+            self.clusters
+        )
+    }
+}
+
+/// θ (of [`step`]) that takes `from` to `to`.
+pub fn theta_between(from: &CamFromMap, to: &CamFromMap) -> [f64; 6] {
+    let d = to.center() - from.center();
+    let q: Rotation3<f64> = to.rotation.inverse() * from.rotation;
+    // Angle from the skew part and the trace together (atan2): exact for tiny rotations, where
+    // the acos of the trace alone rounds to 0 (the axes' Jacobian takes 1e-6 steps).
+    let m = q.matrix();
+    let v = Vector3::new(
+        m[(2, 1)] - m[(1, 2)],
+        m[(0, 2)] - m[(2, 0)],
+        m[(1, 0)] - m[(0, 1)],
+    ) * 0.5;
+    let s = v.norm();
+    let angle = s.atan2(0.5 * (m.trace() - 1.0));
+    let r = if s > 0.0 { v * (angle / s) } else { v };
+    [d.x, d.y, d.z, r.x, r.y, r.z]
+}
+
+/// The reported covariance when the information gives it (no jackknife ran): the patch
+/// sandwich's, each axis scaled up to the σ the gate judged (`judged`, [`judged_sigma`];
+/// correlations kept), widened to the Student-t 3σ quantile of its K − 1 degrees of freedom
+/// (the frames' count − 1 at most where a frame sandwich exists) as the jackknife's is, then the
+/// intrinsics' part added (`deltas`, [`crate::localize::refine::uncertainty::intrinsics_deltas`]).
+/// `gate_sigma` is `judged`.
+pub fn information_covariance(
+    info: &Information,
+    judged: &[f64],
+    deltas: Option<&[[f64; 6]]>,
+) -> crate::localize::refine::uncertainty::Uncertainty {
+    let d = info.axes.len();
+    let base = &info.sandwich_matrix;
+    let have: Vec<f64> = (0..d).map(|i| base[i][i].max(0.0).sqrt()).collect();
+    let f: Vec<f64> = (0..d)
+        .map(|i| {
+            if have[i] > 0.0 && judged[i] > have[i] {
+                judged[i] / have[i]
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    // The fewest degrees of freedom among the estimates the judged σ may come from: the
+    // patches', or the frames' when there is a frame sandwich (at least FRAME_CLUSTERS_MIN).
+    let dof = match info.frame_sigma {
+        Some(_) => FRAME_CLUSTERS_MIN - 1,
+        None => info.clusters.saturating_sub(1),
+    };
+    let widen = (crate::localize::refine::uncertainty::student_t_3sigma(dof.max(1)) / 3.0).powi(2);
+    let matrix: Vec<Vec<f64>> = (0..d)
+        .map(|i| {
+            (0..d)
+                .map(|j| match (have[i] > 0.0, have[j] > 0.0) {
+                    (true, true) => base[i][j] * f[i] * f[j] * widen,
+                    // An axis the patches left without scatter still carries its judged σ.
+                    _ if i == j => judged[i] * judged[i] * widen,
+                    _ => 0.0,
+                })
+                .collect()
+        })
+        .collect();
+    let mut u = crate::localize::refine::uncertainty::Uncertainty {
+        axes: info.axes.clone(),
+        units: info.units.clone(),
+        sigma: (0..d).map(|i| matrix[i][i].max(0.0).sqrt()).collect(),
+        matrix,
+        group_optima: Vec::new(),
+        peak: true,
+        folds: 0,
+        intrinsics: Vec::new(),
+        points: info.points,
+        poses: info.evaluations,
+        jackknife: Vec::new(),
+        region: None,
+        gate_sigma: judged.to_vec(),
+        source: crate::localize::refine::uncertainty::CovarianceSource::Information,
+    };
+    if let Some(deltas) = deltas {
+        crate::localize::refine::uncertainty::add_intrinsics(&mut u, deltas);
+    }
+    u
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::localize::mi::smooth::step;
+    use nalgebra::Point3;
+
+    /// A "no basin" refusal names its direction in steps of the Hessian (metres and degrees
+    /// compared), with the sign of its largest component, and leaves out the small ones.
+    #[test]
+    fn the_upward_direction_is_named_in_steps() {
+        let axes = ["x", "y", "z", "yaw"];
+        // 2 cm along x and 0.1° of yaw: one step each.
+        let o = DVector::from_vec(vec![0.02, 0.0, 0.001, 0.1]);
+        let want = "x +0.71, yaw +0.71 (steps of 2 cm / 0.10°)";
+        assert_eq!(upward_direction(&o, &axes, &HESSIAN_STEP), want);
+        assert_eq!(upward_direction(&(-o), &axes, &HESSIAN_STEP), want);
+        let o = DVector::from_vec(vec![0.0, -0.04, 0.0, 0.1]);
+        assert_eq!(
+            upward_direction(&o, &axes, &HESSIAN_STEP),
+            "y +0.89, yaw -0.45 (steps of 2 cm / 0.10°)"
+        );
+        let zero = DVector::from_vec(vec![0.0; 4]);
+        assert_eq!(
+            upward_direction(&zero, &axes, &HESSIAN_STEP),
+            "an undetermined direction"
+        );
+    }
+
+    #[test]
+    fn theta_between_inverts_step_down_to_tiny_rotations() {
+        let p = CamFromMap::from_center_ypr(&Point3::new(1.0, -2.0, 6.0), 0.7, 0.05, -0.1);
+        for th in [
+            [0.1, -0.2, 0.05, 0.01, -0.02, 0.03],
+            [0.0, 0.0, 0.0, 1e-8, 0.0, -2e-8],
+            [1e-7, 0.0, 0.0, 0.0, 3e-9, 0.0],
+        ] {
+            let back = theta_between(&p, &step(&p, &th));
+            for k in 0..6 {
+                assert!(
+                    (back[k] - th[k]).abs() < 1e-12 + 1e-9 * th[k].abs(),
+                    "{th:?} -> {back:?}"
+                );
+            }
+        }
+    }
+
+    /// The reported yaw is θ's rz in degrees (the covariance's axis mapping).
+    #[test]
+    fn reported_yaw_is_rz_in_degrees() {
+        let p = CamFromMap::from_center_ypr(&Point3::new(0.0, 0.0, 5.0), 0.3, 0.0, 0.0);
+        let mut off = [0.0; 6];
+        off[3] = 1e-6;
+        let th = theta_between(&p, &crate::localize::mi::space::pose_at(&p, &off));
+        assert!((th[5] - 1e-6f64.to_radians()).abs() < 1e-15, "{th:?}");
+        assert!(th[..5].iter().all(|v| v.abs() < 1e-15), "{th:?}");
+    }
+}

@@ -1,0 +1,552 @@
+//! The smooth estimator's local stage: from the grid search's basin, the gradient ascent
+//! ([`super::ascent`]) of the partial-volume MI, the observed information at the answer
+//! ([`super::information`]), and the σ the gate judges ([`super::quality::smooth_gate`]).
+
+// Small fixed-size matrices indexed by row and column read as the formulas do.
+#![allow(clippy::needless_range_loop)]
+
+use super::ascent::{ascend_with, Ascent, AscentConfig};
+use super::information::{information, information_covariance, Information, HESSIAN_STEP};
+use crate::localize::mi::smooth::Smooth;
+use crate::pose::CamFromMap;
+use serde::Serialize;
+
+/// What [`refine_smooth`] answers beside the grid search's [`Refinement`].
+#[derive(Debug, Clone, Serialize)]
+pub struct SmoothRefinement {
+    /// Sampling (`pv`) and pooling of the local stage.
+    pub sampling: crate::localize::mi::smooth::Sampling,
+    /// Pooling of the pairs.
+    pub pooling: crate::localize::mi::smooth::Pooling,
+    /// The local ascents, one per round (a round that ended on its box's edge starts another,
+    /// centred on its end).
+    pub ascents: Vec<Ascent>,
+    /// MI per histogram at the answer (one, or one per pair).
+    pub mi: Vec<f64>,
+    /// The Cramér–Rao covariance at the answer, or why there is none.
+    pub information: std::result::Result<Information, String>,
+    /// The grid search's gate verdict (its reason when it refused).
+    pub grid_reason: Option<String>,
+}
+
+/// Rounds of [`refine_smooth`]'s local ascent at most.
+pub const ASCENT_ROUNDS: usize = 3;
+
+/// The tiled grid search for the global basin (nearest-pixel, to the finest step, no
+/// uncertainty estimate of its own), then the smooth estimator's gradient ascent from its cell,
+/// the observed information at the answer and the competing optima ([`smooth_stage`]). The
+/// gate: the grid's checks of the global basin (too few points, points lost, the optimum on the
+/// box's edge) stand; its local-shape checks (basin width, curvature, second peak) are replaced
+/// by the information's — a Hessian that is negative definite and finite — and the σ limits,
+/// which judge per axis the largest of the information's bound, its patch and frame sandwiches
+/// and the search's floor, with the spread of the optima the data cannot tell apart added
+/// ([`judged_sigma`]).
+pub fn refine_smooth(
+    cam: &crate::camera::Camera,
+    views: &[crate::localize::mi::objective::View<'_>],
+    init: &CamFromMap,
+    cfg: &crate::localize::mi::space::SearchConfig,
+    qcfg: &super::quality::QualityConfig,
+    six_dof: bool,
+) -> crate::error::Result<(super::rounds::Refinement, SmoothRefinement)> {
+    let cache = crate::localize::mi::objective::ImageCache::default();
+    let r = super::rounds::search_views(cam, views, init, cfg, qcfg, (1, 0), &cache)?;
+    let free = if six_dof {
+        SmoothFree::Six
+    } else {
+        SmoothFree::Four
+    };
+    smooth_stage(cam, views, init, r, cfg, qcfg, free)
+}
+
+/// The axes of [`smooth_stage`]: which its ascent moves and which its information covers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SmoothFree {
+    /// x, y, z and yaw, the tilt held (`refine`'s default).
+    Four,
+    /// All six (`refine --polish`).
+    Six,
+    /// The ascent over x, y, z and yaw at the tilt an earlier 6-DoF polish estimated (the
+    /// node's), the information over all six: the answer's tilt is an estimate too, and a nadir
+    /// camera's tilt trades against its position, so a σ over four axes at a held tilt would miss
+    /// that valley (docs/accuracy.md "Which σ covers").
+    FourAfterSix,
+}
+
+impl SmoothFree {
+    /// The ascent's settings.
+    fn ascent(self) -> AscentConfig {
+        match self {
+            SmoothFree::Six => AscentConfig::six_dof(),
+            SmoothFree::Four | SmoothFree::FourAfterSix => AscentConfig::four_dof(),
+        }
+    }
+
+    /// The names of the axes the information covers, as it reports them.
+    fn axis_names(self) -> Vec<String> {
+        let n = if self.information()[3] { 6 } else { 4 };
+        ["x", "y", "z", "yaw", "pitch", "roll"][..n]
+            .iter()
+            .map(|a| a.to_string())
+            .collect()
+    }
+
+    /// The axes of θ the information covers.
+    fn information(self) -> [bool; 6] {
+        match self {
+            SmoothFree::Four => AscentConfig::four_dof().free,
+            SmoothFree::Six | SmoothFree::FourAfterSix => [true; 6],
+        }
+    }
+}
+
+/// The smooth estimator's stage after a nearest-pixel refinement `r` that started at `init`:
+/// its gradient ascent from `r`'s pose over the axes of `free` (in the box of [`AscentConfig`],
+/// re-centred while it ends on the edge, [`ASCENT_ROUNDS`] at most), the observed information at
+/// the answer, and the gate of [`refine_smooth`]. `r` keeps its grid checks and its jackknife σ
+/// when it has one; its pose, offsets and verdict become the stage's. When `r` has no σ (the
+/// node's path, [`super::rounds::PolishedSearch::without_jackknife`]), the reported covariance is
+/// the information's ([`information_covariance`]). The pairs pool as `cfg.mi.pooling` says, as in
+/// the grid search.
+pub fn smooth_stage(
+    cam: &crate::camera::Camera,
+    views: &[crate::localize::mi::objective::View<'_>],
+    init: &CamFromMap,
+    mut r: super::rounds::Refinement,
+    cfg: &crate::localize::mi::space::SearchConfig,
+    qcfg: &super::quality::QualityConfig,
+    free: SmoothFree,
+) -> crate::error::Result<(super::rounds::Refinement, SmoothRefinement)> {
+    let pooling = cfg.mi.pooling;
+    let grid_reason = r.quality.reason.clone();
+    let acfg = free.ascent();
+    // The fixed point set is the ascent's box's. With `FourAfterSix` the information also steps
+    // the tilt (±0.1°, inside that box's margins): on 96 seeds of `small` and `5mp` a set built
+    // for the ±1° tilt box held the same points and gave the same σ to 1.2 %.
+    let local = crate::localize::mi::space::SearchConfig {
+        spec: super::ascent::box_spec(&acfg),
+        ..*cfg
+    };
+    let mut pose = r.pose;
+    let mut ascents = Vec::new();
+    let mut restarted = false;
+    let (information, mi, optima) = loop {
+        let (information, mi) = climb(
+            cam,
+            views,
+            &local,
+            &acfg,
+            free,
+            &mut pose,
+            &mut ascents,
+            &mut r,
+        )?;
+        // The optima that compete with the answer, sought on purpose: the data may not tell
+        // them apart from it, and no local measure at the answer sees them.
+        let (axes, cov) = match &information {
+            Ok(info) => (
+                info.axes.clone(),
+                Some(info.frame_matrix.as_ref().unwrap_or(&info.sandwich_matrix)),
+            ),
+            Err(_) => (free.axis_names(), None),
+        };
+        let o = super::optima::competing_optima(
+            cam,
+            views,
+            &pose,
+            &r.peaks,
+            cfg,
+            pooling,
+            &axes,
+            cov.map(|c| c.as_slice()),
+        )?;
+        r.stats.poses += o.evaluations as u64;
+        r.stats.point_evaluations += (o.evaluations * o.points) as u64;
+        let optima = Some(o);
+        // An optimum the data prefers to the answer is where the answer should be: the stage
+        // climbs again from it, once.
+        let better = optima
+            .as_ref()
+            .and_then(|o| o.better())
+            .and_then(|b| b.pose);
+        match better {
+            Some(b) if !restarted => {
+                restarted = true;
+                pose = b;
+            }
+            _ => break (information, mi, optima),
+        }
+    };
+    r.pose = pose;
+    r.offsets = crate::pose::offsets_between(init, &pose);
+    // The σ the gate judges, once: the gate refuses on it and the report is widened to it. The
+    // local part (bound, sandwiches, jackknife, floor) shapes the reported covariance; the
+    // optima the data cannot tell apart add their spread to both.
+    let local_judged = information
+        .as_ref()
+        .ok()
+        .map(|info| judged_sigma(&r.quality, info, cfg));
+    let judged = match (&information, &local_judged) {
+        (Ok(info), Some(j)) => Some(
+            info.axes
+                .iter()
+                .zip(j)
+                .map(|(a, s)| {
+                    let o = optima.as_ref().map_or(0.0, |o| o.sigma(a));
+                    s.hypot(o)
+                })
+                .collect::<Vec<f64>>(),
+        ),
+        _ => None,
+    };
+    super::quality::smooth_gate(
+        &mut r.quality,
+        &information,
+        judged.as_deref().unwrap_or_default(),
+        qcfg,
+        optima.as_ref(),
+    );
+    if let (Ok(info), Some(local_judged), Some(judged)) = (&information, &local_judged, &judged) {
+        if r.quality.covariance.is_some() {
+            report_judged(&mut r.quality, info, local_judged);
+        } else {
+            // No jackknife ran: the information's covariance is the answer's, with the camera
+            // file's intrinsics uncertainty added as the jackknife's is.
+            let deltas = qcfg.intrinsics_sigma.as_ref().map(|s| {
+                crate::localize::refine::uncertainty::intrinsics_deltas(cam, views, &pose, s)
+            });
+            let u = information_covariance(info, local_judged, deltas.as_deref());
+            r.quality.covariance = Some(u);
+        }
+        if let Some(u) = r.quality.covariance.as_mut() {
+            if let Some(o) = &optima {
+                add_spread(u, o);
+            }
+            if u.axes == info.axes {
+                u.gate_sigma = judged.clone();
+            }
+            r.quality.sigma = Some(super::quality::Sigma::of(u));
+        }
+    }
+    r.quality.optima = optima;
+    r.quality.information = information.as_ref().ok().cloned();
+    if let Some(v) = mi.first() {
+        if pooling == crate::localize::mi::smooth::Pooling::Joint {
+            r.quality.mi = *v;
+        }
+    }
+    Ok((
+        r,
+        SmoothRefinement {
+            sampling: crate::localize::mi::smooth::Sampling::Pv,
+            pooling,
+            ascents,
+            mi,
+            information,
+            grid_reason,
+        },
+    ))
+}
+
+/// The local stage's rounds from `pose` (moved to the answer): an ascent in the box of `acfg`
+/// ([`ASCENT_ROUNDS`] at most, re-centred while it ends on the edge), then the information at
+/// the answer over the axes of `free`, and the MI per histogram there. The work goes into `r`'s
+/// counters, the ascents into `ascents`.
+#[allow(clippy::too_many_arguments)]
+fn climb(
+    cam: &crate::camera::Camera,
+    views: &[crate::localize::mi::objective::View<'_>],
+    local: &crate::localize::mi::space::SearchConfig,
+    acfg: &AscentConfig,
+    free: SmoothFree,
+    pose: &mut CamFromMap,
+    ascents: &mut Vec<Ascent>,
+    r: &mut super::rounds::Refinement,
+) -> crate::error::Result<(std::result::Result<Information, String>, Vec<f64>)> {
+    let pooling = local.mi.pooling;
+    let mut last = None;
+    for _ in 0..ASCENT_ROUNDS {
+        let ev = crate::localize::mi::objective::Evaluator::pooled(cam, views, pose, local, 0)?;
+        let est = Smooth::of_evaluator(cam, &ev, pooling);
+        // The curvature at the start (the information's Hessian, a basin-wide central
+        // difference): with it the first step is Newton's, and the ascent stops once the step
+        // left is a fraction of a Cramér–Rao σ instead of creeping to `grad_tol` across the
+        // gradient's pixel steps, most of a plain ascent's evaluations.
+        let h = est.hessian(pose, &acfg.free, &HESSIAN_STEP);
+        let a = ascend_with(&est, pose, acfg, Some(&h));
+        let spent = a.evaluations + Smooth::hessian_evaluations(&acfg.free);
+        r.stats.poses += spent as u64;
+        r.stats.point_evaluations += (spent * est.n()) as u64;
+        *pose = a.pose;
+        let edge = a.stop == "edge";
+        ascents.push(a);
+        if !edge {
+            let info = information(&est, pose, &free.information());
+            // The Hessian's evaluations (and the value below) are work done too.
+            let spent = 1 + info.as_ref().map_or(0, |i| i.evaluations);
+            r.stats.poses += spent as u64;
+            r.stats.point_evaluations += (spent * est.n()) as u64;
+            let v = est.evaluate(pose, false);
+            last = Some((info, v.mi));
+            break;
+        }
+    }
+    if ascents.iter().any(|a| a.stop == "non-finite") {
+        return Err(crate::error::Error::stage(
+            crate::stage::StageName::Mi,
+            "the smooth estimator's value or gradient is not finite",
+        ));
+    }
+    Ok(last.unwrap_or_else(|| {
+        (
+            Err(format!(
+                "the gradient ascent still ended on its box's edge after {ASCENT_ROUNDS} rounds"
+            )),
+            Vec::new(),
+        )
+    }))
+}
+
+/// Add the spread of the optima the data cannot tell apart ([`super::optima::Optima::spread`])
+/// to the reported covariance `u`, on the axes the two share.
+fn add_spread(
+    u: &mut crate::localize::refine::uncertainty::Uncertainty,
+    o: &super::optima::Optima,
+) {
+    let at = |a: &String| u.axes.iter().position(|b| b == a);
+    for (i, ai) in o.axes.iter().enumerate() {
+        for (j, aj) in o.axes.iter().enumerate() {
+            if let (Some(p), Some(q)) = (at(ai), at(aj)) {
+                u.matrix[p][q] += o.spread[i][j];
+            }
+        }
+    }
+    for (k, s) in u.sigma.iter_mut().enumerate() {
+        *s = u.matrix[k][k].max(0.0).sqrt();
+    }
+}
+
+/// The σ per axis of `info` that the gate judges: the largest of the Cramér–Rao bound, the
+/// patch sandwich, the frame sandwich (when there is one), the grid's jackknife σ in `q`
+/// ([`jackknife_judged`], 0 without one) and the jackknife's floor, half the search's finest
+/// step ([`crate::localize::refine::uncertainty::sigma_floor`]: where a jackknife ran, its σ is
+/// floored there already); ∞ where the jackknife found no peak (NaN).
+fn judged_sigma(
+    q: &super::quality::Quality,
+    info: &Information,
+    cfg: &crate::localize::mi::space::SearchConfig,
+) -> Vec<f64> {
+    let judged_jack = q.jackknife_judged();
+    let jack = |axis: &str| judged_jack.as_ref().map_or(0.0, |s| s.axis(axis));
+    let frame = |i: usize| info.frame_sigma.as_ref().map_or(0.0, |f| f[i]);
+    info.axes
+        .iter()
+        .zip(info.sigma.iter().zip(&info.sandwich_sigma))
+        .enumerate()
+        .map(|(i, (a, (s, w)))| {
+            let j = jack(a);
+            if j.is_nan() {
+                f64::INFINITY
+            } else {
+                let floor = crate::localize::refine::uncertainty::sigma_floor(cfg, a);
+                s.max(*w).max(j).max(frame(i)).max(floor)
+            }
+        })
+        .collect()
+}
+
+/// Widen the reported covariance of `q` (the jackknife's, with the intrinsics' part) so that no
+/// axis's σ is below `judged`, the σ the gate judged per axis of `info` ([`judged_sigma`]): an
+/// axis whose sandwich or bound exceeds the jackknife has its row and column scaled up
+/// (correlations kept). What the pose file says is then at least what the gate accepted on.
+fn report_judged(q: &mut super::quality::Quality, info: &Information, judged: &[f64]) {
+    let Some(u) = q.covariance.as_mut() else {
+        return;
+    };
+    for (axis, want) in info.axes.iter().zip(judged) {
+        let Some(k) = u.axes.iter().position(|a| a == axis) else {
+            continue;
+        };
+        let have = u.sigma[k];
+        if !(want.is_finite() && have.is_finite() && *want > have && have > 0.0) {
+            continue;
+        }
+        let f = want / have;
+        for (i, row) in u.matrix.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                if i == k {
+                    *v *= f;
+                }
+                if j == k {
+                    *v *= f;
+                }
+            }
+        }
+        u.sigma[k] = *want;
+    }
+    q.sigma = Some(super::quality::Sigma::of(u));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An accepted grid quality with the jackknife's estimate `covariance` (and its σ), if any.
+    fn accepted_quality(
+        covariance: Option<super::super::uncertainty::Uncertainty>,
+    ) -> super::super::quality::Quality {
+        super::super::quality::Quality {
+            mi: 0.3,
+            nmi: 1.0,
+            points: 1000,
+            background: 0.1,
+            second_peak_ratio: None,
+            second_peak_contrast: None,
+            second_peak_offset: None,
+            axes: Vec::new(),
+            poses: 0,
+            sigma: covariance.as_ref().map(super::super::quality::Sigma::of),
+            covariance,
+            information: None,
+            optima: None,
+            accepted: true,
+            reason: None,
+            refused_by: None,
+        }
+    }
+
+    /// The pose file's σ is at least the σ the gate judged: an axis whose sandwich exceeds the
+    /// jackknife is widened to it with its correlations kept; the others are left alone.
+    #[test]
+    fn the_reported_sigma_is_at_least_the_judged_one() {
+        use super::super::uncertainty::Uncertainty;
+        let axes: Vec<String> = ["x", "y", "z", "yaw"].map(String::from).to_vec();
+        let sd = [0.01, 0.01, 0.02, 0.03];
+        let matrix: Vec<Vec<f64>> = (0..4)
+            .map(|i| {
+                (0..4)
+                    .map(|j| match (i, j) {
+                        _ if i == j => sd[i] * sd[i],
+                        (0, 3) | (3, 0) => 0.5 * sd[0] * sd[3],
+                        _ => 0.0,
+                    })
+                    .collect()
+            })
+            .collect();
+        let u = Uncertainty {
+            axes: axes.clone(),
+            units: ["m", "m", "m", "deg"].map(String::from).to_vec(),
+            sigma: sd.to_vec(),
+            matrix,
+            group_optima: Vec::new(),
+            peak: true,
+            folds: 8,
+            intrinsics: Vec::new(),
+            points: 1000,
+            poses: 0,
+            jackknife: Vec::new(),
+            region: None,
+            gate_sigma: vec![0.008, 0.008, 0.015, 0.025],
+            source: crate::localize::refine::uncertainty::CovarianceSource::Jackknife,
+        };
+        let mut q = accepted_quality(Some(u));
+        let diag = |s: [f64; 4]| -> Vec<Vec<f64>> {
+            (0..4)
+                .map(|i| {
+                    (0..4)
+                        .map(|j| if i == j { s[i] * s[i] } else { 0.0 })
+                        .collect()
+                })
+                .collect()
+        };
+        let info = Information {
+            axes,
+            units: ["m", "m", "m", "deg"].map(String::from).to_vec(),
+            sigma: vec![0.001; 4],
+            matrix: diag([0.001; 4]),
+            points: 1000,
+            evaluations: 9,
+            sandwich_sigma: vec![0.03, 0.005, 0.001, 0.01],
+            sandwich_matrix: diag([0.03, 0.005, 0.001, 0.01]),
+            clusters: 32,
+            frame_sigma: None,
+            frame_matrix: None,
+        };
+        let judged = judged_sigma(
+            &q,
+            &info,
+            &crate::localize::mi::space::SearchConfig::default(),
+        );
+        report_judged(&mut q, &info, &judged);
+        let u = q.covariance.as_ref().unwrap();
+        let s = q.sigma.unwrap();
+        assert_eq!((s.x, s.y, s.z, s.yaw), (0.03, 0.01, 0.02, 0.03), "{s:?}");
+        assert!((u.matrix[0][0] - 0.03f64.powi(2)).abs() < 1e-15);
+        let rho = u.matrix[0][3] / (u.sigma[0] * u.sigma[3]);
+        assert!((rho - 0.5).abs() < 1e-12, "{rho}");
+        assert_eq!(u.matrix[1][1], 1e-4);
+    }
+
+    /// Without a jackknife the reported covariance is the sandwich's shape at the judged σ:
+    /// every axis at least its judged σ (the search's floor included), correlations kept, widened
+    /// by the sandwich's Student-t factor, and the intrinsics' part added on top.
+    #[test]
+    fn the_information_s_covariance_stands_where_no_jackknife_ran() {
+        use super::super::quality::Sigma;
+        use super::super::uncertainty::CovarianceSource;
+        let axes: Vec<String> = ["x", "y", "z", "yaw", "pitch", "roll"]
+            .map(String::from)
+            .to_vec();
+        let sd = [0.004, 0.02, 0.003, 0.01, 0.05, 0.03];
+        let sandwich: Vec<Vec<f64>> = (0..6)
+            .map(|i| {
+                (0..6)
+                    .map(|j| match (i, j) {
+                        _ if i == j => sd[i] * sd[i],
+                        (0, 4) | (4, 0) => -0.9 * sd[0] * sd[4],
+                        _ => 0.0,
+                    })
+                    .collect()
+            })
+            .collect();
+        let info = Information {
+            axes,
+            units: ["m", "m", "m", "deg", "deg", "deg"]
+                .map(String::from)
+                .to_vec(),
+            sigma: vec![0.001; 6],
+            matrix: sandwich.clone(),
+            points: 1000,
+            evaluations: 13,
+            sandwich_sigma: sd.to_vec(),
+            sandwich_matrix: sandwich,
+            clusters: 32,
+            frame_sigma: None,
+            frame_matrix: None,
+        };
+        let q = accepted_quality(None);
+        let judged = judged_sigma(
+            &q,
+            &info,
+            &crate::localize::mi::space::SearchConfig::default(),
+        );
+        // The default search's floor: half of 2 cm and of 0.05°.
+        assert_eq!(judged, vec![0.01, 0.02, 0.01, 0.025, 0.05, 0.03]);
+        let t = (super::super::uncertainty::student_t_3sigma(31) / 3.0).powi(2);
+        let u = information_covariance(&info, &judged, None);
+        assert_eq!(u.source, CovarianceSource::Information);
+        assert_eq!(u.gate_sigma, judged);
+        for i in 0..6 {
+            assert!(
+                (u.matrix[i][i] - judged[i] * judged[i] * t).abs() < 1e-15,
+                "{i}"
+            );
+        }
+        let rho = u.matrix[0][4] / (u.sigma[0] * u.sigma[4]);
+        assert!((rho + 0.9).abs() < 1e-12, "{rho}");
+        let d = [[0.0, 0.0, 0.02, 0.0, 0.0, 0.0]; 1];
+        let w = information_covariance(&info, &judged, Some(&d));
+        assert!((w.matrix[2][2] - (u.matrix[2][2] + 4e-4)).abs() < 1e-15);
+        assert_eq!(Sigma::of(&w).x, u.sigma[0]);
+    }
+}
