@@ -188,8 +188,8 @@ fn resolve_area(area: Area, crs: Crs) -> Result<Box2> {
     Ok(b)
 }
 
-/// Build the tile. Returns it and the provenance lines (sources, note).
-pub(crate) fn build_tile(spec: &BuildSpec) -> Result<(Tile, super::cache::Provenance)> {
+/// Check the inputs' count and the grid and ground parameters; returns ground cell ÷ `--res`.
+fn check_params(spec: &BuildSpec) -> Result<usize> {
     if spec.inputs.is_empty() {
         return Err(Error::Invalid("tile build: no point cloud given".into()));
     }
@@ -217,21 +217,13 @@ pub(crate) fn build_tile(spec: &BuildSpec) -> Result<(Tile, super::cache::Proven
             gp.window, gp.tolerance
         )));
     }
-    let ratio = ratio as usize;
-    // An Autoware map directory's files are chosen by the box, which needs the CRS first: no
-    // directory has a CRS, so a provisional everything-box is fine for choosing, then refined.
-    let everything = [f64::MIN, f64::MIN, f64::MAX, f64::MAX];
-    let probe: Vec<Cloud> = spec
-        .inputs
-        .iter()
-        .map(|p| cloud::open(p, &everything))
-        .collect::<Result<_>>()?;
-    let crs = tile_crs(&probe, spec.crs)?;
-    let bx = resolve_area(spec.area, crs)?;
-    let tile_grid = snapped_grid(crs, &bx, res, "tile")?;
-    // The read grid: the tile widened by whole ground cells covering half the window.
-    let margin_cells = (gp.window / 2.0 / gp.cell).ceil() as usize * ratio;
-    let margin = margin_cells as f64 * res;
+    Ok(ratio as usize)
+}
+
+/// The read grid: the tile widened on every side by `margin_cells` cells (whole ground cells
+/// covering half the ground window), and its box.
+fn read_grid(tile_grid: &GeoGrid, margin_cells: usize) -> Result<(GeoGrid, Box2)> {
+    let margin = margin_cells as f64 * tile_grid.res;
     let (tx0, ty0, tx1, ty1) = tile_grid.bounds();
     let read_box = [tx0 - margin, ty0 - margin, tx1 + margin, ty1 + margin];
     let read_grid = GeoGrid {
@@ -239,43 +231,31 @@ pub(crate) fn build_tile(spec: &BuildSpec) -> Result<(Tile, super::cache::Proven
         y0: ty1 + margin,
         width: tile_grid.width + 2 * margin_cells,
         height: tile_grid.height + 2 * margin_cells,
-        ..tile_grid
+        ..*tile_grid
     };
     if read_grid.len() > u32::MAX as usize {
         return Err(Error::Invalid(
             "tile build: the box and its ground margin exceed 2^32 cells".into(),
         ));
     }
-    let clouds: Vec<Cloud> = spec
-        .inputs
-        .iter()
-        .zip(probe)
-        .map(|(p, c)| match c.kind {
-            Kind::Pcd(_) if p.is_dir() => cloud::open(p, &read_box),
-            _ => Ok(c),
-        })
-        .collect::<Result<_>>()?;
-    let sat_grid = match spec.satellite_res {
-        Some(r) if !(r > 0.0) || !r.is_finite() => {
-            return Err(Error::Invalid(format!("--satellite-res {r}: must be > 0")))
-        }
-        Some(r) => snapped_grid(crs, &bx, r, "satellite")?,
-        None => tile_grid,
-    };
-    // The orthophoto is read before the clouds so that a bad one fails fast.
-    let ortho = match &spec.orthophoto {
-        Some(p) => Some((p.as_path(), read_orthophoto(p, crs)?)),
-        None => None,
-    };
-    let want_rgb = ortho.is_none();
+    Ok((read_grid, read_box))
+}
+
+/// Read every cloud's points in `read_box` onto `read_grid`, feeding the highest-colour grid
+/// `top` when there is one; the kept points and each input's facts.
+fn read_points(
+    clouds: &[Cloud],
+    read_box: &Box2,
+    read_grid: &GeoGrid,
+    mut top: Option<&mut TopColour>,
+) -> Result<(Vec<Kept>, Vec<InputFacts>)> {
+    let res = read_grid.res;
     let mut kept: Vec<Kept> = Vec::new();
     let mut facts = vec![InputFacts::default(); clouds.len()];
-    let mut top = want_rgb.then(|| TopColour::new(sat_grid));
     for (i, c) in clouds.iter().enumerate() {
-        let f = &mut facts[i];
         let mut ground_class = 0u64;
-        let mut top_here = top.as_mut();
-        let stats = cloud::read(c, &read_box, |p: &CloudPoint| {
+        let mut top_here = top.as_deref_mut();
+        let stats = cloud::read(c, read_box, |p: &CloudPoint| {
             let [x, y, z] = p.xyz;
             let col = ((x - read_grid.x0) / res).floor();
             let row = ((read_grid.y0 - y) / res).floor();
@@ -298,22 +278,126 @@ pub(crate) fn build_tile(spec: &BuildSpec) -> Result<(Tile, super::cache::Proven
                 t.offer(x, y, z, rgb, i);
             }
         })?;
-        f.stats = stats;
-        f.ground_class = ground_class;
+        facts[i].stats = stats;
+        facts[i].ground_class = ground_class;
     }
-    let names = || {
-        spec.inputs
-            .iter()
-            .map(|p| p.display().to_string())
-            .collect::<Vec<_>>()
-            .join(", ")
+    Ok((kept, facts))
+}
+
+/// The provenance line of each input.
+fn source_lines(clouds: &[Cloud], facts: &[InputFacts], classified: &[bool]) -> Vec<String> {
+    clouds
+        .iter()
+        .zip(facts)
+        .zip(classified)
+        .map(|((c, f), cl)| {
+            format!(
+                "point cloud: {} ({}, {} of {} points in the box and margin, ground {}, intensity full scale {})",
+                c.path.display(),
+                match c.kind {
+                    Kind::Las => "LAS/LAZ",
+                    Kind::Copc => "COPC",
+                    Kind::Pcd(_) => "PCD",
+                },
+                f.stats.kept,
+                f.stats.decoded,
+                if *cl { "LAS class 2" } else { "lowest-surface filter" },
+                intensity_full_scale(f.stats.max_intensity)
+            )
+        })
+        .collect()
+}
+
+/// The satellite layer: the orthophoto warped onto `sat_grid`, else the highest point's colour
+/// per cell; its provenance line is added to `sources`.
+fn satellite_layer(
+    ortho: Option<(&Path, (Image, GeoGrid))>,
+    top: Option<TopColour>,
+    facts: &[InputFacts],
+    sat_grid: &GeoGrid,
+    names: &str,
+    sources: &mut Vec<String>,
+) -> Result<Raster<[u8; 3]>> {
+    match (ortho, top) {
+        (Some((path, img)), _) => {
+            sources.push(format!("satellite: {} warped bilinearly", path.display()));
+            warp_rgb(&img, path, sat_grid)
+        }
+        (None, Some(t)) => {
+            let scale: Vec<f64> = facts
+                .iter()
+                .map(|f| {
+                    if f.stats.max_rgb > 255 {
+                        1.0 / 257.0
+                    } else {
+                        1.0
+                    }
+                })
+                .collect();
+            if t.filled == 0 {
+                return Err(Error::input(
+                    names,
+                    "no satellite layer: the points in the box carry no RGB; give --orthophoto",
+                ));
+            }
+            sources.push("satellite: RGB of the highest point per cell".into());
+            Ok(t.into_raster(&scale))
+        }
+        (None, None) => unreachable!("the top colour is kept whenever there is no orthophoto"),
+    }
+}
+
+/// Build the tile. Returns it and the provenance lines (sources, note).
+pub(crate) fn build_tile(spec: &BuildSpec) -> Result<(Tile, super::cache::Provenance)> {
+    let ratio = check_params(spec)?;
+    let (res, gp) = (spec.res, spec.ground);
+    // An Autoware map directory's files are chosen by the box, which needs the CRS first: no
+    // directory has a CRS, so a provisional everything-box is fine for choosing, then refined.
+    let everything = [f64::MIN, f64::MIN, f64::MAX, f64::MAX];
+    let probe: Vec<Cloud> = spec
+        .inputs
+        .iter()
+        .map(|p| cloud::open(p, &everything))
+        .collect::<Result<_>>()?;
+    let crs = tile_crs(&probe, spec.crs)?;
+    let bx = resolve_area(spec.area, crs)?;
+    let tile_grid = snapped_grid(crs, &bx, res, "tile")?;
+    let margin_cells = (gp.window / 2.0 / gp.cell).ceil() as usize * ratio;
+    let (read_grid, read_box) = read_grid(&tile_grid, margin_cells)?;
+    let clouds: Vec<Cloud> = spec
+        .inputs
+        .iter()
+        .zip(probe)
+        .map(|(p, c)| match c.kind {
+            Kind::Pcd(_) if p.is_dir() => cloud::open(p, &read_box),
+            _ => Ok(c),
+        })
+        .collect::<Result<_>>()?;
+    let sat_grid = match spec.satellite_res {
+        Some(r) if !(r > 0.0) || !r.is_finite() => {
+            return Err(Error::Invalid(format!("--satellite-res {r}: must be > 0")))
+        }
+        Some(r) => snapped_grid(crs, &bx, r, "satellite")?,
+        None => tile_grid,
     };
-    let name_of = |i: usize| clouds[i].path.clone();
+    // The orthophoto is read before the clouds so that a bad one fails fast.
+    let ortho = match &spec.orthophoto {
+        Some(p) => Some((p.as_path(), read_orthophoto(p, crs)?)),
+        None => None,
+    };
+    let mut top = ortho.is_none().then(|| TopColour::new(sat_grid));
+    let (mut kept, facts) = read_points(&clouds, &read_box, &read_grid, top.as_mut())?;
+    let names = spec
+        .inputs
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect::<Vec<_>>()
+        .join(", ");
     // Inputs whose intensity is all zero have none (LAS makes the field optional by zeroing it).
-    for (i, f) in facts.iter().enumerate() {
+    for (c, f) in clouds.iter().zip(&facts) {
         if f.stats.kept > 0 && f.stats.max_intensity == 0 {
             return Err(Error::input(
-                name_of(i),
+                c.path.clone(),
                 format!(
                     "no intensity: all {} points read have intensity 0; reflectivity needs it",
                     f.stats.decoded
@@ -343,59 +427,14 @@ pub(crate) fn build_tile(spec: &BuildSpec) -> Result<(Tile, super::cache::Proven
         let (a, b, c, d) = tile_grid.bounds();
         let read: u64 = facts.iter().map(|f| f.stats.kept).sum();
         return Err(Error::input(
-            names(),
+            names,
             format!(
                 "no ground points in the box x {a}..{c}, y {b}..{d} ({crs}; {read} points within the box and its margin)"
             ),
         ));
     }
-    let mut sources: Vec<String> = clouds
-        .iter()
-        .zip(&facts)
-        .zip(&classified)
-        .map(|((c, f), cl)| {
-            format!(
-                "point cloud: {} ({}, {} of {} points in the box and margin, ground {}, intensity full scale {})",
-                c.path.display(),
-                match c.kind {
-                    Kind::Las => "LAS/LAZ",
-                    Kind::Copc => "COPC",
-                    Kind::Pcd(_) => "PCD",
-                },
-                f.stats.kept,
-                f.stats.decoded,
-                if *cl { "LAS class 2" } else { "lowest-surface filter" },
-                intensity_full_scale(f.stats.max_intensity)
-            )
-        })
-        .collect();
-    let satellite = match (ortho, top) {
-        (Some((path, img)), _) => {
-            sources.push(format!("satellite: {} warped bilinearly", path.display()));
-            warp_rgb(&img, path, &sat_grid)?
-        }
-        (None, Some(t)) => {
-            let scale: Vec<f64> = facts
-                .iter()
-                .map(|f| {
-                    if f.stats.max_rgb > 255 {
-                        1.0 / 257.0
-                    } else {
-                        1.0
-                    }
-                })
-                .collect();
-            if t.filled == 0 {
-                return Err(Error::input(
-                    names(),
-                    "no satellite layer: the points in the box carry no RGB; give --orthophoto",
-                ));
-            }
-            sources.push("satellite: RGB of the highest point per cell".into());
-            t.into_raster(&scale)
-        }
-        (None, None) => unreachable!("the top colour is kept whenever there is no orthophoto"),
-    };
+    let mut sources = source_lines(&clouds, &facts, &classified);
+    let satellite = satellite_layer(ortho, top, &facts, &sat_grid, &names, &mut sources)?;
     let note = format!(
         "tile build: {res} m grid; ground cell {} m, window {} m, tolerance {} m; reflectivity = \
          median normalised ground intensity, height = median ground height ({n_ground} cells)",
