@@ -79,7 +79,7 @@ pub struct ImportArgs {
     /// Tile id (the tile's directory name).
     #[arg(long, value_name = "TILE_ID")]
     pub id: String,
-    /// Map CRS, EPSG:326zz / EPSG:327zz (GeoTIFF inputs must be in it).
+    /// Map CRS: WGS84 UTM or another supported projected CRS (docs/map.md); GeoTIFF inputs in it.
     #[arg(long, value_name = "EPSG:N")]
     pub crs: String,
     /// Satellite/aerial image: u8 RGB or gray.

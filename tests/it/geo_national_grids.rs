@@ -1,8 +1,9 @@
 //! WGS84 ↔ national grids against pyproj (PROJ 9): `tests/data/geo/national_pyproj.csv`, made by
 //! `tests/reference/make_national_grid_refs.py` — a 9 × 9 grid over the EPSG area of use of each of
-//! RD New (28992), ETRS89 / UTM 28N–38N (25828–25838), Lambert-93 (2154), three NAD83 State Planes
-//! in metres (32118, 26943, 32139).
-//! Forward and inverse must agree to 1 mm, as the UTM zones do (tests/it/geo_reference.rs).
+//! RD New (28992), CH1903+ / LV95 (2056), ETRS89 / UTM 28N–38N (25828–25838), Lambert-93 (2154),
+//! Poland CS92 (2180, transverse Mercator), three NAD83 State Planes in metres (32118, 26943, 32139).
+//! Forward (against pyproj's x, y) and inverse (against pyproj's inverse of them) must agree to
+//! 1 mm, as the UTM zones do (tests/it/geo_reference.rs).
 
 use infraloc::geo::{map_to_wgs84, wgs84_to_map};
 use infraloc::map::Crs;
@@ -24,11 +25,13 @@ fn national_grids_match_pyproj_to_1mm() {
     for l in text.lines().skip(1) {
         let f: Vec<f64> = l.split(',').map(|v| v.parse().unwrap()).collect();
         let (epsg, lat, lon, x, y) = (f[0] as u32, f[1], f[2], f[3], f[4]);
+        // pyproj's inverse of (x, y): not (lat, lon) again where a 3-D Helmert meets 2-D points.
+        let (plat, plon) = (f[5], f[6]);
         let crs = Crs::Epsg(epsg);
         let (gx, gy) = wgs84_to_map(crs, lat, lon).unwrap();
         let fwd = (gx - x).hypot(gy - y);
         let (ilat, ilon) = map_to_wgs84(crs, x, y).unwrap();
-        let inv = M_PER_DEG * (ilat - lat).hypot((ilon - lon) * lat.to_radians().cos());
+        let inv = M_PER_DEG * (ilat - plat).hypot((ilon - plon) * lat.to_radians().cos());
         let e = per_crs.entry(epsg).or_default();
         e.0 += 1;
         e.1 = e.1.max(fwd);
@@ -36,7 +39,7 @@ fn national_grids_match_pyproj_to_1mm() {
     }
     assert_eq!(
         per_crs.len(),
-        16,
+        18,
         "CRSs in the reference: {:?}",
         per_crs.keys()
     );

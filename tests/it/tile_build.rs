@@ -7,6 +7,7 @@
 //!
 //! Needs python3 with laspy[lazrs], copclib, pyproj and numpy, and gdal-bin (`.ci/setup`).
 
+use crate::common::infraloc;
 use infraloc::map::cache::load_tile;
 use infraloc::map::{Crs, Tile};
 use serde_json::Value;
@@ -16,13 +17,6 @@ use std::sync::OnceLock;
 
 /// The tile box of the reference script, EPSG:25832.
 const BOX: &str = "691015,5335015,691045,5335045";
-
-fn infraloc(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_infraloc"))
-        .args(args)
-        .output()
-        .unwrap()
-}
 
 /// The reference clouds and rasters, made once per test binary.
 fn refs() -> &'static Path {
@@ -300,6 +294,12 @@ fn bad_inputs_are_refused_with_one_line() {
     let pcd = d.join("street.pcd");
     let o = build(&out, "t", &[pcd.to_str().unwrap(), "--crs", "EPSG:99999"]);
     assert_refused(&o, &out, "--crs", "unknown EPSG:99999");
+    // CRSs whose projection (LAEA Europe) or datum (DHDN: the EPSG table has no shift to WGS84)
+    // infraloc cannot reproduce to 1 mm of PROJ.
+    let o = build(&out, "t", &[pcd.to_str().unwrap(), "--crs", "EPSG:3035"]);
+    assert_refused(&o, &out, "--crs", "EPSG:3035 uses the laea projection");
+    let o = build(&out, "t", &[pcd.to_str().unwrap(), "--crs", "EPSG:31467"]);
+    assert_refused(&o, &out, "--crs", "EPSG:31467 is on a datum (bessel)");
     let o = build(&out, "t", &[pcd.to_str().unwrap()]);
     assert_refused(&o, &out, "street.pcd", "give --crs");
 
@@ -346,8 +346,8 @@ fn orthophoto_in_another_crs_is_warped_as_gdalwarp_does() {
     let tmp = tempfile::tempdir().unwrap();
     let laz = d.join("street.laz");
     built(tmp.path(), "laz", &[laz.to_str().unwrap()]);
-    // A 0.3 m orthophoto in ETRS89 / LAEA Europe (its grid turned against the UTM grid), by GDAL.
-    let ortho = tmp.path().join("ortho3035.tif");
+    // A 0.3 m orthophoto in ETRS89 / UTM 33N (its grid turned 2.5° against the 32N grid), by GDAL.
+    let ortho = tmp.path().join("ortho25833.tif");
     let gdalwarp = |args: &[&str], src: &Path, dst: &Path| {
         let st = Command::new("gdalwarp")
             .arg("-q")
@@ -362,7 +362,7 @@ fn orthophoto_in_another_crs_is_warped_as_gdalwarp_does() {
     gdalwarp(
         &[
             "-t_srs",
-            "EPSG:3035",
+            "EPSG:25833",
             "-tr",
             "0.3",
             "0.3",

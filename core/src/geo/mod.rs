@@ -32,8 +32,9 @@ const ZONE_WIDTH_DEG: f64 = 6.0;
 
 /// The "supported" part of every unknown-CRS message, so all callers say the same thing.
 pub const SUPPORTED_CRS: &str =
-    "supported: projected EPSG CRSs in metres, e.g. WGS84 UTM 326xx/327xx, ETRS89 UTM 258xx, \
-     RD New 28992, Lambert-93 2154, NAD83 State Planes";
+    "supported: WGS84 UTM 326xx/327xx; projected EPSG CRSs in metres in transverse Mercator or \
+     Lambert conformal conic on ETRS89, NAD83 or another GRS80 datum (e.g. ETRS89 UTM 258xx, \
+     Lambert-93 2154, NAD83 State Planes); RD New 28992; CH1903+ / LV95 2056";
 
 /// UTM zone (1..=60) and hemisphere of a WGS84 UTM EPSG code; `None` for any other code.
 pub(crate) fn utm_zone_of(epsg: u32) -> Option<(u32, Hemisphere)> {
@@ -89,15 +90,65 @@ fn projection(crs: Crs) -> Result<&'static Proj> {
 static OTHER: Mutex<BTreeMap<u32, std::result::Result<&'static Proj, String>>> =
     Mutex::new(BTreeMap::new());
 
-/// Definitions that differ from the EPSG table's: PROJ's default WGS84 operation for these CRSs
-/// uses newer Helmert parameters than the table's `+towgs84` (RD New: "Amersfoort to WGS 84 (4)",
-/// 7 mm from the table's "(3)"; rotations in the position-vector convention of `+towgs84`).
-const DEFINITION_OVERRIDES: [(u32, &str); 1] = [(
-    28992,
-    "+proj=sterea +lat_0=52.15616055555555 +lon_0=5.38763888888889 +k=0.9999079 +x_0=155000 \
-     +y_0=463000 +ellps=bessel +towgs84=565.4171,50.3319,465.5524,-0.398957388243134,\
-     0.343987817378283,-1.87740163998045,4.0725 +units=m +no_defs",
-)];
+/// Definitions checked against pyproj (`tests/it/geo_national_grids.rs`) that the EPSG table
+/// cannot give as PROJ uses them: the table carries no `+towgs84`, so a datum other than WGS84's
+/// would be taken for WGS84 itself (CH1903+ came out 189 m off). Each carries PROJ's default
+/// WGS84 operation (rotations in the position-vector convention of `+towgs84`): RD New
+/// "Amersfoort to WGS 84 (4)", CH1903+ / LV95 "CH1903+ to WGS 84 (1)".
+const DEFINITION_OVERRIDES: [(u32, &str); 2] = [
+    (
+        28992,
+        "+proj=sterea +lat_0=52.15616055555555 +lon_0=5.38763888888889 +k=0.9999079 +x_0=155000 \
+         +y_0=463000 +ellps=bessel +towgs84=565.4171,50.3319,465.5524,-0.398957388243134,\
+         0.343987817378283,-1.87740163998045,4.0725 +units=m +no_defs",
+    ),
+    (
+        2056,
+        "+proj=somerc +lat_0=46.9524055555556 +lon_0=7.43958333333333 +k_0=1 +x_0=2600000 \
+         +y_0=1200000 +ellps=bessel +towgs84=674.374,15.056,405.346,0,0,0,0 +units=m +no_defs",
+    ),
+];
+
+/// Projection methods of the EPSG table whose `proj4rs` port agrees with PROJ to 1 mm over the
+/// areas of use checked (`tests/it/geo_national_grids.rs`): transverse Mercator (`utm`, and
+/// `tmerc`, which `proj4rs` runs as PROJ does, with the extended algorithm `etmerc`) and Lambert
+/// conformal conic. Any other method is refused rather than trusted unchecked: e.g. `laea` (3035
+/// came out 1.5 mm off at the edges of its area), `krovak`, `omerc`, `stere`.
+const VERIFIED_METHODS: [&str; 4] = ["utm", "tmerc", "etmerc", "lcc"];
+
+/// Ellipsoids and datums taken as WGS84 with no shift, as PROJ's default operations take ETRS89,
+/// NAD83 and RGF93 (their frames differ from WGS84's by about a metre, far inside the GPS prior).
+const WGS84_ELLIPSOIDS: [&str; 2] = ["GRS80", "WGS84"];
+const WGS84_DATUMS: [&str; 2] = ["WGS84", "NAD83"];
+
+/// `Ok` when the EPSG table's definition `def` of `code` uses a verified projection method on a
+/// datum taken as WGS84; else the one-line reason.
+fn vet_definition(code: u32, def: &str) -> std::result::Result<(), String> {
+    let param = |key: &str| {
+        def.split_whitespace().find_map(|t| {
+            t.strip_prefix('+')
+                .and_then(|t| t.strip_prefix(key))
+                .and_then(|t| t.strip_prefix('='))
+        })
+    };
+    let method = param("proj").unwrap_or("?");
+    if !VERIFIED_METHODS.contains(&method) || def.split_whitespace().any(|t| t == "+approx") {
+        return Err(format!(
+            "EPSG:{code} uses the {method} projection, which infraloc does not reproduce to 1 mm \
+             of PROJ ({SUPPORTED_CRS})"
+        ));
+    }
+    let on_wgs84 = param("ellps").is_some_and(|e| WGS84_ELLIPSOIDS.contains(&e))
+        || param("datum").is_some_and(|d| WGS84_DATUMS.contains(&d));
+    if !on_wgs84 || param("towgs84").is_some() || param("nadgrids").is_some() {
+        let datum = param("datum").or_else(|| param("ellps")).unwrap_or("?");
+        return Err(format!(
+            "EPSG:{code} is on a datum ({datum}) whose shift to WGS84 infraloc does not have: \
+             positions would be off by up to hundreds of metres ({SUPPORTED_CRS})"
+        ));
+    }
+    Ok(())
+}
 
 /// Web Mercator codes: projected, nominally metres, but scaled by 1/cos(latitude).
 const WEB_MERCATOR: [u32; 2] = [3857, 900_913];
@@ -111,19 +162,24 @@ fn epsg_proj(code: u32) -> Result<&'static Proj> {
         .map_err(Error::Invalid)
 }
 
-/// The projection of EPSG `code`, refused unless it is projected and in metres.
+/// The projection of EPSG `code`, refused unless it is projected, in metres, and either one of
+/// [`DEFINITION_OVERRIDES`] or in a verified method on a datum taken as WGS84 ([`vet_definition`]).
 fn build_epsg_proj(code: u32) -> std::result::Result<Proj, String> {
     let unknown = || format!("unknown EPSG:{code} ({SUPPORTED_CRS})");
     let short = u16::try_from(code).map_err(|_| unknown())?;
-    let built = match DEFINITION_OVERRIDES.iter().find(|(c, _)| *c == code) {
-        Some((_, def)) => Proj::from_proj_string(def),
-        None => Proj::from_epsg_code(short),
+    let overridden = DEFINITION_OVERRIDES.iter().find(|(c, _)| *c == code);
+    let def = match overridden {
+        Some((_, def)) => def,
+        None => crs_definitions::from_code(short).ok_or_else(unknown)?.proj4,
     };
-    let p = built.map_err(|e| match e {
-        proj4rs::errors::Error::ProjectionNotFound => unknown(),
-        e => format!(
-            "EPSG:{code}: its definition is not expressible in proj4rs ({e}); {SUPPORTED_CRS}"
-        ),
+    let p = Proj::from_proj_string(def).map_err(|e| {
+        // A method proj4rs lacks (Krovak, oblique Mercator, …) is one we have not verified either.
+        match overridden.map_or_else(|| vet_definition(code, def), |_| Ok(())) {
+            Err(why) => why,
+            Ok(()) => format!(
+                "EPSG:{code}: its definition is not expressible in proj4rs ({e}); {SUPPORTED_CRS}"
+            ),
+        }
     })?;
     if WEB_MERCATOR.contains(&code) {
         return Err(format!(
@@ -148,6 +204,9 @@ fn build_epsg_proj(code: u32) -> std::result::Result<Proj, String> {
             p.units(),
             p.to_meter()
         ));
+    }
+    if overridden.is_none() {
+        vet_definition(code, def)?;
     }
     Ok(p)
 }
@@ -383,8 +442,26 @@ mod tests {
                 "{e}"
             );
         }
-        // National grids are accepted.
-        for code in [28992, 25832, 2154, 32118] {
+        // Methods not verified against PROJ to 1 mm: LAEA Europe, Krovak, Swiss LV03 (somerc
+        // without the Helmert of the LV95 override), Polar stereographic.
+        for (code, method) in [
+            (3035, "laea"),
+            (5514, "krovak"),
+            (21781, "somerc"),
+            (3413, "stere"),
+        ] {
+            let e = check_crs(Crs::Epsg(code)).unwrap_err().to_string();
+            let want = format!("EPSG:{code} uses the {method} projection, which infraloc does not");
+            assert!(e.starts_with(&want) && !e.contains('\n'), "{e}");
+        }
+        // Datums the EPSG table gives no WGS84 shift for: DHDN (Bessel), OSGB36 (Airy), NAD27.
+        for (code, datum) in [(31467, "bessel"), (27700, "airy"), (26711, "NAD27")] {
+            let e = check_crs(Crs::Epsg(code)).unwrap_err().to_string();
+            let want = format!("EPSG:{code} is on a datum ({datum}) whose shift to WGS84");
+            assert!(e.starts_with(&want), "{e}");
+        }
+        // National grids are accepted (tests/it/geo_national_grids.rs checks them against pyproj).
+        for code in [28992, 2056, 25832, 2154, 2180, 32118, 26943, 32139] {
             check_crs(Crs::Epsg(code)).unwrap();
         }
         assert!(map_to_wgs84(Crs::Local, 0.0, 0.0).is_err());
