@@ -7,7 +7,7 @@
 //!
 //! Needs python3 with laspy[lazrs], copclib, pyproj and numpy, and gdal-bin (`.ci/setup`).
 
-use crate::common::infraloc;
+use crate::common::{infraloc, s};
 use infraloc::map::cache::load_tile;
 use infraloc::map::{Crs, Tile};
 use serde_json::Value;
@@ -419,4 +419,93 @@ fn orthophoto_in_another_crs_is_warped_as_gdalwarp_does() {
         }
     }
     assert!(worst <= 1, "warp differs from gdalwarp by up to {worst}");
+}
+
+/// The simulator's round trip (docs/map.md, "From the simulator"): `tile build` on the scene's
+/// `simulate --lidar-laz` cloud, with the scene's own satellite layer as the orthophoto, gives back
+/// the simulator's LiDAR layers: the same grid, reflectivity cell for cell, height within the
+/// LAZ's 1 mm coordinate step; the satellite layer is the scene's, resampled onto the tile's grid.
+/// Refinement (`study`, the node's local stage) reads only the LiDAR layers, so a built tile
+/// refines as the simulator's own does.
+#[test]
+fn simulated_lidar_round_trips_through_tile_build() {
+    let tmp = tempfile::tempdir().unwrap();
+    for seed in ["3", "11"] {
+        let scene = tmp.path().join(format!("scene{seed}"));
+        let laz = tmp.path().join(format!("lidar{seed}.laz"));
+        let o = infraloc(&[
+            "simulate",
+            "--seed",
+            seed,
+            "--preset",
+            "small",
+            "--out",
+            s(&scene),
+            "--lidar-laz",
+            s(&laz),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let tiles = scene.join("tiles");
+        let id = std::fs::read_dir(&tiles)
+            .unwrap()
+            .next()
+            .unwrap()
+            .unwrap()
+            .file_name();
+        let own = load_tile(&tiles.join(&id)).unwrap();
+        let (x0, y0, x1, y1) = own.reflectivity.grid.bounds();
+        let out = tmp.path().join(format!("built{seed}"));
+        let o = build_in(
+            &out,
+            "t",
+            &format!("{x0},{y0},{x1},{y1}"),
+            &[
+                s(&laz),
+                "--res",
+                &own.reflectivity.grid.res.to_string(),
+                "--satellite-res",
+                &own.satellite.grid.res.to_string(),
+                "--orthophoto",
+                s(&tiles.join(&id).join("satellite.tif")),
+            ],
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let got = load_tile(&out.join("t")).unwrap();
+        assert_eq!(got.reflectivity.grid, own.reflectivity.grid, "seed {seed}");
+        // The simulator's satellite grid is offset from its LiDAR grid by a fraction of a pixel, so
+        // the built satellite layer is the bilinear resample of it onto the tile's grid.
+        let (sg, og) = (got.satellite.grid, own.satellite.grid);
+        assert_eq!((sg.x0, sg.y0, sg.res), (x0, y1, og.res), "seed {seed}");
+        let mut sum = 0.0;
+        for (i, px) in got.satellite.data.iter().enumerate() {
+            let (x, y) = sg.pixel_center(i % sg.width, i / sg.width);
+            let (c, r) = og.to_pixel(x, y);
+            let near = own.satellite.data[r.round() as usize * og.width + c.round() as usize];
+            sum += (0..3)
+                .map(|k| f64::from(px[k].abs_diff(near[k])))
+                .sum::<f64>();
+        }
+        let mean = sum / (3 * got.satellite.data.len()) as f64;
+        assert!(
+            mean < 3.0,
+            "seed {seed}: satellite {mean} levels from the nearest pixel"
+        );
+        let cells = own.reflectivity.data.len();
+        let (mut refl_diff, mut worst, mut invented) = (0, 0.0f32, 0);
+        for i in 0..cells {
+            let (r, z) = (own.reflectivity.data[i], own.height.data[i]);
+            if Some(r) == own.reflectivity.nodata || !z.is_finite() {
+                invented += usize::from(got.height.data[i].is_finite());
+                continue;
+            }
+            refl_diff += usize::from(got.reflectivity.data[i] != r);
+            worst = worst.max((got.height.data[i] - z).abs());
+        }
+        assert_eq!(refl_diff, 0, "seed {seed}: reflectivity cells differ");
+        assert_eq!(
+            invented, 0,
+            "seed {seed}: data where the simulator has none"
+        );
+        assert!(worst <= 6e-4, "seed {seed}: height off by up to {worst} m");
+    }
 }
