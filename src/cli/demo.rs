@@ -86,6 +86,7 @@ pub(super) fn run(a: Args) -> Result<()> {
         frames: 5,
         given_intrinsics: super::simulate::IntrinsicsArg::Calibrated,
         montage: None,
+        lidar_laz: None,
         board: Default::default(),
     };
     // Simulating takes as long as localizing: the terminal shows it as a stage too.

@@ -84,6 +84,10 @@ pub struct Args {
     /// Also write a side-by-side PNG (satellite | reflectivity | height | fisheye) here.
     #[arg(long)]
     pub montage: Option<PathBuf>,
+    /// Also write the tile's LiDAR as a LAZ point cloud (intensity, RGB, class 2 ground) for
+    /// `tile build`.
+    #[arg(long, value_name = "FILE")]
+    pub lidar_laz: Option<PathBuf>,
     /// Checkerboard views instead of a scene.
     #[command(flatten)]
     pub board: BoardArgs,
@@ -143,6 +147,9 @@ pub(super) fn run(a: Args) -> Result<()> {
     }
     let scene = sim::generate(&a.settings())?;
     write_scene(&scene, &a.out)?;
+    if let Some(p) = &a.lidar_laz {
+        crate::map::cloud::write_lidar_laz(&scene.tile, p)?;
+    }
     if let Some(m) = &a.montage {
         scene
             .montage(512)

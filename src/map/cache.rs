@@ -34,10 +34,13 @@ pub(crate) const FORMAT: &str = "infraloc.tile.v1";
 /// Header line of `control_points.csv`.
 pub(crate) const CONTROL_POINTS_HEADER: &str = "id,x,y,z";
 /// How far (degrees of longitude) from a tile zone's central meridian a position is still placed in
-/// that zone's plane for [`find_tile`]: the range `tests/geo_reference.rs` checks against pyproj.
+/// that zone's plane for [`find_tile`]: the range `tests/it/geo_reference.rs` checks against pyproj.
 /// Farther positions get a great-circle distance to the tile centre instead, because transverse
 /// Mercator far outside its zone returns finite but meaningless coordinates.
 const PLANAR_LON_RANGE_DEG: f64 = 9.0;
+/// Distance from a tile in a CRS other than UTM within which planar distances are used, metres
+/// (national grids span up to about a thousand kilometres).
+const PLANAR_RANGE_M: f64 = 1.0e6;
 /// Tolerance when comparing a layer's GeoTIFF georeference with the manifest, metres. Far below
 /// any pixel size, far above f64 round-off of UTM coordinates (~1e-9 m).
 const GRID_TOL_M: f64 = 1e-6;
@@ -659,10 +662,28 @@ fn scan(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<Scan> {
             }
         };
         let extent = coverage(&m);
-        let (zone, _) =
-            geo::check_crs(crs).map_err(|e| Error::input(dir.join(MANIFEST), e.to_string()))?;
-        let dlon = (lon - geo::central_meridian(zone) + 180.0).rem_euclid(360.0) - 180.0;
-        let (dist, inside) = if dlon.abs() <= PLANAR_LON_RANGE_DEG {
+        geo::check_crs(crs).map_err(|e| Error::input(dir.join(MANIFEST), e.to_string()))?;
+        let centre_wgs84 = || {
+            geo::map_to_wgs84(
+                crs,
+                0.5 * (extent.0 + extent.2),
+                0.5 * (extent.1 + extent.3),
+            )
+            .map_err(|e| Error::input(dir.join(MANIFEST), e.to_string()))
+        };
+        // Planar distances only where the CRS is meant to be used: a UTM zone's longitudes, or
+        // (other projections) within a national grid's reach of the tile.
+        let planar = match geo::utm_zone(crs) {
+            Some(zone) => {
+                let dlon = (lon - geo::central_meridian(zone) + 180.0).rem_euclid(360.0) - 180.0;
+                dlon.abs() <= PLANAR_LON_RANGE_DEG
+            }
+            None => {
+                let (clat, clon) = centre_wgs84()?;
+                geo::great_circle_m(lat, lon, clat, clon) <= PLANAR_RANGE_M
+            }
+        };
+        let (dist, inside) = if planar {
             let (x, y) = geo::wgs84_to_map(crs, lat, lon)
                 .map_err(|e| Error::input(dir.join(MANIFEST), e.to_string()))?;
             let (dist, inside) = rect_distance(x, y, extent);
@@ -683,12 +704,7 @@ fn scan(cache_dir: &Path, lat: f64, lon: f64, margin_m: f64) -> Result<Scan> {
             }
             (dist, inside)
         } else {
-            let (clat, clon) = geo::map_to_wgs84(
-                crs,
-                0.5 * (extent.0 + extent.2),
-                0.5 * (extent.1 + extent.3),
-            )
-            .map_err(|e| Error::input(dir.join(MANIFEST), e.to_string()))?;
+            let (clat, clon) = centre_wgs84()?;
             (geo::great_circle_m(lat, lon, clat, clon), f64::NEG_INFINITY)
         };
         if found.nearest.as_ref().is_none_or(|(d, _, _)| dist < *d) {

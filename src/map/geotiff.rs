@@ -8,7 +8,7 @@
 //! Reading accepts ModelPixelScale + ModelTiepoint or a north-up ModelTransformation (34264), and
 //! PixelIsPoint rasters (shifted by half a pixel to the PixelIsArea corner, as GDAL does). Every
 //! problem — truncated or corrupt file, unsupported sample type, missing or rotated georeference,
-//! a CRS other than WGS84 UTM — is an [`Error::Input`] naming the file.
+//! a CRS that is not a projected EPSG CRS in metres — is an [`Error::Input`] naming the file.
 
 use super::{Crs, GeoGrid, Raster};
 use crate::error::{Error, Result};
@@ -593,7 +593,7 @@ fn parse_geokeys(k: &[u16], path: &Path) -> Result<(Crs, bool)> {
             return Err(Error::input(
                 path,
                 format!(
-                    "geographic CRS {what} (lat/lon pixels): unknown EPSG for a map tile ({}); reproject to UTM",
+                    "geographic CRS {what} (lat/lon pixels): a map tile needs a projected CRS ({}); reproject it",
                     geo::SUPPORTED_CRS
                 ),
             ));
@@ -919,7 +919,7 @@ mod tests {
         let geog = [1, 1, 0, 2, 1024, 0, 1, 2, 2048, 0, 1, 4326];
         let e = parse_geokeys(&geog, p).unwrap_err().to_string();
         assert!(
-            e.contains("x.tif") && e.contains("EPSG:4326") && e.contains("unknown EPSG"),
+            e.contains("x.tif") && e.contains("EPSG:4326") && e.contains("geographic CRS"),
             "{e}"
         );
         let user = [1, 1, 0, 2, 1024, 0, 1, 1, 3072, 0, 1, 32767];
@@ -927,7 +927,7 @@ mod tests {
         assert!(e.contains("user-defined"), "{e}");
         let merc = [1, 1, 0, 2, 1024, 0, 1, 1, 3072, 0, 1, 3857];
         let e = parse_geokeys(&merc, p).unwrap_err().to_string();
-        assert!(e.contains("unknown EPSG:3857"), "{e}");
+        assert!(e.contains("EPSG:3857 is Web Mercator"), "{e}");
         let point = [1, 1, 0, 2, 1025, 0, 1, 2, 3072, 0, 1, 32633];
         assert_eq!(parse_geokeys(&point, p).unwrap(), (Crs::Epsg(32633), true));
     }

@@ -203,6 +203,20 @@ pub(crate) fn read_source(
     Ok((img, grid, what))
 }
 
+/// Read an image and its georeference in any CRS the geodesy knows: a GeoTIFF's own, else a world
+/// file's (taken to be in `crs`). Returns the image, its grid and where the georeference came from.
+pub(crate) fn read_source_any_crs(
+    image: &Path,
+    crs: Crs,
+    flag: &str,
+) -> Result<(Image, GeoGrid, String)> {
+    let img = decode(image)?;
+    match img.grid {
+        Some(g) => Ok((img, g, format!("{} (GeoTIFF)", image.display()))),
+        None => read_source(Source { image, world: None }, crs, flag),
+    }
+}
+
 /// Build a tile from its sources. `crs` must be a WGS84 UTM EPSG code; every GeoTIFF source must
 /// be in it. Reflectivity and height must share one grid. Returns the tile and its provenance.
 pub(crate) fn import_tile(

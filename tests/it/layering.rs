@@ -41,6 +41,7 @@ fn the_core_depends_on_no_application_crate_and_no_io_library() {
         "rand_chacha",
         "rustfft",
         "proj4rs",
+        "crs-definitions",
         "yaml-rust2",
         "roxmltree",
         "chrono",

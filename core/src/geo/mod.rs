@@ -1,11 +1,16 @@
-//! Geodesy: WGS84 ↔ projected map CRS (UTM). Pure computation, no I/O.
+//! Geodesy: WGS84 ↔ projected map CRS. Pure computation, no I/O.
 //!
-//! The map frame of a tile is a WGS84 UTM zone (EPSG 32601–32660 north, 32701–32760 south). The
-//! projection maths is `proj4rs` (a Rust port of PROJ.4's extended transverse Mercator, `etmerc`,
-//! which PROJ ≥ 6 also uses for `+proj=utm`); `tests/geo_reference.rs` checks it against pyproj on
-//! a global grid to ≤ 1 mm, including zone edges, the equator and points far into the neighbour
-//! zone. Projection objects are built once per zone and cached, because parsing a proj string
-//! costs far more than projecting a point.
+//! The map frame of a tile is a projected CRS in metres named by its EPSG code: a WGS84 UTM zone
+//! (EPSG 32601–32660 north, 32701–32760 south) or any other projected CRS whose definition
+//! `proj4rs` can express (ETRS89 / UTM 258xx, Amersfoort / RD New 28992, RGF93 / Lambert-93 2154,
+//! NAD83 State Planes in metres, …; the EPSG → PROJ.4 table is `proj4rs`'s `crs-definitions`).
+//! The projection maths is `proj4rs` (a Rust port of PROJ.4; for UTM its extended transverse
+//! Mercator, `etmerc`, which PROJ ≥ 6 also uses for `+proj=utm`). A datum other than WGS84 is
+//! reached through the definition's `+towgs84` Helmert parameters, as PROJ does when it has no
+//! grid for the datum. `tests/it/geo_reference.rs` checks UTM against pyproj on a global grid to
+//! ≤ 1 mm, `tests/it/geo_national_grids.rs` the national grids over each one's area. Projection
+//! objects are built once per CRS and cached, because parsing a proj string costs far more than
+//! projecting a point.
 
 pub mod georef;
 
@@ -13,7 +18,8 @@ use crate::error::{Error, Result};
 use proj4rs::proj::Proj;
 use proj4rs::transform::{transform, Transform, TransformClosure};
 use serde::{Deserialize, Serialize};
-use std::sync::OnceLock;
+use std::collections::BTreeMap;
+use std::sync::{Mutex, OnceLock};
 
 /// Base of the EPSG codes of WGS84 / UTM north zones (zone N → 32600 + N).
 pub(crate) const UTM_NORTH_BASE: u32 = 32600;
@@ -25,7 +31,10 @@ pub(crate) const UTM_ZONES: u32 = 60;
 const ZONE_WIDTH_DEG: f64 = 6.0;
 
 /// The "supported" part of every unknown-CRS message, so all callers say the same thing.
-pub const SUPPORTED_CRS: &str = "supported: WGS84 UTM 326xx/327xx";
+pub const SUPPORTED_CRS: &str =
+    "supported: WGS84 UTM 326xx/327xx; projected EPSG CRSs in metres in transverse Mercator or \
+     Lambert conformal conic on ETRS89, NAD83 or another GRS80 datum (e.g. ETRS89 UTM 258xx, \
+     Lambert-93 2154, NAD83 State Planes); RD New 28992; CH1903+ / LV95 2056";
 
 /// UTM zone (1..=60) and hemisphere of a WGS84 UTM EPSG code; `None` for any other code.
 pub(crate) fn utm_zone_of(epsg: u32) -> Option<(u32, Hemisphere)> {
@@ -40,6 +49,14 @@ pub(crate) fn utm_zone_of(epsg: u32) -> Option<(u32, Hemisphere)> {
     }
 }
 
+/// UTM zone (1..=60) of a WGS84 UTM CRS; `None` for any other CRS.
+pub fn utm_zone(crs: Crs) -> Option<u32> {
+    match crs {
+        Crs::Epsg(code) => utm_zone_of(code).map(|(z, _)| z),
+        Crs::Local => None,
+    }
+}
+
 /// Hemisphere of a UTM zone (south zones use a 10 000 km false northing).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Hemisphere {
@@ -49,15 +66,149 @@ pub enum Hemisphere {
     South,
 }
 
-/// Check that `crs` is a CRS this crate can relate to WGS84 (a WGS84 UTM zone).
-pub fn check_crs(crs: Crs) -> Result<(u32, Hemisphere)> {
+/// Check that `crs` is a CRS this crate can relate to WGS84: a projected CRS in metres with an
+/// EPSG code (see the module docs).
+pub fn check_crs(crs: Crs) -> Result<()> {
+    projection(crs).map(|_| ())
+}
+
+/// The projection of a map CRS (cached).
+fn projection(crs: Crs) -> Result<&'static Proj> {
     match crs {
-        Crs::Epsg(code) => utm_zone_of(code)
-            .ok_or_else(|| Error::Invalid(format!("unknown EPSG:{code} ({SUPPORTED_CRS})"))),
+        Crs::Epsg(code) => match utm_zone_of(code) {
+            Some((zone, hemi)) => utm_proj(zone, hemi),
+            None => epsg_proj(code),
+        },
         Crs::Local => Err(Error::Invalid(format!(
             "CRS LOCAL has no relation to WGS84 ({SUPPORTED_CRS})"
         ))),
     }
+}
+
+/// Projections of EPSG codes other than WGS84 UTM, built on first use. Each is leaked once, so a
+/// process holds at most one per code it has seen (a handful: the tiles' CRSs).
+static OTHER: Mutex<BTreeMap<u32, std::result::Result<&'static Proj, String>>> =
+    Mutex::new(BTreeMap::new());
+
+/// Definitions checked against pyproj (`tests/it/geo_national_grids.rs`) that the EPSG table
+/// cannot give as PROJ uses them: the table carries no `+towgs84`, so a datum other than WGS84's
+/// would be taken for WGS84 itself (CH1903+ came out 189 m off). Each carries PROJ's default
+/// WGS84 operation (rotations in the position-vector convention of `+towgs84`): RD New
+/// "Amersfoort to WGS 84 (4)", CH1903+ / LV95 "CH1903+ to WGS 84 (1)".
+const DEFINITION_OVERRIDES: [(u32, &str); 2] = [
+    (
+        28992,
+        "+proj=sterea +lat_0=52.15616055555555 +lon_0=5.38763888888889 +k=0.9999079 +x_0=155000 \
+         +y_0=463000 +ellps=bessel +towgs84=565.4171,50.3319,465.5524,-0.398957388243134,\
+         0.343987817378283,-1.87740163998045,4.0725 +units=m +no_defs",
+    ),
+    (
+        2056,
+        "+proj=somerc +lat_0=46.9524055555556 +lon_0=7.43958333333333 +k_0=1 +x_0=2600000 \
+         +y_0=1200000 +ellps=bessel +towgs84=674.374,15.056,405.346,0,0,0,0 +units=m +no_defs",
+    ),
+];
+
+/// Projection methods of the EPSG table whose `proj4rs` port agrees with PROJ to 1 mm over the
+/// areas of use checked (`tests/it/geo_national_grids.rs`): transverse Mercator (`utm`, and
+/// `tmerc`, which `proj4rs` runs as PROJ does, with the extended algorithm `etmerc`) and Lambert
+/// conformal conic. Any other method is refused rather than trusted unchecked: e.g. `laea` (3035
+/// came out 1.5 mm off at the edges of its area), `krovak`, `omerc`, `stere`.
+const VERIFIED_METHODS: [&str; 4] = ["utm", "tmerc", "etmerc", "lcc"];
+
+/// Ellipsoids and datums taken as WGS84 with no shift, as PROJ's default operations take ETRS89,
+/// NAD83 and RGF93 (their frames differ from WGS84's by about a metre, far inside the GPS prior).
+const WGS84_ELLIPSOIDS: [&str; 2] = ["GRS80", "WGS84"];
+const WGS84_DATUMS: [&str; 2] = ["WGS84", "NAD83"];
+
+/// `Ok` when the EPSG table's definition `def` of `code` uses a verified projection method on a
+/// datum taken as WGS84; else the one-line reason.
+fn vet_definition(code: u32, def: &str) -> std::result::Result<(), String> {
+    let param = |key: &str| {
+        def.split_whitespace().find_map(|t| {
+            t.strip_prefix('+')
+                .and_then(|t| t.strip_prefix(key))
+                .and_then(|t| t.strip_prefix('='))
+        })
+    };
+    let method = param("proj").unwrap_or("?");
+    if !VERIFIED_METHODS.contains(&method) || def.split_whitespace().any(|t| t == "+approx") {
+        return Err(format!(
+            "EPSG:{code} uses the {method} projection, which infraloc does not reproduce to 1 mm \
+             of PROJ ({SUPPORTED_CRS})"
+        ));
+    }
+    let on_wgs84 = param("ellps").is_some_and(|e| WGS84_ELLIPSOIDS.contains(&e))
+        || param("datum").is_some_and(|d| WGS84_DATUMS.contains(&d));
+    if !on_wgs84 || param("towgs84").is_some() || param("nadgrids").is_some() {
+        let datum = param("datum").or_else(|| param("ellps")).unwrap_or("?");
+        return Err(format!(
+            "EPSG:{code} is on a datum ({datum}) whose shift to WGS84 infraloc does not have: \
+             positions would be off by up to hundreds of metres ({SUPPORTED_CRS})"
+        ));
+    }
+    Ok(())
+}
+
+/// Web Mercator codes: projected, nominally metres, but scaled by 1/cos(latitude).
+const WEB_MERCATOR: [u32; 2] = [3857, 900_913];
+
+fn epsg_proj(code: u32) -> Result<&'static Proj> {
+    let mut cache = OTHER.lock().unwrap_or_else(|p| p.into_inner());
+    cache
+        .entry(code)
+        .or_insert_with(|| build_epsg_proj(code).map(|p| &*Box::leak(Box::new(p))))
+        .clone()
+        .map_err(Error::Invalid)
+}
+
+/// The projection of EPSG `code`, refused unless it is projected, in metres, and either one of
+/// [`DEFINITION_OVERRIDES`] or in a verified method on a datum taken as WGS84 ([`vet_definition`]).
+fn build_epsg_proj(code: u32) -> std::result::Result<Proj, String> {
+    let unknown = || format!("unknown EPSG:{code} ({SUPPORTED_CRS})");
+    let short = u16::try_from(code).map_err(|_| unknown())?;
+    let overridden = DEFINITION_OVERRIDES.iter().find(|(c, _)| *c == code);
+    let def = match overridden {
+        Some((_, def)) => def,
+        None => crs_definitions::from_code(short).ok_or_else(unknown)?.proj4,
+    };
+    let p = Proj::from_proj_string(def).map_err(|e| {
+        // A method proj4rs lacks (Krovak, oblique Mercator, …) is one we have not verified either.
+        match overridden.map_or_else(|| vet_definition(code, def), |_| Ok(())) {
+            Err(why) => why,
+            Ok(()) => format!(
+                "EPSG:{code}: its definition is not expressible in proj4rs ({e}); {SUPPORTED_CRS}"
+            ),
+        }
+    })?;
+    if WEB_MERCATOR.contains(&code) {
+        return Err(format!(
+            "EPSG:{code} is Web Mercator, whose \"metres\" are true metres only at the equator; \
+             {SUPPORTED_CRS}"
+        ));
+    }
+    if p.is_latlong() {
+        return Err(format!(
+            "EPSG:{code} is a geographic CRS (degrees); a tile needs a projected CRS in metres ({SUPPORTED_CRS})"
+        ));
+    }
+    if p.is_geocent() {
+        return Err(format!(
+            "EPSG:{code} is a geocentric CRS; a tile needs a projected CRS in metres ({SUPPORTED_CRS})"
+        ));
+    }
+    // Raster resolutions, search radii and pose errors are all metres.
+    if p.to_meter() != 1.0 {
+        return Err(format!(
+            "EPSG:{code} is in {} ({} m); a tile needs a projected CRS in metres, e.g. the metre variant of the same zone",
+            p.units(),
+            p.to_meter()
+        ));
+    }
+    if overridden.is_none() {
+        vet_definition(code, def)?;
+    }
+    Ok(p)
 }
 
 /// Standard UTM zone number (1..=60) of a WGS84 position, including the Norway (32V) and Svalbard
@@ -161,33 +312,51 @@ fn utm_proj(zone: u32, hemi: Hemisphere) -> Result<&'static Proj> {
 
 /// WGS84 latitude/longitude (degrees) → map coordinates (easting, northing in metres) of `crs`.
 pub fn wgs84_to_map(crs: Crs, lat: f64, lon: f64) -> Result<(f64, f64)> {
-    let (zone, hemi) = check_crs(crs)?;
+    let proj = projection(crs)?;
     if !(lat.abs() <= 90.0) || !lon.is_finite() {
         return Err(Error::Invalid(format!(
             "WGS84 position lat={lat}, lon={lon}: latitude must be in [-90, 90], longitude finite"
         )));
     }
     let mut p = Pt(lon.to_radians(), lat.to_radians());
-    transform(longlat()?, utm_proj(zone, hemi)?, &mut p)
+    transform(longlat()?, proj, &mut p)
         .map_err(|e| Error::Invalid(format!("WGS84 lat={lat}, lon={lon} → {crs}: {e}")))?;
     finite_or_err(p.0, p.1, || format!("WGS84 lat={lat}, lon={lon} → {crs}"))
 }
 
 /// Map coordinates of `crs` (easting, northing in metres) → WGS84 (latitude, longitude) degrees.
 pub fn map_to_wgs84(crs: Crs, x: f64, y: f64) -> Result<(f64, f64)> {
-    let (zone, hemi) = check_crs(crs)?;
+    let proj = projection(crs)?;
     if !x.is_finite() || !y.is_finite() {
         return Err(Error::Invalid(format!(
             "{crs} position x={x}, y={y}: coordinates must be finite"
         )));
     }
     let mut p = Pt(x, y);
-    transform(utm_proj(zone, hemi)?, longlat()?, &mut p)
+    transform(proj, longlat()?, &mut p)
         .map_err(|e| Error::Invalid(format!("{crs} x={x}, y={y} → WGS84: {e}")))?;
     let (lon, lat) = finite_or_err(p.0.to_degrees(), p.1.to_degrees(), || {
         format!("{crs} x={x}, y={y} → WGS84")
     })?;
     Ok((lat, lon))
+}
+
+/// Map coordinates of `from` → map coordinates of `to` (both projected, metres), through each
+/// one's datum definition.
+pub fn map_to_map(from: Crs, to: Crs, x: f64, y: f64) -> Result<(f64, f64)> {
+    if from == to {
+        return Ok((x, y));
+    }
+    let (pf, pt) = (projection(from)?, projection(to)?);
+    if !x.is_finite() || !y.is_finite() {
+        return Err(Error::Invalid(format!(
+            "{from} position x={x}, y={y}: coordinates must be finite"
+        )));
+    }
+    let mut p = Pt(x, y);
+    transform(pf, pt, &mut p)
+        .map_err(|e| Error::Invalid(format!("{from} x={x}, y={y} → {to}: {e}")))?;
+    finite_or_err(p.0, p.1, || format!("{from} x={x}, y={y} → {to}"))
 }
 
 fn finite_or_err(a: f64, b: f64, what: impl FnOnce() -> String) -> Result<(f64, f64)> {
@@ -251,14 +420,49 @@ mod tests {
 
     #[test]
     fn unknown_epsg_is_rejected() {
-        for code in [4326, 32600, 32661, 32700, 32761, 3857, 25832] {
+        for code in [32600, 32700, 1, 99_999, 70_000] {
             let e = wgs84_to_map(Crs::Epsg(code), 10.0, 10.0)
                 .unwrap_err()
                 .to_string();
-            assert_eq!(
-                e,
-                format!("unknown EPSG:{code} (supported: WGS84 UTM 326xx/327xx)")
+            assert_eq!(e, format!("unknown EPSG:{code} ({SUPPORTED_CRS})"));
+        }
+        // Geographic (WGS84, ETRS89), feet (NAD83 / New York Long Island ftUS), Web Mercator.
+        for (code, why) in [
+            (4326, "is a geographic CRS"),
+            (4258, "is a geographic CRS"),
+            (
+                2263,
+                "needs a projected CRS in metres, e.g. the metre variant",
+            ),
+            (3857, "Web Mercator"),
+        ] {
+            let e = check_crs(Crs::Epsg(code)).unwrap_err().to_string();
+            assert!(
+                e.starts_with(&format!("EPSG:{code} ")) && e.contains(why),
+                "{e}"
             );
+        }
+        // Methods not verified against PROJ to 1 mm: LAEA Europe, Krovak, Swiss LV03 (somerc
+        // without the Helmert of the LV95 override), Polar stereographic.
+        for (code, method) in [
+            (3035, "laea"),
+            (5514, "krovak"),
+            (21781, "somerc"),
+            (3413, "stere"),
+        ] {
+            let e = check_crs(Crs::Epsg(code)).unwrap_err().to_string();
+            let want = format!("EPSG:{code} uses the {method} projection, which infraloc does not");
+            assert!(e.starts_with(&want) && !e.contains('\n'), "{e}");
+        }
+        // Datums the EPSG table gives no WGS84 shift for: DHDN (Bessel), OSGB36 (Airy), NAD27.
+        for (code, datum) in [(31467, "bessel"), (27700, "airy"), (26711, "NAD27")] {
+            let e = check_crs(Crs::Epsg(code)).unwrap_err().to_string();
+            let want = format!("EPSG:{code} is on a datum ({datum}) whose shift to WGS84");
+            assert!(e.starts_with(&want), "{e}");
+        }
+        // National grids are accepted (tests/it/geo_national_grids.rs checks them against pyproj).
+        for code in [28992, 2056, 25832, 2154, 2180, 32118, 26943, 32139] {
+            check_crs(Crs::Epsg(code)).unwrap();
         }
         assert!(map_to_wgs84(Crs::Local, 0.0, 0.0).is_err());
         assert!(wgs84_to_map(Crs::Epsg(32617), f64::NAN, 0.0).is_err());
