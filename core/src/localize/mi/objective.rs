@@ -145,7 +145,7 @@ impl ImageKey {
 }
 
 /// Image preparations shared by the evaluators one refinement builds on the same frames (the
-/// search's, the polish's, the jackknife's and the region's): the blur, the gray binning, the
+/// search's, the polish's, the smooth stage's): the blur, the gray binning, the
 /// erosion with its distance map and the pyramid are the same for all of them, only the point
 /// sets differ. Likewise the Morton order of a point set ([`morton_order`]), which
 /// depends on the points alone while each evaluator's origin, bins and fixed set differ. An

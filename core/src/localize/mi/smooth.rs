@@ -524,7 +524,7 @@ impl<'a> Smooth<'a> {
 
     /// The gradient of the objective at `pose` cut into `k` clusters of points: cluster j holds
     /// the j-th of `k` contiguous runs of every view's fixed set (Morton order, so a run is a
-    /// compact patch of ground, as the jackknife's groups). ∂MI/∂h is taken at the whole
+    /// compact patch of ground). ∂MI/∂h is taken at the whole
     /// histogram, so the clusters' gradients sum to [`Self::evaluate`]'s: each is a patch's
     /// share of the score, whose scatter across patches measures how much the answer depends on
     /// which ground it saw ([`crate::localize::refine::information::information`]'s sandwich).

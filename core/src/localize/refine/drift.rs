@@ -1,8 +1,8 @@
 //! The drift check: a narrow MI search around the served pose on fresh frames, asking whether
 //! the camera has moved (a knocked or turned pole). The service runs it on its schedule and
 //! before it lets a new result replace a served pose ([`drift_search_with`] on every LiDAR cell);
-//! the search and the quality gate are a localization's own, on a thinned point set and without
-//! the jackknife uncertainty.
+//! the search and the grid's quality gate are a localization's own, on a thinned point set and
+//! without the smooth stage's σ.
 
 use crate::camera::{Camera, CameraModel};
 use crate::error::{Error, Result};
@@ -146,7 +146,7 @@ fn cached_mask(camera: &Camera) -> Arc<Vec<u8>> {
 /// camera moved. Counting it as moved made a steady camera re-localize (examples/drift_verdicts.rs).
 ///
 /// The search and its quality gate are those of a localization's MI stage, on the thinned point
-/// set ([`DRIFT_THIN`]) and without the jackknife uncertainty: the verdict asks where the peak is
+/// set ([`DRIFT_THIN`]) and without the smooth stage's σ: the verdict asks where the peak is
 /// and whether it is clear, not how precise the served pose is.
 pub fn drift_search(
     camera: &Camera,

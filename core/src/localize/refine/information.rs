@@ -25,7 +25,7 @@ pub const HESSIAN_STEP: [f64; 6] = [0.02, 0.02, 0.02, 1.745e-3, 1.745e-3, 1.745e
 /// The observed-information covariance ([`information`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Information {
-    /// Axis names (x, y, z, yaw, then pitch, roll when free), as the jackknife's.
+    /// Axis names (x, y, z, yaw, then pitch, roll when free).
     pub axes: Vec<String>,
     /// Units (m or deg).
     pub units: Vec<String>,
@@ -69,7 +69,7 @@ pub const SANDWICH_CLUSTERS: usize = 32;
 /// The Cramér–Rao bound holds when every point is an independent sample of a correct model;
 /// neighbouring points share pixels and a real frame's gray–reflectivity relation varies over
 /// the ground, and the sandwich counts that: it equals the bound when points are independent
-/// and grows with the correlation within a patch. Both are expressed over the axes the jackknife
+/// and grows with the correlation within a patch. Both are expressed over the axes the covariance
 /// reports (x, y, z in m, yaw about the
 /// map's up axis in degrees, and pitch and roll as [`crate::localize::mi::space::pose_at`] adds them, in
 /// degrees). Errors (one line) when the Hessian or the covariance is not finite or the Hessian

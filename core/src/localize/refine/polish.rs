@@ -201,7 +201,7 @@ fn clamp_to_box(p: &PolishParams, mut x: [f64; 6]) -> [f64; 6] {
 /// ±`bound`, then one vertex per free parameter, `initial_step` from it towards the box's
 /// interior (a zero initial step or bound holds a parameter, e.g. pitch and roll in a 4-DoF
 /// polish, and the simplex spans the others only). Callers that run many polishes from one
-/// start can score these poses once (the jackknife's groups, [`crate::localize::refine::uncertainty`]).
+/// start can score these poses once.
 pub(crate) fn initial_simplex(p: &PolishParams, x0: [f64; 6]) -> Vec<[f64; 6]> {
     let clamp = |x: [f64; 6]| clamp_to_box(p, x);
     let x0 = clamp(x0);
@@ -516,8 +516,8 @@ mod tests {
 
     #[test]
     fn a_polish_first_scores_its_initial_simplex() {
-        // The jackknife scores these poses once for all its groups; that is only the same as
-        // each group scoring them if the polish scores exactly them, in this order, first.
+        // A caller that scores these poses once for many polishes gets the same polishes only
+        // if each scores exactly them, in this order, first.
         let mut p = PolishParams::four_dof();
         p.initial_step[5] = 0.2;
         p.bound[5] = 1.0;
