@@ -264,31 +264,23 @@ fn bad_inputs_are_refused_with_one_line() {
 
     // No intensity: laspy writes the cloud again with intensity 0 everywhere.
     let dark = tmp.path().join("dark.laz");
-    let py = format!(
-        "import laspy; l = laspy.read({:?}); l.intensity[:] = 0; l.write({:?})",
-        d.join("street.laz"),
-        dark
+    laspy_rewrite(
+        &d.join("street.laz"),
+        &dark,
+        "import laspy",
+        "l.intensity[:] = 0",
     );
-    assert!(Command::new("python3")
-        .args(["-c", &py])
-        .status()
-        .unwrap()
-        .success());
     let o = build(&out, "t", &[dark.to_str().unwrap()]);
     assert_refused(&o, &out, "dark.laz", "no intensity");
 
     // Geographic CRS (WGS84) in the file, an unknown --crs for a PCD.
     let geo = tmp.path().join("geographic.laz");
-    let py = format!(
-        "import laspy, pyproj; l = laspy.read({:?}); l.header.vlrs.clear(); l.header.add_crs(pyproj.CRS.from_epsg(4326)); l.write({:?})",
-        d.join("street.laz"),
-        geo
+    laspy_rewrite(
+        &d.join("street.laz"),
+        &geo,
+        "import laspy, pyproj",
+        "l.header.vlrs.clear(); l.header.add_crs(pyproj.CRS.from_epsg(4326))",
     );
-    assert!(Command::new("python3")
-        .args(["-c", &py])
-        .status()
-        .unwrap()
-        .success());
     let o = build(&out, "t", &[geo.to_str().unwrap()]);
     assert_refused(&o, &out, "geographic.laz", "geographic CRS");
     let pcd = d.join("street.pcd");
@@ -508,4 +500,17 @@ fn simulated_lidar_round_trips_through_tile_build() {
         );
         assert!(worst <= 6e-4, "seed {seed}: height off by up to {worst} m");
     }
+}
+
+/// `src` read by laspy as `l` (after `imports`), changed by `edit`, written to `dst`.
+fn laspy_rewrite(src: &Path, dst: &Path, imports: &str, edit: &str) {
+    let py = format!("{imports}; l = laspy.read({src:?}); {edit}; l.write({dst:?})");
+    assert!(
+        Command::new("python3")
+            .args(["-c", &py])
+            .status()
+            .unwrap()
+            .success(),
+        "{py}"
+    );
 }

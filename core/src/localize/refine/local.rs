@@ -232,27 +232,21 @@ pub fn smooth_stage(
             .intrinsics_sigma
             .as_ref()
             .map(|s| crate::localize::refine::uncertainty::intrinsics_deltas(cam, views, &pose, s));
-        r.quality.covariance = Some(information_covariance(
-            info,
-            local_judged,
-            deltas.as_deref(),
-        ));
-        if let Some(u) = r.quality.covariance.as_mut() {
-            if let Some(o) = &optima {
-                add_spread(u, o);
-            }
-            if u.axes == info.axes {
-                u.gate_sigma = judged.clone();
-            }
-            r.quality.sigma = Some(super::quality::Sigma::of(u));
+        let mut u = information_covariance(info, local_judged, deltas.as_deref());
+        if let Some(o) = &optima {
+            add_spread(&mut u, o);
         }
+        // The gate judged the local σ with the optima's spread: that is the covariance's too.
+        u.gate_sigma = judged.clone();
+        r.quality.sigma = Some(super::quality::Sigma::of(&u));
         // Each part was finite on its own; their sum is checked too, as the pose file and the
         // gate would carry it.
-        if r.quality.accepted && !r.quality.covariance.as_ref().is_some_and(|u| u.is_finite()) {
+        if r.quality.accepted && !u.is_finite() {
             r.quality.accepted = false;
             r.quality.reason = Some("uncertainty: the reported covariance is not finite".into());
             r.quality.refused_by = Some(super::quality::GateCheck::Uncertain);
         }
+        r.quality.covariance = Some(u);
     }
     r.quality.optima = optima;
     r.quality.information = information.as_ref().ok().cloned();
