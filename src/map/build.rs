@@ -11,8 +11,10 @@
 //!    is narrower than the window (parked cars, people, trunks; canopy has ground returns under it).
 //! 4. Each tile cell with ground points gets the median of their normalised intensities
 //!    (reflectivity, rounded half to even, 1..=255; 0 = no data) and the median of their heights.
-//!    Intensity is normalised per input: 8-bit values (largest ≤ 255) as they are, wider ones
-//!    scaled by 255 / (2^b − 1), b the bits of the input's largest value (12- and 16-bit sensors).
+//!    Intensity is normalised per input: 8-bit inputs (largest ≤ 255) as they are; every wider
+//!    input by one shared 255 / (2^b − 1), b the bits of the largest value among all the wider
+//!    inputs (12- and 16-bit sensors), so that flight lines of one survey keep one scale whatever
+//!    each line's brightest point.
 //! 5. Satellite layer: an orthophoto warped bilinearly into the satellite grid (any CRS the geodesy
 //!    relates to the tile's), else the colour of the highest point of each cell (the view from
 //!    above), 16-bit colours scaled by 1/257 when the input's largest exceeds 255.
@@ -285,12 +287,18 @@ fn read_points(
 }
 
 /// The provenance line of each input.
-fn source_lines(clouds: &[Cloud], facts: &[InputFacts], classified: &[bool]) -> Vec<String> {
+fn source_lines(
+    clouds: &[Cloud],
+    facts: &[InputFacts],
+    classified: &[bool],
+    full: &[f64],
+) -> Vec<String> {
     clouds
         .iter()
         .zip(facts)
         .zip(classified)
-        .map(|((c, f), cl)| {
+        .zip(full)
+        .map(|(((c, f), cl), full)| {
             format!(
                 "point cloud: {} ({}, {} of {} points in the box and margin, ground {}, intensity full scale {})",
                 c.path.display(),
@@ -302,7 +310,7 @@ fn source_lines(clouds: &[Cloud], facts: &[InputFacts], classified: &[bool]) -> 
                 f.stats.kept,
                 f.stats.decoded,
                 if *cl { "LAS class 2" } else { "lowest-surface filter" },
-                intensity_full_scale(f.stats.max_intensity)
+                full
             )
         })
         .collect()
@@ -407,10 +415,7 @@ pub(crate) fn build_tile(spec: &BuildSpec) -> Result<(Tile, super::cache::Proven
     }
     let classified: Vec<bool> = facts.iter().map(|f| f.ground_class > 0).collect();
     let surface = ground_surface(&kept, &classified, &read_grid, ratio, gp);
-    let full: Vec<f64> = facts
-        .iter()
-        .map(|f| intensity_full_scale(f.stats.max_intensity))
-        .collect();
+    let full = full_scales(facts.iter().map(|f| f.stats.max_intensity));
     let (refl, height, n_ground) = rasterize(
         &mut kept,
         &classified,
@@ -433,7 +438,7 @@ pub(crate) fn build_tile(spec: &BuildSpec) -> Result<(Tile, super::cache::Proven
             ),
         ));
     }
-    let mut sources = source_lines(&clouds, &facts, &classified);
+    let mut sources = source_lines(&clouds, &facts, &classified, &full);
     let satellite = satellite_layer(ortho, top, &facts, &sat_grid, &names, &mut sources)?;
     let note = format!(
         "tile build: {res} m grid; ground cell {} m, window {} m, tolerance {} m; reflectivity = \
@@ -455,15 +460,21 @@ pub(crate) fn build_tile(spec: &BuildSpec) -> Result<(Tile, super::cache::Proven
     Ok((tile, provenance))
 }
 
-/// The value that maps to 255: the input's largest intensity as is up to 255, else the smallest
-/// 2^b − 1 that holds it.
-fn intensity_full_scale(max: u16) -> f64 {
-    if max <= 255 {
+/// The intensity that maps to 255, per input from its largest intensity: 255 for 8-bit inputs
+/// (largest ≤ 255); for all wider inputs one value, the smallest 2^b − 1 that holds the largest
+/// intensity among them. Sharing it keeps the flight lines of one survey on one scale: a line
+/// whose brightest point is below half the sensor's range would otherwise come out twice as
+/// bright as its neighbour.
+fn full_scales(maxima: impl Iterator<Item = u16> + Clone) -> Vec<f64> {
+    let wide = maxima.clone().filter(|&m| m > 255).max().unwrap_or(0);
+    let wide_full = if wide == 0 {
         255.0
     } else {
-        let bits = 16 - max.leading_zeros();
-        f64::from(((1u32 << bits) - 1) as u16)
-    }
+        f64::from(((1u32 << (16 - wide.leading_zeros())) - 1) as u16)
+    };
+    maxima
+        .map(|m| if m <= 255 { 255.0 } else { wide_full })
+        .collect()
 }
 
 /// The opened lowest surface on the ground cells of the read grid (`None` when every input is
@@ -756,10 +767,14 @@ mod tests {
         assert_eq!(median(&mut [3.0, 1.0, 2.0]), 2.0);
         assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), 2.5);
         assert_eq!(median(&mut [7.0]), 7.0);
-        assert_eq!(intensity_full_scale(200), 255.0);
-        assert_eq!(intensity_full_scale(4000), 4095.0);
-        assert_eq!(intensity_full_scale(65535), 65535.0);
-        assert_eq!(intensity_full_scale(256), 511.0);
+        let fs = |m: &[u16]| full_scales(m.iter().copied());
+        assert_eq!(fs(&[200]), [255.0]);
+        assert_eq!(fs(&[4000]), [4095.0]);
+        assert_eq!(fs(&[65535]), [65535.0]);
+        assert_eq!(fs(&[256]), [511.0]);
+        // Two flight lines of one 16-bit survey, one of them dark, and an 8-bit file.
+        assert_eq!(fs(&[30000, 50000, 200]), [65535.0, 65535.0, 255.0]);
+        assert_eq!(fs(&[30000, 4000]), [32767.0, 32767.0]);
     }
 
     #[test]

@@ -22,7 +22,10 @@ const BOX: &str = "691015,5335015,691045,5335045";
 fn refs() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("infraloc-tile-build-{}", std::process::id()));
+        // Under cargo's per-target scratch space, not /tmp: a static is never dropped, so a
+        // temporary directory would outlive every run. Each run starts it afresh.
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("tile-build-refs");
+        let _ = std::fs::remove_dir_all(&dir);
         let script = concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/tests/reference/cloud_reference.py"
