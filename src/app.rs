@@ -12,7 +12,7 @@ use crate::config::{Config, FrameSourceKind, GpsSourceKind, MatcherKind};
 use crate::error::{Error, Result};
 use crate::localize::frame::Frame;
 use crate::localize::init::matcher::{MatchFile, Matcher};
-use crate::localize::pipeline::{localize, Outcome, Params};
+use crate::localize::pipeline::{localize_pooled, Outcome, Params};
 use crate::map::cache::{load_covering, SkippedTile, TileRef};
 use crate::map::{Crs, Tile};
 use crate::persist::write_atomic;
@@ -265,6 +265,33 @@ pub(crate) fn run(
     ov: &Overrides,
     progress: &dyn Fn(StageName),
 ) -> Result<Run> {
+    run_pooled(cfg, cfg_path, ov, progress, None)
+}
+
+/// The service's frames of earlier runs for one run ([`run_pooled`]).
+pub(crate) struct Pool<'a> {
+    /// Where the frames are stored.
+    pub store: &'a crate::frames::FrameStore,
+    /// The run's time, Unix seconds: its frame is stored under it, and stored frames within the
+    /// store's spacing of it are not pooled.
+    pub now_unix_s: i64,
+    /// The stored frames the run pooled, once its frame is in (set even when the run fails
+    /// later, so that the service can say which frames a refused run had).
+    pub used: std::sync::Mutex<Vec<crate::frames::FrameEntry>>,
+}
+
+/// [`run`] with the frames of earlier runs pooled into the refinement
+/// ([`crate::localize::pipeline::localize_pooled`]). Once the frame is captured, the stored
+/// frames that fit the camera are loaded (those that do not are skipped with one warning each)
+/// and the run's own frame is stored, before anything can refuse it: a refused run leaves its
+/// frame for the next. A frame that cannot be stored costs a warning, not the run.
+pub(crate) fn run_pooled(
+    cfg: &Config,
+    cfg_path: &Path,
+    ov: &Overrides,
+    progress: &dyn Fn(StageName),
+    pool: Option<&Pool<'_>>,
+) -> Result<Run> {
     let t_start = Instant::now();
     // The matcher's file first: a missing or malformed one fails before the frames are captured.
     let matcher = matcher_from_config(cfg)?;
@@ -278,7 +305,7 @@ pub(crate) fn run(
     // acquisition is cancelled, and it is joined before the error or panic goes on: a receiver
     // stops within one read; a tile already loading finishes its decode first.
     let cancel = AtomicBool::new(false);
-    let (camera, image, located, intrinsics_sigma) = std::thread::scope(|s| {
+    let (camera, image, earlier, located, intrinsics_sigma) = std::thread::scope(|s| {
         let (tx, rx) = std::sync::mpsc::channel();
         let (cancel, tiles) = (&cancel, &tiles);
         let acquire = s.spawn(move || {
@@ -296,7 +323,7 @@ pub(crate) fn run(
         });
         let received = {
             let _cancel = CancelOnDrop(cancel);
-            capture_and_receive(cfg, cfg_path, ov, progress, rx)
+            capture_and_receive(cfg, cfg_path, ov, progress, pool, rx)
         };
         // A panicked acquisition shows as a `lost` stage error above; joined here, the scope
         // does not raise it again.
@@ -324,8 +351,13 @@ pub(crate) fn run(
         }
     };
     let clock = |t: Instant| move || t.elapsed().as_secs_f64();
-    let outcome = localize(
+    let earlier_frames = earlier
+        .iter()
+        .map(|f| Frame::new(&camera, f.image.as_raw()))
+        .collect::<Result<Vec<_>>>()?;
+    let outcome = localize_pooled(
         &Frame::new(&camera, image.as_raw())?,
+        &earlier_frames,
         &tile,
         (px, py),
         sigma,
@@ -365,6 +397,9 @@ pub(crate) fn run(
     if !tref.skipped.is_empty() {
         report["skipped_tiles"] = json!(tref.skipped);
     }
+    if pool.is_some() {
+        report["pooled_frames"] = json!(earlier.iter().map(|f| &f.entry).collect::<Vec<_>>());
+    }
     if let Some(t) = &ov.truth {
         let text = std::fs::read_to_string(t).map_err(|e| Error::io(t, e))?;
         report["truth"] =
@@ -390,9 +425,11 @@ fn capture_and_receive(
     cfg_path: &Path,
     ov: &Overrides,
     progress: &dyn Fn(StageName),
+    pool: Option<&Pool<'_>>,
     rx: std::sync::mpsc::Receiver<Located>,
-) -> Result<(Camera, GrayImage, AcquiredPrior, Option<IntrinsicsSigma>)> {
+) -> Result<Captured> {
     let (camera, image) = camera_and_frame(cfg, cfg_path, ov, progress)?;
+    let earlier = pool.map_or_else(Vec::new, |p| pool_and_store(p, &camera, &image));
     // Only a panic ends the acquisition without sending.
     let lost =
         |stage: StageName| Error::stage(stage, "the acquisition beside the capture ended early");
@@ -411,8 +448,42 @@ fn capture_and_receive(
         Ok(Located::Tile(t)) => t?,
         _ => return Err(lost(StageName::Tile)),
     };
-    Ok((camera, image, (prior, tile), intrinsics_sigma))
+    Ok((camera, image, earlier, (prior, tile), intrinsics_sigma))
 }
+
+/// The stored frames `p` pools for `camera`, then `image` stored for the runs after this one;
+/// every frame skipped, dropped or not stored is logged in one line.
+fn pool_and_store(
+    p: &Pool<'_>,
+    camera: &Camera,
+    image: &GrayImage,
+) -> Vec<crate::frames::StoredFrame> {
+    let (earlier, skipped) = p.store.pool(camera, p.now_unix_s);
+    for line in skipped {
+        tracing::warn!("{line}");
+    }
+    match p.store.put(
+        image,
+        &crate::frames::camera_fingerprint(camera),
+        p.now_unix_s,
+    ) {
+        Ok(dropped) => dropped.iter().for_each(|l| tracing::info!("{l}")),
+        Err(e) => tracing::warn!("this run's frame is not stored for later runs: {e}"),
+    }
+    *p.used.lock().unwrap_or_else(|e| e.into_inner()) =
+        earlier.iter().map(|f| f.entry.clone()).collect();
+    earlier
+}
+
+/// What [`capture_and_receive`] hands on: the camera, its frame, the stored frames pooled with
+/// it, the prior with its tile, and the intrinsics' stated σ.
+type Captured = (
+    Camera,
+    GrayImage,
+    Vec<crate::frames::StoredFrame>,
+    AcquiredPrior,
+    Option<IntrinsicsSigma>,
+);
 
 /// The prior (lat, lon, σ m; where it came from) and the tile covering it.
 type AcquiredPrior = (((f64, f64, f64), Value), Box<(Tile, TileRef)>);

@@ -318,6 +318,16 @@ pub struct DaemonConfig {
     /// [`crate::daemon::metrics::FILE_NAME`] there up to date (OpenMetrics text, written
     /// atomically). `None`: no metrics file.
     pub metrics_dir: Option<PathBuf>,
+    /// Frames pooled into one localization at most, the run's own included: the service keeps
+    /// the burst median of each run in `frames/` beside the pose and pools those of earlier
+    /// hours into the refinement (`crate::frames`). 1 = no pooling, nothing stored.
+    pub pool_frames: usize,
+    /// A stored frame older than this, hours, is dropped.
+    pub pool_max_age_h: f64,
+    /// The stored frames take at most this much disk, MB; the oldest go first.
+    pub pool_max_disk_mb: f64,
+    /// Frames closer together than this, minutes, are one light: the newer replaces the older.
+    pub pool_min_spacing_min: f64,
 }
 
 impl Default for DaemonConfig {
@@ -332,6 +342,10 @@ impl Default for DaemonConfig {
             drift_threshold_m: 0.1,
             drift_threshold_deg: 0.3,
             metrics_dir: None,
+            pool_frames: 6,
+            pool_max_age_h: 72.0,
+            pool_max_disk_mb: 200.0,
+            pool_min_spacing_min: 45.0,
         }
     }
 }
@@ -375,6 +389,14 @@ pub(crate) mod limits {
     pub(crate) const MARGIN_M: f64 = 10_000.0;
     /// `[daemon] history-len`.
     pub(crate) const HISTORY_LEN: u64 = 10_000;
+    /// `[daemon] pool-frames`: one run's MI stage holds every pooled frame in memory.
+    pub(crate) const POOL_FRAMES: u64 = 32;
+    /// `[daemon] pool-max-age-h` (thirty days).
+    pub(crate) const POOL_AGE_H: f64 = 720.0;
+    /// `[daemon] pool-max-disk-mb` (100 GB).
+    pub(crate) const POOL_DISK_MB: f64 = 100_000.0;
+    /// `[daemon] pool-min-spacing-min` (one day).
+    pub(crate) const POOL_SPACING_MIN: f64 = 1_440.0;
     /// `[output] georef-lut-step-px`: beyond 64 px a cell spans more than a car at the image's
     /// edge, and the table is no lookup table any more.
     pub(crate) const LUT_STEP_PX: u64 = 64;
@@ -764,6 +786,30 @@ impl Config {
             Above(0.0),
             limits::DRIFT_DEG,
         );
+        p.int(
+            "[daemon] pool-frames",
+            d.pool_frames as u64,
+            1,
+            limits::POOL_FRAMES,
+        );
+        p.float(
+            "[daemon] pool-max-age-h",
+            d.pool_max_age_h,
+            Above(0.0),
+            limits::POOL_AGE_H,
+        );
+        p.float(
+            "[daemon] pool-max-disk-mb",
+            d.pool_max_disk_mb,
+            Above(0.0),
+            limits::POOL_DISK_MB,
+        );
+        p.float(
+            "[daemon] pool-min-spacing-min",
+            d.pool_min_spacing_min,
+            AtLeast(0.0),
+            limits::POOL_SPACING_MIN,
+        );
     }
 
     /// Semantic warnings: legal but probably not what was meant.
@@ -815,6 +861,12 @@ impl Config {
             w.push(format!(
                 "[daemon] retry-max-s = {} is below retry-initial-s = {}: retries wait retry-initial-s",
                 d.retry_max_s, d.retry_initial_s
+            ));
+        }
+        if d.pool_frames > 1 && d.pool_max_age_h * 60.0 < d.pool_min_spacing_min {
+            w.push(format!(
+                "[daemon] pool-max-age-h = {} is shorter than pool-min-spacing-min = {}: no stored frame is ever pooled",
+                d.pool_max_age_h, d.pool_min_spacing_min
             ));
         }
         if d.drift_check_interval_min > 0.0 && d.drift_threshold_m >= 0.5 {

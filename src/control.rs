@@ -61,6 +61,9 @@ pub enum Request {
     },
     /// The LiDAR-over-image overlay of the latest run, as a PNG frame after the answer.
     DumpOverlay {},
+    /// Drop the frames of earlier runs that later runs would pool (the camera was moved, or
+    /// its frames are not to be trusted): `{"ok": true, "cleared": N}`.
+    ClearFrames {},
     /// Validate the daemon's config file as a reload would read it.
     Validate {},
     /// Georeference pixels through the served pose on the tile's height layer

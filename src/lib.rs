@@ -23,6 +23,7 @@ pub mod config;
 pub mod control;
 pub mod daemon;
 pub mod eval;
+pub mod frames;
 pub mod georef;
 pub mod gps_serial;
 pub mod map;

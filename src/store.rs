@@ -37,6 +37,10 @@ pub struct HistoryEntry {
     pub accepted: bool,
     /// Why it was (not) accepted.
     pub reason: String,
+    /// The result's marginal σ per axis, when it has one: how σ changes over the runs (the
+    /// node's pooled frames of earlier hours narrow it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma: Option<crate::localize::refine::quality::Sigma>,
 }
 
 /// What [`PoseStore::offer`] decided.
@@ -153,6 +157,7 @@ impl PoseStore {
             camera_center: Some(candidate.camera_center),
             accepted,
             reason,
+            sigma: candidate.sigma(),
         })?;
         Ok(decision)
     }
@@ -166,6 +171,7 @@ impl PoseStore {
             camera_center: Some(candidate.camera_center),
             accepted: false,
             reason: why.to_string(),
+            sigma: candidate.sigma(),
         })
     }
 
@@ -179,6 +185,7 @@ impl PoseStore {
             camera_center: None,
             accepted: false,
             reason: "localization failed; served pose kept".into(),
+            sigma: None,
         })
     }
 

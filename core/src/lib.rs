@@ -55,6 +55,7 @@ pub mod __internal {
     ) -> crate::Result<Outcome> {
         crate::localize::pipeline::localize_ungated(
             frame,
+            &[],
             tile,
             prior_xy,
             prior_sigma_m,

@@ -82,6 +82,9 @@ pub enum Command {
     Relocalize(tech::RelocalizeArgs),
     /// Print the pose the service serves (docs/interfaces.md, "Pose file").
     Pose(tech::Target),
+    /// Drop the service's stored frames of earlier runs, which later runs pool (after moving
+    /// the camera, or when its frames are not to be trusted).
+    ClearFrames(tech::Target),
     /// Save the LiDAR-over-image overlay of the service's latest run as PNG.
     Overlay(tech::OverlayArgs),
     /// Write the manual pages (infraloc.1 from these definitions, infraloc.toml.5) into a
@@ -139,6 +142,7 @@ pub(crate) fn run(cli: Cli) -> Result<(), Error> {
         Command::Status(t) => tech::status(t).map(|_| ()),
         Command::Relocalize(a) => tech::relocalize(a),
         Command::Pose(t) => tech::pose(t),
+        Command::ClearFrames(t) => tech::clear_frames(t),
         Command::Overlay(a) => tech::overlay(a),
         Command::Man(a) => man::run(a),
         Command::SelfTest(a) => selftest::run(a),

@@ -231,6 +231,18 @@ pub(crate) fn human_status(v: &Status) -> String {
             RunOutcome::Failed { error, .. } => format!("FAILED: {error}"),
         };
         line(&mut o, "last run", format!("{} {what}", r.finished_utc));
+        if !r.pooled_frames.is_empty() {
+            line(
+                &mut o,
+                "pooled",
+                format!(
+                    "{} earlier frame{} ({})",
+                    r.pooled_frames.len(),
+                    if r.pooled_frames.len() == 1 { "" } else { "s" },
+                    r.pooled_frames.join(", ")
+                ),
+            );
+        }
         if let RunOutcome::Localized { skipped_tiles, .. } = &r.outcome {
             for t in skipped_tiles {
                 line(&mut o, "skipped tile", t.reason.clone());
@@ -254,6 +266,23 @@ pub(crate) fn human_status(v: &Status) -> String {
             DriftOutcome::NotRun { error, .. } => format!("not run: {error}"),
         };
         line(&mut o, "drift check", format!("{} {what}", d.checked_utc));
+    }
+    if !v.stored_frames.is_empty() {
+        let mb = v.stored_frames.iter().map(|f| f.bytes).sum::<u64>() as f64 / 1e6;
+        line(
+            &mut o,
+            "stored frames",
+            format!(
+                "{} ({:.1} MB): {}",
+                v.stored_frames.len(),
+                mb,
+                v.stored_frames
+                    .iter()
+                    .map(|f| f.taken_utc.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        );
     }
     if v.failures_in_a_row > 0 {
         line(
@@ -384,6 +413,22 @@ pub(crate) fn pose(t: Target) -> Result<()> {
     Ok(())
 }
 
+/// `clear-frames`: drop the service's stored frames of earlier runs.
+pub(crate) fn clear_frames(t: Target) -> Result<()> {
+    let answer = t.call(Request::ClearFrames {})?;
+    served(&answer)?;
+    let c: crate::daemon::status::Cleared = answer.parse("clear-frames answer")?;
+    if t.json {
+        println!("{}", answer.text());
+    } else {
+        println!(
+            "{} stored frames dropped; the next runs pool only frames taken from now on",
+            c.cleared
+        );
+    }
+    Ok(())
+}
+
 /// `overlay --out PNG`.
 pub(crate) fn overlay(a: OverlayArgs) -> Result<()> {
     let answer = a.target.call(Request::DumpOverlay {})?;
@@ -491,12 +536,14 @@ mod tests {
                         reason: "tile: /c/aaa/tile.toml: truncated".into(),
                     }],
                 },
+                pooled_frames: Vec::new(),
             }),
             last_drift_check: None,
             failures_in_a_row: 0,
             next_localize_in_s: None,
             next_drift_check_in_s: None,
             reload_error: None,
+            stored_frames: Vec::new(),
         }
     }
 

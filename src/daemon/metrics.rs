@@ -171,6 +171,18 @@ const METRICS: &[Metric] = &[
         },
     },
     Metric {
+        name: "infraloc_stored_frames",
+        help: "Frames of earlier runs stored for pooling into later ones.",
+        kind: Kind::Gauge,
+        read: |s, _| Some(Sample::bare(s.stored_frames.len() as f64)),
+    },
+    Metric {
+        name: "infraloc_last_run_pooled_frames",
+        help: "Stored frames the latest localization pooled with its own.",
+        kind: Kind::Gauge,
+        read: |s, _| Some(Sample::bare(s.last_result.as_ref()?.pooled_frames.len() as f64)),
+    },
+    Metric {
         name: "infraloc_consecutive_failures",
         help: "Failed localizations since the last successful one.",
         kind: Kind::Gauge,

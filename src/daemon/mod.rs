@@ -19,6 +19,7 @@ use crate::app::{camera_and_frame, Overrides, Run};
 use crate::config::Config;
 use crate::control::{self, Accepted, Progress, Refusal, Reply, Request};
 use crate::error::{Error, Result};
+use crate::frames::{FrameEntry, FrameStore};
 use crate::localize::refine::drift::{
     drift_search, drift_search_with, DriftParams, DriftThresholds,
 };
@@ -30,8 +31,9 @@ use policy::{Action, CrossCheck, Policy, Requested, Timing};
 pub use status::State;
 pub use status::Status;
 use status::{
-    ConfigRefusal, DaemonAnswer, DriftCheck, DriftOutcome, DriftSearch, JobKind, OverlayAnswer,
-    PoseAnswer, Queued, Refused, RunOutcome, RunResult, Running, Served, StageTime, Validated,
+    Cleared, ConfigRefusal, DaemonAnswer, DriftCheck, DriftOutcome, DriftSearch, JobKind,
+    OverlayAnswer, PoseAnswer, Queued, Refused, RunOutcome, RunResult, Running, Served, StageTime,
+    Validated,
 };
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{channel, Receiver, RecvTimeoutError, Sender};
@@ -72,7 +74,8 @@ enum Event {
         waiter: Option<Sender<Answer>>,
     },
     Progress(StageName),
-    LocalizeDone(Box<Result<(Run, Option<CrossCheck>)>>),
+    /// A localization's result, with the stored frames it pooled.
+    LocalizeDone(Box<Result<(Run, Option<CrossCheck>)>>, Vec<FrameEntry>),
     DriftDone(Result<DriftSearch>),
 }
 
@@ -161,7 +164,20 @@ pub(crate) fn run(config_path: &Path) -> Result<()> {
         next_localize_in_s: None,
         next_drift_check_in_s: None,
         reload_error: None,
+        stored_frames: Vec::new(),
     };
+    let frames = FrameStore::new(
+        &crate::frames::frame_dir(&cfg.output.pose),
+        crate::frames::PoolLimits::of(&cfg.daemon),
+    );
+    status.stored_frames = frames.list();
+    if !status.stored_frames.is_empty() {
+        tracing::info!(
+            "{} stored frames of earlier runs in {}",
+            status.stored_frames.len(),
+            frames.dir().display()
+        );
+    }
     let mut served: Option<PoseFile> = None;
     match store.current() {
         Ok(Some(p)) => {
@@ -193,7 +209,13 @@ pub(crate) fn run(config_path: &Path) -> Result<()> {
         tracing::warn!("{n}");
     }
     start_signals(tx.clone())?;
-    let handler = make_handler(shared.clone(), store.clone(), tx.clone(), config_path);
+    let handler = make_handler(
+        shared.clone(),
+        store.clone(),
+        frames.clone(),
+        tx.clone(),
+        config_path,
+    );
     control::serve(listener, handler, control::Limits::default());
     tracing::info!(
         "control socket {} (mode {:o})",
@@ -204,6 +226,7 @@ pub(crate) fn run(config_path: &Path) -> Result<()> {
         cfg,
         config_path: config_path.to_path_buf(),
         store,
+        frames,
         shared,
         tx,
         policy: Policy::new(Instant::now(), served.is_some()),
@@ -256,6 +279,7 @@ fn start_signals(tx: Sender<Event>) -> Result<()> {
 fn make_handler(
     shared: Arc<Shared>,
     store: PoseStore,
+    frames: FrameStore,
     tx: Sender<Event>,
     config_path: &Path,
 ) -> Arc<control::Handler<DaemonAnswer>> {
@@ -319,6 +343,19 @@ fn make_handler(
                 None => refused("no localization has run since the daemon started; run `infraloc relocalize --wait` first".into()),
             }
         }
+        Request::ClearFrames {} => match frames.clear() {
+            Ok(n) => {
+                tracing::warn!(
+                    "{n} stored frames dropped on a technician's request; later runs pool only new frames"
+                );
+                lock(&shared.status).stored_frames = frames.list();
+                (
+                    DaemonAnswer::Cleared(Accepted::new(Cleared { cleared: n })),
+                    None,
+                )
+            }
+            Err(e) => refused(format!("stored frames: {e}")),
+        },
         Request::Relocalize { wait, force } => {
             let (wtx, wrx) = channel();
             let ev = Event::Relocalize {
@@ -358,6 +395,8 @@ struct Daemon {
     cfg: Config,
     config_path: PathBuf,
     store: PoseStore,
+    /// The frames of earlier runs, pooled into later ones.
+    frames: FrameStore,
     shared: Arc<Shared>,
     tx: Sender<Event>,
     served: Option<PoseFile>,
@@ -434,7 +473,7 @@ impl Daemon {
                         r.stage = stage;
                     }
                 }
-                Ok(Event::LocalizeDone(r)) => self.localize_done(*r),
+                Ok(Event::LocalizeDone(r, pooled)) => self.localize_done(*r, pooled),
                 Ok(Event::DriftDone(r)) => self.drift_done(r),
                 Err(RecvTimeoutError::Timeout) => continue,
                 Err(RecvTimeoutError::Disconnected) => return Ok(()),
@@ -510,6 +549,7 @@ impl Daemon {
             seconds: 0.0,
         });
         let (cfg, path, tx) = (self.cfg.clone(), self.config_path.clone(), self.tx.clone());
+        let frames = self.frames.clone();
         // A forced run is served whatever the served pose says, so it needs no cross-check.
         let served = self.served.clone().filter(|_| !force);
         let spawned = std::thread::Builder::new()
@@ -518,8 +558,21 @@ impl Daemon {
                 let progress = |s: StageName| {
                     let _ = tx.send(Event::Progress(s));
                 };
+                let pool = crate::app::Pool {
+                    store: &frames,
+                    now_unix_s: std::time::SystemTime::now()
+                        .duration_since(std::time::UNIX_EPOCH)
+                        .map_or(0, |d| d.as_secs() as i64),
+                    used: Mutex::new(Vec::new()),
+                };
                 let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    let run = crate::app::run(&cfg, &path, &Overrides::default(), &progress)?;
+                    let run = crate::app::run_pooled(
+                        &cfg,
+                        &path,
+                        &Overrides::default(),
+                        &progress,
+                        Some(&pool),
+                    )?;
                     let cc = served.as_ref().and_then(|p| {
                         progress(StageName::CrossCheck);
                         cross_check(&run, p, &cfg)
@@ -527,19 +580,23 @@ impl Daemon {
                     Ok((run, cc))
                 }))
                 .unwrap_or_else(|p| Err(internal_error("localize", p)));
-                let _ = tx.send(Event::LocalizeDone(Box::new(r)));
+                let pooled = pool.used.into_inner().unwrap_or_else(|e| e.into_inner());
+                let _ = tx.send(Event::LocalizeDone(Box::new(r), pooled));
             });
         if let Err(e) = spawned {
-            let _ = self
-                .tx
-                .send(Event::LocalizeDone(Box::new(Err(Error::Invalid(format!(
+            let _ = self.tx.send(Event::LocalizeDone(
+                Box::new(Err(Error::Invalid(format!(
                     "cannot start the localization thread: {e}"
-                ))))));
+                )))),
+                Vec::new(),
+            ));
         }
     }
 
-    fn localize_done(&mut self, r: Result<(Run, Option<CrossCheck>)>) {
+    fn localize_done(&mut self, r: Result<(Run, Option<CrossCheck>)>, pooled: Vec<FrameEntry>) {
         let seconds = self.job_started.elapsed().as_secs_f64();
+        let pooled_frames: Vec<String> = pooled.into_iter().map(|f| f.taken_utc).collect();
+        self.lock_status().stored_frames = self.frames.list();
         let force = self.policy.forced();
         let finished = now_utc();
         let outcome = r.and_then(|(run, cc)| {
@@ -607,6 +664,7 @@ impl Daemon {
                             })
                             .collect(),
                     },
+                    pooled_frames: pooled_frames.clone(),
                 };
                 for t in &run.skipped_tiles {
                     tracing::warn!("tile cache: skipped {}", t.reason);
@@ -648,6 +706,7 @@ impl Daemon {
                         error: msg,
                         retry_in_s: wait,
                     },
+                    pooled_frames,
                 };
                 self.lock_status().last_result = Some(result.clone());
                 result
@@ -704,6 +763,18 @@ impl Daemon {
                         // As the JSON value was printed: the reason in quotes.
                         serde_json::to_string(&v.reason).unwrap_or_default()
                     );
+                    // The stored frames show the old pose: pooled with the new view they
+                    // would pull the new pose back.
+                    match self.frames.clear() {
+                        Ok(0) => {}
+                        Ok(n) => {
+                            tracing::warn!("drift check: {n} stored frames of the old pose dropped")
+                        }
+                        Err(e) => tracing::warn!(
+                            "drift check: stored frames of the old pose not dropped: {e}"
+                        ),
+                    }
+                    self.lock_status().stored_frames = self.frames.list();
                 } else {
                     tracing::info!(
                         "drift check: ok (shift {:.3} m, yaw {:.3}°)",
@@ -753,6 +824,10 @@ impl Daemon {
                 c.daemon.socket = self.cfg.daemon.socket.clone();
                 c.output.pose = self.cfg.output.pose.clone();
                 self.cfg = c;
+                self.frames = FrameStore::new(
+                    &crate::frames::frame_dir(&self.cfg.output.pose),
+                    crate::frames::PoolLimits::of(&self.cfg.daemon),
+                );
                 self.lock_status().reload_error = None;
                 tracing::info!("SIGHUP: config reloaded");
             }

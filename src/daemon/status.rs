@@ -71,6 +71,9 @@ pub struct Status {
     pub next_drift_check_in_s: Option<f64>,
     /// Why the last SIGHUP reload was refused (the running config stays in force).
     pub reload_error: Option<String>,
+    /// The frames of earlier runs stored for pooling, oldest first ([`crate::frames`]).
+    #[serde(default)]
+    pub stored_frames: Vec<crate::frames::FrameEntry>,
 }
 
 /// Summary of the served pose file.
@@ -187,6 +190,13 @@ pub(crate) struct Queued {
     pub queued: bool,
 }
 
+/// The answer to `clear-frames`: how many stored frames were dropped.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(crate) struct Cleared {
+    /// Stored frames dropped.
+    pub cleared: usize,
+}
+
 /// A final answer of the daemon, whichever request it answers. Each serializes to an object with
 /// `"ok"`: the request's answer (or its refusal) as `infraloc` reads it back.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -204,6 +214,8 @@ pub(crate) enum DaemonAnswer {
     Overlay(Accepted<OverlayAnswer>),
     /// `relocalize` without `wait`.
     Queued(Accepted<Queued>),
+    /// `clear-frames`.
+    Cleared(Accepted<Cleared>),
     /// `relocalize` with `wait`: the run's result (`"ok"` inside).
     Result(Box<RunResult>),
     /// `georef`: the `infraloc.georef.v1` document (docs/georef.md).
@@ -248,6 +260,9 @@ pub struct RunResult {
     pub seconds: f64,
     /// What came of it.
     pub outcome: RunOutcome,
+    /// When each stored frame pooled with the run's own was taken, UTC, newest first (empty: the
+    /// run had its own frame only).
+    pub pooled_frames: Vec<String>,
 }
 
 /// What came of a localization.
@@ -332,6 +347,8 @@ struct RunResultWire {
     error: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     retry_in_s: Option<f64>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pooled_frames: Vec<String>,
 }
 
 /// An optional field whose value may itself be `null`: absent → `None`, `null` →
@@ -370,6 +387,7 @@ impl From<RunResult> for RunResultWire {
             skipped_tiles: None,
             error: None,
             retry_in_s: None,
+            pooled_frames: r.pooled_frames,
         };
         match r.outcome {
             RunOutcome::Localized {
@@ -434,6 +452,7 @@ impl TryFrom<RunResultWire> for RunResult {
             finished_utc: w.finished_utc,
             seconds: w.seconds,
             outcome,
+            pooled_frames: w.pooled_frames,
         })
     }
 }
@@ -496,6 +515,7 @@ mod tests {
                 }],
                 skipped_tiles: skipped,
             },
+            pooled_frames: vec!["2026-01-02T02:00:00Z".into()],
         }
     }
 

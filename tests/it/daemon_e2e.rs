@@ -916,3 +916,176 @@ fn drift_check_sees_a_knocked_camera() {
         "{turned}"
     );
 }
+
+/// The stored frames of a running service (`[daemon] pool-*`): every run stores its burst
+/// median, the next run pools the earlier one (its report, `status` and the metrics say which),
+/// a stored frame that does not fit is skipped with one journal line naming it, the count bound
+/// holds, a `kill -9` during a run leaves every stored frame whole, and `clear-frames` drops
+/// them. Each run's frames are brightened, as the light of another hour changes them; the spacing
+/// is 0 so that runs seconds apart count as different hours.
+#[test]
+fn frames_of_earlier_runs_are_stored_pooled_skipped_and_cleared() {
+    let live = tempfile::tempdir().unwrap();
+    let shine = |gain: f32| {
+        for e in std::fs::read_dir(scene().join("frames")).unwrap() {
+            let p = e.unwrap().path();
+            let mut img = image::open(&p).unwrap().to_luma8();
+            img.pixels_mut()
+                .for_each(|px| px.0[0] = (f32::from(px.0[0]) * gain).min(255.0) as u8);
+            img.save(live.path().join(p.file_name().unwrap())).unwrap();
+        }
+    };
+    shine(1.0);
+    let metrics = tempfile::tempdir().unwrap();
+    let (w, cfg) = workdir(|t| {
+        set(t, "camera", "frames", live.path().display().to_string());
+        set(t, "daemon", "pool-frames", 3);
+        set(t, "daemon", "pool-min-spacing-min", 0.0);
+        set(t, "daemon", "drift-check-interval-min", 0.0);
+        set(
+            t,
+            "daemon",
+            "metrics-dir",
+            metrics.path().display().to_string(),
+        );
+    });
+    let frames = w.path().join("frames");
+    let listed = || -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(&frames)
+            .map(|rd| {
+                rd.map(|e| e.unwrap().file_name().into_string().unwrap())
+                    .filter(|n| n.starts_with("frame-"))
+                    .collect()
+            })
+            .unwrap_or_default();
+        v.sort();
+        v
+    };
+    let mut d = Daemon::start(&cfg);
+    // READY=1 comes once the first run served its pose (the socket is up long before).
+    d.wait_notify("READY=1", LOCALIZE_TIMEOUT);
+    let (v, _) = wait_for_result(&cfg, &d);
+    assert_eq!(v["stored_frames"].as_array().map(Vec::len), Some(1), "{v}");
+    assert!(v["last_result"].get("pooled_frames").is_none(), "{v}");
+    let first = listed();
+    assert_eq!(first.len(), 1, "{first:?}");
+    // frame-<unix s>-<fingerprint>.png: plant one that does not decode and one of other
+    // intrinsics, both older than the run's, so that the next run meets them.
+    let (t1, fp) = first[0]
+        .trim_start_matches("frame-")
+        .trim_end_matches(".png")
+        .split_once('-')
+        .map(|(t, f)| (t.parse::<i64>().unwrap(), f.to_string()))
+        .unwrap();
+    let garbage = frames.join(format!("frame-{}-{fp}.png", t1 - 20));
+    std::fs::write(&garbage, b"\x89PNG\r\n\x1a\nnot a frame").unwrap();
+    let other = frames.join(format!("frame-{}-0123456789abcdef.png", t1 - 10));
+    std::fs::copy(frames.join(&first[0]), &other).unwrap();
+
+    shine(1.15);
+    // Past the first run's second, so that its frame and this run's have distinct names.
+    std::thread::sleep(Duration::from_millis(1100));
+    let out = cli(&cfg, &["relocalize", "--wait"]);
+    assert!(
+        out.status.code().is_some(),
+        "{}{}",
+        text(&out.stdout),
+        text(&out.stderr)
+    );
+    let (v, _) = status(&cfg);
+    let pooled = v["last_result"]["pooled_frames"].as_array().cloned();
+    assert_eq!(pooled.as_ref().map(Vec::len), Some(1), "{v}");
+    let log = d.log();
+    for (file, why) in [(&garbage, "unreadable"), (&other, "other intrinsics")] {
+        let name = file.display().to_string();
+        assert!(
+            log.lines()
+                .any(|l| l.contains(&name) && l.contains(why) && l.contains("skipped")),
+            "no line skipping {name} ({why}):\n{log}"
+        );
+    }
+    // Four frames for a bound of three: the oldest (the undecodable one) went.
+    let now = listed();
+    assert_eq!(now.len(), 3, "{now:?}");
+    assert!(!garbage.exists() && other.exists());
+    let human = text(&cli(&cfg, &["status"]).stdout);
+    assert!(
+        human.contains("pooled         1 earlier frame (") && human.contains("stored frames  3 ("),
+        "{human}"
+    );
+    // The metrics file is rewritten right after the answer went out.
+    let start = Instant::now();
+    let prom = loop {
+        let prom =
+            std::fs::read_to_string(metrics.path().join("infraloc.prom")).unwrap_or_default();
+        if sample(&prom, "infraloc_last_run_pooled_frames") == Some(1.0)
+            || start.elapsed() > Duration::from_secs(30)
+        {
+            break prom;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    assert_eq!(
+        sample(&prom, "infraloc_last_run_pooled_frames"),
+        Some(1.0),
+        "{prom}"
+    );
+    assert_eq!(sample(&prom, "infraloc_stored_frames"), Some(3.0), "{prom}");
+    // The report is the latest served run's: this one's when it was served, else the first's.
+    let r: Value =
+        serde_json::from_str(&std::fs::read_to_string(w.path().join("report.json")).unwrap())
+            .unwrap();
+    let want = usize::from(v["last_result"]["served"] == Value::Bool(true));
+    assert_eq!(
+        r["pooled_frames"].as_array().map(Vec::len),
+        Some(want),
+        "{r}"
+    );
+
+    // kill -9 once the third run is past its capture (its frame is stored then): every stored
+    // frame decodes, none is lost.
+    std::fs::remove_file(&other).unwrap();
+    shine(0.9);
+    std::thread::sleep(Duration::from_millis(1100));
+    let out = cli(&cfg, &["relocalize"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    poll_status(&cfg, |v| {
+        matches!(
+            v["running"]["stage"].as_str(),
+            Some("pnp" | "mi" | "cross-check")
+        )
+    });
+    let before_kill = listed();
+    d.signal("-KILL");
+    let _ = d.child.wait();
+    let after = listed();
+    assert_eq!(after, before_kill);
+    assert_eq!(after.len(), 3, "{after:?}");
+    for f in &after {
+        image::open(frames.join(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+    }
+
+    // A restarted service lists them and its boot run pools them; clear-frames drops them all.
+    let _ = std::fs::remove_file(w.path().join("notify.sock"));
+    let mut d = Daemon::start(&cfg);
+    // With a stored pose the service is ready at once; its boot run goes on.
+    d.wait_notify("READY=1", LOCALIZE_TIMEOUT);
+    let (v, _) = wait_for_result(&cfg, &d);
+    assert_eq!(v["stored_frames"].as_array().map(Vec::len), Some(3), "{v}");
+    assert_eq!(
+        v["last_result"]["pooled_frames"].as_array().map(Vec::len),
+        Some(2),
+        "{v}"
+    );
+    let out = cli(&cfg, &["clear-frames"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stdout).starts_with("3 stored frames dropped"),
+        "{}",
+        text(&out.stdout)
+    );
+    assert!(listed().is_empty());
+    let (v, _) = status(&cfg);
+    assert_eq!(v["stored_frames"].as_array().map(Vec::len), Some(0), "{v}");
+    drop(d);
+}

@@ -50,6 +50,7 @@ fn status(full: bool, uptime_s: f64) -> Status {
                 reason: "tile: /c/aaa/tile.toml: truncated\nsecond line".into(),
             }],
         },
+        pooled_frames: vec!["2026-11-22T13:01:00Z".into(), "2026-11-22T12:00:00Z".into()],
     };
     let failed = RunResult {
         finished_utc: "2026-11-22T17:00:00Z".into(),
@@ -58,6 +59,7 @@ fn status(full: bool, uptime_s: f64) -> Status {
             error: "prior: no fix".into(),
             retry_in_s: 60.0,
         },
+        pooled_frames: Vec::new(),
     };
     Status {
         state: if full { State::Ok } else { State::Failed },
@@ -105,6 +107,21 @@ fn status(full: bool, uptime_s: f64) -> Status {
         next_localize_in_s: None,
         next_drift_check_in_s: None,
         reload_error: None,
+        stored_frames: if full {
+            [
+                "2026-11-22T12:00:00Z",
+                "2026-11-22T13:01:00Z",
+                "2026-11-22T16:27:01Z",
+            ]
+            .map(|t| infraloc::frames::FrameEntry {
+                file: format!("frame-{t}.png"),
+                taken_utc: t.into(),
+                bytes: 2_000_000,
+            })
+            .to_vec()
+        } else {
+            Vec::new()
+        },
     }
 }
 
@@ -151,6 +168,8 @@ fn the_metrics_pass_prometheus_own_parser() {
         ("infraloc_last_run_duration_seconds", "19.5"),
         ("infraloc_last_run_skipped_tiles", "1"),
         ("infraloc_consecutive_failures", "0"),
+        ("infraloc_stored_frames", "3"),
+        ("infraloc_last_run_pooled_frames", "2"),
         ("infraloc_job_running{job=\"drift-check\"}", "1"),
         ("infraloc_drift_offset_meters{axis=\"horizontal\"}", "0.004"),
         ("infraloc_drift_offset_meters{axis=\"z\"}", "-0.002"),

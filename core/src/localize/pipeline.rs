@@ -291,7 +291,36 @@ pub fn localize(
     now: &dyn Fn() -> f64,
     progress: &dyn Fn(StageName),
 ) -> Result<Outcome> {
-    let outcome = localize_ungated(frame, tile, prior_xy, prior_sigma_m, p, now, progress)?;
+    localize_pooled(frame, &[], tile, prior_xy, prior_sigma_m, p, now, progress)
+}
+
+/// [`localize`] with `earlier` frames of the same camera at the same pose pooled into the MI
+/// stage: initialization matches `frame` alone; the refinement scores every frame on its own
+/// histogram ([`crate::localize::mi::Pooling`], `p.search.mi.pooling`) against the same ground
+/// points, so that shadows which move between the frames' hours stop agreeing with the map and
+/// the road that does not move keeps agreeing. The node pools the frames of its earlier runs
+/// this way. Each earlier frame must be the camera's size (one line naming it otherwise).
+#[allow(clippy::too_many_arguments)]
+pub fn localize_pooled(
+    frame: &Frame<'_>,
+    earlier: &[Frame<'_>],
+    tile: &Tile,
+    prior_xy: (f64, f64),
+    prior_sigma_m: f64,
+    p: &Params,
+    now: &dyn Fn() -> f64,
+    progress: &dyn Fn(StageName),
+) -> Result<Outcome> {
+    let outcome = localize_ungated(
+        frame,
+        earlier,
+        tile,
+        prior_xy,
+        prior_sigma_m,
+        p,
+        now,
+        progress,
+    )?;
     quality_gate(&outcome)?;
     Ok(outcome)
 }
@@ -325,6 +354,7 @@ pub fn quality_gate(o: &Outcome) -> Result<()> {
 /// its gate ([`crate::localize::refine::local::smooth_stage`]).
 fn refine_at(
     frame: &Frame<'_>,
+    earlier: &[Frame<'_>],
     tile: &Tile,
     p: &Params,
     start: &CamFromMap,
@@ -337,11 +367,24 @@ fn refine_at(
         crate::localize::init::ground::height_at(&tile.height, c.x, c.y).map(|g| (c.z - g).max(1.0))
     };
     let points = mi_points(tile, start, p);
-    let views = [View {
-        gray: frame.gray(),
-        mask: frame.mask(),
-        points: &points,
-    }];
+    let views: Vec<View<'_>> = std::iter::once(frame)
+        .chain(earlier)
+        .map(|f| View {
+            gray: f.gray(),
+            mask: f.mask(),
+            points: &points,
+        })
+        .collect();
+    // Frames of other hours each keep their own gray–reflectivity relation: one histogram per
+    // frame, whatever the search's pooling (its default is one joint histogram).
+    let mut search = p.search;
+    if !earlier.is_empty() {
+        search.mi.pooling = crate::localize::mi::Pooling::PerPair;
+    }
+    let p = &Params {
+        search,
+        ..p.clone()
+    };
     // The searches find the basin; the polish and the gradient ascent take it from there.
     let polish = p
         .polish
@@ -369,9 +412,11 @@ fn refine_at(
 
 /// [`localize`] without the quality gate: the outcome whatever the gate would say, so that an
 /// evaluation can still see the stages of a rejected run (`examples/pipeline_accuracy.rs`);
-/// `progress` as there.
+/// `progress` as there, and `earlier` as [`localize_pooled`] pools them.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn localize_ungated(
     frame: &Frame<'_>,
+    earlier: &[Frame<'_>],
     tile: &Tile,
     prior_xy: (f64, f64),
     prior_sigma_m: f64,
@@ -379,7 +424,23 @@ pub(crate) fn localize_ungated(
     now: &dyn Fn() -> f64,
     progress: &dyn Fn(StageName),
 ) -> Result<Outcome> {
+    use crate::camera::CameraModel;
     let (camera, image) = (frame.camera(), frame.gray());
+    if let Some((i, f)) = earlier.iter().enumerate().find(|(_, f)| {
+        (f.camera().width(), f.camera().height()) != (camera.width(), camera.height())
+    }) {
+        return Err(Error::stage(
+            StageName::Mi,
+            format!(
+                "pooled frame {} is {}×{}, the camera is {}×{}",
+                i + 1,
+                f.camera().width(),
+                f.camera().height(),
+                camera.width(),
+                camera.height()
+            ),
+        ));
+    }
     if !(prior_sigma_m > 0.0 && prior_xy.0.is_finite() && prior_xy.1.is_finite()) {
         return Err(Error::stage(
             StageName::Prior,
@@ -442,7 +503,8 @@ pub(crate) fn localize_ungated(
     drop(verifier);
     let t1 = now();
     progress(StageName::Mi);
-    let refine = |start: &InitResult| refine_at(frame, tile, p, &start.pose, start.tilt_sigma_deg);
+    let refine =
+        |start: &InitResult| refine_at(frame, earlier, tile, p, &start.pose, start.tilt_sigma_deg);
     let mut init = init;
     let (mut refinement, mut rounds) = refine(&init)?;
     // The verifier could not tell two hypotheses apart (see `VerifySchedule::runner_up_margin`)
