@@ -131,7 +131,7 @@ fn build(a: &BuildArgs) -> Result<()> {
         .as_deref()
         .map(|c| {
             c.parse::<Crs>()
-                .map_err(|e: String| Error::Invalid(format!("--crs: {e}")))
+                .map_err(|e: crate::geo::GeoError| Error::Invalid(format!("--crs: {e}")))
         })
         .transpose()?;
     let area = match (&a.bbox, &a.center, &a.center_wgs84) {
@@ -186,7 +186,7 @@ fn import_with<'a>(a: &'a ImportArgs) -> Result<()> {
     let crs: Crs = a
         .crs
         .parse()
-        .map_err(|e: String| Error::Invalid(format!("--crs: {e}")))?;
+        .map_err(|e: crate::geo::GeoError| Error::Invalid(format!("--crs: {e}")))?;
     let source = |image: &'a PathBuf, world: &'a Option<PathBuf>| Source {
         image: image.as_path(),
         world: world.as_deref(),

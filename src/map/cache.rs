@@ -363,7 +363,7 @@ fn manifest_crs(m: &Manifest, path: &Path) -> Result<Crs> {
     let crs: Crs = m
         .crs
         .parse()
-        .map_err(|e: String| Error::input(path, format!("crs: {e}")))?;
+        .map_err(|e: geo::GeoError| Error::input(path, format!("crs: {e}")))?;
     geo::check_crs(crs).map_err(|e| Error::input(path, format!("crs: {e}")))?;
     Ok(crs)
 }

@@ -151,7 +151,7 @@ impl<'a> KeyFile<'a> {
     }
 
     fn checked_rotation(&mut self, m: &[f64; 9], field: &str) -> Result<Rotation3<f64>> {
-        let r = rotation_rows(m, field).map_err(|e| self.err(e))?;
+        let r = rotation_rows(m, field).map_err(|e| self.err(e.to_string()))?;
         self.notes.extend(r.note(self.path, field));
         Ok(r.rotation)
     }
