@@ -1,7 +1,7 @@
 //! One error type for the whole crate. Every variant renders as a single line that names the
 //! file, field, device or stage at fault, because that line is what a technician sees. The
-//! domains' own errors ([`crate::geo::error::GeoError`]) are wrapped as they are, so `?` lifts
-//! them and their line is the one rendered.
+//! domains' own errors ([`crate::geo::error::GeoError`], [`crate::camera::error::CameraError`])
+//! are wrapped as they are, so `?` lifts them and their line is the one rendered.
 
 use crate::stage::StageName;
 use std::path::Path;
@@ -80,6 +80,9 @@ pub enum Error {
     /// A CRS or a position that geodesy refuses.
     #[error(transparent)]
     Geo(#[from] crate::geo::error::GeoError),
+    /// A camera, calibration projection or rectification that cannot be used.
+    #[error(transparent)]
+    Camera(#[from] crate::camera::error::CameraError),
     /// Invalid argument on the command line or to a library call.
     #[error("{0}")]
     Invalid(String),
