@@ -1,7 +1,8 @@
 //! One error type for the whole crate. Every variant renders as a single line that names the
 //! file, field, device or stage at fault, because that line is what a technician sees. The
-//! domains' own errors ([`crate::geo::error::GeoError`], [`crate::camera::error::CameraError`])
-//! are wrapped as they are, so `?` lifts them and their line is the one rendered.
+//! domains' own errors ([`crate::geo::error::GeoError`], [`crate::camera::error::CameraError`],
+//! [`crate::localize::error::LocalizeError`]) are wrapped as they are, so `?` lifts them and
+//! their line is the one rendered.
 
 use crate::stage::StageName;
 use std::path::Path;
@@ -83,6 +84,9 @@ pub enum Error {
     /// A camera, calibration projection or rectification that cannot be used.
     #[error(transparent)]
     Camera(#[from] crate::camera::error::CameraError),
+    /// A localization input or setting that cannot be used.
+    #[error(transparent)]
+    Localize(#[from] crate::localize::error::LocalizeError),
     /// Invalid argument on the command line or to a library call.
     #[error("{0}")]
     Invalid(String),
