@@ -141,7 +141,7 @@ pub enum PoseCovarianceError {
     Malformed(#[source] serde_json::Error),
     /// Axes or entries the pose covariance cannot take.
     #[error("quality.covariance: {0}")]
-    Invalid(#[source] crate::geo::georef::CovarianceError),
+    Entries(#[source] crate::geo::georef::CovarianceError),
 }
 
 /// [`PoseFile::pose_covariance`] of a `quality` block.
@@ -159,7 +159,7 @@ pub fn pose_covariance_of(
     let c = Cov::deserialize(c).map_err(PoseCovarianceError::Malformed)?;
     PoseCovariance::from_axes(&c.axes, &c.matrix)
         .map(Some)
-        .map_err(PoseCovarianceError::Invalid)
+        .map_err(PoseCovarianceError::Entries)
 }
 
 /// The minimal pose content any pose-like JSON must carry.
