@@ -69,6 +69,9 @@ pub enum Error {
         /// The panic's message.
         what: String,
     },
+    /// A tile that cannot be built, imported or stored.
+    #[error(transparent)]
+    Map(#[from] crate::map::error::MapError),
     /// Invalid argument on the command line or to a library call.
     #[error("{0}")]
     Invalid(String),
