@@ -116,6 +116,7 @@ fn main() {
         let covariance = match pose_covariance_of(&rec["mi_quality"]) {
             Ok(Some(c)) => c,
             other => {
+                let other = other.map_err(|e| e.to_string());
                 eprintln!("seed {seed}: no usable covariance ({other:?})");
                 continue;
             }

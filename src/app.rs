@@ -531,7 +531,7 @@ fn matcher_from_config(cfg: &Config) -> Result<Option<Arc<dyn Matcher>>> {
         (MatcherKind::MatchFile, Some(path)) => {
             let text =
                 std::fs::read_to_string(path).map_err(|e| Error::input(path, e.to_string()))?;
-            let m = MatchFile::parse(&text, path).map_err(|e| Error::input(path, e))?;
+            let m = MatchFile::parse(&text, path).map_err(|e| Error::input(path, e.to_string()))?;
             Ok(Some(Arc::new(m)))
         }
     }

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 pub fn load_camera(path: &Path) -> Result<Camera> {
     let (file, selector) = split_selector(path);
     let text = std::fs::read_to_string(&file).map_err(|e| Error::io(&file, e))?;
-    parse_camera_named(&text, &file, selector.as_deref())
+    Ok(parse_camera_named(&text, &file, selector.as_deref())?)
 }
 
 /// Read a camera file's stated intrinsics uncertainty ([`parse_intrinsics_sigma`]); `path` as
@@ -20,7 +20,7 @@ pub fn load_camera(path: &Path) -> Result<Camera> {
 pub(crate) fn load_intrinsics_sigma(path: &Path) -> Result<Option<IntrinsicsSigma>> {
     let (file, _) = split_selector(path);
     let text = std::fs::read_to_string(&file).map_err(|e| Error::io(&file, e))?;
-    parse_intrinsics_sigma(&text, &file)
+    Ok(parse_intrinsics_sigma(&text, &file)?)
 }
 
 /// Split `file#cam1` into the file and the selector, unless the whole path is an existing file.

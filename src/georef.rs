@@ -207,8 +207,8 @@ impl ServedGeoref {
         height: Raster<f32>,
         tile_id: &str,
     ) -> Result<ServedGeoref> {
-        let covariance =
-            pose_covariance_of(&pose.quality).map_err(|e| Error::input(pose_path, e))?;
+        let covariance = pose_covariance_of(&pose.quality)
+            .map_err(|e| Error::input(pose_path, e.to_string()))?;
         let crs = height.grid.crs;
         if pose.crs != crs.to_string() {
             return Err(Error::input(

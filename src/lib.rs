@@ -13,7 +13,7 @@
 // `!(x > 0.0)` is how this crate rejects NaN together with out-of-range values; keep it.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-pub use infraloc_core::{calib, error, geo, gnss, imageops, localize, orthonormal, pose, stage};
+pub use infraloc_core::{calib, geo, gnss, imageops, localize, orthonormal, pose, stage};
 
 pub mod app;
 pub mod camera;
@@ -22,6 +22,7 @@ pub mod cli;
 pub mod config;
 pub mod control;
 pub mod daemon;
+pub mod error;
 pub mod eval;
 pub mod frames;
 pub mod georef;

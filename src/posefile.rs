@@ -9,5 +9,5 @@ use std::path::Path;
 /// Read a pose-like JSON file.
 pub fn read_pose(path: &Path) -> Result<ReadPose> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    parse_pose(&text, path)
+    Ok(parse_pose(&text, path)?)
 }

@@ -1,51 +1,23 @@
-//! One error type for the whole crate. Every variant renders as a single line that names the
-//! file, field, device or stage at fault, because that line is what a technician sees.
+//! The core's error. Every variant renders as a single line that names the file, field or stage
+//! at fault, because that line is what a technician sees. The domains' own errors
+//! ([`crate::geo::error::GeoError`], [`crate::camera::error::CameraError`],
+//! [`crate::localize::error::LocalizeError`]) are wrapped as they are, so `?` lifts them and
+//! their line is the one rendered. What only the application does (configuration, files,
+//! commands, the service) has its own variants in the application's error, which wraps this one.
 
 use crate::stage::StageName;
 use std::path::Path;
 
-/// Exit code for configuration errors (sysexits.h `EX_CONFIG`).
-pub const EXIT_CONFIG: i32 = 78;
-/// Exit code for any other failure.
-pub(crate) const EXIT_FAILURE: i32 = 1;
-
-/// Crate-wide error.
+/// The core's error.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// The configuration (file or a value in it) is unusable. Exit code 78.
-    #[error("config {path}: {msg}")]
-    Config {
-        /// Config file (or `<command line>`).
-        path: String,
-        /// What is wrong, naming the key.
-        msg: String,
-    },
-    /// Several configuration problems at once, each naming its key. Exit code 78. Renders as one
-    /// line (problems separated by "; ") for logs and the service's status; [`Error::lines`]
-    /// gives one line per problem for a terminal.
-    #[error("config {path}: {}", problems.join("; "))]
-    ConfigList {
-        /// Config file.
-        path: String,
-        /// What is wrong, one entry per problem, each naming its key.
-        problems: Vec<String>,
-    },
-    /// An input file exists but its content is unusable.
+    /// An input (file or stream) the caller read has content the core cannot use.
     #[error("{path}: {msg}")]
     Input {
         /// The file (or stream) at fault.
         path: String,
         /// What is wrong, naming the key/field/offset where possible.
         msg: String,
-    },
-    /// An operating-system I/O error on a named path or device.
-    #[error("{path}: {source}")]
-    Io {
-        /// The path or device.
-        path: String,
-        /// The underlying error.
-        #[source]
-        source: std::io::Error,
     },
     /// A stage of a localization could not produce a trustworthy result.
     #[error("{}: {msg}", stage.name())]
@@ -55,93 +27,22 @@ pub enum Error {
         /// The numbers that made it fail.
         msg: String,
     },
-    /// A command's own verdict on its run (`demo`'s error thresholds, a `study` trial, the
-    /// service's answer to `relocalize`, the kernel's `self-test`).
-    #[error("{command}: {msg}")]
-    Command {
-        /// The command's name.
-        command: &'static str,
-        /// What failed.
-        msg: String,
-    },
-    /// The served pose or its history could not be stored.
-    #[error("persist: {0}")]
-    Persist(String),
-    /// A job of the service (`localize`, `drift`) panicked; the service goes on.
-    #[error("{job}: internal error: {what}")]
-    Internal {
-        /// The job.
-        job: &'static str,
-        /// The panic's message.
-        what: String,
-    },
-    /// Invalid argument on the command line or to a library call.
-    #[error("{0}")]
-    Invalid(String),
+    /// A CRS or a position that geodesy refuses.
+    #[error(transparent)]
+    Geo(#[from] crate::geo::error::GeoError),
+    /// A camera, calibration projection or rectification that cannot be used.
+    #[error(transparent)]
+    Camera(#[from] crate::camera::error::CameraError),
+    /// A localization input or setting that cannot be used.
+    #[error(transparent)]
+    Localize(#[from] crate::localize::error::LocalizeError),
 }
 
 impl Error {
-    /// Process exit code for this error.
-    pub fn exit_code(&self) -> i32 {
-        match self {
-            Error::Config { .. } | Error::ConfigList { .. } => EXIT_CONFIG,
-            _ => EXIT_FAILURE,
-        }
-    }
-
     /// Shorthand for [`Error::Input`].
     pub fn input(path: impl AsRef<Path>, msg: impl Into<String>) -> Self {
         Error::Input {
             path: path.as_ref().display().to_string(),
-            msg: msg.into(),
-        }
-    }
-
-    /// Shorthand for [`Error::Io`].
-    pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
-        Error::Io {
-            path: path.as_ref().display().to_string(),
-            source,
-        }
-    }
-
-    /// Shorthand for [`Error::Config`].
-    pub fn config(path: impl AsRef<Path>, msg: impl Into<String>) -> Self {
-        Error::Config {
-            path: path.as_ref().display().to_string(),
-            msg: msg.into(),
-        }
-    }
-
-    /// `Ok` without problems, [`Error::Config`] for one, [`Error::ConfigList`] for several.
-    pub fn config_problems(path: impl AsRef<Path>, mut problems: Vec<String>) -> Result<()> {
-        let path = path.as_ref().display().to_string();
-        match problems.len() {
-            0 => Ok(()),
-            1 => Err(Error::Config {
-                path,
-                msg: problems.remove(0),
-            }),
-            _ => Err(Error::ConfigList { path, problems }),
-        }
-    }
-
-    /// The error as a technician reads it on a terminal: one line, or one line per problem of
-    /// an [`Error::ConfigList`] (each `config PATH: problem`).
-    pub fn lines(&self) -> Vec<String> {
-        match self {
-            Error::ConfigList { path, problems } => problems
-                .iter()
-                .map(|p| format!("config {path}: {p}"))
-                .collect(),
-            e => vec![e.to_string()],
-        }
-    }
-
-    /// Shorthand for [`Error::Command`].
-    pub fn command(command: &'static str, msg: impl Into<String>) -> Self {
-        Error::Command {
-            command,
             msg: msg.into(),
         }
     }
@@ -155,5 +56,5 @@ impl Error {
     }
 }
 
-/// Crate-wide result.
+/// The core's result.
 pub type Result<T, E = Error> = std::result::Result<T, E>;

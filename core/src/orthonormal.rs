@@ -54,16 +54,45 @@ pub fn deviation(m: &Matrix3<f64>) -> f64 {
     (m.transpose() * m - Matrix3::identity()).norm()
 }
 
-/// `m` as a rotation under the rule of this module. The error is the reason alone
-/// (`not a rotation (|RᵀR−I| = …, det = …; more than 1e-4 from one)`): the caller prefixes the
-/// file and field.
-pub fn rotation_from_file(m: &Matrix3<f64>) -> Result<ReadRotation, String> {
+/// A matrix read from a file that is not a rotation under the rule of this module. Renders as
+/// `[FIELD: ]not a rotation (|RᵀR−I| = …, det = …; accepted up to 1e-4 with det > 0)`: the
+/// caller prefixes the file (and the field, when [`NotARotation::field`] is `None`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct NotARotation {
+    /// The field the matrix was read from, when the reader named it.
+    pub field: Option<String>,
+    /// `|RᵀR − I|` of the matrix (Frobenius norm).
+    pub deviation: f64,
+    /// Its determinant.
+    pub det: f64,
+}
+
+impl std::fmt::Display for NotARotation {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(field) = &self.field {
+            write!(f, "{field}: ")?;
+        }
+        let (dev, det) = (self.deviation, self.det);
+        write!(
+            f,
+            "not a rotation (|RᵀR−I| = {dev:.2e}, det = {det:.4}; accepted up to {ACCEPT_TOL:.0e} with det > 0)"
+        )
+    }
+}
+
+impl std::error::Error for NotARotation {}
+
+/// `m` as a rotation under the rule of this module. The error names no field: the caller
+/// prefixes the file and field.
+pub fn rotation_from_file(m: &Matrix3<f64>) -> Result<ReadRotation, NotARotation> {
     let dev = deviation(m);
     let det = m.determinant();
     if !(dev <= ACCEPT_TOL && det > 0.0) {
-        return Err(format!(
-            "not a rotation (|RᵀR−I| = {dev:.2e}, det = {det:.4}; accepted up to {ACCEPT_TOL:.0e} with det > 0)"
-        ));
+        return Err(NotARotation {
+            field: None,
+            deviation: dev,
+            det,
+        });
     }
     Ok(ReadRotation {
         rotation: nearest_rotation(m),
@@ -71,9 +100,12 @@ pub fn rotation_from_file(m: &Matrix3<f64>) -> Result<ReadRotation, String> {
     })
 }
 
-/// Like [`rotation_from_file`] for a row-major 3×3, with the error prefixed by `field`.
-pub fn rotation_rows(rows: &[f64; 9], field: &str) -> Result<ReadRotation, String> {
-    rotation_from_file(&Matrix3::from_row_slice(rows)).map_err(|e| format!("{field}: {e}"))
+/// Like [`rotation_from_file`] for a row-major 3×3, with the error naming `field`.
+pub fn rotation_rows(rows: &[f64; 9], field: &str) -> Result<ReadRotation, NotARotation> {
+    rotation_from_file(&Matrix3::from_row_slice(rows)).map_err(|e| NotARotation {
+        field: Some(field.to_string()),
+        ..e
+    })
 }
 
 /// The rotation nearest to `m` in the Frobenius norm (the orthogonal factor of its polar
@@ -127,13 +159,16 @@ mod tests {
     fn beyond_1e_4_or_a_reflection_is_refused() {
         let mut off = KITTI360_R_RECT_00;
         off[0] += 1e-3;
-        let e = rotation_rows(&off, "R_rect_00").unwrap_err();
+        let e = rotation_rows(&off, "R_rect_00").unwrap_err().to_string();
         assert!(
             e.starts_with("R_rect_00: not a rotation (|RᵀR−I| = 2.0") && !e.contains('\n'),
             "{e}"
         );
         let flip = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -1.0];
-        assert!(rotation_rows(&flip, "R").unwrap_err().contains("det = -1"));
+        assert!(rotation_rows(&flip, "R")
+            .unwrap_err()
+            .to_string()
+            .contains("det = -1"));
     }
 
     #[test]

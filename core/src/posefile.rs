@@ -107,7 +107,9 @@ impl PoseFile {
     /// The pose's covariance from `quality.covariance` (`axes` and `matrix`, docs/pose.md
     /// "Uncertainty"): `Ok(None)` when the file has none, an error naming the problem when it is
     /// malformed.
-    pub fn pose_covariance(&self) -> std::result::Result<Option<PoseCovariance>, String> {
+    pub fn pose_covariance(
+        &self,
+    ) -> std::result::Result<Option<PoseCovariance>, PoseCovarianceError> {
         pose_covariance_of(&self.quality)
     }
 
@@ -131,8 +133,21 @@ impl PoseFile {
     }
 }
 
+/// Why a pose file's `quality.covariance` is unusable; renders as `quality.covariance: …`.
+#[derive(Debug, thiserror::Error)]
+pub enum PoseCovarianceError {
+    /// Not an object with `axes` and `matrix`.
+    #[error("quality.covariance: {0}")]
+    Malformed(#[source] serde_json::Error),
+    /// Axes or entries the pose covariance cannot take.
+    #[error("quality.covariance: {0}")]
+    Entries(#[source] crate::geo::georef::CovarianceError),
+}
+
 /// [`PoseFile::pose_covariance`] of a `quality` block.
-pub fn pose_covariance_of(quality: &Value) -> std::result::Result<Option<PoseCovariance>, String> {
+pub fn pose_covariance_of(
+    quality: &Value,
+) -> std::result::Result<Option<PoseCovariance>, PoseCovarianceError> {
     let Some(c) = quality.get("covariance") else {
         return Ok(None);
     };
@@ -141,10 +156,10 @@ pub fn pose_covariance_of(quality: &Value) -> std::result::Result<Option<PoseCov
         axes: Vec<String>,
         matrix: Vec<Vec<f64>>,
     }
-    let c = Cov::deserialize(c).map_err(|e| format!("quality.covariance: {e}"))?;
+    let c = Cov::deserialize(c).map_err(PoseCovarianceError::Malformed)?;
     PoseCovariance::from_axes(&c.axes, &c.matrix)
         .map(Some)
-        .map_err(|e| format!("quality.covariance: {e}"))
+        .map_err(PoseCovarianceError::Entries)
 }
 
 /// The minimal pose content any pose-like JSON must carry.

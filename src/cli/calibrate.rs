@@ -114,7 +114,11 @@ fn detect_dir(
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default()
     };
-    type Outcome = (u32, u32, std::result::Result<detect::Found, String>);
+    type Outcome = (
+        u32,
+        u32,
+        std::result::Result<detect::Found, calib::DetectError>,
+    );
     let found: Vec<Result<Outcome>> = files
         .par_iter()
         .map(|p| {
@@ -151,7 +155,7 @@ fn detect_dir(
             }),
             Err(reason) => missing.push(NotFound {
                 name: name(p),
-                reason,
+                reason: reason.to_string(),
             }),
         }
     }
@@ -220,7 +224,8 @@ pub(super) fn run(a: Args) -> Result<()> {
         ModelArg::Mei => LensModel::Mei,
         ModelArg::Equidistant => LensModel::Equidistant,
     };
-    let mut cal = calib::calibrate(&obs, model).map_err(|e| Error::input(&origin, e.0))?;
+    let mut cal =
+        calib::calibrate(&obs, model).map_err(|e| Error::input(&origin, e.to_string()))?;
     cal.not_found = not_found;
     write(&a.out, calib::to_yaml(&cal))?;
     if let Some(r) = &a.report {

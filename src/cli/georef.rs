@@ -106,7 +106,7 @@ pub(crate) fn read_used_pose(path: &Path) -> Result<UsedPose> {
         }
     }
     let quality = v.get("quality").cloned().unwrap_or(Value::Null);
-    let covariance = pose_covariance_of(&quality).map_err(|e| Error::input(path, e))?;
+    let covariance = pose_covariance_of(&quality).map_err(|e| Error::input(path, e.to_string()))?;
     let describe = describe_pose(path, &v, covariance.is_some());
     Ok(UsedPose {
         pose: PoseWithCovariance {

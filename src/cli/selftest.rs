@@ -47,13 +47,14 @@ pub(crate) fn run(a: Args) -> Result<()> {
         println!("workload: {n} poses × {points} points, {path}, checksum {sum}");
         return Ok(());
     }
-    let r = kernel::selftest::self_test(a.poses).map_err(|m| Error::command("self-test", m))?;
+    let r = kernel::selftest::self_test(a.poses)
+        .map_err(|m| Error::command("self-test", m.to_string()))?;
     println!(
         "self-test OK: MI kernel ({}) bit-identical to the reference loop, {} poses × {} points",
         r.path, r.poses, r.points
     );
     let s = crate::localize::mi::smooth::lanes_self_test(a.pv_poses)
-        .map_err(|m| Error::command("self-test", m))?;
+        .map_err(|m| Error::command("self-test", m.to_string()))?;
     println!(
         "self-test OK: PV projection ({}) bit-identical to the reference, {} poses × {} points",
         s.path, s.poses, s.points

@@ -3,7 +3,7 @@
 use crate::error::{Error, Result};
 use crate::map::cache::write_tile_with;
 use crate::map::import::{import_tile, Source};
-use crate::map::Crs;
+use crate::map::{Crs, MapError};
 use std::path::PathBuf;
 
 /// Tile subcommands.
@@ -124,15 +124,20 @@ pub(super) fn run(c: Command) -> Result<()> {
     }
 }
 
+/// `--crs` text the core cannot read, as the error that names the flag.
+fn crs_flag(e: crate::geo::GeoError) -> MapError {
+    MapError::Flag {
+        flag: "--crs",
+        source: e.into(),
+    }
+}
+
 fn build(a: &BuildArgs) -> Result<()> {
     use crate::map::build::{build_tile, Area, BuildSpec, GroundParams};
     let crs = a
         .crs
         .as_deref()
-        .map(|c| {
-            c.parse::<Crs>()
-                .map_err(|e: String| Error::Invalid(format!("--crs: {e}")))
-        })
+        .map(|c| c.parse::<Crs>().map_err(crs_flag))
         .transpose()?;
     let area = match (&a.bbox, &a.center, &a.center_wgs84) {
         (Some(b), _, _) => Area::Box(*b),
@@ -145,11 +150,7 @@ fn build(a: &BuildArgs) -> Result<()> {
             lon: c[1],
             size: a.size,
         },
-        _ => {
-            return Err(Error::Invalid(
-                "tile build: give --bbox, --center or --center-wgs84".into(),
-            ))
-        }
+        _ => return Err(MapError::NoArea.into()),
     };
     let spec = BuildSpec {
         id: a.id.clone(),
@@ -183,10 +184,7 @@ fn import(a: Box<ImportArgs>) -> Result<()> {
 }
 
 fn import_with<'a>(a: &'a ImportArgs) -> Result<()> {
-    let crs: Crs = a
-        .crs
-        .parse()
-        .map_err(|e: String| Error::Invalid(format!("--crs: {e}")))?;
+    let crs: Crs = a.crs.parse().map_err(crs_flag)?;
     let source = |image: &'a PathBuf, world: &'a Option<PathBuf>| Source {
         image: image.as_path(),
         world: world.as_deref(),

@@ -955,13 +955,13 @@ fn internal_error(job: &'static str, p: Box<dyn std::any::Any + Send>) -> Error 
 pub fn drift_check(cfg: &Config, config_path: &Path, served: &PoseFile) -> Result<DriftSearch> {
     let (camera, image) = camera_and_frame(cfg, config_path, &Overrides::default(), &|_| {})?;
     let tile = load_tile(&cfg.map.tiles.join(&served.tile_id))?;
-    drift_search(
+    Ok(drift_search(
         &camera,
         image.as_raw(),
         &tile,
         &served.pose(),
         &drift_thresholds(cfg),
-    )
+    )?)
 }
 
 /// The configured drift thresholds.

@@ -21,7 +21,7 @@
 
 use super::cloud::{self, Box2, Cloud, CloudPoint, Kind, CLASS_GROUND};
 use super::geotiff::{Image, Pixels};
-use super::{Crs, GeoGrid, Raster, Tile};
+use super::{Crs, GeoGrid, MapError, Raster, Tile};
 use crate::error::{Error, Result};
 use crate::geo;
 use std::path::{Path, PathBuf};
@@ -106,9 +106,14 @@ fn snapped_grid(crs: Crs, b: &Box2, res: f64, what: &str) -> Result<GeoGrid> {
     let width = ((b[2] - x0) / res - 1e-9).ceil().max(1.0);
     let height = ((y0 - b[1]) / res - 1e-9).ceil().max(1.0);
     if width * height > MAX_CELLS as f64 {
-        return Err(Error::Invalid(format!(
-            "{what}: {width}x{height} cells at {res} m exceed {MAX_CELLS}; build a smaller box or a coarser grid"
-        )));
+        return Err(MapError::TooManyCells {
+            what: what.to_string(),
+            width,
+            height,
+            res,
+            max: MAX_CELLS,
+        }
+        .into());
     }
     Ok(GeoGrid {
         crs,
@@ -159,7 +164,10 @@ fn tile_crs(clouds: &[Cloud], flag: Option<Crs>) -> Result<Crs> {
         }
     };
     if flag == Some(crs) || from.is_none() {
-        geo::check_crs(crs).map_err(|e| Error::Invalid(format!("--crs: {e}")))?;
+        geo::check_crs(crs).map_err(|source| MapError::Flag {
+            flag: "--crs",
+            source,
+        })?;
     }
     Ok(crs)
 }
@@ -168,7 +176,11 @@ fn tile_crs(clouds: &[Cloud], flag: Option<Crs>) -> Result<Crs> {
 fn resolve_area(area: Area, crs: Crs) -> Result<Box2> {
     let square = |(x, y): (f64, f64), size: f64| -> Result<Box2> {
         if !(size > 0.0) || !size.is_finite() {
-            return Err(Error::Invalid(format!("--size {size}: must be > 0")));
+            return Err(MapError::NotPositive {
+                flag: "--size",
+                value: size,
+            }
+            .into());
         }
         let h = size / 2.0;
         Ok([x - h, y - h, x + h, y + h])
@@ -177,15 +189,15 @@ fn resolve_area(area: Area, crs: Crs) -> Result<Box2> {
         Area::Box(b) => b,
         Area::Center { xy, size } => square(xy, size)?,
         Area::CenterWgs84 { lat, lon, size } => {
-            let xy = geo::wgs84_to_map(crs, lat, lon)
-                .map_err(|e| Error::Invalid(format!("--center-wgs84: {e}")))?;
+            let xy = geo::wgs84_to_map(crs, lat, lon).map_err(|source| MapError::Flag {
+                flag: "--center-wgs84",
+                source,
+            })?;
             square(xy, size)?
         }
     };
     if !b.iter().all(|v| v.is_finite()) || !(b[2] > b[0]) || !(b[3] > b[1]) {
-        return Err(Error::Invalid(format!(
-            "box {b:?}: need finite xmin < xmax and ymin < ymax"
-        )));
+        return Err(MapError::BadBox { bbox: b }.into());
     }
     Ok(b)
 }
@@ -193,31 +205,34 @@ fn resolve_area(area: Area, crs: Crs) -> Result<Box2> {
 /// Check the inputs' count and the grid and ground parameters; returns ground cell ÷ `--res`.
 fn check_params(spec: &BuildSpec) -> Result<usize> {
     if spec.inputs.is_empty() {
-        return Err(Error::Invalid("tile build: no point cloud given".into()));
+        return Err(MapError::NoInputs.into());
     }
     if spec.inputs.len() > MAX_INPUTS {
-        return Err(Error::Invalid(format!(
-            "tile build: {} inputs, at most {MAX_INPUTS}",
-            spec.inputs.len()
-        )));
+        return Err(MapError::TooManyInputs {
+            inputs: spec.inputs.len(),
+            max: MAX_INPUTS,
+        }
+        .into());
     }
     let res = spec.res;
     if !(res > 0.0) || !res.is_finite() {
-        return Err(Error::Invalid(format!("--res {res}: must be > 0")));
+        return Err(MapError::NotPositive {
+            flag: "--res",
+            value: res,
+        }
+        .into());
     }
     let gp = spec.ground;
     let ratio = (gp.cell / res).round();
     if !(ratio >= 1.0) || (gp.cell - ratio * res).abs() > 1e-9 * gp.cell.max(1.0) {
-        return Err(Error::Invalid(format!(
-            "--ground-cell {}: must be a whole multiple of --res {res}",
-            gp.cell
-        )));
+        return Err(MapError::GroundCell { cell: gp.cell, res }.into());
     }
     if !(gp.window >= gp.cell) || !(gp.tolerance >= 0.0) {
-        return Err(Error::Invalid(format!(
-            "--ground-window {} must be ≥ --ground-cell and --ground-tolerance {} ≥ 0",
-            gp.window, gp.tolerance
-        )));
+        return Err(MapError::GroundWindow {
+            window: gp.window,
+            tolerance: gp.tolerance,
+        }
+        .into());
     }
     Ok(ratio as usize)
 }
@@ -236,9 +251,7 @@ fn read_grid(tile_grid: &GeoGrid, margin_cells: usize) -> Result<(GeoGrid, Box2)
         ..*tile_grid
     };
     if read_grid.len() > u32::MAX as usize {
-        return Err(Error::Invalid(
-            "tile build: the box and its ground margin exceed 2^32 cells".into(),
-        ));
+        return Err(MapError::MarginTooLarge.into());
     }
     Ok((read_grid, read_box))
 }
@@ -383,7 +396,11 @@ pub(crate) fn build_tile(spec: &BuildSpec) -> Result<(Tile, super::cache::Proven
         .collect::<Result<_>>()?;
     let sat_grid = match spec.satellite_res {
         Some(r) if !(r > 0.0) || !r.is_finite() => {
-            return Err(Error::Invalid(format!("--satellite-res {r}: must be > 0")))
+            return Err(MapError::NotPositive {
+                flag: "--satellite-res",
+                value: r,
+            }
+            .into())
         }
         Some(r) => snapped_grid(crs, &bx, r, "satellite")?,
         None => tile_grid,

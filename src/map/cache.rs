@@ -12,7 +12,7 @@
 //! crash leaves either the previous tile or the new one, never half of one. [`find_tile`] reads only
 //! manifests (small TOML files), so a lookup over a large cache does not decode rasters.
 
-use super::{geotiff, ControlPoint, Crs, GeoGrid, Raster, Tile};
+use super::{geotiff, ControlPoint, Crs, GeoGrid, MapError, Raster, Tile};
 use crate::error::{Error, Result};
 use crate::geo;
 use serde::{Deserialize, Serialize};
@@ -178,9 +178,7 @@ fn check_id(id: &str) -> Result<()> {
     if ok {
         Ok(())
     } else {
-        Err(Error::Invalid(format!(
-            "tile id {id:?}: use letters, digits, '-', '_', '.' (not leading '.')"
-        )))
+        Err(MapError::BadId { id: id.to_string() }.into())
     }
 }
 
@@ -188,18 +186,25 @@ fn check_id(id: &str) -> Result<()> {
 fn check_tile(t: &Tile) -> Result<Crs> {
     check_id(&t.id)?;
     let crs = t.reflectivity.grid.crs;
-    geo::check_crs(crs).map_err(|e| Error::Invalid(format!("tile {}: {e}", t.id)))?;
+    geo::check_crs(crs).map_err(|source| MapError::TileCrs {
+        id: t.id.clone(),
+        source,
+    })?;
     if t.reflectivity.grid != t.height.grid {
-        return Err(Error::Invalid(format!(
-            "tile {}: reflectivity grid {:?} and height grid {:?} differ",
-            t.id, t.reflectivity.grid, t.height.grid
-        )));
+        return Err(MapError::GridsDiffer {
+            id: t.id.clone(),
+            reflectivity: t.reflectivity.grid,
+            height: t.height.grid,
+        }
+        .into());
     }
     if t.satellite.grid.crs != crs {
-        return Err(Error::Invalid(format!(
-            "tile {}: satellite CRS {} differs from LiDAR CRS {crs}",
-            t.id, t.satellite.grid.crs
-        )));
+        return Err(MapError::CrsDiffer {
+            id: t.id.clone(),
+            satellite: t.satellite.grid.crs,
+            lidar: crs,
+        }
+        .into());
     }
     for (name, n, want) in [
         ("satellite", t.satellite.data.len(), t.satellite.grid.len()),
@@ -211,10 +216,13 @@ fn check_tile(t: &Tile) -> Result<Crs> {
         ("height", t.height.data.len(), t.height.grid.len()),
     ] {
         if n != want {
-            return Err(Error::Invalid(format!(
-                "tile {}: {name} has {n} samples for a grid of {want}",
-                t.id
-            )));
+            return Err(MapError::Samples {
+                id: t.id.clone(),
+                layer: name,
+                samples: n,
+                grid: want,
+            }
+            .into());
         }
     }
     Ok(crs)
@@ -280,10 +288,11 @@ fn write_tile_files(dir: &Path, t: &Tile, crs: Crs, provenance: &Provenance) -> 
         let mut s = format!("{CONTROL_POINTS_HEADER}\n");
         for cp in &t.control_points {
             if cp.id.contains([',', '\n', '\r']) {
-                return Err(Error::Invalid(format!(
-                    "tile {}: control point id {:?} contains a comma or newline",
-                    t.id, cp.id
-                )));
+                return Err(MapError::ControlPointId {
+                    id: t.id.clone(),
+                    point: cp.id.clone(),
+                }
+                .into());
             }
             let [x, y, z] = cp.xyz;
             s.push_str(&format!("{},{x},{y},{z}\n", cp.id));
@@ -318,8 +327,10 @@ fn write_tile_files(dir: &Path, t: &Tile, crs: Crs, provenance: &Provenance) -> 
         control_points,
         provenance: provenance.clone(),
     };
-    let text = toml::to_string(&manifest)
-        .map_err(|e| Error::Invalid(format!("tile {}: manifest: {e}", t.id)))?;
+    let text = toml::to_string(&manifest).map_err(|e| MapError::Manifest {
+        id: t.id.clone(),
+        reason: e.to_string(),
+    })?;
     let p = dir.join(MANIFEST);
     fs::write(&p, text).map_err(|e| Error::io(&p, e))?;
     files.push(MANIFEST);
@@ -363,7 +374,7 @@ fn manifest_crs(m: &Manifest, path: &Path) -> Result<Crs> {
     let crs: Crs = m
         .crs
         .parse()
-        .map_err(|e: String| Error::input(path, format!("crs: {e}")))?;
+        .map_err(|e: geo::GeoError| Error::input(path, format!("crs: {e}")))?;
     geo::check_crs(crs).map_err(|e| Error::input(path, format!("crs: {e}")))?;
     Ok(crs)
 }

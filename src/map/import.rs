@@ -7,7 +7,7 @@
 
 use super::cache::{parse_control_points, Provenance};
 use super::geotiff::{self, Image, Pixels};
-use super::{Crs, GeoGrid, Tile};
+use super::{Crs, GeoGrid, MapError, Tile};
 use crate::error::{Error, Result};
 use crate::geo;
 use std::path::{Path, PathBuf};
@@ -170,11 +170,12 @@ pub(crate) fn read_source(
     let img = decode(src.image)?;
     if let Some(g) = img.grid {
         if let Some(w) = src.world {
-            return Err(Error::Invalid(format!(
-                "{}: is a GeoTIFF with its own georeference; drop {flag}-world {}",
-                src.image.display(),
-                w.display()
-            )));
+            return Err(MapError::WorldWithGeoTiff {
+                image: src.image.to_path_buf(),
+                flag: flag.to_string(),
+                world: w.to_path_buf(),
+            }
+            .into());
         }
         if g.crs != crs {
             return Err(Error::input(
@@ -227,7 +228,10 @@ pub(crate) fn import_tile(
     height: Source<'_>,
     control_points: Option<&Path>,
 ) -> Result<(Tile, Provenance)> {
-    geo::check_crs(crs).map_err(|e| Error::Invalid(format!("--crs: {e}")))?;
+    geo::check_crs(crs).map_err(|source| MapError::Flag {
+        flag: "--crs",
+        source,
+    })?;
     let (si, sg, sd) = read_source(satellite, crs, "--satellite")?;
     let (ri, rg, rd) = read_source(reflectivity, crs, "--reflectivity")?;
     let (hi, hg, hd) = read_source(height, crs, "--height")?;

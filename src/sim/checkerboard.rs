@@ -427,10 +427,12 @@ mod detect_tests {
             square: 0.03,
         };
         let v = &render(&cam, &board, 1, 11)[0];
-        let err = detect(&v.image, 640, 480, 6, 4, 0.03).unwrap_err();
+        let err = detect(&v.image, 640, 480, 6, 4, 0.03)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("larger than the 6×4 pattern"), "{err}");
         let grey = vec![100u8; 640 * 480];
-        let err = detect(&grey, 640, 480, 9, 6, 0.03).unwrap_err();
+        let err = detect(&grey, 640, 480, 9, 6, 0.03).unwrap_err().to_string();
         assert_eq!(err, "no corner-like points");
         assert!(detect(&grey, 640, 10, 9, 6, 0.03).is_err());
     }

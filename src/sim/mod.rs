@@ -827,7 +827,7 @@ fn gps_log(rng: &mut ChaCha8Rng, hard: bool, pose: &CamFromMap, crs: Crs) -> Res
         sats: if hard { (6, 10) } else { (9, 14) },
     };
     let c_map = pose.center();
-    let to_wgs = |x: f64, y: f64| crate::geo::map_to_wgs84(crs, x, y);
+    let to_wgs = |x: f64, y: f64| Ok(crate::geo::map_to_wgs84(crs, x, y)?);
     let fixes = gps::track(rng, [c_map.x, c_map.y, c_map.z], &gm, to_wgs)?;
     let start = gps::UtcStart {
         year: 2026,

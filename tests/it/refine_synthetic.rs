@@ -320,7 +320,7 @@ fn fixed_point_set_removes_the_fewer_points_bias() {
 fn bad_inputs_are_one_line_errors() {
     let s = scene(1, 128, 75.0, 5.0, 0.5);
     let cfg = SearchConfig::default();
-    let e = |r: infraloc::Result<Evaluator>| r.unwrap_err().to_string();
+    let e = |r: Result<Evaluator, infraloc::error::CoreError>| r.unwrap_err().to_string();
     assert!(e(Evaluator::new(
         &s.cam,
         &s.gray,
@@ -361,7 +361,7 @@ fn bad_inputs_are_one_line_errors() {
     ))
     .contains("none is visible"));
     for spec in ["x=0:0.02", "yaw=500:1", "z=1:0", "x=1", "q=1:1", "x=1:2"] {
-        let r: infraloc::Result<SearchSpec> = spec.parse();
+        let r: Result<SearchSpec, infraloc::error::CoreError> = spec.parse();
         let msg = r.unwrap_err().to_string();
         assert!(
             !msg.contains('\n') && msg.contains("--search"),

@@ -24,6 +24,7 @@
 //!    [`MIN_PARTIAL`] corners spanning at least 3 in each direction: a square grid's labels need no
 //!    absolute origin, since each view has its own pose. A grid larger than the pattern is refused.
 
+use super::error::{DetectError, GridProblem};
 use crate::imageops::gaussian_blur;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -121,17 +122,17 @@ pub fn detect(
     cols: usize,
     rows: usize,
     square: f64,
-) -> Result<Found, String> {
+) -> Result<Found, DetectError> {
     let (w, h) = (width as usize, height as usize);
     if pixels.len() != w * h || w < 16 || h < 16 {
-        return Err(format!("image {width}×{height} is too small"));
+        return Err(DetectError::TooSmall { width, height });
     }
     let mut s: Vec<f32> = pixels.iter().map(|&p| p as f32 / 255.0).collect();
     gaussian_blur(&mut s, w, h, SIGMA);
     let plane = Plane { w, h, v: &s };
     let cands = candidates(&plane);
     if cands.is_empty() {
-        return Err("no corner-like points".into());
+        return Err(DetectError::NoCandidates);
     }
     let corners: Vec<Corner> = cands
         .par_iter()
@@ -148,16 +149,15 @@ pub fn detect(
         })
         .collect();
     if corners.len() < 4 {
-        return Err(format!(
-            "{} checkerboard corners found, the board needs {}",
-            corners.len(),
-            cols * rows
-        ));
+        return Err(DetectError::TooFewCorners {
+            found: corners.len(),
+            needed: cols * rows,
+        });
     }
     let mut order: Vec<usize> = (0..corners.len()).collect();
     order.sort_by(|a, b| corners[*b].response.total_cmp(&corners[*a].response));
     let mut best: Option<HashMap<(i32, i32), usize>> = None;
-    let mut why = String::from("no seed corner has two neighbours along its edges");
+    let mut why = GridProblem::NoSeed;
     for &seed in order.iter().take(MAX_SEEDS) {
         let Some(grid) = grow(&corners, seed) else {
             continue;
@@ -165,7 +165,7 @@ pub fn detect(
         let (nx, ny) = dims(&grid);
         let fits = (nx <= cols && ny <= rows) || (nx <= rows && ny <= cols);
         if !fits {
-            why = format!("a grid of {nx}×{ny} corners, larger than the {cols}×{rows} pattern");
+            why = GridProblem::TooLarge { nx, ny, cols, rows };
             continue;
         }
         if grid.len() == cols * rows {
@@ -173,11 +173,17 @@ pub fn detect(
             break;
         }
         if best.as_ref().is_none_or(|b| grid.len() > b.len()) {
-            why = format!("only {} of {} corners in a grid", grid.len(), cols * rows);
+            why = GridProblem::Partial {
+                found: grid.len(),
+                needed: cols * rows,
+            };
             best = Some(grid);
         }
     }
-    let grid = best.ok_or(why.clone())?;
+    let grid = best.ok_or_else(|| DetectError::NoGrid {
+        why: why.clone(),
+        partial_min: None,
+    })?;
     // Final refinement on the lightly smoothed image, the window fitted to the local spacing: the
     // detection window would reach the next squares' far edges where the lens compresses the board.
     let mut fine: Vec<f32> = pixels.iter().map(|&p| p as f32 / 255.0).collect();
@@ -210,9 +216,10 @@ pub fn detect(
     let (nx, ny) = dims(&grid);
     let full = grid.len() == cols * rows;
     if !full && (grid.len() < MIN_PARTIAL || nx < 3 || ny < 3) {
-        return Err(format!(
-            "{why} (a partial board needs {MIN_PARTIAL} corners, 3 each way)"
-        ));
+        return Err(DetectError::NoGrid {
+            why,
+            partial_min: Some(MIN_PARTIAL),
+        });
     }
     Ok(label(&grid, &corners, cols, rows, square, full))
 }

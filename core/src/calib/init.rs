@@ -40,7 +40,7 @@ const PLANARITY_TOL: f64 = 1e-6;
 
 impl Plane {
     /// The frame of a planar point set; `Err` names why there is none.
-    pub(super) fn fit(obj: &[[f64; 3]]) -> Result<Plane, String> {
+    pub(super) fn fit(obj: &[[f64; 3]]) -> Result<Plane, super::error::PlaneError> {
         let n = obj.len() as f64;
         let pts: Vec<Vector3<f64>> = obj.iter().map(|p| Vector3::new(p[0], p[1], p[2])).collect();
         let o = pts.iter().sum::<Vector3<f64>>() / n;
@@ -54,10 +54,10 @@ impl Plane {
         idx.sort_by(|a, b| eig.eigenvalues[*a].total_cmp(&eig.eigenvalues[*b]));
         let (lmin, lmax) = (eig.eigenvalues[idx[0]], eig.eigenvalues[idx[2]]);
         if !(lmax > 0.0) || eig.eigenvalues[idx[1]] < 1e-12 * lmax {
-            return Err("the object points are collinear or coincide".into());
+            return Err(super::error::PlaneError::Collinear);
         }
         if lmin.max(0.0).sqrt() > PLANARITY_TOL * lmax.sqrt() {
-            return Err("the object points are not planar (only flat boards are supported)".into());
+            return Err(super::error::PlaneError::NotPlanar);
         }
         let normal: Vector3<f64> = eig.eigenvectors.column(idx[0]).into();
         // First axis: from the first point to the next distinct one, projected into the plane.

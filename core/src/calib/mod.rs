@@ -16,11 +16,13 @@
 
 pub mod corners;
 pub mod detect;
+mod error;
 mod init;
 mod jet;
 mod lm;
 mod model;
 
+pub use error::{CalibError, DetectError, GridProblem, PlaneError};
 pub use init::InitInfo;
 pub use model::LensModel;
 
@@ -64,11 +66,6 @@ pub struct View {
     /// Detected pixels (OpenCV convention: the top-left pixel's centre is (0, 0)).
     pub image: Vec<[f64; 2]>,
 }
-
-/// A calibration failure, one line naming the view or the reason.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("{0}")]
-pub struct CalibError(pub String);
 
 /// One fitted intrinsic parameter.
 #[derive(Debug, Clone, Serialize)]
@@ -160,32 +157,40 @@ pub struct NotFound {
 
 /// Check the observations; the error names the view and point.
 pub(crate) fn validate(obs: &Observations) -> Result<(), CalibError> {
-    let err = |m: String| Err(CalibError(m));
     if obs.width == 0 || obs.height == 0 {
-        return err(format!("image size {}×{} is empty", obs.width, obs.height));
+        return Err(CalibError::EmptySize {
+            width: obs.width,
+            height: obs.height,
+        });
     }
     if obs.views.is_empty() {
-        return err("no board found in any view".into());
+        return Err(CalibError::NoViews);
     }
     let (w, h) = (obs.width as f64, obs.height as f64);
     for v in &obs.views {
         if v.object.len() != v.image.len() {
-            return err(format!(
-                "{}: {} object points but {} image points",
-                v.name,
-                v.object.len(),
-                v.image.len()
-            ));
+            return Err(CalibError::Counts {
+                view: v.name.clone(),
+                object: v.object.len(),
+                image: v.image.len(),
+            });
         }
         for (i, (x, p)) in v.object.iter().zip(&v.image).enumerate() {
             if !(x.iter().chain(p).all(|c| c.is_finite())) {
-                return err(format!("{}: point {i} is not finite", v.name));
+                return Err(CalibError::NotFinite {
+                    view: v.name.clone(),
+                    index: i,
+                });
             }
             if !(p[0] >= -0.5 && p[0] <= w - 0.5 && p[1] >= -0.5 && p[1] <= h - 0.5) {
-                return err(format!(
-                    "{}: corner {i} at ({:.1}, {:.1}) lies outside the {}×{} image",
-                    v.name, p[0], p[1], obs.width, obs.height
-                ));
+                return Err(CalibError::Outside {
+                    view: v.name.clone(),
+                    index: i,
+                    x: p[0],
+                    y: p[1],
+                    width: obs.width,
+                    height: obs.height,
+                });
             }
         }
     }
@@ -233,26 +238,26 @@ pub fn calibrate(obs: &Observations, model: LensModel) -> Result<Calibration, Ca
             planes.push(None);
             continue;
         }
-        planes.push(Some(
-            Plane::fit(&v.object).map_err(|m| CalibError(format!("{}: {m}", v.name)))?,
-        ));
+        planes.push(Some(Plane::fit(&v.object).map_err(|reason| {
+            CalibError::Plane {
+                view: v.name.clone(),
+                reason,
+            }
+        })?));
     }
     let usable: Vec<usize> = (0..obs.views.len())
         .filter(|i| planes[*i].is_some())
         .collect();
     let too_few = |n: usize, results: &[ViewResult]| {
-        let why: Vec<String> = results
+        let rejected = results
             .iter()
             .filter_map(|r| r.rejected.as_ref().map(|m| format!("{}: {m}", r.name)))
             .collect();
-        CalibError(format!(
-            "{n} usable view(s), need at least {MIN_VIEWS}{}",
-            if why.is_empty() {
-                String::new()
-            } else {
-                format!(" (rejected: {})", why.join("; "))
-            }
-        ))
+        CalibError::TooFewViews {
+            usable: n,
+            min: MIN_VIEWS,
+            rejected,
+        }
     };
     if usable.len() < MIN_VIEWS {
         return Err(too_few(usable.len(), &results));
@@ -265,8 +270,8 @@ pub fn calibrate(obs: &Observations, model: LensModel) -> Result<Calibration, Ca
         })
         .collect();
     let objects: Vec<&[[f64; 3]]> = usable.iter().map(|&i| &obs.views[i].object[..]).collect();
-    let (intr0, init_info) = init::initial_intrinsics(model, size, &init_views, &objects)
-        .ok_or_else(|| CalibError("no starting focal length reprojects the boards".into()))?;
+    let (intr0, init_info) =
+        init::initial_intrinsics(model, size, &init_views, &objects).ok_or(CalibError::NoStart)?;
 
     // Initial poses; a view whose homography fails is rejected.
     let mut used: Vec<usize> = Vec::new();
@@ -294,11 +299,11 @@ pub fn calibrate(obs: &Observations, model: LensModel) -> Result<Calibration, Ca
         .collect();
     let max_tilt = tilts.iter().cloned().fold(0.0, f64::max);
     if max_tilt < MIN_TILT_DEG {
-        return Err(CalibError(format!(
-            "degenerate views: all {} boards are fronto-parallel (largest tilt {max_tilt:.1}° < \
-             {MIN_TILT_DEG}°), so the focal length is not observable; tilt the board",
-            used.len()
-        )));
+        return Err(CalibError::FrontoParallel {
+            views: used.len(),
+            max_tilt_deg: max_tilt,
+            min_tilt_deg: MIN_TILT_DEG,
+        });
     }
 
     let mut state = State { intr: intr0, poses };
@@ -350,13 +355,11 @@ fn fit_rejecting_outliers(
     let first_used = used.len();
     loop {
         let views = obs_views(obs, &used);
-        let mut run = lm::optimise(model, state, &views)
-            .ok_or_else(|| CalibError("the optimisation left the model's domain".into()))?;
+        let mut run = lm::optimise(model, state, &views).ok_or(CalibError::Domain)?;
         if model == LensModel::Mei && used.len() == first_used {
             run = other_xi_starts(state, &views, run);
         }
-        let res = lm::residuals(model, state, &views)
-            .ok_or_else(|| CalibError("the optimisation left the model's domain".into()))?;
+        let res = lm::residuals(model, state, &views).ok_or(CalibError::Domain)?;
         let rms: Vec<f64> = res.iter().map(|r| rms_of(r)).collect();
         let mut sorted = rms.clone();
         sorted.sort_by(f64::total_cmp);
@@ -411,16 +414,15 @@ fn check_fitted(
     used: &[usize],
     state: &State,
 ) -> Result<(), CalibError> {
-    camera
-        .validate()
-        .map_err(|m| CalibError(format!("the fitted camera is invalid: {m}")))?;
+    camera.validate().map_err(CalibError::InvalidCamera)?;
     for (&i, pose) in used.iter().zip(&state.poses) {
         for (j, x) in obs.views[i].object.iter().enumerate() {
             if let Err(e) = camera.project(&pose.apply(x)) {
-                return Err(CalibError(format!(
-                    "{}: corner {j} falls where the fitted model is not invertible ({e})",
-                    obs.views[i].name
-                )));
+                return Err(CalibError::NotInvertible {
+                    view: obs.views[i].name.clone(),
+                    index: j,
+                    reason: e.to_string(),
+                });
             }
         }
     }

@@ -222,7 +222,7 @@ fn an_outlier_view_is_removed_and_named() {
 fn bad_input_is_one_line_naming_the_view() {
     let truth = mei(1.0);
     let good = views(&truth, 5, 0.1, 5);
-    let msg = |o: &Observations| calibrate(o, LensModel::Mei).unwrap_err().0;
+    let msg = |o: &Observations| calibrate(o, LensModel::Mei).unwrap_err().to_string();
 
     let mut o = good.clone();
     o.views.truncate(2);

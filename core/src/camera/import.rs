@@ -9,7 +9,7 @@
 //! The YAML and XML flavours are first turned into one small tree (`Node`) so that the OpenCV
 //! key logic exists once for both syntaxes.
 
-use super::{Camera, Equidistant, Mei};
+use super::{Camera, CameraError, Equidistant, Mei};
 use crate::error::{Error, Result};
 use std::path::Path;
 use yaml_rust2::{Yaml, YamlLoader};
@@ -62,7 +62,7 @@ pub fn parse_camera_named(text: &str, origin: &Path, camera: Option<&str>) -> Re
             }
         }
     };
-    cam.validate().map_err(|m| ctx.err(m))?;
+    cam.validate().map_err(|m| ctx.err(m.to_string()))?;
     Ok(cam)
 }
 
@@ -935,33 +935,38 @@ pub fn parse_kitti_calib(text: &str, origin: &Path) -> Result<KittiCalib> {
 
 impl KittiCalib {
     /// The projection named `name` (`P2` = the left colour camera).
-    pub(crate) fn projection(&self, name: &str) -> std::result::Result<&[f64; 12], String> {
+    pub(crate) fn projection(&self, name: &str) -> std::result::Result<&[f64; 12], CameraError> {
         self.projections
             .iter()
             .find(|(k, _)| k == name)
             .map(|(_, p)| p)
             .ok_or_else(|| {
-                let have: Vec<&str> = self.projections.iter().map(|(k, _)| k.as_str()).collect();
-                format!("missing key {name} (has {})", have.join(", "))
+                let have = self.projections.iter().map(|(k, _)| k.clone()).collect();
+                CameraError::MissingProjection {
+                    name: name.to_string(),
+                    have,
+                }
             })
     }
 
     /// `K` of projection `name` = its left 3×3, which must be upper-triangular with K₂₂ = 1 (a
     /// rectified projection `K · [I | b]`), as rows.
-    fn k(&self, name: &str) -> std::result::Result<[[f64; 3]; 3], String> {
+    fn k(&self, name: &str) -> std::result::Result<[[f64; 3]; 3], CameraError> {
         let p = self.projection(name)?;
         let k = [[p[0], p[1], p[2]], [p[4], p[5], p[6]], [p[8], p[9], p[10]]];
         if k[1][0] != 0.0 || k[2][0] != 0.0 || k[2][1] != 0.0 || k[2][2] != 1.0 {
-            return Err(format!(
-                "{name}: left 3×3 is not upper-triangular with K[2][2] = 1 (rows 2–3: {:?}, {:?})",
-                k[1], k[2]
-            ));
+            return Err(CameraError::NotRectified {
+                name: name.to_string(),
+                row2: k[1],
+                row3: k[2],
+            });
         }
         if !(k[0][0] > 0.0 && k[1][1] > 0.0) {
-            return Err(format!(
-                "{name}: focal lengths {} and {} must be positive",
-                k[0][0], k[1][1]
-            ));
+            return Err(CameraError::ProjectionFocal {
+                name: name.to_string(),
+                fx: k[0][0],
+                fy: k[1][1],
+            });
         }
         Ok(k)
     }
@@ -973,7 +978,7 @@ impl KittiCalib {
         name: &str,
         width: u32,
         height: u32,
-    ) -> std::result::Result<Camera, String> {
+    ) -> std::result::Result<Camera, CameraError> {
         let k = self.k(name)?;
         let cam = Camera::Mei(Mei {
             skew: k[0][1],
@@ -992,7 +997,7 @@ impl KittiCalib {
     pub fn cam_from_velo(
         &self,
         name: &str,
-    ) -> std::result::Result<([[f64; 3]; 3], [f64; 3]), String> {
+    ) -> std::result::Result<([[f64; 3]; 3], [f64; 3]), CameraError> {
         use nalgebra::{Matrix3, Vector3};
         let k = self.k(name)?;
         let p = self.projection(name)?;
@@ -1003,20 +1008,19 @@ impl KittiCalib {
         );
         let t_velo = Vector3::new(tv[3], tv[7], tv[11]);
         let km = Matrix3::from_row_slice(&k.concat());
-        let b = km
-            .try_inverse()
-            .ok_or_else(|| format!("{name}: K is singular"))?
-            * Vector3::new(p[3], p[7], p[11]);
+        let b = km.try_inverse().ok_or_else(|| CameraError::SingularK {
+            name: name.to_string(),
+        })? * Vector3::new(p[3], p[7], p[11]);
         let r = r0 * rv;
         let t = r0 * t_velo + b;
         // KITTI prints 7 significant digits: a rotation to ~1e-7. Anything far from one is not a
         // calibration (a transposed or mistyped matrix), whatever from_rows would make of it.
         let off = (r.transpose() * r - Matrix3::identity()).norm();
         if !(off < 1e-4 && r.determinant() > 0.0) {
-            return Err(format!(
-                "R0_rect · Tr_velo_to_cam: not a rotation (|RᵀR−I| = {off:.2e}, det = {:.4})",
-                r.determinant()
-            ));
+            return Err(CameraError::VeloNotRotation {
+                deviation: off,
+                det: r.determinant(),
+            });
         }
         Ok((
             [
@@ -1452,6 +1456,7 @@ Tr_imu_to_velo: 1 0 0 0 0 1 0 0 0 0 1 0
         assert!(c
             .camera("P3", 10, 10)
             .unwrap_err()
+            .to_string()
             .contains("missing key P3 (has P0, P2)"));
         // A transposed extrinsic with a scale error is not a rotation.
         let bad = parse_kitti_calib(
@@ -1462,6 +1467,7 @@ Tr_imu_to_velo: 1 0 0 0 0 1 0 0 0 0 1 0
         assert!(bad
             .cam_from_velo("P2")
             .unwrap_err()
+            .to_string()
             .contains("not a rotation"));
         // The camera loader recognises the format and says how to make a camera file of it.
         let l = parse_camera(KITTI_CALIB, o).unwrap_err().to_string();

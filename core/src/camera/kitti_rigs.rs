@@ -24,7 +24,7 @@
 //! field); beyond, it is an error naming them.
 
 use super::import::{parse_camera, parse_kitti_calib, KittiCalib};
-use super::Camera;
+use super::{Camera, CameraError};
 use crate::error::{Error, Result};
 use crate::orthonormal::rotation_rows;
 use nalgebra::{Matrix3, Rotation3, Vector3};
@@ -151,7 +151,7 @@ impl<'a> KeyFile<'a> {
     }
 
     fn checked_rotation(&mut self, m: &[f64; 9], field: &str) -> Result<Rotation3<f64>> {
-        let r = rotation_rows(m, field).map_err(|e| self.err(e))?;
+        let r = rotation_rows(m, field).map_err(|e| self.err(e.to_string()))?;
         self.notes.extend(r.note(self.path, field));
         Ok(r.rotation)
     }
@@ -209,8 +209,12 @@ fn pinhole(file: &KeyFile, key: &str, size: (u32, u32)) -> Result<(Camera, Vecto
         r0_rect: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
         tr_velo_to_cam: [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
     };
-    let cam = calib.camera(key, size.0, size.1).map_err(|m| file.err(m))?;
-    let (_, b) = calib.cam_from_velo(key).map_err(|m| file.err(m))?;
+    let cam = calib
+        .camera(key, size.0, size.1)
+        .map_err(|m| file.err(m.to_string()))?;
+    let (_, b) = calib
+        .cam_from_velo(key)
+        .map_err(|m| file.err(m.to_string()))?;
     Ok((cam, Vector3::from(b)))
 }
 
@@ -234,10 +238,10 @@ pub fn object(calib: Source, n: u8, width: u32, height: u32) -> Result<RigCamera
     let name = format!("P{n}");
     let camera = c
         .camera(&name, width, height)
-        .map_err(|m| Error::input(calib.path, m))?;
+        .map_err(|m| Error::input(calib.path, m.to_string()))?;
     let (r, t) = c
         .cam_from_velo(&name)
-        .map_err(|m| Error::input(calib.path, m))?;
+        .map_err(|m| Error::input(calib.path, m.to_string()))?;
     Ok(RigCamera {
         camera,
         rotation: Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(&r.concat())),
@@ -282,7 +286,12 @@ pub struct Kitti360Files<'a> {
 
 /// Camera `n` (0–3) of KITTI-360 (see the module documentation for the chain).
 pub fn kitti360(f: Kitti360Files, n: u8, tangential: FisheyeTangential) -> Result<RigCamera> {
-    let missing = |what: &str| Error::Invalid(format!("KITTI-360 camera {n:02}: {what} not given"));
+    let missing = |what: &str| {
+        Error::from(CameraError::Kitti360Missing {
+            camera: n,
+            what: what.to_string(),
+        })
+    };
     // calib_cam_to_velo.txt has no key: its twelve numbers are the file.
     let mut cv = KeyFile {
         path: f.cam_to_velo.path,
@@ -347,9 +356,7 @@ pub fn kitti360(f: Kitti360Files, n: u8, tangential: FisheyeTangential) -> Resul
                 notes,
             })
         }
-        _ => Err(Error::Invalid(format!(
-            "KITTI-360 camera {n}: expected 0–3 (00, 01 perspective; 02, 03 fisheye)"
-        ))),
+        _ => Err(CameraError::Kitti360Camera { camera: n }.into()),
     }
 }
 

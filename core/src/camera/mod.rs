@@ -5,12 +5,15 @@
 //! (0, 0).
 
 mod equidistant;
+pub mod error;
 pub mod import;
 pub mod kitti_rigs;
 mod mei;
 pub mod rectify;
 
 pub use equidistant::Equidistant;
+pub use error::CameraError;
+use error::FULL_TURN_DEG;
 pub use import::{parse_camera, to_opencv_yaml};
 pub use mei::Mei;
 pub(crate) use mei::PreparedMei;
@@ -221,7 +224,7 @@ impl Camera {
 
     /// Check the parameters are usable: positive size and focal lengths, finite coefficients,
     /// ξ ≥ 0, field of view in (0°, 360°]. The message names the offending parameter.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), CameraError> {
         let (w, h, named): (u32, u32, Vec<(&str, f64)>) = match self {
             Camera::Mei(m) => (
                 m.width,
@@ -256,19 +259,20 @@ impl Camera {
             ),
         };
         if w == 0 || h == 0 {
-            return Err(format!(
-                "image size {w}×{h}: width and height must be positive"
-            ));
+            return Err(CameraError::EmptySize {
+                width: w,
+                height: h,
+            });
         }
         for (name, v) in &named {
             if !v.is_finite() {
-                return Err(format!("{name} = {v} is not finite"));
+                return Err(CameraError::NotFinite { name, value: *v });
             }
             if matches!(*name, "fx" | "fy") && !(*v > 0.0) {
-                return Err(format!("{name} = {v}: focal length must be positive"));
+                return Err(CameraError::Focal { name, value: *v });
             }
             if *name == "xi" && *v < 0.0 {
-                return Err(format!("xi = {v}: the mirror parameter must be ≥ 0"));
+                return Err(CameraError::NegativeXi { value: *v });
             }
         }
         let fov = match self {
@@ -277,15 +281,12 @@ impl Camera {
         };
         if let Some(f) = fov {
             if !(f > 0.0 && f <= FULL_TURN_DEG) {
-                return Err(format!("fov-deg = {f}: must be in (0, {FULL_TURN_DEG}]"));
+                return Err(CameraError::FieldOfView { value: f });
             }
         }
         Ok(())
     }
 }
-
-/// Upper bound of a field of view, degrees.
-const FULL_TURN_DEG: f64 = 360.0;
 
 impl CameraModel for Camera {
     fn width(&self) -> u32 {

@@ -14,8 +14,8 @@
 //! * **Orthorectification.** [`orthorectify`] renders the camera image onto a map grid, with the
 //!   ground height taken from a height raster.
 
-use super::CameraModel;
-use crate::error::{Error, Result};
+use super::{CameraError, CameraModel};
+use crate::error::Result;
 use crate::map::{GeoGrid, Raster};
 use crate::pose::CamFromMap;
 use nalgebra::{Matrix3, Point3, Vector3};
@@ -63,13 +63,9 @@ pub fn perspective_map(
     height: usize,
 ) -> Result<RectifyMap> {
     if width == 0 || height == 0 {
-        return Err(Error::Invalid(format!(
-            "rectify: output size {width}x{height} is empty"
-        )));
+        return Err(CameraError::RectifyEmpty { width, height }.into());
     }
-    let ikr = (p * r).try_inverse().ok_or_else(|| {
-        Error::Invalid("rectify: P·R is singular (check --k and --rotation)".into())
-    })?;
+    let ikr = (p * r).try_inverse().ok_or(CameraError::RectifySingular)?;
     let n = width * height;
     let mut map_x = vec![0f32; n];
     let mut map_y = vec![0f32; n];
@@ -115,10 +111,12 @@ impl<'a> GrayView<'a> {
     /// Wrap a buffer, checking its length.
     pub fn new(data: &'a [u8], width: usize, height: usize) -> Result<Self> {
         if width.checked_mul(height) != Some(data.len()) {
-            return Err(Error::Invalid(format!(
-                "gray image: {} bytes is not {width}x{height}",
-                data.len()
-            )));
+            return Err(CameraError::GraySize {
+                bytes: data.len(),
+                width,
+                height,
+            }
+            .into());
         }
         Ok(GrayView {
             data,
@@ -157,13 +155,13 @@ impl<'a> GrayView<'a> {
 fn check_map(map: &RectifyMap) -> Result<()> {
     let n = map.width.checked_mul(map.height);
     if n != Some(map.map_x.len()) || n != Some(map.map_y.len()) {
-        return Err(Error::Invalid(format!(
-            "remap: map planes ({}, {}) do not match {}x{}",
-            map.map_x.len(),
-            map.map_y.len(),
-            map.width,
-            map.height
-        )));
+        return Err(CameraError::MapPlanes {
+            map_x: map.map_x.len(),
+            map_y: map.map_y.len(),
+            width: map.width,
+            height: map.height,
+        }
+        .into());
     }
     Ok(())
 }
@@ -252,17 +250,21 @@ impl RemapTable {
     pub fn new(map: &RectifyMap, src_width: usize, src_height: usize) -> Result<Self> {
         check_map(map)?;
         if src_width < 2 || src_height < 2 {
-            return Err(Error::Invalid(format!(
-                "remap: source {src_width}x{src_height} is smaller than 2x2"
-            )));
+            return Err(CameraError::SourceTooSmall {
+                width: src_width,
+                height: src_height,
+            }
+            .into());
         }
         if src_width
             .checked_mul(src_height)
             .is_none_or(|n| n > u32::MAX as usize)
         {
-            return Err(Error::Invalid(format!(
-                "remap: source {src_width}x{src_height} exceeds 2^32 pixels"
-            )));
+            return Err(CameraError::SourceTooLarge {
+                width: src_width,
+                height: src_height,
+            }
+            .into());
         }
         let (w, h) = (map.width, map.height);
         let mut offsets = vec![0u32; w * h];
@@ -341,18 +343,21 @@ impl RemapTable {
     /// Remap `src` into `dst` (`width × height`), rows in parallel on the current rayon pool.
     pub fn remap_into(&self, src: &GrayView<'_>, dst: &mut [u8]) -> Result<()> {
         if src.width != self.src_width || src.height != self.src_height {
-            return Err(Error::Invalid(format!(
-                "remap: image is {}x{}, table was built for {}x{}",
-                src.width, src.height, self.src_width, self.src_height
-            )));
+            return Err(CameraError::RemapSource {
+                width: src.width,
+                height: src.height,
+                table_width: self.src_width,
+                table_height: self.src_height,
+            }
+            .into());
         }
         if dst.len() != self.width * self.height {
-            return Err(Error::Invalid(format!(
-                "remap: output buffer has {} bytes, expected {}x{}",
-                dst.len(),
-                self.width,
-                self.height
-            )));
+            return Err(CameraError::RemapOutput {
+                bytes: dst.len(),
+                width: self.width,
+                height: self.height,
+            }
+            .into());
         }
         let w = self.width;
         dst.par_chunks_mut(w)
@@ -490,12 +495,12 @@ impl FilledHeight {
     fn new(h: &Raster<f32>) -> Result<Self> {
         let g = h.grid;
         if h.data.len() != g.len() {
-            return Err(Error::Invalid(format!(
-                "orthorectify: height raster has {} samples, grid is {}x{}",
-                h.data.len(),
-                g.width,
-                g.height
-            )));
+            return Err(CameraError::HeightSize {
+                samples: h.data.len(),
+                width: g.width,
+                height: g.height,
+            }
+            .into());
         }
         let valid = |v: f32| v.is_finite() && h.nodata.is_none_or(|nd| v != nd);
         let mut z: Vec<f64> = h.data.iter().map(|&v| v as f64).collect();
@@ -503,9 +508,7 @@ impl FilledHeight {
         let mut queue: std::collections::VecDeque<usize> =
             (0..g.len()).filter(|&i| done[i]).collect();
         if queue.is_empty() {
-            return Err(Error::Invalid(
-                "orthorectify: height raster has no valid cell".into(),
-            ));
+            return Err(CameraError::HeightEmpty.into());
         }
         while let Some(i) = queue.pop_front() {
             let (c, r) = (i % g.width, i / g.width);
@@ -568,16 +571,16 @@ pub fn orthorectify(
     out: GeoGrid,
 ) -> Result<(Vec<u8>, Vec<u8>)> {
     if image.width != cam.width() as usize || image.height != cam.height() as usize {
-        return Err(Error::Invalid(format!(
-            "orthorectify: image is {}x{}, camera is {}x{}",
-            image.width,
-            image.height,
-            cam.width(),
-            cam.height()
-        )));
+        return Err(CameraError::OrthoImage {
+            width: image.width,
+            height: image.height,
+            camera_width: cam.width(),
+            camera_height: cam.height(),
+        }
+        .into());
     }
     if image.width == 0 || image.height == 0 || out.is_empty() {
-        return Err(Error::Invalid("orthorectify: empty image or grid".into()));
+        return Err(CameraError::OrthoEmpty.into());
     }
     let z = FilledHeight::new(height)?;
     let mut gray = vec![0u8; out.len()];

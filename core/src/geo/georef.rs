@@ -97,6 +97,39 @@ pub struct PoseCovariance {
     pub matrix: [[f64; 6]; 6],
 }
 
+/// Why axes and a matrix are not a pose covariance ([`PoseCovariance::from_axes`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CovarianceError {
+    /// A covariance matrix whose shape does not match its axes.
+    #[error("covariance matrix is not {n}×{n} (its axes: {axes:?})")]
+    Shape {
+        /// The number of axes.
+        n: usize,
+        /// The axes.
+        axes: Vec<String>,
+    },
+    /// A covariance axis that is not a pose axis.
+    #[error("covariance axis {axis:?} is not one of {:?}", POSE_AXES)]
+    Axis {
+        /// The axis as given.
+        axis: String,
+    },
+    /// A covariance axis named twice.
+    #[error("covariance axis {axis:?} appears twice")]
+    AxisTwice {
+        /// The axis.
+        axis: String,
+    },
+    /// A covariance entry that is not finite.
+    #[error("covariance entry ({row}, {col}) is not finite")]
+    Entry {
+        /// Its row's axis.
+        row: String,
+        /// Its column's axis.
+        col: String,
+    },
+}
+
 /// The pose covariance's axis names, in [`PoseCovariance::matrix`] order.
 pub const POSE_AXES: [&str; 6] = ["x", "y", "z", "yaw", "pitch", "roll"];
 
@@ -104,21 +137,22 @@ impl PoseCovariance {
     /// From axis names and a square row-major matrix over them (the pose file's
     /// `quality.covariance.axes` and `.matrix`). Every axis must be one of [`POSE_AXES`], named
     /// once, and every entry finite; the matrix is symmetrised.
-    pub fn from_axes(axes: &[String], matrix: &[Vec<f64>]) -> Result<Self, String> {
+    pub fn from_axes(axes: &[String], matrix: &[Vec<f64>]) -> Result<Self, CovarianceError> {
         let n = axes.len();
         if matrix.len() != n || matrix.iter().any(|r| r.len() != n) {
-            return Err(format!(
-                "covariance matrix is not {n}×{n} (its axes: {axes:?})"
-            ));
+            return Err(CovarianceError::Shape {
+                n,
+                axes: axes.to_vec(),
+            });
         }
         let mut idx = Vec::with_capacity(n);
         for a in axes {
             let i = POSE_AXES
                 .iter()
                 .position(|p| p == a)
-                .ok_or_else(|| format!("covariance axis {a:?} is not one of {POSE_AXES:?}"))?;
+                .ok_or_else(|| CovarianceError::Axis { axis: a.clone() })?;
             if idx.contains(&i) {
-                return Err(format!("covariance axis {a:?} appears twice"));
+                return Err(CovarianceError::AxisTwice { axis: a.clone() });
             }
             idx.push(i);
         }
@@ -127,10 +161,10 @@ impl PoseCovariance {
             for (c, &j) in idx.iter().enumerate() {
                 let v = 0.5 * (matrix[r][c] + matrix[c][r]);
                 if !v.is_finite() {
-                    return Err(format!(
-                        "covariance entry ({}, {}) is not finite",
-                        axes[r], axes[c]
-                    ));
+                    return Err(CovarianceError::Entry {
+                        row: axes[r].clone(),
+                        col: axes[c].clone(),
+                    });
                 }
                 m[i][j] = v;
             }

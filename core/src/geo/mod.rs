@@ -12,12 +12,16 @@
 //! objects are built once per CRS and cached, because parsing a proj string costs far more than
 //! projecting a point.
 
+mod crs;
+pub mod error;
 pub mod georef;
+
+pub use crs::{Crs, SUPPORTED_CRS};
+pub use error::GeoError;
 
 use crate::error::{Error, Result};
 use proj4rs::proj::Proj;
 use proj4rs::transform::{transform, Transform, TransformClosure};
-use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::sync::{Mutex, OnceLock};
 
@@ -29,12 +33,6 @@ pub(crate) const UTM_SOUTH_BASE: u32 = 32700;
 pub(crate) const UTM_ZONES: u32 = 60;
 /// Width of a UTM zone, degrees of longitude.
 const ZONE_WIDTH_DEG: f64 = 6.0;
-
-/// The "supported" part of every unknown-CRS message, so all callers say the same thing.
-pub const SUPPORTED_CRS: &str =
-    "supported: WGS84 UTM 326xx/327xx; projected EPSG CRSs in metres in transverse Mercator or \
-     Lambert conformal conic on ETRS89, NAD83 or another GRS80 datum (e.g. ETRS89 UTM 258xx, \
-     Lambert-93 2154, NAD83 State Planes); RD New 28992; CH1903+ / LV95 2056";
 
 /// UTM zone (1..=60) and hemisphere of a WGS84 UTM EPSG code; `None` for any other code.
 pub(crate) fn utm_zone_of(epsg: u32) -> Option<(u32, Hemisphere)> {
@@ -79,15 +77,13 @@ fn projection(crs: Crs) -> Result<&'static Proj> {
             Some((zone, hemi)) => utm_proj(zone, hemi),
             None => epsg_proj(code),
         },
-        Crs::Local => Err(Error::Invalid(format!(
-            "CRS LOCAL has no relation to WGS84 ({SUPPORTED_CRS})"
-        ))),
+        Crs::Local => Err(GeoError::Local.into()),
     }
 }
 
 /// Projections of EPSG codes other than WGS84 UTM, built on first use. Each is leaked once, so a
 /// process holds at most one per code it has seen (a handful: the tiles' CRSs).
-static OTHER: Mutex<BTreeMap<u32, std::result::Result<&'static Proj, String>>> =
+static OTHER: Mutex<BTreeMap<u32, std::result::Result<&'static Proj, GeoError>>> =
     Mutex::new(BTreeMap::new());
 
 /// Definitions checked against pyproj (`tests/it/geo_national_grids.rs`) that the EPSG table
@@ -122,8 +118,8 @@ const WGS84_ELLIPSOIDS: [&str; 2] = ["GRS80", "WGS84"];
 const WGS84_DATUMS: [&str; 2] = ["WGS84", "NAD83"];
 
 /// `Ok` when the EPSG table's definition `def` of `code` uses a verified projection method on a
-/// datum taken as WGS84; else the one-line reason.
-fn vet_definition(code: u32, def: &str) -> std::result::Result<(), String> {
+/// datum taken as WGS84; else the reason.
+fn vet_definition(code: u32, def: &str) -> std::result::Result<(), GeoError> {
     let param = |key: &str| {
         def.split_whitespace().find_map(|t| {
             t.strip_prefix('+')
@@ -133,19 +129,19 @@ fn vet_definition(code: u32, def: &str) -> std::result::Result<(), String> {
     };
     let method = param("proj").unwrap_or("?");
     if !VERIFIED_METHODS.contains(&method) || def.split_whitespace().any(|t| t == "+approx") {
-        return Err(format!(
-            "EPSG:{code} uses the {method} projection, which infraloc does not reproduce to 1 mm \
-             of PROJ ({SUPPORTED_CRS})"
-        ));
+        return Err(GeoError::UnverifiedMethod {
+            code,
+            method: method.to_string(),
+        });
     }
     let on_wgs84 = param("ellps").is_some_and(|e| WGS84_ELLIPSOIDS.contains(&e))
         || param("datum").is_some_and(|d| WGS84_DATUMS.contains(&d));
     if !on_wgs84 || param("towgs84").is_some() || param("nadgrids").is_some() {
         let datum = param("datum").or_else(|| param("ellps")).unwrap_or("?");
-        return Err(format!(
-            "EPSG:{code} is on a datum ({datum}) whose shift to WGS84 infraloc does not have: \
-             positions would be off by up to hundreds of metres ({SUPPORTED_CRS})"
-        ));
+        return Err(GeoError::UnshiftedDatum {
+            code,
+            datum: datum.to_string(),
+        });
     }
     Ok(())
 }
@@ -159,13 +155,13 @@ fn epsg_proj(code: u32) -> Result<&'static Proj> {
         .entry(code)
         .or_insert_with(|| build_epsg_proj(code).map(|p| &*Box::leak(Box::new(p))))
         .clone()
-        .map_err(Error::Invalid)
+        .map_err(Error::from)
 }
 
 /// The projection of EPSG `code`, refused unless it is projected, in metres, and either one of
 /// [`DEFINITION_OVERRIDES`] or in a verified method on a datum taken as WGS84 ([`vet_definition`]).
-fn build_epsg_proj(code: u32) -> std::result::Result<Proj, String> {
-    let unknown = || format!("unknown EPSG:{code} ({SUPPORTED_CRS})");
+fn build_epsg_proj(code: u32) -> std::result::Result<Proj, GeoError> {
+    let unknown = || GeoError::UnknownEpsg { code };
     let short = u16::try_from(code).map_err(|_| unknown())?;
     let overridden = DEFINITION_OVERRIDES.iter().find(|(c, _)| *c == code);
     let def = match overridden {
@@ -176,34 +172,28 @@ fn build_epsg_proj(code: u32) -> std::result::Result<Proj, String> {
         // A method proj4rs lacks (Krovak, oblique Mercator, …) is one we have not verified either.
         match overridden.map_or_else(|| vet_definition(code, def), |_| Ok(())) {
             Err(why) => why,
-            Ok(()) => format!(
-                "EPSG:{code}: its definition is not expressible in proj4rs ({e}); {SUPPORTED_CRS}"
-            ),
+            Ok(()) => GeoError::NotExpressible {
+                code,
+                reason: e.to_string(),
+            },
         }
     })?;
     if WEB_MERCATOR.contains(&code) {
-        return Err(format!(
-            "EPSG:{code} is Web Mercator, whose \"metres\" are true metres only at the equator; \
-             {SUPPORTED_CRS}"
-        ));
+        return Err(GeoError::WebMercator { code });
     }
     if p.is_latlong() {
-        return Err(format!(
-            "EPSG:{code} is a geographic CRS (degrees); a tile needs a projected CRS in metres ({SUPPORTED_CRS})"
-        ));
+        return Err(GeoError::Geographic { code });
     }
     if p.is_geocent() {
-        return Err(format!(
-            "EPSG:{code} is a geocentric CRS; a tile needs a projected CRS in metres ({SUPPORTED_CRS})"
-        ));
+        return Err(GeoError::Geocentric { code });
     }
     // Raster resolutions, search radii and pose errors are all metres.
     if p.to_meter() != 1.0 {
-        return Err(format!(
-            "EPSG:{code} is in {} ({} m); a tile needs a projected CRS in metres, e.g. the metre variant of the same zone",
-            p.units(),
-            p.to_meter()
-        ));
+        return Err(GeoError::NotMetres {
+            code,
+            units: p.units().to_string(),
+            to_meter: p.to_meter(),
+        });
     }
     if overridden.is_none() {
         vet_definition(code, def)?;
@@ -281,17 +271,22 @@ impl Transform for Pt {
 const N_CACHED: usize = 2 * UTM_ZONES as usize;
 
 /// Lazily built WGS84 geographic and UTM zone projections.
-static LONGLAT: OnceLock<std::result::Result<Proj, String>> = OnceLock::new();
-static UTM: [OnceLock<std::result::Result<Proj, String>>; N_CACHED] =
+static LONGLAT: OnceLock<std::result::Result<Proj, GeoError>> = OnceLock::new();
+static UTM: [OnceLock<std::result::Result<Proj, GeoError>>; N_CACHED] =
     [const { OnceLock::new() }; N_CACHED];
 
 fn longlat() -> Result<&'static Proj> {
     LONGLAT
         .get_or_init(|| {
-            Proj::from_proj_string("+proj=longlat +datum=WGS84 +no_defs").map_err(|e| e.to_string())
+            Proj::from_proj_string("+proj=longlat +datum=WGS84 +no_defs").map_err(|e| {
+                GeoError::Projection {
+                    name: "WGS84".into(),
+                    reason: e.to_string(),
+                }
+            })
         })
         .as_ref()
-        .map_err(|e| Error::Invalid(format!("WGS84 projection: {e}")))
+        .map_err(|e| e.clone().into())
 }
 
 fn utm_proj(zone: u32, hemi: Hemisphere) -> Result<&'static Proj> {
@@ -304,23 +299,26 @@ fn utm_proj(zone: u32, hemi: Hemisphere) -> Result<&'static Proj> {
             Proj::from_proj_string(&format!(
                 "+proj=utm +zone={zone}{south} +datum=WGS84 +units=m +no_defs"
             ))
-            .map_err(|e| e.to_string())
+            .map_err(|e| GeoError::Projection {
+                name: format!("UTM zone {zone}{south}"),
+                reason: e.to_string(),
+            })
         })
         .as_ref()
-        .map_err(|e| Error::Invalid(format!("UTM zone {zone}{south} projection: {e}")))
+        .map_err(|e| e.clone().into())
 }
 
 /// WGS84 latitude/longitude (degrees) → map coordinates (easting, northing in metres) of `crs`.
 pub fn wgs84_to_map(crs: Crs, lat: f64, lon: f64) -> Result<(f64, f64)> {
     let proj = projection(crs)?;
     if !(lat.abs() <= 90.0) || !lon.is_finite() {
-        return Err(Error::Invalid(format!(
-            "WGS84 position lat={lat}, lon={lon}: latitude must be in [-90, 90], longitude finite"
-        )));
+        return Err(GeoError::LatLon { lat, lon }.into());
     }
     let mut p = Pt(lon.to_radians(), lat.to_radians());
-    transform(longlat()?, proj, &mut p)
-        .map_err(|e| Error::Invalid(format!("WGS84 lat={lat}, lon={lon} → {crs}: {e}")))?;
+    transform(longlat()?, proj, &mut p).map_err(|e| GeoError::Transform {
+        what: format!("WGS84 lat={lat}, lon={lon} → {crs}"),
+        reason: e.to_string(),
+    })?;
     finite_or_err(p.0, p.1, || format!("WGS84 lat={lat}, lon={lon} → {crs}"))
 }
 
@@ -328,13 +326,13 @@ pub fn wgs84_to_map(crs: Crs, lat: f64, lon: f64) -> Result<(f64, f64)> {
 pub fn map_to_wgs84(crs: Crs, x: f64, y: f64) -> Result<(f64, f64)> {
     let proj = projection(crs)?;
     if !x.is_finite() || !y.is_finite() {
-        return Err(Error::Invalid(format!(
-            "{crs} position x={x}, y={y}: coordinates must be finite"
-        )));
+        return Err(GeoError::NonFinite { crs, x, y }.into());
     }
     let mut p = Pt(x, y);
-    transform(proj, longlat()?, &mut p)
-        .map_err(|e| Error::Invalid(format!("{crs} x={x}, y={y} → WGS84: {e}")))?;
+    transform(proj, longlat()?, &mut p).map_err(|e| GeoError::Transform {
+        what: format!("{crs} x={x}, y={y} → WGS84"),
+        reason: e.to_string(),
+    })?;
     let (lon, lat) = finite_or_err(p.0.to_degrees(), p.1.to_degrees(), || {
         format!("{crs} x={x}, y={y} → WGS84")
     })?;
@@ -349,13 +347,13 @@ pub fn map_to_map(from: Crs, to: Crs, x: f64, y: f64) -> Result<(f64, f64)> {
     }
     let (pf, pt) = (projection(from)?, projection(to)?);
     if !x.is_finite() || !y.is_finite() {
-        return Err(Error::Invalid(format!(
-            "{from} position x={x}, y={y}: coordinates must be finite"
-        )));
+        return Err(GeoError::NonFinite { crs: from, x, y }.into());
     }
     let mut p = Pt(x, y);
-    transform(pf, pt, &mut p)
-        .map_err(|e| Error::Invalid(format!("{from} x={x}, y={y} → {to}: {e}")))?;
+    transform(pf, pt, &mut p).map_err(|e| GeoError::Transform {
+        what: format!("{from} x={x}, y={y} → {to}"),
+        reason: e.to_string(),
+    })?;
     finite_or_err(p.0, p.1, || format!("{from} x={x}, y={y} → {to}"))
 }
 
@@ -363,31 +361,13 @@ fn finite_or_err(a: f64, b: f64, what: impl FnOnce() -> String) -> Result<(f64, 
     if a.is_finite() && b.is_finite() {
         Ok((a, b))
     } else {
-        Err(Error::Invalid(format!("{}: no finite result", what())))
-    }
-}
-
-/// A coordinate reference system of map data.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum Crs {
-    /// An EPSG code (e.g. 32617 = WGS84 / UTM 17N).
-    Epsg(u32),
-    /// A local metric right-handed frame with z up; no WGS84 lookups.
-    Local,
-}
-
-impl std::fmt::Display for Crs {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Crs::Epsg(c) => write!(f, "EPSG:{c}"),
-            Crs::Local => write!(f, "LOCAL"),
-        }
+        Err(GeoError::NoFiniteResult { what: what() }.into())
     }
 }
 
 impl std::str::FromStr for Crs {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = GeoError;
+    fn from_str(s: &str) -> Result<Self, GeoError> {
         let t = s.trim();
         if t.eq_ignore_ascii_case("LOCAL") {
             return Ok(Crs::Local);
@@ -395,10 +375,14 @@ impl std::str::FromStr for Crs {
         let code = t
             .strip_prefix("EPSG:")
             .or_else(|| t.strip_prefix("epsg:"))
-            .ok_or_else(|| format!("CRS {s:?}: expected EPSG:<code> or LOCAL"))?;
+            .ok_or_else(|| GeoError::CrsSyntax {
+                text: s.to_string(),
+            })?;
         code.parse::<u32>()
             .map(Crs::Epsg)
-            .map_err(|_| format!("CRS {s:?}: EPSG code is not a number"))
+            .map_err(|_| GeoError::CrsCode {
+                text: s.to_string(),
+            })
     }
 }
 

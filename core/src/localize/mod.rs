@@ -10,6 +10,7 @@
 //! [`pnp`] (P3P on bearings + RANSAC + LM) serves both; [`pipeline`] runs prior → init → refine →
 //! gate. Design and measurements: `docs/refine.md`.
 
+pub mod error;
 pub mod frame;
 pub mod init;
 pub mod mi;

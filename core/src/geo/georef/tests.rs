@@ -465,14 +465,17 @@ fn pose_covariance_axes_are_checked() {
     let bad = ["x", "y", "z", "spin"].map(String::from);
     assert!(PoseCovariance::from_axes(&bad, &m)
         .unwrap_err()
+        .to_string()
         .contains("spin"));
     assert!(PoseCovariance::from_axes(&axes[..3], &m)
         .unwrap_err()
+        .to_string()
         .contains("3×3"));
     let mut nan = m.clone();
     nan[2][2] = f64::NAN;
     assert!(PoseCovariance::from_axes(&axes, &nan)
         .unwrap_err()
+        .to_string()
         .contains("not finite"));
 }
 

@@ -456,8 +456,29 @@ pub fn fine_stage<R: rand::Rng>(
     cand: &Candidate,
     fine: &FineParams,
     rng: &mut R,
-) -> std::result::Result<FineOutcome, String> {
+) -> std::result::Result<FineOutcome, FineError> {
     fine_stage_partial(&Sampled::new(frame), map, prior_xy, cand, fine, rng).0
+}
+
+/// Why one candidate's fine stage gave no pose.
+#[derive(Debug, thiserror::Error)]
+pub enum FineError {
+    /// No iteration is configured.
+    #[error("no fine iterations configured")]
+    NoIterations,
+    /// An iteration's PnP failed.
+    #[error("{error} ({matches} patch matches)")]
+    Pnp {
+        /// The PnP's error.
+        error: Box<crate::error::Error>,
+        /// Patch matches it had.
+        matches: usize,
+    },
+}
+
+/// The last fine stage's failure in words (empty when none failed).
+fn last_words(e: &Option<FineError>) -> String {
+    e.as_ref().map_or(String::new(), ToString::to_string)
 }
 
 /// A frame with its mip pyramid: built once per initialization, for the nominal view and every
@@ -489,7 +510,7 @@ fn fine_stage_partial<R: rand::Rng>(
     fine: &FineParams,
     rng: &mut R,
 ) -> (
-    std::result::Result<FineOutcome, String>,
+    std::result::Result<FineOutcome, FineError>,
     Option<FineOutcome>,
 ) {
     let cam: &dyn CameraModel = view.frame.camera();
@@ -502,8 +523,7 @@ fn fine_stage_partial<R: rand::Rng>(
         0.0,
         0.0,
     );
-    let mut outcome: std::result::Result<FineOutcome, String> =
-        Err("no fine iterations configured".to_string());
+    let mut outcome: std::result::Result<FineOutcome, FineError> = Err(FineError::NoIterations);
     for &(ph, sh, res, tol_m) in &fine.iterations {
         let m = match_anchors_mip(cam, &view.mip, sat, heights, &pose, (ph, sh, res), fine);
         let corr: Vec<_> = m.iter().map(|a| a.corr).collect();
@@ -527,7 +547,10 @@ fn fine_stage_partial<R: rand::Rng>(
             }
             Err(e) => {
                 return (
-                    Err(format!("{e} ({} patch matches)", corr.len())),
+                    Err(FineError::Pnp {
+                        error: Box::new(e),
+                        matches: corr.len(),
+                    }),
                     outcome.ok().map(|f| FineOutcome { partial: true, ..f }),
                 )
             }
@@ -580,14 +603,14 @@ pub fn initialize<R: rand::Rng>(
         return initialize_verified(&view, map, prior_xy, &cands, fine, v, rng);
     }
     let mut best: Option<InitResult> = None;
-    let mut last_err = String::new();
+    let mut last_err: Option<FineError> = None;
     let mut tried = 0;
     for (rank, cand) in cands.iter().enumerate() {
         tried = rank + 1;
         let outcome = match fine_stage_partial(&view, map, prior_xy, cand, fine, rng).0 {
             Ok(f) => Some(f),
             Err(e) => {
-                last_err = e;
+                last_err = Some(e);
                 None
             }
         };
@@ -612,8 +635,9 @@ pub fn initialize<R: rand::Rng>(
         crate::Error::stage(
             StageName::Pnp,
             format!(
-                "none of {} candidates gave a pose; last: {last_err}",
-                cands.len()
+                "none of {} candidates gave a pose; last: {}",
+                cands.len(),
+                last_words(&last_err)
             ),
         )
     })
@@ -663,7 +687,7 @@ fn initialize_verified<R: rand::Rng>(
     // Every tried candidate's hypothesis, in try order (ties go to the earlier one).
     let mut pool: Vec<(f64, InitResult)> = Vec::new();
     let mut any_pnp = false;
-    let mut last_err = String::new();
+    let mut last_err: Option<FineError> = None;
     let mut tried = 0;
     // Fine stages that failed after an earlier iteration gave a PnP pose: (rank, candidate, it).
     let mut partials: Vec<(usize, Candidate, FineOutcome)> = Vec::new();
@@ -691,7 +715,7 @@ fn initialize_verified<R: rand::Rng>(
                 }
             }
             Err(e) => {
-                last_err = e;
+                last_err = Some(e);
                 sweep.map(|s| (s.mi, sweep_result(cand, rank, &s)))
             }
         };
@@ -739,7 +763,7 @@ fn initialize_verified<R: rand::Rng>(
                     any_pnp = true;
                     push_verified(&mut pool, verifier, rank, climbed, f);
                 }
-                Err(e) => last_err = e,
+                Err(e) => last_err = Some(e),
             }
         }
     }
@@ -757,8 +781,9 @@ fn initialize_verified<R: rand::Rng>(
         return Err(crate::Error::stage(
             StageName::Pnp,
             format!(
-                "none of the {tried} best-screened of {} candidates, nor {CLIMB_CANDIDATES} of them climbed on the LiDAR map, gave a PnP pose; last: {last_err}",
-                cands.len()
+                "none of the {tried} best-screened of {} candidates, nor {CLIMB_CANDIDATES} of them climbed on the LiDAR map, gave a PnP pose; last: {}",
+                cands.len(),
+                last_words(&last_err)
             ),
         ));
     }

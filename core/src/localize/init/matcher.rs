@@ -10,6 +10,7 @@
 
 use crate::camera::CameraModel;
 use crate::error::{Error, Result};
+use crate::localize::error::MatchFileError;
 use crate::localize::init::ground::height_at;
 use crate::localize::init::sweep::Candidate;
 use crate::localize::init::verify::MiVerifier;
@@ -80,21 +81,25 @@ pub struct MatchFile {
 impl MatchFile {
     /// Parse the CSV text read from `origin` (named in later errors); errors name the line and
     /// the column. A leading byte-order mark (spreadsheet exports) is skipped.
-    pub fn parse(text: &str, origin: &std::path::Path) -> std::result::Result<MatchFile, String> {
+    pub fn parse(
+        text: &str,
+        origin: &std::path::Path,
+    ) -> std::result::Result<MatchFile, MatchFileError> {
         let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         let mut lines = text
             .lines()
             .enumerate()
             .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
-        let (_, header) = lines.next().ok_or("no header line (need u,v,x,y[,z])")?;
+        let (_, header) = lines.next().ok_or(MatchFileError::NoHeader)?;
         let cols: Vec<String> = header
             .split(',')
             .map(|c| c.trim().trim_matches('"').to_ascii_lowercase())
             .collect();
         let find = |name: &str| cols.iter().position(|c| c == name);
-        let need = |name: &str| {
-            find(name).ok_or_else(|| {
-                format!("header {header:?} has no column {name:?} (need u,v,x,y[,z])")
+        let need = |name: &'static str| {
+            find(name).ok_or_else(|| MatchFileError::NoColumn {
+                header: header.to_string(),
+                column: name,
             })
         };
         let (iu, iv, ix, iy) = (need("u")?, need("v")?, need("x")?, need("y")?);
@@ -102,18 +107,20 @@ impl MatchFile {
         let mut rows = Vec::new();
         for (ln, line) in lines {
             let f: Vec<&str> = line.split(',').map(str::trim).collect();
-            let get = |i: usize, name: &str| -> std::result::Result<f64, String> {
-                let v: f64 = f
-                    .get(i)
-                    .ok_or_else(|| format!("line {}: missing {name}", ln + 1))?
-                    .parse()
-                    .map_err(|_| format!("line {}: {name} is not a number", ln + 1))?;
-                if v.is_finite() {
-                    Ok(v)
-                } else {
-                    Err(format!("line {}: {name} is not finite", ln + 1))
-                }
-            };
+            let line = ln + 1;
+            let get =
+                |i: usize, column: &'static str| -> std::result::Result<f64, MatchFileError> {
+                    let v: f64 = f
+                        .get(i)
+                        .ok_or(MatchFileError::Missing { line, column })?
+                        .parse()
+                        .map_err(|_| MatchFileError::NotANumber { line, column })?;
+                    if v.is_finite() {
+                        Ok(v)
+                    } else {
+                        Err(MatchFileError::NotFinite { line, column })
+                    }
+                };
             // An empty z cell means "on the ground", like a file without the column.
             let z = match iz {
                 Some(i) if f.get(i).is_some_and(|s| !s.is_empty()) => Some(get(i, "z")?),
@@ -126,7 +133,7 @@ impl MatchFile {
             });
         }
         if rows.is_empty() {
-            return Err("no correspondences after the header".into());
+            return Err(MatchFileError::Empty);
         }
         Ok(MatchFile {
             rows,
@@ -289,7 +296,7 @@ mod tests {
 
     #[test]
     fn match_file_errors_name_the_line_and_column() {
-        let e = |t: &str| MatchFile::parse(t, o()).unwrap_err();
+        let e = |t: &str| MatchFile::parse(t, o()).unwrap_err().to_string();
         assert!(e("").contains("no header"), "{}", e(""));
         assert!(e("u,v,x\n1,2,3\n").contains("no column \"y\""));
         assert!(e("u,v,x,y\n").contains("no correspondences"));

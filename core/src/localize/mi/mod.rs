@@ -15,6 +15,7 @@ pub mod smooth;
 pub mod space;
 
 use crate::error::{Error, Result};
+use crate::localize::error::LocalizeError;
 use serde::{Deserialize, Serialize};
 
 /// Largest number of gray bins: gray bins are stored as u8 and one value is the invalid marker.
@@ -56,11 +57,19 @@ impl std::str::FromStr for Objective {
         match s {
             "mi" => Ok(Objective::Mi),
             "nmi" => Ok(Objective::Nmi),
-            _ => Err(Error::Invalid(format!(
-                "--objective {s:?}: expected mi or nmi"
-            ))),
+            _ => Err(choice("objective", s, "mi or nmi")),
         }
     }
+}
+
+/// A `--FLAG` choice outside its set, as the crate's error.
+pub(crate) fn choice(flag: &'static str, given: &str, expected: &'static str) -> Error {
+    LocalizeError::Choice {
+        flag,
+        given: given.to_string(),
+        expected,
+    }
+    .into()
 }
 
 /// How 0–255 values map to bins.
@@ -98,9 +107,7 @@ impl std::str::FromStr for Binning {
         match s {
             "uniform" => Ok(Binning::Uniform),
             "equalized" => Ok(Binning::Equalized),
-            _ => Err(Error::Invalid(format!(
-                "--binning {s:?}: expected equalized or uniform"
-            ))),
+            _ => Err(choice("binning", s, "equalized or uniform")),
         }
     }
 }
@@ -139,9 +146,7 @@ impl std::str::FromStr for Pooling {
         match s {
             "joint" => Ok(Pooling::Joint),
             "per-pair" => Ok(Pooling::PerPair),
-            _ => Err(Error::Invalid(format!(
-                "--pooling {s:?}: expected joint or per-pair"
-            ))),
+            _ => Err(choice("pooling", s, "joint or per-pair")),
         }
     }
 }
@@ -183,16 +188,20 @@ impl MiConfig {
     /// Check the bin counts.
     pub fn validate(&self) -> Result<()> {
         if !(2..=MAX_REFLECTIVITY_BINS).contains(&self.bins_reflectivity) {
-            return Err(Error::Invalid(format!(
-                "mi: bins-reflectivity {} outside 2..={MAX_REFLECTIVITY_BINS}",
-                self.bins_reflectivity
-            )));
+            return Err(LocalizeError::Bins {
+                what: "bins-reflectivity",
+                bins: self.bins_reflectivity,
+                max: MAX_REFLECTIVITY_BINS,
+            }
+            .into());
         }
         if !(2..=MAX_GRAY_BINS).contains(&self.bins_gray) {
-            return Err(Error::Invalid(format!(
-                "mi: bins-gray {} outside 2..={MAX_GRAY_BINS}",
-                self.bins_gray
-            )));
+            return Err(LocalizeError::Bins {
+                what: "bins-gray",
+                bins: self.bins_gray,
+                max: MAX_GRAY_BINS,
+            }
+            .into());
         }
         Ok(())
     }

@@ -9,6 +9,7 @@
 use super::space::{box_lattice, pose_at_pivot, Cell, Grid, SearchConfig};
 use crate::camera::{Camera, CameraModel};
 use crate::error::{Error, Result};
+use crate::localize::error::LocalizeError;
 use crate::localize::mi::kernel::{
     self, accumulate, visible, visible_from_all, BinnedImage, FastCamera, GrayLevel, PoseF32,
     Scratch,
@@ -175,7 +176,7 @@ impl<'a> ImageCache<'a> {
         cam: &Camera,
         v: &View<'a>,
         cfg: &SearchConfig,
-    ) -> std::result::Result<Arc<ViewImage>, String> {
+    ) -> std::result::Result<Arc<ViewImage>, LocalizeError> {
         let key = ImageKey::of(cfg);
         let same = |e: &CachedImage<'a>| {
             std::ptr::eq(e.gray, v.gray) && std::ptr::eq(e.mask, v.mask) && e.key == key
@@ -250,9 +251,7 @@ impl Evaluator {
         cache: &ImageCache<'a>,
     ) -> Result<Self> {
         if views.is_empty() {
-            return Err(Error::Invalid(
-                "no image/point-set pair to refine on".into(),
-            ));
+            return Err(LocalizeError::NoPairs.into());
         }
         cfg.mi.validate()?;
         cfg.spec.validate()?;
@@ -261,21 +260,23 @@ impl Evaluator {
         let origin = [c.x, c.y, c.z];
         let pooled = views.len() > 1;
         // One error line per view: with several, it names the pair (1-based, as given).
-        let name = |i: usize, msg: String| -> Error {
+        let name = |i: usize, e: LocalizeError| -> Error {
             if pooled {
-                Error::Invalid(format!("pair {} of {}: {msg}", i + 1, views.len()))
+                LocalizeError::Pair {
+                    index: i + 1,
+                    of: views.len(),
+                    source: Box::new(e),
+                }
+                .into()
             } else {
-                Error::Invalid(msg)
+                e.into()
             }
         };
         let invalid = cfg.mi.bins_gray as u8;
         // Per view: its binned image at every level, and its fixed point set.
         let mut prepared = Vec::with_capacity(views.len());
         for (i, v) in views.iter().enumerate() {
-            validate(v.points, "points").map_err(|e| match e {
-                Error::Invalid(m) => name(i, m),
-                other => other,
-            })?;
+            validate(v.points, "points").map_err(|e| name(i, e))?;
             // The image's preparation and the points' order are independent (and each serial in
             // part: the erosion's sweep, the order's sort), so they run side by side.
             let (image, order) = rayon::join(|| cache.get(cam, v, cfg), || cache.order(v.points));
@@ -586,13 +587,14 @@ pub(crate) fn prepare_image(
     gray: &[u8],
     mask: &[u8],
     cfg: &SearchConfig,
-) -> std::result::Result<ViewImage, String> {
+) -> std::result::Result<ViewImage, LocalizeError> {
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     if gray.len() != w * h || mask.len() != w * h {
-        return Err(format!(
-            "image has {} pixels but the camera is {w}×{h}",
-            gray.len()
-        ));
+        return Err(LocalizeError::ImageSize {
+            pixels: gray.len(),
+            width: w,
+            height: h,
+        });
     }
     let invalid = cfg.mi.bins_gray as u8;
 
@@ -618,7 +620,7 @@ pub(crate) fn prepare_image(
             },
         );
     if gcounts.iter().sum::<u64>() == 0 {
-        return Err("image: no valid pixel in the camera's image circle".into());
+        return Err(LocalizeError::NoValidPixel);
     }
     let lut_gray = bin_lut(cfg.mi.binning, cfg.mi.bins_gray, &gcounts);
 
@@ -665,7 +667,7 @@ pub(crate) fn prepare_points(
     origin: [f64; 3],
     grid: &Grid,
     cfg: &SearchConfig,
-) -> std::result::Result<PreparedPoints, String> {
+) -> std::result::Result<PreparedPoints, LocalizeError> {
     let w = cam.width() as usize;
     let invalid = cfg.mi.bins_gray as u8;
     let cam0 = FastCamera::new(cam, 0);
@@ -734,10 +736,9 @@ pub(crate) fn prepare_points(
     let mut pts0 = raw.select(&keep);
     if pts0.is_empty() {
         return Err(if cfg.fixed_point_set {
-            "points: none is visible from every pose of the search box (wrong pose, tile or camera?)"
-                .into()
+            LocalizeError::NoFixedPoints
         } else {
-            "points: none is visible from the initial pose".into()
+            LocalizeError::NoVisiblePoints
         });
     }
     let mut rcounts = [0u64; 256];

@@ -1,6 +1,6 @@
 //! Ground points (map CRS, f64) and their hot-loop form (origin-shifted f32, structure of arrays).
 
-use crate::error::{Error, Result};
+use crate::localize::error::LocalizeError;
 use rayon::prelude::*;
 
 /// One LiDAR ground point: map-CRS coordinates (f64 metres) and reflectivity (0–255). The same
@@ -9,19 +9,24 @@ pub use crate::map::GroundPoint;
 
 /// Check a point set for the refinement: non-empty and all coordinates finite. `what` names the
 /// source (file or tile) in the error.
-pub fn validate(points: &[GroundPoint], what: &str) -> Result<()> {
+pub fn validate(points: &[GroundPoint], what: &str) -> std::result::Result<(), LocalizeError> {
     if points.is_empty() {
-        return Err(Error::Invalid(format!("{what}: no ground points")));
+        return Err(LocalizeError::NoPoints {
+            what: what.to_string(),
+        });
     }
     if let Some((i, p)) = points
         .iter()
         .enumerate()
         .find(|(_, p)| !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()))
     {
-        return Err(Error::Invalid(format!(
-            "{what}: point {i} has a non-finite coordinate ({}, {}, {})",
-            p.x, p.y, p.z
-        )));
+        return Err(LocalizeError::NonFinitePoint {
+            what: what.to_string(),
+            index: i,
+            x: p.x,
+            y: p.y,
+            z: p.z,
+        });
     }
     Ok(())
 }

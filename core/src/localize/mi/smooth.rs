@@ -101,9 +101,7 @@ impl std::str::FromStr for Sampling {
         match s {
             "nearest" => Ok(Sampling::Nearest),
             "pv" => Ok(Sampling::Pv),
-            _ => Err(Error::Invalid(format!(
-                "--sampling {s:?}: expected nearest or pv"
-            ))),
+            _ => Err(super::choice("sampling", s, "nearest or pv")),
         }
     }
 }

@@ -7,6 +7,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use crate::error::{Error, Result};
+use crate::localize::error::LocalizeError;
 use crate::localize::mi::MiConfig;
 use crate::pose::CamFromMap;
 use nalgebra::Vector3;
@@ -101,10 +102,8 @@ impl std::str::FromStr for SearchSpec {
     fn from_str(s: &str) -> Result<Self> {
         let mut spec = SearchSpec::default();
         for item in s.split(',').map(str::trim).filter(|t| !t.is_empty()) {
-            let bad = || {
-                Error::Invalid(format!(
-                    "--search {item:?}: expected AXIS=HALF:STEP with AXIS one of x, y, z, yaw, pitch, roll"
-                ))
+            let bad = || LocalizeError::SearchSyntax {
+                item: item.to_string(),
             };
             let (axis, val) = item.split_once('=').ok_or_else(bad)?;
             let (h, st) = val.split_once(':').ok_or_else(bad)?;
@@ -113,9 +112,10 @@ impl std::str::FromStr for SearchSpec {
                 step: st.trim().parse().map_err(|_| bad())?,
             };
             if r.half == 0.0 {
-                return Err(Error::Invalid(format!(
-                    "--search {item}: half range and step must be positive"
-                )));
+                return Err(LocalizeError::SearchZero {
+                    item: item.to_string(),
+                }
+                .into());
             }
             match axis.trim() {
                 "x" => spec.x = r,
@@ -124,7 +124,7 @@ impl std::str::FromStr for SearchSpec {
                 "yaw" => spec.yaw = r,
                 "pitch" => spec.pitch = Some(r),
                 "roll" => spec.roll = Some(r),
-                _ => return Err(bad()),
+                _ => return Err(bad().into()),
             }
         }
         spec.validate()?;
@@ -179,34 +179,40 @@ impl SearchSpec {
             }
             let positive = a.half.is_finite() && a.step.is_finite() && a.half > 0.0 && a.step > 0.0;
             if !positive {
-                return Err(Error::Invalid(format!(
-                    "--search {name}={}:{}: half range and step must be positive",
-                    a.half, a.step
-                )));
+                return Err(LocalizeError::SearchNotPositive {
+                    axis: name,
+                    half: a.half,
+                    step: a.step,
+                }
+                .into());
             }
             if a.half > limits[i] {
-                return Err(Error::Invalid(format!(
-                    "--search {name}: half range {} exceeds the limit {} (not a refinement)",
-                    a.half, limits[i]
-                )));
+                return Err(LocalizeError::SearchTooWide {
+                    axis: name,
+                    half: a.half,
+                    limit: limits[i],
+                }
+                .into());
             }
             if a.step > a.half {
-                return Err(Error::Invalid(format!(
-                    "--search {name}: step {} larger than the half range {}",
-                    a.step, a.half
-                )));
+                return Err(LocalizeError::SearchStep {
+                    axis: name,
+                    step: a.step,
+                    half: a.half,
+                }
+                .into());
             }
         }
         let cells = self.grid().cells();
         if cells <= 1 {
-            return Err(Error::Invalid(
-                "--search: every axis is held: nothing to search".into(),
-            ));
+            return Err(LocalizeError::SearchHeld.into());
         }
         if cells > MAX_CELLS {
-            return Err(Error::Invalid(format!(
-                "--search: {cells} grid cells, more than the limit {MAX_CELLS}"
-            )));
+            return Err(LocalizeError::SearchCells {
+                cells,
+                limit: MAX_CELLS,
+            }
+            .into());
         }
         Ok(())
     }
@@ -354,9 +360,7 @@ impl std::str::FromStr for Mode {
         match s {
             "tiled" => Ok(Mode::Tiled),
             "exhaustive" => Ok(Mode::Exhaustive),
-            _ => Err(Error::Invalid(format!(
-                "--mode {s:?}: expected tiled or exhaustive"
-            ))),
+            _ => Err(super::choice("mode", s, "tiled or exhaustive")),
         }
     }
 }

@@ -11,6 +11,7 @@
 // Small fixed-size matrices (6×6) indexed by row and column read as the formulas do.
 #![allow(clippy::needless_range_loop)]
 
+use crate::localize::error::InformationError;
 use crate::localize::mi::smooth::Smooth;
 use crate::pose::CamFromMap;
 use nalgebra::{DMatrix, DVector, Rotation3, Vector3};
@@ -78,7 +79,7 @@ pub fn information(
     est: &Smooth<'_>,
     pose: &CamFromMap,
     free: &[bool; 6],
-) -> Result<Information, String> {
+) -> Result<Information, InformationError> {
     information_with_step(est, pose, free, &HESSIAN_STEP)
 }
 
@@ -89,14 +90,14 @@ pub fn information_with_step(
     pose: &CamFromMap,
     free: &[bool; 6],
     step: &[f64; 6],
-) -> Result<Information, String> {
+) -> Result<Information, InformationError> {
     let h = est.hessian(pose, free, step);
     let idx: Vec<usize> = (0..6).filter(|&k| free[k]).collect();
     let n = est.n();
     let d = idx.len();
     let info = DMatrix::from_fn(d, d, |i, j| -(n as f64) * h[idx[i]][idx[j]]);
     if !info.iter().all(|v| v.is_finite()) {
-        return Err("information: the MI Hessian is not finite".into());
+        return Err(InformationError::NotFinite { what: "MI Hessian" });
     }
     let (axes, minv) = reported_axes(pose, free)?;
     let Some(chol) = info.clone().cholesky() else {
@@ -108,10 +109,10 @@ pub fn information_with_step(
         let k = eig.eigenvalues.imin();
         let theta = &scale * eig.eigenvectors.column(k);
         let along = upward_direction(&(&minv * theta), &axes, step);
-        return Err(format!(
-            "information: the MI Hessian is not negative definite over the free axes (no basin along {along}; largest curvature {:.3e})",
-            -min_eig
-        ));
+        return Err(InformationError::NoBasin {
+            along,
+            curvature: -min_eig,
+        });
     };
     let cov_theta = chol.inverse();
     // The sandwich over θ: A⁻¹·B·A⁻¹ = (N·A)⁻¹ (N²·B) (N·A)⁻¹ with N·A the information above.
@@ -136,18 +137,22 @@ pub fn information_with_step(
         (est.views() >= FRAME_CLUSTERS_MIN).then(|| sandwich(&est.view_gradients(pose)));
     let cov = &minv * cov_theta * minv.transpose();
     if !cov.iter().all(|v| v.is_finite()) {
-        return Err("information: the covariance is not finite".into());
+        return Err(InformationError::NotFinite { what: "covariance" });
     }
     let sw = &minv * sandwich_theta * minv.transpose();
     if !sw.iter().all(|v| v.is_finite()) {
-        return Err("information: the sandwich covariance is not finite".into());
+        return Err(InformationError::NotFinite {
+            what: "sandwich covariance",
+        });
     }
     let frame = frame_theta.map(|f| &minv * f * minv.transpose());
     if frame
         .as_ref()
         .is_some_and(|f| !f.iter().all(|v| v.is_finite()))
     {
-        return Err("information: the frame-clustered covariance is not finite".into());
+        return Err(InformationError::NotFinite {
+            what: "frame-clustered covariance",
+        });
     }
     let sigma_of = |m: &DMatrix<f64>| -> Vec<f64> {
         (0..axes.len()).map(|i| m[(i, i)].max(0.0).sqrt()).collect()
@@ -190,7 +195,7 @@ pub fn information_with_step(
 fn reported_axes(
     pose: &CamFromMap,
     free: &[bool; 6],
-) -> Result<(Vec<&'static str>, DMatrix<f64>), String> {
+) -> Result<(Vec<&'static str>, DMatrix<f64>), InformationError> {
     let idx: Vec<usize> = (0..6).filter(|&k| free[k]).collect();
     let tilt = free[3] || free[4];
     let axes: Vec<&str> = if tilt {
@@ -214,14 +219,13 @@ fn reported_axes(
     }
     let m_free = DMatrix::from_fn(idx.len(), axes.len(), |i, j| m[(idx[i], j)]);
     if m_free.nrows() != m_free.ncols() {
-        return Err(format!(
-            "information: {} free parameters but {} reported axes",
-            idx.len(),
-            axes.len()
-        ));
+        return Err(InformationError::Axes {
+            free: idx.len(),
+            axes: axes.len(),
+        });
     }
     let Some(minv) = m_free.try_inverse() else {
-        return Err("information: the axes' Jacobian is singular".into());
+        return Err(InformationError::SingularAxes);
     };
     Ok((axes, minv))
 }

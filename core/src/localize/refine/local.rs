@@ -7,6 +7,7 @@
 
 use super::ascent::{ascend_with, Ascent, AscentConfig};
 use super::information::{information, information_covariance, Information, HESSIAN_STEP};
+use crate::localize::error::InformationError;
 use crate::localize::mi::smooth::Smooth;
 use crate::pose::CamFromMap;
 use serde::Serialize;
@@ -22,7 +23,7 @@ pub struct SmoothRefinement {
     /// MI per histogram at the answer (one, or one per pair).
     pub mi: Vec<f64>,
     /// The Cramér–Rao covariance at the answer, or why there is none.
-    pub information: std::result::Result<Information, String>,
+    pub information: std::result::Result<Information, InformationError>,
     /// The grid search's gate verdict (its reason when it refused).
     pub grid_reason: Option<String>,
 }
@@ -281,7 +282,7 @@ fn climb(
     pose: &mut CamFromMap,
     ascents: &mut Vec<Ascent>,
     r: &mut super::rounds::Refinement,
-) -> crate::error::Result<(std::result::Result<Information, String>, Vec<f64>)> {
+) -> crate::error::Result<(std::result::Result<Information, InformationError>, Vec<f64>)> {
     let pooling = local.mi.pooling;
     let mut last = None;
     for _ in 0..ASCENT_ROUNDS {
@@ -318,9 +319,9 @@ fn climb(
     }
     Ok(last.unwrap_or_else(|| {
         (
-            Err(format!(
-                "the gradient ascent still ended on its box's edge after {ASCENT_ROUNDS} rounds"
-            )),
+            Err(InformationError::OnEdge {
+                rounds: ASCENT_ROUNDS,
+            }),
             Vec::new(),
         )
     }))

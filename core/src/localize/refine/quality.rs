@@ -21,6 +21,7 @@
 // Axis-indexed loops over parallel fixed-size arrays ([_; 6]) read clearer with the index.
 #![allow(clippy::needless_range_loop)]
 
+use crate::localize::error::{InformationError, QualityConfigError, Refusal};
 use crate::localize::mi::objective::Evaluator;
 use crate::localize::mi::objective::Scored;
 use crate::localize::mi::space::{Cell, AXES};
@@ -94,7 +95,7 @@ impl Default for QualityConfig {
 
 impl QualityConfig {
     /// Check the values a config file may set; the message names the key.
-    pub fn validate(&self) -> std::result::Result<(), String> {
+    pub fn validate(&self) -> std::result::Result<(), QualityConfigError> {
         let positive = [
             ("max-sigma-xy-m", self.max_sigma_xy_m),
             ("max-sigma-z-m", self.max_sigma_z_m),
@@ -103,7 +104,7 @@ impl QualityConfig {
         ];
         for (key, v) in positive {
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{key} = {v}: must be a positive finite number"));
+                return Err(QualityConfigError::NotPositive { key, value: v });
             }
         }
         let fractions = [
@@ -113,22 +114,21 @@ impl QualityConfig {
         ];
         for (key, v) in fractions {
             if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
-                return Err(format!("{key} = {v}: must lie in 0..1"));
+                return Err(QualityConfigError::NotFraction { key, value: v });
             }
         }
         if !(1..=1000).contains(&self.profile_half_steps)
             || !(1..=self.profile_half_steps).contains(&self.fit_half_steps)
         {
-            return Err(format!(
-                "profile-half-steps = {} / fit-half-steps = {}: need 1 <= fit <= profile <= 1000",
-                self.profile_half_steps, self.fit_half_steps
-            ));
+            return Err(QualityConfigError::HalfSteps {
+                profile: self.profile_half_steps,
+                fit: self.fit_half_steps,
+            });
         }
         if !(0..=1000).contains(&self.min_basin_steps) {
-            return Err(format!(
-                "min-basin-steps = {}: must lie in 0..1000",
-                self.min_basin_steps
-            ));
+            return Err(QualityConfigError::BasinSteps {
+                value: self.min_basin_steps,
+            });
         }
         Ok(())
     }
@@ -186,6 +186,21 @@ pub enum GateCheck {
     /// The marginal uncertainty (applied after the checks above passed): no peak over all free
     /// axes together, a covariance that is not finite, or a σ over its limit.
     Uncertain,
+}
+
+impl Refusal {
+    /// The gate's check that gives this refusal.
+    pub fn check(&self) -> GateCheck {
+        match self {
+            Refusal::TooFewPoints { .. } => GateCheck::TooFewPoints,
+            Refusal::PointsLost { .. } => GateCheck::PointsLost,
+            Refusal::OnEdge { .. } => GateCheck::OnEdge,
+            Refusal::NoBasin { .. } => GateCheck::NoBasin,
+            Refusal::NoPeak { .. } => GateCheck::NoPeak,
+            Refusal::Ambiguous { .. } => GateCheck::Ambiguous,
+            Refusal::NoInformation { .. } | Refusal::Sigma { .. } => GateCheck::Uncertain,
+        }
+    }
 }
 
 /// Quality of one result.
@@ -333,7 +348,7 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
     };
     let refusal = gate(ev, res, cfg, &axes, &basin_cells, contrast.zip(offset));
     let (refused_by, reason) = match refusal {
-        Some((check, why)) => (Some(check), Some(why)),
+        Some(r) => (Some(r.check()), Some(r.to_string())),
         None => (None, None),
     };
     Quality {
@@ -486,7 +501,7 @@ fn second_peak<'a>(
     (second, path_poses)
 }
 
-/// The gate: the first failing check and its one-line reason, or `None` when the optimum passes.
+/// The gate: the first failing check, or `None` when the optimum passes.
 /// `second` is the second peak's contrast and offset from the optimum.
 fn gate(
     ev: &Evaluator,
@@ -495,34 +510,23 @@ fn gate(
     axes: &[AxisQuality],
     basin_cells: &[[i64; 2]; 6],
     second: Option<(f64, [f64; 6])>,
-) -> Option<(GateCheck, String)> {
+) -> Option<Refusal> {
     if ev.n_points < cfg.min_points {
-        return Some((
-            GateCheck::TooFewPoints,
-            format!(
-                "only {} points seen from every pose of the search box (< {})",
-                ev.n_points, cfg.min_points
-            ),
-        ));
+        return Some(Refusal::TooFewPoints {
+            points: ev.n_points,
+            min: cfg.min_points,
+        });
     }
     if res.stats.max_lost_fraction > cfg.max_lost_fraction {
-        return Some((
-            GateCheck::PointsLost,
-            format!(
-                "{:.1}% of the fixed point set left the image at some pose (> {:.1}%)",
-                100.0 * res.stats.max_lost_fraction,
-                100.0 * cfg.max_lost_fraction
-            ),
-        ));
+        return Some(Refusal::PointsLost {
+            lost: res.stats.max_lost_fraction,
+            max: cfg.max_lost_fraction,
+        });
     }
     if let Some(a) = axes.iter().find(|a| a.on_edge) {
-        return Some((
-            GateCheck::OnEdge,
-            format!(
-                "optimum on the search box's {} edge: the true optimum may lie outside; widen --search",
-                a.axis
-            ),
-        ));
+        return Some(Refusal::OnEdge {
+            axis: a.axis.to_string(),
+        });
     }
     if let Some((a, cells)) = axes
         .iter()
@@ -532,35 +536,26 @@ fn gate(
         })
         .find(|(_, cells)| *cells < cfg.min_basin_steps)
     {
-        return Some((
-            GateCheck::NoBasin,
-            format!(
-                "no basin along {}: the objective rises again {cells} step(s) from the optimum (< {}), a spike rather than an alignment peak",
-                a.axis, cfg.min_basin_steps
-            ),
-        ));
+        return Some(Refusal::NoBasin {
+            axis: a.axis.to_string(),
+            cells,
+            min: cfg.min_basin_steps,
+        });
     }
     if let Some(a) = axes.iter().find(|a| !(a.curvature > 0.0)) {
-        return Some((
-            GateCheck::NoPeak,
-            format!(
-                "no peak along {}: MI curvature {:.3e} nats/{}² is not negative-definite",
-                a.axis, a.curvature, a.unit
-            ),
-        ));
+        return Some(Refusal::NoPeak {
+            axis: a.axis.to_string(),
+            curvature: a.curvature,
+            unit: a.unit.to_string(),
+        });
     }
     let (c, o) = second?;
     let a = res.offsets;
-    (c > cfg.max_second_peak_contrast).then(|| {
-        (
-            GateCheck::Ambiguous,
-            format!(
-                "ambiguous: two separate peaks, the optimum at ({:+.2} m, {:+.2} m, {:+.2} m, {:+.2}°) from the start and a second at ({:+.2} m, {:+.2} m, {:+.2} m, {:+.2}°), offset ({:.2} m, {:.2} m, {:.2} m, {:.2}°) from it, reaching {:.0}% of the optimum's height above background (> {:.0}%)",
-                a[0], a[1], a[2], a[3],
-                a[0] + o[0], a[1] + o[1], a[2] + o[2], a[3] + o[3],
-                o[0], o[1], o[2], o[3], 100.0 * c, 100.0 * cfg.max_second_peak_contrast
-            ),
-        )
+    (c > cfg.max_second_peak_contrast).then(|| Refusal::Ambiguous {
+        optimum: [a[0], a[1], a[2], a[3]],
+        second: [o[0], o[1], o[2], o[3]],
+        contrast: c,
+        max: cfg.max_second_peak_contrast,
     })
 }
 
@@ -570,7 +565,10 @@ fn gate(
 /// `judged`: `judged_sigma` of the local stage of `information` when it is `Ok` (unread otherwise).
 pub(crate) fn smooth_gate(
     q: &mut Quality,
-    information: &std::result::Result<crate::localize::refine::information::Information, String>,
+    information: &std::result::Result<
+        crate::localize::refine::information::Information,
+        InformationError,
+    >,
     judged: &[f64],
     qcfg: &QualityConfig,
     optima: Option<&crate::localize::refine::optima::Optima>,
@@ -588,12 +586,13 @@ pub(crate) fn smooth_gate(
         q.refused_by = None;
         match information {
             Err(m) => {
+                let refusal = Refusal::NoInformation {
+                    information: m.clone(),
+                    optima: optima.and_then(|o| o.describe()),
+                };
                 q.accepted = false;
-                q.reason = Some(match optima.and_then(|o| o.describe()) {
-                    Some(d) => format!("{m}; {d}"),
-                    None => m.clone(),
-                });
-                q.refused_by = Some(GateCheck::Uncertain);
+                q.reason = Some(refusal.to_string());
+                q.refused_by = Some(refusal.check());
             }
             Ok(info) => {
                 let limit = |axis: &str| match axis {
@@ -613,21 +612,20 @@ pub(crate) fn smooth_gate(
                     .find(|(i, (lim, _))| !(judged[*i] <= *lim))
                 {
                     let axis = &info.axes[i];
+                    let refusal = Refusal::Sigma {
+                        axis: axis.clone(),
+                        sigma: judged[i],
+                        unit: info.units[i].clone(),
+                        limit_key: key,
+                        limit: lim,
+                        information_sigma: info.sigma[i],
+                        sandwich_sigma: info.sandwich_sigma[i],
+                        frame_sigma: info.frame_sigma.as_ref().map(|f| f[i]),
+                        optima: optima.and_then(|o| o.describe().map(|d| (o.sigma(axis), d))),
+                    };
                     q.accepted = false;
-                    q.reason = Some(format!(
-                        "σ {axis} {:.4} {} over the limit {key}={lim} (information σ {:.4}, sandwich σ {:.4}{}{})",
-                        judged[i],
-                        info.units[i],
-                        info.sigma[i],
-                        info.sandwich_sigma[i],
-                        info.frame_sigma
-                            .as_ref()
-                            .map_or(String::new(), |f| format!(", frame σ {:.4}", f[i])),
-                        optima
-                            .and_then(|o| o.describe().map(|d| (o.sigma(axis), d)))
-                            .map_or(String::new(), |(s, d)| format!(", optima σ {s:.4}; {d}"))
-                    ));
-                    q.refused_by = Some(GateCheck::Uncertain);
+                    q.reason = Some(refusal.to_string());
+                    q.refused_by = Some(refusal.check());
                 }
             }
         }

@@ -3,6 +3,7 @@
 //! `5mp`-like Mei scene.
 
 use super::*;
+use crate::localize::error::SelfTestError;
 
 /// Which copy of the projection [`accumulate`] runs on this CPU: `neon` (aarch64: the explicit
 /// NEON copy of the Mei projection), `avx2+fma` (x86-64 with both, detected at run time) or
@@ -125,7 +126,7 @@ pub struct SelfTest {
 /// histograms and visibility to the plain reference loop ([`accumulate_reference`]) on a `5mp`
 /// Mei camera, `poses` poses. `Err` names the first pose that differs. Run by the unit tests and
 /// by `infraloc self-test` (which CI runs on the aarch64 binary under qemu).
-pub fn self_test(poses: usize) -> std::result::Result<SelfTest, String> {
+pub fn self_test(poses: usize) -> std::result::Result<SelfTest, SelfTestError> {
     let cam = test_camera_mei();
     let (pts, img, origin) = test_scene(&cam);
     let fc = FastCamera::new(&cam, 0);
@@ -139,10 +140,11 @@ pub fn self_test(poses: usize) -> std::result::Result<SelfTest, String> {
         accumulate(&pts, p, &fc, &img, &mut a, &mut s1);
         accumulate_reference(&pts, p, &fc, &img, &mut b, &mut s2);
         if a != b {
-            return Err(format!(
-                "pose {j}: {} histogram differs from the reference",
-                kernel_path()
-            ));
+            return Err(SelfTestError::Kernel {
+                pose: j,
+                path: kernel_path(),
+                what: "histogram",
+            });
         }
         visible(&pts, p, &fc, &img, 32, &mut v1);
         if fused() {
@@ -151,10 +153,11 @@ pub fn self_test(poses: usize) -> std::result::Result<SelfTest, String> {
             visible_impl::<false, false>(&pts, p, &fc, &img, 32, &mut v2);
         }
         if v1 != v2 {
-            return Err(format!(
-                "pose {j}: {} visibility differs from the reference",
-                kernel_path()
-            ));
+            return Err(SelfTestError::Kernel {
+                pose: j,
+                path: kernel_path(),
+                what: "visibility",
+            });
         }
         all.iter_mut().zip(&v2).for_each(|(k, &v)| *k &= v);
         seen += a.valid_count();
@@ -163,13 +166,16 @@ pub fn self_test(poses: usize) -> std::result::Result<SelfTest, String> {
     let mut got = vec![true; pts.len()];
     visible_from_all(&pts, 0, &ps, &fc, &img, 32, &mut got);
     if got != all {
-        return Err("all-poses visibility differs from the reference".into());
+        return Err(SelfTestError::AllPoses);
     }
     // The scene must exercise both outcomes, or the comparison proves little.
     if seen == 0 || lost == 0 {
-        return Err(format!(
-            "degenerate scene: {seen} valid, {lost} invalid samples"
-        ));
+        return Err(SelfTestError::Degenerate {
+            seen,
+            seen_word: "valid",
+            lost,
+            lost_word: "invalid samples",
+        });
     }
     Ok(SelfTest {
         path: kernel_path(),

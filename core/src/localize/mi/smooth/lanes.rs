@@ -707,7 +707,10 @@ pub struct LanesTest {
 /// the reference's, over `poses` poses of the nearest-pixel kernel's self-test scene (a `5mp` Mei
 /// camera; points behind and past the 92.5° limit included). `Err` names the first pose (and
 /// point) that differs.
-pub fn self_test(poses: usize) -> std::result::Result<LanesTest, String> {
+pub fn self_test(
+    poses: usize,
+) -> std::result::Result<LanesTest, crate::localize::error::SelfTestError> {
+    use crate::localize::error::SelfTestError;
     use crate::localize::mi::kernel::selftest::{test_camera_mei, test_pose_f64, test_scene};
     let cam = test_camera_mei();
     let (pts, img, origin) = test_scene(&cam);
@@ -718,12 +721,13 @@ pub fn self_test(poses: usize) -> std::result::Result<LanesTest, String> {
         for c0 in (0..pts.len()).step_by(CHUNK) {
             let e = (c0 + CHUNK).min(pts.len());
             let (xs, ys, zs) = (&pts.x[c0..e], &pts.y[c0..e], &pts.z[c0..e]);
-            let differs = |what: &str, (i, copy): (usize, &str)| {
-                format!(
-                    "pose {j}, point {}: the {copy} PV {what} differs from the reference",
-                    c0 + i
-                )
-            };
+            let differs =
+                |what: &'static str, (i, copy): (usize, &'static str)| SelfTestError::Lanes {
+                    pose: j,
+                    point: c0 + i,
+                    copy,
+                    what,
+                };
             let visible = same_chunks::<UvChunk>(&proj, &rt, xs, ys, zs)
                 .map_err(|e| differs("projection", e))?;
             same_chunks::<JacChunk>(&proj, &rt, xs, ys, zs).map_err(|e| differs("Jacobian", e))?;
@@ -732,7 +736,12 @@ pub fn self_test(poses: usize) -> std::result::Result<LanesTest, String> {
         }
     }
     if seen == 0 || lost == 0 {
-        return Err(format!("degenerate scene: {seen} visible, {lost} not"));
+        return Err(SelfTestError::Degenerate {
+            seen: seen as u64,
+            seen_word: "visible",
+            lost: lost as u64,
+            lost_word: "not",
+        });
     }
     // And the estimator built on them: its value, MI and gradient at every pose, bit for bit.
     let (fast, reference) = (estimator(&cam, &pts, &img), estimator(&cam, &pts, &img));
@@ -740,10 +749,10 @@ pub fn self_test(poses: usize) -> std::result::Result<LanesTest, String> {
     for j in 0..poses {
         let pose = test_pose_f64(j);
         if fast.evaluate(&pose, true) != reference.evaluate(&pose, true) {
-            return Err(format!(
-                "pose {j}: the PV value or gradient with the {} projection differs from the reference",
-                lanes_path()
-            ));
+            return Err(SelfTestError::LanesEstimator {
+                pose: j,
+                path: lanes_path(),
+            });
         }
     }
     Ok(LanesTest {
