@@ -70,16 +70,17 @@ def row(kind, how, ts):
     sigmas = " / ".join(
         f"{median([t['sigma'][a] * (100 if a != 'yaw' else 1) for t in sig]):.3g}"
         if sig else "-" for a in AXES)
-    hor = [t["horizontal_m"] * 100 for t in acc]
-    g = f"{median(ground):.2f} / {p95(ground):.2f}" if ground else "-"
-    h = f"{median(hor):.2f} / {p95(hor):.2f}" if hor else "-"
-    print(f"| {kind} | {how} | {len(acc)} / {len(ts)} | {g} | {h} | {sigmas} | {cov} |")
+    spread = lambda v: f"{median(v):.2f} / {p95(v):.2f}" if v else "-"
+    g = spread(ground)
+    h = spread([t["horizontal_m"] * 100 for t in ts])
+    ha = spread([t["horizontal_m"] * 100 for t in acc])
+    print(f"| {kind} | {how} | {len(acc)} / {len(ts)} | {g} | {h} | {ha} | {sigmas} | {cov} |")
     return sig
 
 print(f"seeds {first}–{last}, K = {k}")
-print("| scenes | frames | accepted / run | ground median / p95 (cm, accepted) | horizontal median / p95 (cm, accepted) "
-      "| median σ x, y, z (cm), yaw (°) | 3σ coverage x/y/z/yaw (%) |")
-print("|---|---|---|---|---|---|---|")
+print("| scenes | frames | accepted / run | ground median / p95 (cm, accepted) | horizontal median / p95 (cm, all) "
+      "| horizontal (cm, accepted) | median σ x, y, z (cm), yaw (°), accepted | 3σ coverage x/y/z/yaw (%) |")
+print("|---|---|---|---|---|---|---|---|")
 for kind, name in (("f", "fisheye, hard, low sun"), ("g", "gantry perspective")):
     single, pooled = trials(kind, "single"), trials(kind, "pooled")
     if not single:
