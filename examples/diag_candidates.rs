@@ -176,6 +176,8 @@ fn scene_and_prior() -> (sim::Scene, (f64, f64, f64)) {
         lens: Lens::Mei,
         frames: 5,
         intrinsics: Default::default(),
+        times: 1,
+        low_sun: false,
     })
     .unwrap();
     let tmp = tempfile::tempdir().unwrap();

@@ -87,6 +87,8 @@ fn main() {
             lens: Lens::Mei,
             frames,
             intrinsics: Default::default(),
+            times: 1,
+            low_sun: false,
         };
         match run_seed(&settings, true_intrinsics) {
             Ok(r) => {

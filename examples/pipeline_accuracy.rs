@@ -152,6 +152,8 @@ fn settings(o: &Opts, seed: u64) -> Settings {
         } else {
             GivenIntrinsics::Calibrated
         },
+        times: 1,
+        low_sun: false,
     }
 }
 

@@ -354,7 +354,7 @@ pub(crate) fn run_pooled(
     let earlier_frames = earlier
         .iter()
         .map(|f| Frame::new(&camera, f.image.as_raw()))
-        .collect::<Result<Vec<_>>>()?;
+        .collect::<std::result::Result<Vec<_>, _>>()?;
     let outcome = localize_pooled(
         &Frame::new(&camera, image.as_raw())?,
         &earlier_frames,

@@ -169,10 +169,7 @@ impl FrameStore {
         let mut png = Vec::new();
         image
             .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-            .map_err(|e| Error::Input {
-                path: path.display().to_string(),
-                msg: format!("cannot encode the frame as PNG: {e}"),
-            })?;
+            .map_err(|e| Error::input(&path, format!("cannot encode the frame as PNG: {e}")))?;
         crate::persist::write_atomic(&path, &png)?;
         Ok(self.enforce(&path, unix_s))
     }

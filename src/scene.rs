@@ -128,3 +128,55 @@ pub(crate) fn load_perspective(dir: &Path) -> Result<PerspectiveFiles> {
         truth,
     })
 }
+
+/// The captures of a day (`simulate --times K`): the temporal median of each time's burst, in
+/// time order, as truth.json's `acquisition.times` lists them. A scene of one capture has none:
+/// the error names the directory and the flag that makes them.
+pub(crate) fn load_times(dir: &Path, camera: &Camera) -> Result<Vec<GrayImage>> {
+    let tp = dir.join("truth.json");
+    let text = std::fs::read_to_string(&tp).map_err(|e| Error::io(&tp, e))?;
+    let doc: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| Error::input(&tp, e.to_string()))?;
+    let medians: Vec<&str> = doc["acquisition"]["times"]
+        .as_array()
+        .map(|ts| ts.iter().filter_map(|t| t["median"].as_str()).collect())
+        .unwrap_or_default();
+    if medians.is_empty() {
+        return Err(Error::input(
+            &tp,
+            "no acquisition.times: a scene of one capture (simulate it with --times K)",
+        ));
+    }
+    medians
+        .iter()
+        .map(|m| {
+            let p = dir.join(m);
+            let g = crate::capture::load_gray(&p)?;
+            same_size(&g, camera, &p, "camera.yaml")?;
+            Ok(g)
+        })
+        .collect()
+}
+
+/// The gantry's captures of a day (`simulate --preset gantry --times K`): each time's first
+/// perspective frame and the sweep taken with it, from perspective/pairs_times.tsv.
+pub(crate) fn load_perspective_times(
+    dir: &Path,
+    camera: &Camera,
+) -> Result<Vec<(GrayImage, Vec<crate::map::GroundPoint>)>> {
+    let pairs = dir.join("perspective").join("pairs_times.tsv");
+    if !pairs.is_file() {
+        return Err(Error::input(
+            &pairs,
+            "not found: a gantry scene of one capture (simulate it with --times K)",
+        ));
+    }
+    crate::cli::pairs::read(&pairs)?
+        .iter()
+        .map(|(image, points)| {
+            let g = crate::capture::load_gray(image)?;
+            same_size(&g, camera, image, "perspective/camera.yaml")?;
+            Ok((g, crate::points_io::read_points(points)?))
+        })
+        .collect()
+}

@@ -56,6 +56,8 @@ pub fn hard_settings(
         lens: infraloc::sim::Lens::Mei,
         frames: 5,
         intrinsics,
+        times: 1,
+        low_sun: false,
     }
 }
 

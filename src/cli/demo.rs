@@ -84,6 +84,8 @@ pub(super) fn run(a: Args) -> Result<()> {
         difficulty: a.difficulty,
         lens: LensArg::Mei,
         frames: 5,
+        times: 1,
+        low_sun: false,
         given_intrinsics: super::simulate::IntrinsicsArg::Calibrated,
         montage: None,
         lidar_laz: None,

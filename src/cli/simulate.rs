@@ -73,9 +73,20 @@ pub struct Args {
     /// Lens model of the simulated camera.
     #[arg(long, value_enum, default_value = "mei")]
     pub lens: LensArg,
-    /// Number of fisheye frames.
+    /// Number of fisheye frames (of each time, with --times).
     #[arg(long, default_value_t = 5)]
     pub frames: u32,
+    /// Capture the scene at K times of one day (1..=24), each a burst of --frames under that
+    /// time's sun, with its own shadows, traffic and sensor noise; pose, map tile and LiDAR stay
+    /// the same. Writes times/NN/ (the bursts), times/NN.png (their temporal medians) and each
+    /// time's UTC and sun in truth.json; frames/ is the first time's burst (docs/simulator.md,
+    /// "Times of day").
+    #[arg(long, value_name = "K", default_value_t = 1)]
+    pub times: u32,
+    /// Keep the sun 8–25° up at every time (a day near the winter solstice): long shadows all
+    /// day. The gantry preset's times always have a low sun.
+    #[arg(long)]
+    pub low_sun: bool,
     /// How a `hard` scene's camera.yaml is made (`easy` gets the true intrinsics): the product's
     /// calibrator run on 16 rendered checkerboard views of the true camera, which leaves the
     /// error a real install has, or a drawn offset from the true ones (docs/simulator.md).
@@ -136,6 +147,8 @@ impl Args {
                 IntrinsicsArg::Offset => GivenIntrinsics::Offset,
                 IntrinsicsArg::Calibrated => GivenIntrinsics::Calibrated,
             },
+            times: self.times,
+            low_sun: self.low_sun,
         }
     }
 }
@@ -156,8 +169,12 @@ pub(super) fn run(a: Args) -> Result<()> {
             .save(m)
             .map_err(|e| Error::Invalid(format!("{}: {e}", m.display())))?;
     }
+    let times = match scene.times.len() {
+        0 | 1 => String::new(),
+        k => format!(" at each of {k} times"),
+    };
     println!(
-        "simulate: wrote {} ({} frames, {} control points, tile {})",
+        "simulate: wrote {} ({} frames{times}, {} control points, tile {})",
         a.out.display(),
         scene.frames.len(),
         scene.control_points.len(),
@@ -177,16 +194,9 @@ pub(crate) fn frame_name(i: usize) -> String {
 
 /// Write the scene directory (docs/interfaces.md, "Scene directory") into `dir`.
 pub(super) fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
-    let frames_dir = dir.join("frames");
-    fs::create_dir_all(&frames_dir).map_err(|e| Error::io(&frames_dir, e))?;
     let (w, h) = scene.frame_size();
-    for (i, f) in scene.frames.iter().enumerate() {
-        let p = frames_dir.join(frame_name(i));
-        image::GrayImage::from_raw(w, h, f.clone())
-            .ok_or_else(|| Error::Invalid(format!("{}: frame buffer size", p.display())))?
-            .save(&p)
-            .map_err(|e| Error::Invalid(format!("{}: {e}", p.display())))?;
-    }
+    write_burst(&dir.join("frames"), w, h, &scene.frames)?;
+    write_times(scene, dir)?;
     let mut cam_yaml = crate::camera::import::to_opencv_yaml(&scene.camera_given);
     if let Some(s) = &scene.camera_sigma {
         cam_yaml.push_str(&s.yaml_lines());
@@ -237,12 +247,73 @@ const START_Z_M: f64 = 0.2;
 /// Largest yaw offset of start.json, degrees.
 const START_YAW_DEG: f64 = 1.5;
 
+/// One `w`×`h` gray frame as an image.
+fn gray(path: &Path, w: u32, h: u32, pixels: &[u8]) -> Result<image::GrayImage> {
+    image::GrayImage::from_raw(w, h, pixels.to_vec())
+        .ok_or_else(|| Error::Invalid(format!("{}: frame buffer size", path.display())))
+}
+
 /// Write one PNG frame of `w`×`h` gray pixels.
 fn write_png(path: &Path, w: u32, h: u32, pixels: &[u8]) -> Result<()> {
-    image::GrayImage::from_raw(w, h, pixels.to_vec())
-        .ok_or_else(|| Error::Invalid(format!("{}: frame buffer size", path.display())))?
+    gray(path, w, h, pixels)?
         .save(path)
         .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))
+}
+
+/// Write a burst as `dir`/000.png, 001.png, … (creating `dir`).
+fn write_burst(dir: &Path, w: u32, h: u32, frames: &[Vec<u8>]) -> Result<()> {
+    fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    for (i, f) in frames.iter().enumerate() {
+        write_png(&dir.join(frame_name(i)), w, h, f)?;
+    }
+    Ok(())
+}
+
+/// A day's captures (docs/simulator.md, "Times of day"): each time's burst in times/NN/ and its
+/// temporal median, what a node keeps of a run, in times/NN.png; with a gantry also its
+/// perspective frames, its sweeps and perspective/pairs_times.tsv, which pairs each time's first
+/// perspective frame with the sweep taken with it.
+fn write_times(scene: &Scene, dir: &Path) -> Result<()> {
+    let (w, h) = scene.frame_size();
+    let mut pairs = Vec::new();
+    for (t, c) in scene.times.iter().enumerate() {
+        let tdir = dir.join(sim::time_dir(t));
+        write_burst(&tdir, w, h, &c.frames)?;
+        let burst = c
+            .frames
+            .iter()
+            .map(|f| gray(&tdir, w, h, f))
+            .collect::<Result<Vec<_>>>()?;
+        let mp = dir.join(sim::time_median(t));
+        crate::capture::temporal_median(&burst)
+            .map_err(|e| Error::Invalid(format!("{}: {e}", mp.display())))?
+            .save(&mp)
+            .map_err(|e| Error::Invalid(format!("{}: {e}", mp.display())))?;
+        if let Some(g) = &scene.gantry {
+            let cam = &g.rig.camera;
+            let pdir = dir.join("perspective").join(sim::time_dir(t));
+            write_burst(&pdir, cam.width(), cam.height(), &c.perspective)?;
+            let ldir = dir.join("lidar").join(sim::time_dir(t));
+            fs::create_dir_all(&ldir).map_err(|e| Error::io(&ldir, e))?;
+            for (i, s) in c.sweeps.iter().enumerate() {
+                write(&ldir.join(format!("{i:03}.pcd")), sim::gantry::to_pcd(s))?;
+            }
+            pairs.push((
+                PathBuf::from(sim::time_dir(t)).join(frame_name(0)),
+                PathBuf::from("../lidar")
+                    .join(sim::time_dir(t))
+                    .join("000.pcd"),
+            ));
+        }
+    }
+    if scene.gantry.is_some() && !pairs.is_empty() {
+        fs::create_dir_all(dir.join("perspective")).map_err(|e| Error::io(dir, e))?;
+        write(
+            &dir.join("perspective").join("pairs_times.tsv"),
+            super::pairs::format(&pairs),
+        )?;
+    }
+    Ok(())
 }
 
 /// A pose file of the truth (stage `truth`) with the camera's intrinsics.

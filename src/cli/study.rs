@@ -12,7 +12,7 @@ use crate::eval::study::{
 use crate::localize::mi::space::{SearchConfig, SearchSpec};
 use crate::localize::refine::quality::QualityConfig;
 use crate::localize::refine::{finish_name, PolishedSearch};
-use crate::scene::{load_perspective, load_scene};
+use crate::scene::{load_perspective, load_perspective_times, load_scene, load_times};
 use serde_json::json;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -64,6 +64,12 @@ pub struct Args {
     /// sweep, with the truth in the LiDAR frame.
     #[arg(long, value_enum, default_value = "fisheye")]
     pub sensor: Sensor,
+    /// Pool every time of day of the scene (`simulate --times K`), one histogram each (as
+    /// `refine --pooling per-pair`): the fisheye's burst medians times/NN.png against the tile,
+    /// or the perspective camera's first frame of each time against the sweep taken with it
+    /// (perspective/pairs_times.tsv). Without it the trials refine the first time alone.
+    #[arg(long)]
+    pub times: bool,
     /// The MI estimator, as `refine`'s flags.
     #[command(flatten)]
     pub estimator: super::estimator::EstimatorArgs,
@@ -101,21 +107,34 @@ pub(super) fn run(a: Args) -> Result<()> {
     };
     pert.validate()?;
     let spec: SearchSpec = a.search.parse()?;
-    let mi = a.estimator.config()?;
+    let mi = crate::localize::mi::MiConfig {
+        pooling: crate::localize::mi::smooth::Pooling::PerPair,
+        ..a.estimator.config()?
+    };
     let size = super::parse_size(&a.size)?;
     let cfg = SearchConfig {
         spec,
         mi,
         ..Default::default()
     };
-    let qcfg = QualityConfig::default();
     let sel = PointSelection::default();
-    let (camera, gray, truth, control, tile, points) = match a.sensor {
+    let (camera_yaml, truth_json) = match a.sensor {
+        Sensor::Fisheye => (a.scene.join("camera.yaml"), a.scene.join("truth.json")),
+        Sensor::Perspective => (
+            a.scene.join("perspective").join("camera.yaml"),
+            PathBuf::new(),
+        ),
+    };
+    let (camera, grays, truth, control, tile, points) = match a.sensor {
         Sensor::Fisheye => {
             let s = load_scene(&a.scene)?;
+            let grays = match a.times {
+                true => load_times(&a.scene, &s.camera)?,
+                false => vec![s.gray],
+            };
             (
                 s.camera,
-                s.gray,
+                grays,
                 s.truth,
                 Some(s.control),
                 Some(s.tile),
@@ -124,13 +143,29 @@ pub(super) fn run(a: Args) -> Result<()> {
         }
         Sensor::Perspective => {
             let p = load_perspective(&a.scene)?;
-            (p.camera, p.gray, p.truth, None, None, p.points)
+            let (grays, points) = match a.times {
+                true => load_perspective_times(&a.scene, &p.camera)?
+                    .into_iter()
+                    .unzip(),
+                false => (vec![p.gray], vec![p.points]),
+            };
+            (p.camera, grays, p.truth, None, None, points)
         }
+    };
+    // The σ the node would report: with the given intrinsics' stated uncertainty.
+    let qcfg = QualityConfig {
+        intrinsics_sigma: crate::camera::load_intrinsics_sigma(&camera_yaml)?,
+        ..QualityConfig::default()
+    };
+    let ground_truth = match control {
+        Some(_) => Some(crate::eval::truth::read_truth(&truth_json)?),
+        None => None,
     };
     let ground = match &tile {
         Some(t) => Ground::Tile(t),
         None => Ground::Points(&points),
     };
+    let gray_refs: Vec<&[u8]> = grays.iter().map(|g| g.as_raw().as_slice()).collect();
     let camera = &camera;
     let base = match (a.attitude, control) {
         (Attitude::Truth, _) => truth,
@@ -147,11 +182,12 @@ pub(super) fn run(a: Args) -> Result<()> {
     let mask = camera.valid_mask();
     let sc = Scene {
         camera,
-        gray: gray.as_raw(),
+        grays: &gray_refs,
         mask: &mask,
         ground,
         truth: &truth,
         base: &base,
+        control: ground_truth.as_ref(),
     };
     let (_, bp, br) = base.yaw_pitch_roll();
     let (_, tp, tr) = truth.yaw_pitch_roll();
@@ -194,6 +230,7 @@ pub(super) fn run(a: Args) -> Result<()> {
         "seed": a.seed,
         "attitude": a.attitude,
         "sensor": a.sensor,
+        "images_pooled": grays.len(),
         "perturbation": pert,
         "search": a.search,
         "finish": finish_name(finish.as_ref()),

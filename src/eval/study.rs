@@ -158,6 +158,11 @@ pub(crate) struct Trial {
     /// for coverage.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sigma: Option<crate::pose::Sigma>,
+    /// Ground error of each control point under the final pose, metres (as the pipeline's
+    /// `ground` error: the true pixel cast through the given intrinsics onto the plane at the
+    /// point's true height); empty without control points.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub ground_m: Vec<f64>,
     /// Wall time of the refinement, seconds (the only field that varies between identical runs).
     pub seconds: f64,
 }
@@ -245,8 +250,9 @@ impl Summary {
 pub(crate) enum Ground<'a> {
     /// The map tile: each trial selects its points around its start, as the pipeline does.
     Tile(&'a Tile),
-    /// One fixed point set in the pose's frame (a LiDAR sweep from the camera's own mast).
-    Points(&'a [crate::map::GroundPoint]),
+    /// Fixed point sets in the pose's frame, one per image of the scene (a LiDAR sweep from the
+    /// camera's own mast, taken with the image).
+    Points(&'a [Vec<crate::map::GroundPoint>]),
 }
 
 /// What a study needs: the scene in memory.
@@ -254,8 +260,9 @@ pub(crate) enum Ground<'a> {
 pub(crate) struct Scene<'a> {
     /// Intrinsics given to the localizer.
     pub camera: &'a Camera,
-    /// Gray frame (camera size, row-major): the temporal median, as the pipeline uses.
-    pub gray: &'a [u8],
+    /// Gray frames (camera size, row-major), pooled with one histogram each when there are
+    /// several: a burst's temporal median, as the pipeline uses, or one per time of day.
+    pub grays: &'a [&'a [u8]],
     /// The camera's validity mask ([`crate::camera::CameraModel::valid_mask`]), computed once for
     /// all trials.
     pub mask: &'a [u8],
@@ -266,6 +273,8 @@ pub(crate) struct Scene<'a> {
     /// The pose the start offsets are applied to: the truth, or the truth with another roll and
     /// pitch (see [`attitude_from_control_points`]).
     pub base: &'a CamFromMap,
+    /// The control points the ground error is measured on (none: no ground error).
+    pub control: Option<&'a crate::eval::truth::Truth>,
 }
 
 /// The truth's centre and yaw with the roll and pitch of the 6-DoF least-squares fit of
@@ -324,15 +333,30 @@ pub(crate) fn run_trial(
         &[start[0], start[1], start[2], start[3], 0.0, 0.0],
     );
     let t0 = now();
-    let points = match scene.ground {
-        Ground::Tile(tile) => sel.points(tile, &init),
+    let tile_points = match scene.ground {
+        Ground::Tile(tile) => vec![sel.points(tile, &init)],
         Ground::Points(p) => p.to_vec(),
     };
-    let views = [View {
-        gray: scene.gray,
-        mask: scene.mask,
-        points: &points,
-    }];
+    if tile_points.len() != 1 && tile_points.len() != scene.grays.len() {
+        return Err(Error::command(
+            "study",
+            format!(
+                "{} images but {} point sets",
+                scene.grays.len(),
+                tile_points.len()
+            ),
+        ));
+    }
+    let views: Vec<View> = scene
+        .grays
+        .iter()
+        .enumerate()
+        .map(|(i, gray)| View {
+            gray,
+            mask: scene.mask,
+            points: &tile_points[i.min(tile_points.len() - 1)],
+        })
+        .collect();
     // As `infraloc refine`: the smooth estimator's local stage after the grid search, or the
     // grid's cell alone.
     let r = match finish {
@@ -369,6 +393,15 @@ pub(crate) fn run_trial(
         mi: r.quality.mi,
         points: r.points.1,
         sigma: r.quality.sigma,
+        ground_m: scene
+            .control
+            .map(|t| {
+                crate::eval::truth_eval::ground_hits(scene.camera, t, &r.pose)
+                    .iter()
+                    .map(|h| h.error_m)
+                    .collect()
+            })
+            .unwrap_or_default(),
         seconds,
     })
 }

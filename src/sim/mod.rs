@@ -9,6 +9,7 @@
 pub(crate) mod appearance;
 pub(crate) mod calibrated;
 pub mod checkerboard;
+pub mod day;
 pub mod gantry;
 pub(crate) mod gps;
 pub(crate) mod layers;
@@ -116,6 +117,21 @@ fn offset() -> GivenIntrinsics {
     GivenIntrinsics::Offset
 }
 
+/// A scene captured once, as truth.json files without `times` were.
+fn one() -> u32 {
+    1
+}
+
+/// `times` is left out of truth.json when 1, so a one-capture scene's file is what it was.
+fn is_one(n: &u32) -> bool {
+    *n == 1
+}
+
+/// `low_sun` is left out of truth.json when false.
+fn is_false(b: &bool) -> bool {
+    !*b
+}
+
 /// Generator settings.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -133,6 +149,13 @@ pub struct Settings {
     /// How `hard`'s given intrinsics are made (ignored by `easy`).
     #[serde(default = "offset")]
     pub intrinsics: GivenIntrinsics,
+    /// Times of day the scene is captured at, each a burst of `frames` (module [`day`]); 1 with
+    /// `low_sun` off is the single capture of a drawn sun.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub times: u32,
+    /// The sun at most 25° up at every time (a day near the winter solstice).
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub low_sun: bool,
 }
 
 /// A control point with its true image position.
@@ -173,6 +196,56 @@ pub struct Acquisition {
     /// The gantry preset's sensors (absent in the other presets).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub gantry: Option<GantryAcquisition>,
+    /// The captures of a day (`simulate --times K` or `--low-sun`), in time order; the first is
+    /// the one the fields above describe. Empty for a single capture of a drawn sun.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub times: Vec<TimeRecord>,
+}
+
+/// What truth.json records of one capture of a day.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TimeRecord {
+    /// UTC time of the capture's first frame, as pose files write it.
+    pub utc: String,
+    /// Sun azimuth (clockwise from north) and elevation, degrees.
+    pub sun_az_el_deg: [f64; 2],
+    /// The sky is overcast (no direct sun, no shadows).
+    pub overcast: bool,
+    /// Moving vehicles and pedestrians of this capture.
+    pub traffic_vehicles_pedestrians: [usize; 2],
+    /// The capture's frames, relative to the scene directory ([`time_dir`]).
+    pub frames: String,
+    /// The burst's temporal median, what a node keeps of a run ([`time_median`]).
+    pub median: String,
+}
+
+/// Directory of capture `t`'s frames in a scene directory.
+pub fn time_dir(t: usize) -> String {
+    format!("times/{t:02}")
+}
+
+/// The temporal median of capture `t`'s burst in a scene directory.
+pub fn time_median(t: usize) -> String {
+    format!("times/{t:02}.png")
+}
+
+/// One capture of a day, rendered.
+#[derive(Debug, Clone)]
+pub struct Capture {
+    /// UTC time of the first frame.
+    pub start: gps::UtcStart,
+    /// Sun azimuth (clockwise from north) and elevation, degrees.
+    pub sun_az_el_deg: [f64; 2],
+    /// Overcast sky.
+    pub overcast: bool,
+    /// Moving vehicles and pedestrians.
+    pub traffic: [usize; 2],
+    /// Fisheye frames, 8-bit gray, row-major.
+    pub frames: Vec<Vec<u8>>,
+    /// The gantry preset's perspective frames (empty in the other presets).
+    pub perspective: Vec<Vec<u8>>,
+    /// The gantry preset's LiDAR sweeps, one per frame (empty in the other presets).
+    pub sweeps: Vec<Vec<gantry::SweepPoint>>,
 }
 
 /// What the gantry preset's truth.json records of its sensors.
@@ -242,6 +315,9 @@ pub struct Scene {
     pub start: gps::UtcStart,
     /// The gantry preset's perspective camera and LiDAR sweeps.
     pub gantry: Option<GantryScene>,
+    /// The captures of a day, the first the one of `frames` and `gantry` (empty for a single
+    /// capture of a drawn sun).
+    pub times: Vec<Capture>,
 }
 
 /// The scene's map origin: the nominal site moved by up to [`SITE_JITTER`].
@@ -459,6 +535,13 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
             settings.frames
         )));
     }
+    if settings.times == 0 || settings.times > day::MAX_TIMES {
+        return Err(Error::Invalid(format!(
+            "simulate: --times {} must be 1..={}",
+            settings.times,
+            day::MAX_TIMES
+        )));
+    }
     let hard = settings.difficulty == Difficulty::Hard;
     let mut rng = ChaCha8Rng::seed_from_u64(mix64(settings.seed));
     let mut world = World::generate(mix64(settings.seed ^ 0x5EED));
@@ -516,48 +599,41 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         Some(r) => (false, (r.sun_az_el_deg[0], r.sun_az_el_deg[1])),
         None => (overcast, cam_sun),
     };
-    let light = if overcast {
-        Light::from_az_el(cam_sun.0, cam_sun.1, 0.0, 1.0)
-    } else {
-        Light::from_az_el(cam_sun.0, cam_sun.1, 1.0, 0.3)
-    };
     let mut statics = world.statics.clone();
     statics.extend_from_slice(&world.camera_parked);
-    let view = View {
+    let (nv, np) = traffic_counts(&mut rng, hard);
+    let movers = traffic(&world, &mut rng, nv, np);
+    let gains = frame_gains(&mut rng, settings.frames);
+    let shoot = Shoot {
         world: &world,
         look: &look,
         statics: &statics,
-        light,
+        sensor: sensor(hard),
+        camera: &camera_true,
+        pose_local: &pose_local,
+        rig: rig.as_ref(),
     };
-    let sensor = sensor(hard);
-    let base = render::static_pass(&view, &camera_true, &pose_local);
-    let exposure = base.auto_exposure();
-    let (nv, np) = if hard {
-        (rng.random_range(8..15), rng.random_range(5..11))
-    } else {
-        (rng.random_range(3..7), rng.random_range(2..6))
+    let day = day_captures(settings, &shoot, crs, origin, (&movers, &gains))?;
+    let first = match day.first() {
+        Some(c) => Burst {
+            frames: c.frames.clone(),
+            perspective: c.perspective.clone(),
+            sweeps: c.sweeps.clone(),
+        },
+        None => shoot.burst(cam_sun, overcast, (&movers, &gains), 0),
     };
-    let movers = traffic(&world, &mut rng, nv, np);
-    let gains: Vec<f64> = (0..settings.frames)
-        .map(|_| 1.0 + rng.random_range(-0.04..0.04))
-        .collect();
-    let frames = gains
-        .iter()
-        .enumerate()
-        .map(|(f, gain)| {
-            let dynamic = movers_at(&world, &movers, f as u32);
-            base.frame(
-                &view,
-                &dynamic,
-                &sensor,
-                exposure * gain,
-                mix64(world.seed ^ (0xF0 + f as u64)),
-            )
-        })
-        .collect();
-    let gantry_scene = rig.map(|r| gantry_sensors(r, &view, &sensor, (&movers, &gains), origin));
+    let (cam_sun, overcast, traffic_counts) = match day.first() {
+        Some(c) => (
+            (c.sun_az_el_deg[0], c.sun_az_el_deg[1]),
+            c.overcast,
+            c.traffic,
+        ),
+        None => (cam_sun, overcast, [nv, np]),
+    };
+    let gantry_scene = rig.map(|r| gantry_scene(r, first.perspective, first.sweeps, origin));
+    let frames = first.frames;
 
-    let gps = gps_log(&mut rng, hard, &pose, crs)?;
+    let gps = gps_log(&mut rng, hard, &pose, crs, day.first().map(|c| c.start))?;
 
     let (control_points, tile_points) =
         control_points(&world, &statics, origin, &pose, &pose_local, &camera_true);
@@ -579,8 +655,20 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         gps_sigma_bias_noise_m: gps.sigma_bias_noise_m,
         camera_height_above_ground_m: above,
         approaches: world.approaches.len(),
-        traffic_vehicles_pedestrians: [nv, np],
+        traffic_vehicles_pedestrians: traffic_counts,
         gantry: gantry_scene.as_ref().map(|g| g.acquisition(&world)),
+        times: day
+            .iter()
+            .enumerate()
+            .map(|(t, c)| TimeRecord {
+                utc: utc_string(&c.start),
+                sun_az_el_deg: c.sun_az_el_deg,
+                overcast: c.overcast,
+                traffic_vehicles_pedestrians: c.traffic,
+                frames: time_dir(t),
+                median: time_median(t),
+            })
+            .collect(),
     };
     Ok(Scene {
         settings: *settings,
@@ -599,39 +687,18 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         acquisition,
         start: gps.start,
         gantry: gantry_scene,
+        times: day,
     })
 }
 
-/// The gantry's perspective frames (same traffic, gains and sensor as the fisheye's) and one
-/// LiDAR sweep per frame.
-fn gantry_sensors(
+/// The gantry scene of `rig`: its true pose in the map and the first capture's perspective
+/// frames and sweeps.
+fn gantry_scene(
     rig: gantry::Rig,
-    view: &View,
-    sensor: &Sensor,
-    (movers, gains): (&[Mover], &[f64]),
+    frames: Vec<Vec<u8>>,
+    sweeps: Vec<Vec<gantry::SweepPoint>>,
     origin: [f64; 2],
 ) -> GantryScene {
-    let base = render::static_pass(view, &rig.camera, &rig.pose_local);
-    let exposure = base.auto_exposure();
-    let mut frames = Vec::with_capacity(gains.len());
-    let mut sweeps = Vec::with_capacity(gains.len());
-    for (f, gain) in gains.iter().enumerate() {
-        let dynamic = movers_at(view.world, movers, f as u32);
-        frames.push(base.frame(
-            view,
-            &dynamic,
-            sensor,
-            exposure * gain,
-            mix64(view.world.seed ^ (0x9E0 + f as u64)),
-        ));
-        sweeps.push(gantry::sweep(
-            view.world,
-            view.look,
-            &rig,
-            &[view.statics, &dynamic],
-            mix64(view.world.seed ^ (0x5E0 + f as u64)),
-        ));
-    }
     let c = rig.pose_local.center();
     let pose = CamFromMap::from_center(
         rig.pose_local.rotation,
@@ -643,6 +710,177 @@ fn gantry_sensors(
         frames,
         sweeps,
     }
+}
+
+/// What every capture of a scene shares: the world, the camera, its pose and sensor, the
+/// gantry. Only the light and the traffic differ between captures.
+struct Shoot<'a> {
+    world: &'a World,
+    look: &'a Appearance,
+    /// Static solids the camera sees (the world's and the capture day's parked cars).
+    statics: &'a [Solid],
+    sensor: Sensor,
+    camera: &'a Camera,
+    pose_local: &'a CamFromMap,
+    rig: Option<&'a gantry::Rig>,
+}
+
+/// The frames of one capture.
+struct Burst {
+    /// Fisheye frames.
+    frames: Vec<Vec<u8>>,
+    /// The gantry's perspective frames (empty without a gantry).
+    perspective: Vec<Vec<u8>>,
+    /// The gantry's LiDAR sweeps, one per frame (empty without a gantry).
+    sweeps: Vec<Vec<gantry::SweepPoint>>,
+}
+
+/// Vehicles and pedestrians of a capture.
+fn traffic_counts(rng: &mut ChaCha8Rng, hard: bool) -> (usize, usize) {
+    if hard {
+        (rng.random_range(8..15), rng.random_range(5..11))
+    } else {
+        (rng.random_range(3..7), rng.random_range(2..6))
+    }
+}
+
+/// Per-frame auto-exposure jitter of a burst of `n`.
+fn frame_gains(rng: &mut ChaCha8Rng, n: u32) -> Vec<f64> {
+    (0..n)
+        .map(|_| 1.0 + rng.random_range(-0.04..0.04))
+        .collect()
+}
+
+/// Seed of the sensor noise of frame `f` of capture `t` for the stream `salt`: capture 0's are
+/// those of a single capture.
+fn noise_seed(world: &World, salt: u64, f: usize, t: usize) -> u64 {
+    mix64(world.seed ^ (salt + f as u64) ^ ((t as u64) << 32))
+}
+
+impl Shoot<'_> {
+    /// Capture `t` under a sun at `sun` (azimuth, elevation, degrees) with `movers` moving and
+    /// one frame per gain: the fisheye frames, and with a gantry its perspective frames (same
+    /// traffic, gains and sensor) and one LiDAR sweep per frame.
+    fn burst(
+        &self,
+        sun: (f64, f64),
+        overcast: bool,
+        (movers, gains): (&[Mover], &[f64]),
+        t: usize,
+    ) -> Burst {
+        let light = if overcast {
+            Light::from_az_el(sun.0, sun.1, 0.0, 1.0)
+        } else {
+            Light::from_az_el(sun.0, sun.1, 1.0, 0.3)
+        };
+        let view = View {
+            world: self.world,
+            look: self.look,
+            statics: self.statics,
+            light,
+        };
+        let dynamics: Vec<Vec<Solid>> = (0..gains.len())
+            .map(|f| movers_at(self.world, movers, f as u32))
+            .collect();
+        let frames_of = |cam: &Camera, pose: &CamFromMap, salt: u64| {
+            let base = render::static_pass(&view, cam, pose);
+            let exposure = base.auto_exposure();
+            gains
+                .iter()
+                .zip(&dynamics)
+                .enumerate()
+                .map(|(f, (gain, dynamic))| {
+                    base.frame(
+                        &view,
+                        dynamic,
+                        &self.sensor,
+                        exposure * gain,
+                        noise_seed(self.world, salt, f, t),
+                    )
+                })
+                .collect::<Vec<_>>()
+        };
+        let frames = frames_of(self.camera, self.pose_local, 0xF0);
+        let (perspective, sweeps) = match self.rig {
+            Some(rig) => (
+                frames_of(&rig.camera, &rig.pose_local, 0x9E0),
+                dynamics
+                    .iter()
+                    .enumerate()
+                    .map(|(f, dynamic)| {
+                        gantry::sweep(
+                            self.world,
+                            self.look,
+                            rig,
+                            &[self.statics, dynamic],
+                            noise_seed(self.world, 0x5E0, f, t),
+                        )
+                    })
+                    .collect(),
+            ),
+            None => (Vec::new(), Vec::new()),
+        };
+        Burst {
+            frames,
+            perspective,
+            sweeps,
+        }
+    }
+}
+
+/// The captures of a day (`settings.times` > 1 or a low sun; none otherwise): the times and
+/// suns of [`day::day`] at the site, each capture's own overcast draw (never with a low sun or a
+/// gantry, whose point is the long shadows), traffic and exposure jitter, from a generator of
+/// their own so that the rest of the scene is the single capture's. The first capture keeps
+/// the single capture's traffic and gains.
+fn day_captures(
+    settings: &Settings,
+    shoot: &Shoot,
+    crs: Crs,
+    origin: [f64; 2],
+    first: (&[Mover], &[f64]),
+) -> Result<Vec<Capture>> {
+    if settings.times == 1 && !settings.low_sun {
+        return Ok(Vec::new());
+    }
+    let hard = settings.difficulty == Difficulty::Hard;
+    let gantry = shoot.rig.is_some();
+    let low = settings.low_sun || gantry;
+    let mut rng = ChaCha8Rng::seed_from_u64(mix64(settings.seed ^ 0xDA70_FDA7));
+    let (lat, lon) = crate::geo::map_to_wgs84(crs, origin[0], origin[1])?;
+    let d = day::day(&mut rng, lat, lon, settings.times, low)?;
+    let (year, month, dom) = d.date;
+    d.moments
+        .iter()
+        .enumerate()
+        .map(|(t, m)| {
+            let overcast = hard && !low && rng.random_bool(0.25);
+            let (traffic, movers, gains) = if t == 0 {
+                let n = first.0.iter().filter(|m| m.vehicle).count();
+                ([n, first.0.len() - n], first.0.to_vec(), first.1.to_vec())
+            } else {
+                let (nv, np) = traffic_counts(&mut rng, hard);
+                let movers = traffic(shoot.world, &mut rng, nv, np);
+                ([nv, np], movers, frame_gains(&mut rng, settings.frames))
+            };
+            let sun = (m.sun_az_el_deg[0], m.sun_az_el_deg[1]);
+            let b = shoot.burst(sun, overcast, (&movers, &gains), t);
+            Ok(Capture {
+                start: gps::UtcStart {
+                    year,
+                    month,
+                    day: dom,
+                    sec_of_day: m.sec_of_day,
+                },
+                sun_az_el_deg: m.sun_az_el_deg,
+                overcast,
+                traffic,
+                frames: b.frames,
+                perspective: b.perspective,
+                sweeps: b.sweeps,
+            })
+        })
+        .collect()
 }
 
 impl GantryScene {
@@ -815,7 +1053,13 @@ struct GpsLog {
 }
 
 /// The receiver's log at the camera of `pose`, drawn from `rng`.
-fn gps_log(rng: &mut ChaCha8Rng, hard: bool, pose: &CamFromMap, crs: Crs) -> Result<GpsLog> {
+fn gps_log(
+    rng: &mut ChaCha8Rng,
+    hard: bool,
+    pose: &CamFromMap,
+    crs: Crs,
+    at: Option<gps::UtcStart>,
+) -> Result<GpsLog> {
     let (bias_s, noise_s) = if hard { (4.0, 3.0) } else { (1.5, 1.3) };
     let gm = gps::GpsModel {
         bias_sigma: bias_s,
@@ -835,6 +1079,9 @@ fn gps_log(rng: &mut ChaCha8Rng, hard: bool, pose: &CamFromMap, crs: Crs) -> Res
         day: rng.random_range(1..=28),
         sec_of_day: rng.random_range(13 * 3600..21 * 3600),
     };
+    // A day's captures start the log at the first capture (the draws above are made all the
+    // same, so the rest of the scene does not depend on it).
+    let start = at.unwrap_or(start);
     let nmea = gps::nmea_log(&fixes, &start, GEOID_SEP);
     let (lat, lon) = to_wgs(c_map.x, c_map.y)?;
     Ok(GpsLog {
@@ -892,6 +1139,19 @@ fn control_points(
     (control_points, tile_points)
 }
 
+/// A UTC time as pose files write it.
+fn utc_string(s: &gps::UtcStart) -> String {
+    format!(
+        "{:04}-{:02}-{:02}T{:02}:{:02}:{:02}Z",
+        s.year,
+        s.month,
+        s.day,
+        s.sec_of_day / 3600,
+        (s.sec_of_day / 60) % 60,
+        s.sec_of_day % 60
+    )
+}
+
 impl Scene {
     /// truth.json content (docs/interfaces.md, "Scene directory"): a full `infraloc.pose.v1` document of the true pose
     /// (so every pose reader accepts it) plus control points, GPS truth, seed and settings.
@@ -919,16 +1179,7 @@ impl Scene {
 
     /// The capture's UTC time, as pose files write it.
     pub fn capture_time(&self) -> String {
-        let s = &self.start;
-        format!(
-            "{:04}-{:02}-{:02}T{:02}:{:02}:{:02}Z",
-            s.year,
-            s.month,
-            s.day,
-            s.sec_of_day / 3600,
-            (s.sec_of_day / 60) % 60,
-            s.sec_of_day % 60
-        )
+        utc_string(&self.start)
     }
 
     /// Width and height of the frames.

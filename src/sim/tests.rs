@@ -15,6 +15,8 @@ fn scene() -> &'static Scene {
             lens: Lens::Mei,
             frames: 2,
             intrinsics: Default::default(),
+            times: 1,
+            low_sun: false,
         })
         .unwrap()
     })

@@ -49,34 +49,16 @@ fn run(args: &[&str], dir: &Path) -> Output {
         .unwrap()
 }
 
-/// Every file under `dir`, by relative path.
-fn files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.push((
-                    p.strip_prefix(dir).unwrap().to_path_buf(),
-                    std::fs::read(&p).unwrap(),
-                ));
-            }
-        }
-    }
-    out.sort();
-    out
-}
-
 #[test]
 fn same_seed_same_bytes() {
     let tmp = tempfile::tempdir().unwrap();
     let again = tmp.path().join("again");
     assert!(simulate(&again, "3").status.success());
-    let (a, b) = (files(scene()), files(&again));
-    let names: Vec<String> = a.iter().map(|(p, _)| p.display().to_string()).collect();
+    let (a, b) = (
+        crate::common::tree_files(scene()),
+        crate::common::tree_files(&again),
+    );
+    let names: Vec<String> = a.keys().map(|p| p.display().to_string()).collect();
     for want in [
         "perspective/camera.yaml",
         "perspective/frames/000.png",
@@ -93,7 +75,7 @@ fn same_seed_same_bytes() {
     }
     // The study's outputs may have been written into the shared scene meanwhile (the other tests
     // write nothing else there).
-    let keep = |f: &&(PathBuf, Vec<u8>)| !f.0.to_string_lossy().starts_with("study");
+    let keep = |f: &(&PathBuf, &Vec<u8>)| !f.0.to_string_lossy().starts_with("study");
     let a: Vec<_> = a.iter().filter(keep).collect();
     let b: Vec<_> = b.iter().filter(keep).collect();
     assert_eq!(a.len(), b.len());

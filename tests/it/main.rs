@@ -49,6 +49,7 @@ mod refine_pooled;
 mod refine_synthetic;
 mod runner_up;
 mod simulate_cli;
+mod simulate_times;
 mod small_faults;
 mod study_cli;
 mod systemd_units;
