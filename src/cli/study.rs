@@ -204,23 +204,7 @@ pub(super) fn run(a: Args) -> Result<()> {
     let mut trials = Vec::with_capacity(a.trials);
     for (i, s) in starts.iter().enumerate() {
         let t = run_trial(&sc, i, *s, &sel, &cfg, &qcfg, finish.as_ref(), &now)?;
-        println!(
-            "trial {:>3}/{}: start ({:+.3}, {:+.3}, {:+.3}) m {:+.2}° → error {:.1} cm horizontal, {:.1} cm height, {:.3}° yaw{} ({:.1} s)",
-            i + 1,
-            a.trials,
-            s[0],
-            s[1],
-            s[2],
-            s[3],
-            t.horizontal_m * 100.0,
-            t.height_m * 100.0,
-            t.yaw_deg,
-            match &t.reason {
-                Some(r) if !t.accepted => format!("; gate: {r}"),
-                _ => String::new(),
-            },
-            t.seconds
-        );
+        print_trial(i, a.trials, s, &t);
         trials.push(t);
     }
     let sum = Summary::of(&trials);
@@ -260,6 +244,26 @@ pub(super) fn run(a: Args) -> Result<()> {
     super::plot::save_png(&img, &png)?;
     println!("study: wrote {} and {}", png.display(), jpath.display());
     Ok(())
+}
+
+/// One trial's line: its start, its errors, the gate's reason when it refused.
+fn print_trial(i: usize, n: usize, s: &[f64; 4], t: &crate::eval::study::Trial) {
+    println!(
+        "trial {:>3}/{n}: start ({:+.3}, {:+.3}, {:+.3}) m {:+.2}° → error {:.1} cm horizontal, {:.1} cm height, {:.3}° yaw{} ({:.1} s)",
+        i + 1,
+        s[0],
+        s[1],
+        s[2],
+        s[3],
+        t.horizontal_m * 100.0,
+        t.height_m * 100.0,
+        t.yaw_deg,
+        match &t.reason {
+            Some(r) if !t.accepted => format!("; gate: {r}"),
+            _ => String::new(),
+        },
+        t.seconds
+    );
 }
 
 /// The study's summary for people: the spread of each error and the fraction within bounds.

@@ -15,6 +15,7 @@ pub(crate) mod gps;
 pub(crate) mod layers;
 pub(crate) mod noise;
 pub(crate) mod render;
+pub(crate) mod shoot;
 pub(crate) mod solids;
 
 pub(crate) mod world;
@@ -30,6 +31,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use render::{Light, Sensor, View};
 use serde::{Deserialize, Serialize};
+use shoot::{day_captures, frame_gains, traffic_counts, Burst, Shoot};
 use solids::Solid;
 use std::f64::consts::{PI, TAU};
 use world::World;
@@ -527,8 +529,8 @@ fn movers_at(w: &World, movers: &[Mover], frame: u32) -> Vec<Solid> {
     out
 }
 
-/// Generate a scene.
-pub fn generate(settings: &Settings) -> Result<Scene> {
+/// `--frames` and `--times` within their bounds, else one line naming the flag.
+fn check_counts(settings: &Settings) -> Result<()> {
     if settings.frames == 0 || settings.frames > 1000 {
         return Err(Error::Invalid(format!(
             "simulate: --frames {} must be 1..=1000",
@@ -542,6 +544,27 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
             day::MAX_TIMES
         )));
     }
+    Ok(())
+}
+
+/// truth.json's record of each capture of the day.
+fn time_records(day: &[Capture]) -> Vec<TimeRecord> {
+    day.iter()
+        .enumerate()
+        .map(|(t, c)| TimeRecord {
+            utc: utc_string(&c.start),
+            sun_az_el_deg: c.sun_az_el_deg,
+            overcast: c.overcast,
+            traffic_vehicles_pedestrians: c.traffic,
+            frames: time_dir(t),
+            median: time_median(t),
+        })
+        .collect()
+}
+
+/// Generate a scene.
+pub fn generate(settings: &Settings) -> Result<Scene> {
+    check_counts(settings)?;
     let hard = settings.difficulty == Difficulty::Hard;
     let mut rng = ChaCha8Rng::seed_from_u64(mix64(settings.seed));
     let mut world = World::generate(mix64(settings.seed ^ 0x5EED));
@@ -657,18 +680,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         approaches: world.approaches.len(),
         traffic_vehicles_pedestrians: traffic_counts,
         gantry: gantry_scene.as_ref().map(|g| g.acquisition(&world)),
-        times: day
-            .iter()
-            .enumerate()
-            .map(|(t, c)| TimeRecord {
-                utc: utc_string(&c.start),
-                sun_az_el_deg: c.sun_az_el_deg,
-                overcast: c.overcast,
-                traffic_vehicles_pedestrians: c.traffic,
-                frames: time_dir(t),
-                median: time_median(t),
-            })
-            .collect(),
+        times: time_records(&day),
     };
     Ok(Scene {
         settings: *settings,
@@ -710,177 +722,6 @@ fn gantry_scene(
         frames,
         sweeps,
     }
-}
-
-/// What every capture of a scene shares: the world, the camera, its pose and sensor, the
-/// gantry. Only the light and the traffic differ between captures.
-struct Shoot<'a> {
-    world: &'a World,
-    look: &'a Appearance,
-    /// Static solids the camera sees (the world's and the capture day's parked cars).
-    statics: &'a [Solid],
-    sensor: Sensor,
-    camera: &'a Camera,
-    pose_local: &'a CamFromMap,
-    rig: Option<&'a gantry::Rig>,
-}
-
-/// The frames of one capture.
-struct Burst {
-    /// Fisheye frames.
-    frames: Vec<Vec<u8>>,
-    /// The gantry's perspective frames (empty without a gantry).
-    perspective: Vec<Vec<u8>>,
-    /// The gantry's LiDAR sweeps, one per frame (empty without a gantry).
-    sweeps: Vec<Vec<gantry::SweepPoint>>,
-}
-
-/// Vehicles and pedestrians of a capture.
-fn traffic_counts(rng: &mut ChaCha8Rng, hard: bool) -> (usize, usize) {
-    if hard {
-        (rng.random_range(8..15), rng.random_range(5..11))
-    } else {
-        (rng.random_range(3..7), rng.random_range(2..6))
-    }
-}
-
-/// Per-frame auto-exposure jitter of a burst of `n`.
-fn frame_gains(rng: &mut ChaCha8Rng, n: u32) -> Vec<f64> {
-    (0..n)
-        .map(|_| 1.0 + rng.random_range(-0.04..0.04))
-        .collect()
-}
-
-/// Seed of the sensor noise of frame `f` of capture `t` for the stream `salt`: capture 0's are
-/// those of a single capture.
-fn noise_seed(world: &World, salt: u64, f: usize, t: usize) -> u64 {
-    mix64(world.seed ^ (salt + f as u64) ^ ((t as u64) << 32))
-}
-
-impl Shoot<'_> {
-    /// Capture `t` under a sun at `sun` (azimuth, elevation, degrees) with `movers` moving and
-    /// one frame per gain: the fisheye frames, and with a gantry its perspective frames (same
-    /// traffic, gains and sensor) and one LiDAR sweep per frame.
-    fn burst(
-        &self,
-        sun: (f64, f64),
-        overcast: bool,
-        (movers, gains): (&[Mover], &[f64]),
-        t: usize,
-    ) -> Burst {
-        let light = if overcast {
-            Light::from_az_el(sun.0, sun.1, 0.0, 1.0)
-        } else {
-            Light::from_az_el(sun.0, sun.1, 1.0, 0.3)
-        };
-        let view = View {
-            world: self.world,
-            look: self.look,
-            statics: self.statics,
-            light,
-        };
-        let dynamics: Vec<Vec<Solid>> = (0..gains.len())
-            .map(|f| movers_at(self.world, movers, f as u32))
-            .collect();
-        let frames_of = |cam: &Camera, pose: &CamFromMap, salt: u64| {
-            let base = render::static_pass(&view, cam, pose);
-            let exposure = base.auto_exposure();
-            gains
-                .iter()
-                .zip(&dynamics)
-                .enumerate()
-                .map(|(f, (gain, dynamic))| {
-                    base.frame(
-                        &view,
-                        dynamic,
-                        &self.sensor,
-                        exposure * gain,
-                        noise_seed(self.world, salt, f, t),
-                    )
-                })
-                .collect::<Vec<_>>()
-        };
-        let frames = frames_of(self.camera, self.pose_local, 0xF0);
-        let (perspective, sweeps) = match self.rig {
-            Some(rig) => (
-                frames_of(&rig.camera, &rig.pose_local, 0x9E0),
-                dynamics
-                    .iter()
-                    .enumerate()
-                    .map(|(f, dynamic)| {
-                        gantry::sweep(
-                            self.world,
-                            self.look,
-                            rig,
-                            &[self.statics, dynamic],
-                            noise_seed(self.world, 0x5E0, f, t),
-                        )
-                    })
-                    .collect(),
-            ),
-            None => (Vec::new(), Vec::new()),
-        };
-        Burst {
-            frames,
-            perspective,
-            sweeps,
-        }
-    }
-}
-
-/// The captures of a day (`settings.times` > 1 or a low sun; none otherwise): the times and
-/// suns of [`day::day`] at the site, each capture's own overcast draw (never with a low sun or a
-/// gantry, whose point is the long shadows), traffic and exposure jitter, from a generator of
-/// their own so that the rest of the scene is the single capture's. The first capture keeps
-/// the single capture's traffic and gains.
-fn day_captures(
-    settings: &Settings,
-    shoot: &Shoot,
-    crs: Crs,
-    origin: [f64; 2],
-    first: (&[Mover], &[f64]),
-) -> Result<Vec<Capture>> {
-    if settings.times == 1 && !settings.low_sun {
-        return Ok(Vec::new());
-    }
-    let hard = settings.difficulty == Difficulty::Hard;
-    let gantry = shoot.rig.is_some();
-    let low = settings.low_sun || gantry;
-    let mut rng = ChaCha8Rng::seed_from_u64(mix64(settings.seed ^ 0xDA70_FDA7));
-    let (lat, lon) = crate::geo::map_to_wgs84(crs, origin[0], origin[1])?;
-    let d = day::day(&mut rng, lat, lon, settings.times, low)?;
-    let (year, month, dom) = d.date;
-    d.moments
-        .iter()
-        .enumerate()
-        .map(|(t, m)| {
-            let overcast = hard && !low && rng.random_bool(0.25);
-            let (traffic, movers, gains) = if t == 0 {
-                let n = first.0.iter().filter(|m| m.vehicle).count();
-                ([n, first.0.len() - n], first.0.to_vec(), first.1.to_vec())
-            } else {
-                let (nv, np) = traffic_counts(&mut rng, hard);
-                let movers = traffic(shoot.world, &mut rng, nv, np);
-                ([nv, np], movers, frame_gains(&mut rng, settings.frames))
-            };
-            let sun = (m.sun_az_el_deg[0], m.sun_az_el_deg[1]);
-            let b = shoot.burst(sun, overcast, (&movers, &gains), t);
-            Ok(Capture {
-                start: gps::UtcStart {
-                    year,
-                    month,
-                    day: dom,
-                    sec_of_day: m.sec_of_day,
-                },
-                sun_az_el_deg: m.sun_az_el_deg,
-                overcast,
-                traffic,
-                frames: b.frames,
-                perspective: b.perspective,
-                sweeps: b.sweeps,
-            })
-        })
-        .collect()
 }
 
 impl GantryScene {
