@@ -91,10 +91,7 @@ pub fn camera_fingerprint(camera: &Camera) -> String {
 
 /// The frame directory of the service whose pose file is `pose`: `frames/` beside it.
 pub fn frame_dir(pose: &Path) -> PathBuf {
-    pose.parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."))
-        .join("frames")
+    pose.with_file_name("frames")
 }
 
 /// The stored frames in one directory under one set of bounds.

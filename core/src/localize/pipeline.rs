@@ -296,7 +296,7 @@ pub fn localize(
 
 /// [`localize`] with `earlier` frames of the same camera at the same pose pooled into the MI
 /// stage: initialization matches `frame` alone; the refinement scores every frame on its own
-/// histogram ([`crate::localize::mi::Pooling`], `p.search.mi.pooling`) against the same ground
+/// histogram ([`crate::localize::mi::Pooling::PerPair`], whatever `p.search` says) against the same ground
 /// points, so that shadows which move between the frames' hours stop agreeing with the map and
 /// the road that does not move keeps agreeing. The node pools the frames of its earlier runs
 /// this way. Each earlier frame must be the camera's size (one line naming it otherwise).
@@ -381,10 +381,6 @@ fn refine_at(
     if !earlier.is_empty() {
         search.mi.pooling = crate::localize::mi::Pooling::PerPair;
     }
-    let p = &Params {
-        search,
-        ..p.clone()
-    };
     // The searches find the basin; the polish and the gradient ascent take it from there.
     let polish = p
         .polish
@@ -393,7 +389,7 @@ fn refine_at(
         camera,
         &views,
         start,
-        &p.search,
+        &search,
         &p.quality,
         polish.as_ref(),
         &pivot,
@@ -405,7 +401,7 @@ fn refine_at(
         crate::localize::refine::local::SmoothFree::Four
     };
     let (r, _) = crate::localize::refine::local::smooth_stage(
-        camera, &views, start, r, &p.search, &p.quality, free,
+        camera, &views, start, r, &search, &p.quality, free,
     )?;
     Ok((r, rounds))
 }
