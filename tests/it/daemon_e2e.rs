@@ -50,7 +50,11 @@ fn text(b: &[u8]) -> String {
 /// A working directory with a config derived from the scene's: absolute scene paths, the pose,
 /// socket and history in the work dir, and `edit` applied to the TOML table.
 fn workdir(edit: impl FnOnce(&mut toml::Table)) -> (tempfile::TempDir, PathBuf) {
-    let s = scene();
+    workdir_of(scene(), edit)
+}
+
+/// [`workdir`] for the scene in `s`.
+fn workdir_of(s: &Path, edit: impl FnOnce(&mut toml::Table)) -> (tempfile::TempDir, PathBuf) {
     let w = tempfile::tempdir().unwrap();
     let mut t: toml::Table =
         toml::from_str(&std::fs::read_to_string(s.join("infraloc.toml")).unwrap()).unwrap();
@@ -238,8 +242,13 @@ fn wait_for_result(cfg: &Path, d: &Daemon) -> (Value, i32) {
 
 /// Errors of a pose file against the scene's truth: horizontal m, height m, yaw deg.
 fn errors(pose: &Path) -> (f64, f64, f64) {
+    errors_of(scene(), pose)
+}
+
+/// [`errors`] against the truth of the scene in `s`.
+fn errors_of(s: &Path, pose: &Path) -> (f64, f64, f64) {
     let p = read_pose(pose).unwrap().pose;
-    let t = read_pose(&scene().join("truth.json")).unwrap().pose;
+    let t = read_pose(&s.join("truth.json")).unwrap().pose;
     let (c, tc) = (p.center(), t.center());
     let dyaw = infraloc::pose::angle_difference(p.yaw_pitch_roll().0, t.yaw_pitch_roll().0);
     (
@@ -1087,5 +1096,91 @@ fn frames_of_earlier_runs_are_stored_pooled_skipped_and_cleared() {
     assert!(listed().is_empty());
     let (v, _) = status(&cfg);
     assert_eq!(v["stored_frames"].as_array().map(Vec::len), Some(0), "{v}");
+    drop(d);
+}
+
+/// A node refused at its first run grows sure over the day: each run stores its frame, later
+/// runs pool the earlier hours', and once the frames are enough to measure what one frame's
+/// light cannot (the frame sandwich, five pairs) the pooled answer passes a σ limit no single
+/// frame meets, and is served. Until then the refused runs serve nothing and say why.
+#[test]
+#[ignore = "slow tier: simulates six hours of a day and runs the service up to six times"]
+fn a_refused_node_pools_the_hours_until_a_pooled_run_is_served() {
+    let day = tempfile::tempdir().unwrap();
+    let scene = day.path().join("scene");
+    let out = Command::new(BIN)
+        .args("simulate --seed 1 --preset small --difficulty hard --low-sun --times 6".split(' '))
+        .arg("--out")
+        .arg(&scene)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let live = day.path().join("live");
+    std::fs::create_dir(&live).unwrap();
+    // The camera "sees" hour k: its burst goes where the service captures from.
+    let hour = |k: usize| {
+        for e in std::fs::read_dir(scene.join(format!("times/{k:02}"))).unwrap() {
+            let p = e.unwrap().path();
+            std::fs::copy(&p, live.join(p.file_name().unwrap())).unwrap();
+        }
+    };
+    hour(0);
+    // 9 mm: below the 1 cm floor of any run with fewer than five pairs.
+    let limit = 0.009;
+    let (w, cfg) = workdir_of(&scene, |t| {
+        set(t, "camera", "frames", live.display().to_string());
+        set(t, "daemon", "pool-frames", 6);
+        set(t, "daemon", "pool-min-spacing-min", 0.0);
+        set(t, "daemon", "drift-check-interval-min", 0.0);
+        set(t, "daemon", "retry-initial-s", 86_400.0);
+        set(t, "quality", "max-sigma-xy-m", limit);
+    });
+    let pose = w.path().join("pose.json");
+    let d = Daemon::start(&cfg);
+    let (mut v, _) = wait_for_result(&cfg, &d);
+    let mut k = 0;
+    loop {
+        let r = &v["last_result"];
+        println!("run {k}: {}", r["error"].as_str().unwrap_or("served"));
+        assert_eq!(
+            v["stored_frames"].as_array().map(Vec::len),
+            Some(k + 1),
+            "{v}"
+        );
+        let pooled = r["pooled_frames"].as_array().map_or(0, Vec::len);
+        assert_eq!(pooled, k, "run {k}: {v}");
+        if r["served"] == Value::Bool(true) {
+            break;
+        }
+        // Refused: with one to four pairs the floor stands for what they cannot measure, over
+        // the limit; beyond, the optima the pooled hours cannot yet tell apart. Nothing served.
+        let why = r["error"]
+            .as_str()
+            .unwrap_or_else(|| panic!("run {k}: {v}"));
+        assert!(
+            why.contains("over the limit xy=0.009"),
+            "run {k} refused for another reason: {why}"
+        );
+        assert!(!pose.exists(), "run {k} wrote a pose");
+        k += 1;
+        assert!(k < 6, "six hours pooled and still refused: {v}");
+        hour(k);
+        // Past the last run's second, so that the stored frames have distinct names.
+        std::thread::sleep(Duration::from_millis(1100));
+        let out = cli(&cfg, &["relocalize", "--wait"]);
+        assert!(out.status.code().is_some(), "{}", text(&out.stderr));
+        v = status(&cfg).0;
+    }
+    assert!(k >= 4, "served at run {k}, with fewer than five pairs");
+    // The served pose is the pooled one, within its σ of the truth and under the limit.
+    let served: Value = serde_json::from_str(&std::fs::read_to_string(&pose).unwrap()).unwrap();
+    let gate = served["quality"]["covariance"]["gate_sigma"]
+        .as_array()
+        .unwrap();
+    assert!(gate[0].as_f64().unwrap() <= limit && gate[1].as_f64().unwrap() <= limit);
+    let sigma = |a: &str| served["quality"]["sigma"][a].as_f64().unwrap();
+    let (h, _, _) = errors_of(&scene, &pose);
+    let bound = 3.0 * sigma("x").hypot(sigma("y"));
+    assert!(h <= bound, "pooled pose {h:.4} m off, 3σ {bound:.4} m");
     drop(d);
 }

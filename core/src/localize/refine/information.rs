@@ -52,6 +52,13 @@ pub struct Information {
     /// The frame-clustered covariance (m, deg), row-major.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub frame_matrix: Option<Vec<Vec<f64>>>,
+    /// Pairs (clusters) of the frame sandwich, 0 without one.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub frames: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 /// Pairs needed for [`Information::frame_sigma`]: the scatter of fewer frames' scores is too
@@ -185,6 +192,7 @@ pub fn information_with_step(
         clusters: scores.len(),
         frame_sigma: frame.as_ref().map(sigma_of),
         frame_matrix: frame.as_ref().map(rows_of),
+        frames: if frame.is_some() { est.views() } else { 0 },
     })
 }
 
@@ -312,10 +320,11 @@ pub fn theta_between(from: &CamFromMap, to: &CamFromMap) -> [f64; 6] {
 
 /// The reported covariance of the smooth estimator's answer: the patch
 /// sandwich's, each axis scaled up to the σ the gate judged (`judged`, [`judged_sigma`];
-/// correlations kept), widened to the Student-t 3σ quantile of its K − 1 degrees of freedom
-/// (the frames' count − 1 at most where a frame sandwich exists), then the
-/// intrinsics' part added (`deltas`, [`crate::localize::refine::uncertainty::intrinsics_deltas`]).
-/// `gate_sigma` is `judged`.
+/// correlations kept) and widened to a Student-t 3σ quantile, then the intrinsics' part added
+/// (`deltas`, [`crate::localize::refine::uncertainty::intrinsics_deltas`]). Each estimate is
+/// widened by its own degrees of freedom: the patch sandwich's (and the bound's and the floor's
+/// with it) by its clusters − 1, the frame sandwich's by its frames − 1, and an axis takes the
+/// widest. `gate_sigma` is `judged`.
 pub fn information_covariance(
     info: &Information,
     judged: &[f64],
@@ -333,20 +342,33 @@ pub fn information_covariance(
             }
         })
         .collect();
-    // The fewest degrees of freedom among the estimates the judged σ may come from: the
-    // patches', or the frames' when there is a frame sandwich (at least FRAME_CLUSTERS_MIN).
-    let dof = match info.frame_sigma {
-        Some(_) => FRAME_CLUSTERS_MIN - 1,
-        None => info.clusters.saturating_sub(1),
+    let t = |dof: usize| crate::localize::refine::uncertainty::student_t_3sigma(dof.max(1)) / 3.0;
+    let patches = t(info.clusters.saturating_sub(1));
+    // Per axis, the widening that takes the judged σ to the widest of the widened estimates.
+    let tau: Vec<f64> = match &info.frame_sigma {
+        None => vec![patches; d],
+        Some(fs) => {
+            let frames = t(info.frames.max(FRAME_CLUSTERS_MIN).saturating_sub(1));
+            (0..d)
+                .map(|i| {
+                    let own = judged[i] * patches;
+                    let by_frames = fs[i] * frames;
+                    if judged[i] > 0.0 && by_frames > own {
+                        by_frames / judged[i]
+                    } else {
+                        patches
+                    }
+                })
+                .collect()
+        }
     };
-    let widen = (crate::localize::refine::uncertainty::student_t_3sigma(dof.max(1)) / 3.0).powi(2);
     let matrix: Vec<Vec<f64>> = (0..d)
         .map(|i| {
             (0..d)
                 .map(|j| match (have[i] > 0.0, have[j] > 0.0) {
-                    (true, true) => base[i][j] * f[i] * f[j] * widen,
+                    (true, true) => base[i][j] * f[i] * f[j] * (tau[i] * tau[j]),
                     // An axis the patches left without scatter still carries its judged σ.
-                    _ if i == j => judged[i] * judged[i] * widen,
+                    _ if i == j => judged[i] * judged[i] * (tau[i] * tau[i]),
                     _ => 0.0,
                 })
                 .collect()

@@ -347,17 +347,21 @@ fn add_spread(
 }
 
 /// The σ per axis of `info` that the gate judges: the largest of the Cramér–Rao bound, the
-/// patch sandwich, the frame sandwich (when there is one) and the floor, half the search's
-/// finest step ([`crate::localize::refine::uncertainty::sigma_floor`]).
+/// patch sandwich and, with several frames, the frame sandwich. A single frame cannot measure
+/// the error its own light and sweep share over all its patches; in its stead stands the floor,
+/// half the search's finest step ([`crate::localize::refine::uncertainty::sigma_floor`]). Where
+/// a frame sandwich exists it measures that error, and the floor gives way to it.
 fn judged_sigma(info: &Information, cfg: &crate::localize::mi::space::SearchConfig) -> Vec<f64> {
-    let frame = |i: usize| info.frame_sigma.as_ref().map_or(0.0, |f| f[i]);
     info.axes
         .iter()
         .zip(info.sigma.iter().zip(&info.sandwich_sigma))
         .enumerate()
-        .map(|(i, (a, (s, w)))| {
-            let floor = crate::localize::refine::uncertainty::sigma_floor(cfg, a);
-            s.max(*w).max(frame(i)).max(floor)
+        .map(|(i, (a, (s, w)))| match &info.frame_sigma {
+            Some(f) => s.max(*w).max(f[i]),
+            None => {
+                let floor = crate::localize::refine::uncertainty::sigma_floor(cfg, a);
+                s.max(*w).max(floor)
+            }
         })
         .collect()
 }
@@ -401,6 +405,7 @@ mod tests {
             clusters: 32,
             frame_sigma: None,
             frame_matrix: None,
+            frames: 0,
         };
         let judged = judged_sigma(&info, &crate::localize::mi::space::SearchConfig::default());
         // The default search's floor: half of 2 cm and of 0.05°.
@@ -420,5 +425,61 @@ mod tests {
         let w = information_covariance(&info, &judged, Some(&d));
         assert!((w.matrix[2][2] - (u.matrix[2][2] + 4e-4)).abs() < 1e-15);
         assert_eq!(Sigma::of(&w).x, u.sigma[0]);
+    }
+
+    /// With a frame sandwich the floor gives way to it, and each estimate is widened by its own
+    /// degrees of freedom: the frames' (K − 1) where they decide the axis, the patches' (31)
+    /// elsewhere.
+    #[test]
+    fn a_frame_sandwich_replaces_the_floor_and_widens_by_its_own_frames() {
+        let axes: Vec<String> = ["x", "y", "z", "yaw"].map(String::from).to_vec();
+        let diag = |sd: &[f64]| -> Vec<Vec<f64>> {
+            (0..4)
+                .map(|i| {
+                    (0..4)
+                        .map(|j| if i == j { sd[i] * sd[i] } else { 0.0 })
+                        .collect()
+                })
+                .collect()
+        };
+        let patch = [0.003, 0.004, 0.006, 0.007];
+        let frame = [0.005, 0.001, 0.001, 0.004];
+        let info = |frames: usize| Information {
+            axes: axes.clone(),
+            units: ["m", "m", "m", "deg"].map(String::from).to_vec(),
+            sigma: vec![0.0005; 4],
+            matrix: diag(&[0.0005; 4]),
+            points: 100_000,
+            evaluations: 9,
+            sandwich_sigma: patch.to_vec(),
+            sandwich_matrix: diag(&patch),
+            clusters: 32,
+            frame_sigma: Some(frame.to_vec()),
+            frame_matrix: Some(diag(&frame)),
+            frames,
+        };
+        let cfg = crate::localize::mi::space::SearchConfig::default();
+        let judged = judged_sigma(&info(6), &cfg);
+        // Below the default floor (1 cm, 0.025°) on every axis: the largest estimate each.
+        assert_eq!(judged, vec![0.005, 0.004, 0.006, 0.007]);
+        let t = |dof: usize| super::super::uncertainty::student_t_3sigma(dof) / 3.0;
+        for (frames, dof) in [(6, 5), (12, 11)] {
+            let u = information_covariance(&info(frames), &judged, None);
+            assert_eq!(u.gate_sigma, judged);
+            // x: the frames decide (0.005 × t₅ > 0.003 × t₃₁); the rest the patches.
+            let want = [0.005 * t(dof), 0.004 * t(31), 0.006 * t(31), 0.007 * t(31)];
+            for i in 0..4 {
+                assert!(
+                    (u.sigma[i] - want[i]).abs() < 1e-12,
+                    "{frames} {i}: {:?}",
+                    u.sigma
+                );
+            }
+        }
+        // Without the frame sandwich the floor is back and every axis takes the patches' t.
+        let mut one = info(0);
+        one.frame_sigma = None;
+        one.frame_matrix = None;
+        assert_eq!(judged_sigma(&one, &cfg), vec![0.01, 0.01, 0.01, 0.025]);
     }
 }
