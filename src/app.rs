@@ -107,7 +107,7 @@ impl Outputs {
         } else if from_config {
             Error::config_problems(cfg_path, found.problems)
         } else {
-            Err(Error::Invalid(found.problems.join("; ")))
+            Err(Error::Usage(found.problems.join("; ")))
         }
     }
 }

@@ -830,7 +830,7 @@ impl Client {
     ) -> Result<Answer> {
         let io = |e: std::io::Error| Error::io(&self.path, e);
         self.stream.set_read_timeout(Some(timeout)).map_err(io)?;
-        let text = serde_json::to_vec(req).map_err(|e| Error::Invalid(e.to_string()))?;
+        let text = serde_json::to_vec(req).map_err(|e| Error::Encode(e.into()))?;
         if let Err(e) = write_frame(&mut self.stream, &text) {
             // A server that turned us away (busy) may have closed before reading our request:
             // its reason is waiting in our receive buffer, and it is what the technician needs.

@@ -9,6 +9,7 @@ use crate::geo::georef::{
     self, Ellipse, HeightIndex, HeightSurface, LookupTable, MapPoint, Params, PoseWithCovariance,
     Status, Surface, LUT_CHANNELS,
 };
+use crate::map::error::MapError;
 use crate::map::{Crs, Raster};
 use crate::posefile::{pose_covariance_of, PoseFile};
 use serde_json::{json, Value};
@@ -217,9 +218,10 @@ impl ServedGeoref {
             ));
         }
         let Some(index) = HeightIndex::new(&height) else {
-            return Err(Error::Invalid(format!(
-                "tile {tile_id}: the height layer has no valid heights"
-            )));
+            return Err(MapError::NoHeights {
+                id: tile_id.to_string(),
+            }
+            .into());
         };
         let v = serde_json::to_value(pose).unwrap_or_default();
         Ok(ServedGeoref {

@@ -195,8 +195,7 @@ impl PoseStore {
         hist.push(entry);
         let excess = hist.len().saturating_sub(self.history_len);
         hist.drain(..excess);
-        let text =
-            serde_json::to_string_pretty(&hist).map_err(|e| Error::Invalid(e.to_string()))?;
+        let text = serde_json::to_string_pretty(&hist).map_err(|e| Error::Encode(e.into()))?;
         write_atomic(&self.history, text.as_bytes())
     }
 }

@@ -88,7 +88,7 @@ pub(crate) fn before_after(
         image::imageops::replace(&mut out, &panel, i as i64 * w as i64, 0);
     }
     register_font()?;
-    let err = |e: &dyn std::fmt::Display| Error::Invalid(format!("overlay labels: {e}"));
+    let err = |e: &dyn std::fmt::Display| Error::output("overlay labels", e.to_string());
     // Label size follows the frame (a 5 MP frame needs larger text than a 320 px test frame).
     let size = (h / 28).clamp(12, 64);
     {
@@ -126,7 +126,7 @@ pub(crate) fn before_after_png(
     let img = before_after(image, cam, before, after, points)?;
     let mut buf = std::io::Cursor::new(Vec::new());
     img.write_to(&mut buf, image::ImageFormat::Png)
-        .map_err(|e| Error::Invalid(format!("overlay PNG encoding: {e}")))?;
+        .map_err(|e| Error::output("overlay PNG encoding", e))?;
     Ok(buf.into_inner())
 }
 

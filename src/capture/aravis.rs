@@ -105,7 +105,7 @@ impl AravisSource {
     pub(crate) fn from_config(c: &CameraConfig) -> Result<AravisSource> {
         if let Some(f) = &c.pixel_format {
             if !FORMATS.iter().any(|(n, _)| n == f) {
-                return Err(Error::Invalid(format!(
+                return Err(Error::FrameSource(format!(
                     "[camera] pixel-format = \"{f}\" is not one of {}",
                     FORMATS.map(|(n, _)| n).join(", ")
                 )));

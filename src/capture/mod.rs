@@ -234,10 +234,9 @@ pub struct Capture {
 pub(crate) fn source_from_config(c: &CameraConfig) -> Result<Box<dyn FrameSource>> {
     match c.source {
         FrameSourceKind::File => {
-            let path = c
-                .frames
-                .as_ref()
-                .ok_or_else(|| Error::Invalid("[camera] source = \"file\" needs frames".into()))?;
+            let path = c.frames.as_ref().ok_or_else(|| {
+                Error::FrameSource("[camera] source = \"file\" needs frames".into())
+            })?;
             Ok(Box::new(FileSource::new(path)))
         }
         #[cfg(feature = "v4l")]
@@ -247,7 +246,7 @@ pub(crate) fn source_from_config(c: &CameraConfig) -> Result<Box<dyn FrameSource
         // Config::load refuses these first (exit 78); a caller that built its CameraConfig
         // itself gets the same line.
         #[allow(unreachable_patterns)]
-        other => Err(Error::Invalid(other.missing_backend_problem())),
+        other => Err(Error::FrameSource(other.missing_backend_problem())),
     }
 }
 
@@ -263,8 +262,9 @@ pub fn capture(
     clock: &dyn Clock,
 ) -> Result<Capture> {
     if settings.frame_count == 0 {
-        return Err(Error::Invalid(
-            "capture: frame-count must be at least 1".into(),
+        return Err(Error::stage(
+            crate::stage::StageName::Capture,
+            "frame-count must be at least 1",
         ));
     }
     let mut session = Session {

@@ -123,11 +123,11 @@ impl V4l2Source {
         let dev = c
             .device
             .as_deref()
-            .ok_or_else(|| Error::Invalid("[camera] source = \"v4l2\" needs device".into()))?;
+            .ok_or_else(|| Error::FrameSource("[camera] source = \"v4l2\" needs device".into()))?;
         let format = match c.pixel_format.as_deref() {
             None => None,
             Some(name) => Some(V4l2Format::parse(name).ok_or_else(|| {
-                Error::Invalid(format!(
+                Error::FrameSource(format!(
                     "[camera] pixel-format = \"{name}\" is not one of GREY, Y16, YUYV, MJPG"
                 ))
             })?),

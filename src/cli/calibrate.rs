@@ -104,9 +104,11 @@ fn detect_dir(
     square: f64,
 ) -> Result<(calib::Observations, Vec<NotFound>)> {
     if !(square.is_finite() && square > 0.0) {
-        return Err(Error::Invalid(format!(
-            "--square {square}: expected a positive size in metres"
-        )));
+        return Err(Error::arg(
+            "--square",
+            square,
+            "expected a positive size in metres",
+        ));
     }
     let files = image_files(dir)?;
     let name = |p: &Path| {
@@ -206,13 +208,13 @@ pub(super) fn run(a: Args) -> Result<()> {
         }
         (None, Some(dir)) => {
             let (pattern, square) = a.pattern.zip(a.square).ok_or_else(|| {
-                Error::Invalid("--images needs --pattern COLSxROWS and --square METRES".into())
+                Error::Usage("--images needs --pattern COLSxROWS and --square METRES".into())
             })?;
             let (obs, nf) = detect_dir(dir, pattern, square)?;
             (obs, nf, dir.clone())
         }
         (None, None) => {
-            return Err(Error::Invalid(
+            return Err(Error::Usage(
                 "give --corners FILE or --images DIR --pattern COLSxROWS --square METRES".into(),
             ))
         }
@@ -229,14 +231,13 @@ pub(super) fn run(a: Args) -> Result<()> {
     cal.not_found = not_found;
     write(&a.out, calib::to_yaml(&cal))?;
     if let Some(r) = &a.report {
-        let json = serde_json::to_string_pretty(&cal)
-            .map_err(|e| Error::Invalid(format!("report: {e}")))?;
+        let json = serde_json::to_string_pretty(&cal).map_err(|e| Error::output("report", e))?;
         write(r, json + "\n")?;
     }
     if let Some(p) = &a.coverage {
         coverage(&cal, &obs)
             .save(p)
-            .map_err(|e| Error::Invalid(format!("{}: {e}", p.display())))?;
+            .map_err(|e| Error::output(p.display().to_string(), e))?;
     }
     let rejected: Vec<String> = cal
         .views

@@ -38,11 +38,14 @@ impl EstimatorArgs {
             .ok()
             .filter(|b| (2..=MAX_GRAY_BINS.min(MAX_REFLECTIVITY_BINS)).contains(b))
             .ok_or_else(|| {
-                Error::Invalid(format!(
-                    "--bins {:?}: expected a whole number in 2..={}",
-                    self.bins,
-                    MAX_GRAY_BINS.min(MAX_REFLECTIVITY_BINS)
-                ))
+                Error::arg_quoted(
+                    "--bins",
+                    &self.bins,
+                    format!(
+                        "expected a whole number in 2..={}",
+                        MAX_GRAY_BINS.min(MAX_REFLECTIVITY_BINS)
+                    ),
+                )
             })?;
         let cfg = MiConfig {
             bins_reflectivity: bins,
@@ -70,7 +73,7 @@ mod tests {
 
     fn parse(args: &[&str]) -> Result<MiConfig> {
         let cli = Cli::try_parse_from(std::iter::once("t").chain(args.iter().copied()))
-            .map_err(|e| Error::Invalid(e.to_string()))?;
+            .map_err(|e| Error::Usage(e.to_string()))?;
         cli.est.config()
     }
 

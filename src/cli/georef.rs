@@ -122,34 +122,40 @@ pub(crate) fn read_used_pose(path: &Path) -> Result<UsedPose> {
 /// Run `georef`.
 pub(super) fn run(a: Args) -> Result<()> {
     if !(a.sigma_px >= 0.0 && a.sigma_px.is_finite()) {
-        return Err(Error::Invalid(format!(
-            "--sigma-px {}: must be a finite number ≥ 0",
-            a.sigma_px
-        )));
+        return Err(Error::arg(
+            "--sigma-px",
+            a.sigma_px,
+            "must be a finite number ≥ 0",
+        ));
     }
     if let Some(s) = a.height_sigma.filter(|s| !(s.is_finite() && *s >= 0.0)) {
-        return Err(Error::Invalid(format!(
-            "--height-sigma {s}: must be a finite number ≥ 0"
-        )));
+        return Err(Error::arg(
+            "--height-sigma",
+            s,
+            "must be a finite number ≥ 0",
+        ));
     }
     let smoothing = a.height_smoothing.unwrap_or(georef::DEFAULT_SMOOTHING_M);
     if !(0.0..=georef::MAX_SMOOTHING_M).contains(&smoothing) {
-        return Err(Error::Invalid(format!(
-            "--height-smoothing {smoothing}: must be in [0, {}] metres",
-            georef::MAX_SMOOTHING_M
-        )));
+        return Err(Error::arg(
+            "--height-smoothing",
+            smoothing,
+            format!("must be in [0, {}] metres", georef::MAX_SMOOTHING_M),
+        ));
     }
     let max_off_nadir = a.max_off_nadir.unwrap_or(georef::DEFAULT_MAX_OFF_NADIR_DEG);
     if !(max_off_nadir > 0.0 && max_off_nadir < 90.0) {
-        return Err(Error::Invalid(format!(
-            "--max-off-nadir {max_off_nadir}: must be in (0, 90) degrees"
-        )));
+        return Err(Error::arg(
+            "--max-off-nadir",
+            max_off_nadir,
+            "must be in (0, 90) degrees",
+        ));
     }
     if a.running {
         return run_on_service(&a);
     }
     if a.plane.is_some_and(|h| !h.is_finite()) {
-        return Err(Error::Invalid("--plane: must be a finite height".into()));
+        return Err(Error::Usage("--plane: must be a finite height".into()));
     }
     let need_config =
         a.pose.is_none() || a.camera.is_none() || (a.tiles.is_none() && a.plane.is_none());
@@ -256,7 +262,10 @@ fn run_on_service(a: &Args) -> Result<()> {
     };
     let answer = super::tech::georef_running(a.socket.as_deref(), &a.config, req)?;
     let mut doc: Value = answer.parse("georef answer")?;
-    let bad = |e: String| Error::Invalid(format!("the daemon's georef answer: {e}"));
+    let bad = |reason: String| Error::Answer {
+        what: "georef answer",
+        reason,
+    };
     if let Some(o) = doc.as_object_mut() {
         o.remove("ok");
     }
@@ -285,7 +294,7 @@ fn run_on_service(a: &Args) -> Result<()> {
 
 /// Not reached: the config is loaded whenever a flag is missing.
 fn unreachable_config<T>() -> Result<T> {
-    Err(Error::Invalid("georef: no camera given".into()))
+    Err(Error::Usage("georef: no camera given".into()))
 }
 
 /// The tile directory: `tiles` itself when it is one (has a manifest), else `tiles/<tile_id>`.

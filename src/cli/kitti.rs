@@ -134,7 +134,7 @@ pub(super) fn run(c: Command) -> Result<()> {
 /// Parse `x=…,y=…,z=…,yaw=…[,pitch=…,roll=…]` into the search's offsets (m, m, m, °, °, °).
 pub(crate) fn parse_perturbation(s: &str) -> Result<[f64; 6]> {
     const KEYS: [&str; 6] = ["x", "y", "z", "yaw", "pitch", "roll"];
-    let bad = |m: String| Error::Invalid(format!("--perturb {s:?}: {m}"));
+    let bad = |m: String| Error::arg_quoted("--perturb", s, m);
     let mut o = [0.0; 6];
     let mut seen = [false; 6];
     for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
@@ -188,9 +188,11 @@ fn camera_index(s: &str) -> Result<u8> {
         .ok()
         .filter(|n| *n <= 3)
         .ok_or_else(|| {
-            Error::Invalid(format!(
-                "--camera {s:?}: expected a camera 0–3 (P2, 2, 02 or image_02)"
-            ))
+            Error::arg_quoted(
+                "--camera",
+                s,
+                "expected a camera 0–3 (P2, 2, 02 or image_02)",
+            )
         })
 }
 
@@ -282,7 +284,7 @@ fn load_rig(a: &ImportArgs, layout: Layout, at: &Path, n: u8) -> Result<(RigCame
     match layout {
         Layout::Object => {
             let image = a.image.as_ref().ok_or_else(|| {
-                Error::Invalid(
+                Error::Usage(
                     "--image: the object benchmark's calibration has no image size; give the frame's image"
                         .into(),
                 )
@@ -384,7 +386,7 @@ fn first_dir(dir: &Path, candidates: &[PathBuf], what: &str) -> Result<PathBuf> 
 
 /// Parse `--frames` (`250,360,500-900`) into inclusive ranges.
 fn frame_ranges(spec: &str) -> Result<Vec<(u64, u64)>> {
-    let bad = |m: String| Error::Invalid(format!("--frames {spec:?}: {m}"));
+    let bad = |m: String| Error::arg_quoted("--frames", spec, m);
     let mut out = Vec::new();
     for item in spec.split(',').map(str::trim).filter(|t| !t.is_empty()) {
         let num = |t: &str| {
@@ -486,7 +488,7 @@ fn drive_frames(a: &ImportArgs, drive: &Path, n: u8, size: (u32, u32)) -> Result
         }
     };
     if a.every == 0 {
-        return Err(Error::Invalid("--every 0: must be at least 1".into()));
+        return Err(Error::arg("--every", 0, "must be at least 1"));
     }
     let mut frames = Vec::new();
     for stem in chosen.into_iter().step_by(a.every) {
@@ -568,7 +570,7 @@ fn import(a: ImportArgs) -> Result<()> {
     let frames = match &a.drive {
         None => None,
         Some(_) if layout == Layout::Object => {
-            return Err(Error::Invalid(
+            return Err(Error::Usage(
                 "--drive: the object benchmark's frames each have their own calibration; pool the frames of one KITTI raw or KITTI-360 drive".into(),
             ))
         }

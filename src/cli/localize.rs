@@ -55,9 +55,7 @@ impl Args {
             Some(s) => {
                 let [lat, lon] = super::parse_list::<2>("--prior-wgs84", s)?;
                 if !(lat.abs() <= 90.0 && lon.abs() <= 180.0) {
-                    return Err(Error::Invalid(format!(
-                        "--prior-wgs84 {s}: not a WGS84 position"
-                    )));
+                    return Err(Error::arg("--prior-wgs84", s, "not a WGS84 position"));
                 }
                 Some((lat, lon))
             }

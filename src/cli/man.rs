@@ -77,7 +77,7 @@ pub fn infraloc_1() -> Result<String> {
     cmd.build();
     let man = clap_mangen::Man::new(cmd.clone()).manual("infraloc manual");
     let mut out = Vec::new();
-    let io = |e: std::io::Error| Error::Invalid(format!("man page: {e}"));
+    let io = |e: std::io::Error| Error::output("man page", e);
     man.render_title(&mut out).map_err(io)?;
     man.render_name_section(&mut out).map_err(io)?;
     man.render_synopsis_section(&mut out).map_err(io)?;
@@ -85,7 +85,7 @@ pub fn infraloc_1() -> Result<String> {
     man.render_options_section(&mut out).map_err(io)?;
     // Not clap_mangen's SUBCOMMANDS list: it points at one page per command (infraloc-demo(1)),
     // and this page holds them all.
-    let mut text = String::from_utf8(out).map_err(|e| Error::Invalid(e.to_string()))?;
+    let mut text = String::from_utf8(out).map_err(|e| Error::Encode(e.into()))?;
     text.push_str(".SH COMMANDS\n");
     for sub in leaf_commands(&cmd) {
         text.push_str(&command_section(sub)?);
@@ -117,11 +117,11 @@ fn command_section(sub: &clap::Command) -> Result<String> {
     let name = sub.get_bin_name().unwrap_or(sub.get_name());
     let man = clap_mangen::Man::new(sub.clone());
     let mut out = Vec::new();
-    let io = |e: std::io::Error| Error::Invalid(format!("man page {name}: {e}"));
+    let io = |e: std::io::Error| Error::output(format!("man page {name}"), e);
     man.render_synopsis_section(&mut out).map_err(io)?;
     man.render_description_section(&mut out).map_err(io)?;
     man.render_options_section(&mut out).map_err(io)?;
-    let body = String::from_utf8(out).map_err(|e| Error::Invalid(e.to_string()))?;
+    let body = String::from_utf8(out).map_err(|e| Error::Encode(e.into()))?;
     let mut s = format!(".SS \"{name}\"\n");
     for line in body.lines() {
         if line.starts_with(".SH ") {

@@ -150,21 +150,14 @@ pub(crate) fn run(cli: Cli) -> Result<(), Error> {
 }
 
 /// Parse `A,B,C` into numbers, naming the flag on error.
-pub(crate) fn parse_list<const N: usize>(flag: &str, s: &str) -> Result<[f64; N], Error> {
+pub(crate) fn parse_list<const N: usize>(flag: &'static str, s: &str) -> Result<[f64; N], Error> {
+    let bad = || Error::arg_quoted(flag, s, format!("expected {N} comma-separated numbers"));
     let v: Vec<f64> = s
         .split(',')
         .map(|t| t.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .map_err(|_| {
-            Error::Invalid(format!(
-                "{flag} {s:?}: expected {N} comma-separated numbers"
-            ))
-        })?;
-    v.try_into().map_err(|_| {
-        Error::Invalid(format!(
-            "{flag} {s:?}: expected {N} comma-separated numbers"
-        ))
-    })
+        .map_err(|_| bad())?;
+    v.try_into().map_err(|_| bad())
 }
 
 /// Parse `W,H` (pixels, each 200..=8000 so that every chart fits its labels).
@@ -172,9 +165,11 @@ pub(crate) fn parse_size(s: &str) -> Result<(u32, u32), Error> {
     let [w, h] = parse_list::<2>("--size", s)?;
     let ok = |v: f64| v.fract() == 0.0 && (200.0..=8000.0).contains(&v);
     if !(ok(w) && ok(h)) {
-        return Err(Error::Invalid(format!(
-            "--size {s}: expected W,H in pixels, each 200..8000"
-        )));
+        return Err(Error::arg(
+            "--size",
+            s,
+            "expected W,H in pixels, each 200..8000",
+        ));
     }
     Ok((w as u32, h as u32))
 }

@@ -192,9 +192,7 @@ fn tile_points(
 ) -> Result<Vec<crate::map::GroundPoint>> {
     use crate::map::cache;
     if !(radius > 0.0 && radius.is_finite()) {
-        return Err(Error::Invalid(format!(
-            "--radius {radius}: must be positive"
-        )));
+        return Err(Error::arg("--radius", radius, "must be positive"));
     }
     let crs = crs
         .ok_or_else(|| Error::input(pose_path, "no \"crs\": needed to find the tile in --tiles"))?;
@@ -286,21 +284,21 @@ fn mi_surface_cmd(a: MiSurfaceArgs) -> Result<()> {
         )
     } else {
         let (Some(camera), Some(pose_path)) = (&a.camera, &a.pose) else {
-            return Err(Error::Invalid(
+            return Err(Error::Usage(
                 "plot mi-surface: give --scene DIR, or --camera, --image, --points or --tiles, and --pose".into(),
             ));
         };
         let out = a
             .out
             .clone()
-            .ok_or_else(|| Error::Invalid("plot mi-surface: give --out PNG".into()))?;
+            .ok_or_else(|| Error::Usage("plot mi-surface: give --out PNG".into()))?;
         let cam = crate::camera::load_camera(camera)?;
         let (read, cov) = read_doc(pose_path)?;
         let pose = read.pose;
         // Pairs as `refine` takes them: each --image with the --points in the same place, or
         // every --image with the one --tiles' points.
         if a.image.is_empty() || (a.tiles.is_none() && a.points.len() != a.image.len()) {
-            return Err(Error::Invalid(format!(
+            return Err(Error::Usage(format!(
                 "plot mi-surface: --image and --points pair up in order (or several --image with one --tiles): got {} and {}",
                 a.image.len(),
                 a.points.len()
@@ -356,7 +354,7 @@ fn mi_surface_cmd(a: MiSurfaceArgs) -> Result<()> {
     save_png(&img, &out)?;
     if let Some(j) = &a.json {
         let text = serde_json::to_string_pretty(&surf)
-            .map_err(|e| Error::Invalid(format!("{}: {e}", j.display())))?;
+            .map_err(|e| Error::output(j.display().to_string(), e))?;
         crate::persist::write_atomic(j, (text + "\n").as_bytes())?;
     }
     for (name, off, mi) in &surf.profiles {
@@ -436,8 +434,8 @@ fn argmax(v: &[f64]) -> usize {
         .fold(0, |b, (i, x)| if *x > v[b] { i } else { b })
 }
 
-fn pe<E: std::fmt::Display>(e: E) -> Error {
-    Error::Invalid(format!("plot: {e}"))
+fn pe<E: std::error::Error + Send + Sync + 'static>(e: E) -> Error {
+    Error::output("plot", e)
 }
 
 /// Draw into a white W×H RGB image.
@@ -445,7 +443,7 @@ fn draw(
     (w, h): (u32, u32),
     f: impl FnOnce(&DrawingArea<BitMapBackend, Shift>) -> Result<()>,
 ) -> Result<RgbImage> {
-    crate::viz::register_font().map_err(|e| Error::Invalid(format!("plot: {e}")))?;
+    crate::viz::register_font().map_err(pe)?;
     let mut buf = vec![255u8; w as usize * h as usize * 3];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
@@ -453,14 +451,14 @@ fn draw(
         f(&root)?;
         root.present().map_err(pe)?;
     }
-    RgbImage::from_raw(w, h, buf).ok_or_else(|| Error::Invalid("plot: buffer size".into()))
+    RgbImage::from_raw(w, h, buf).ok_or_else(|| Error::output("plot", "buffer size"))
 }
 
 /// Encode and write a PNG atomically.
 pub(crate) fn save_png(img: &RgbImage, path: &Path) -> Result<()> {
     let mut bytes = std::io::Cursor::new(Vec::new());
     img.write_to(&mut bytes, image::ImageFormat::Png)
-        .map_err(|e| Error::Invalid(format!("{}: PNG encoding: {e}", path.display())))?;
+        .map_err(|e| Error::output(format!("{}: PNG encoding", path.display()), e))?;
     crate::persist::write_atomic(path, &bytes.into_inner())
 }
 

@@ -49,7 +49,7 @@ fn check_rotation(r: &Matrix3<f64>) -> Result<()> {
     let off = (r.transpose() * r - Matrix3::identity()).abs().max();
     let det = r.determinant();
     if off > ROTATION_TOL || (det - 1.0).abs() > ROTATION_TOL {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Usage(format!(
             "--rotation is not a rotation matrix: RᵀR differs from the identity by up to {off:.3e} and det R = {det:.6} (need an orthonormal matrix with det +1, within {ROTATION_TOL:e})"
         )));
     }
@@ -61,10 +61,11 @@ pub(super) fn run(a: Args) -> Result<()> {
     let [w, h] = parse_list::<2>("--size", &a.size)?;
     let valid_side = |v: f64| (1.0..=MAX_SIDE).contains(&v) && v.fract() == 0.0;
     if !(valid_side(w) && valid_side(h)) {
-        return Err(Error::Invalid(format!(
-            "--size {:?}: expected two whole numbers from 1 to {MAX_SIDE}",
-            a.size
-        )));
+        return Err(Error::arg_quoted(
+            "--size",
+            &a.size,
+            format!("expected two whole numbers from 1 to {MAX_SIDE}"),
+        ));
     }
     let (w, h) = (w as usize, h as usize);
     let [fx, fy, cx, cy] = parse_list::<4>("--k", &a.k)?;
@@ -74,7 +75,7 @@ pub(super) fn run(a: Args) -> Result<()> {
         None => Matrix3::identity(),
     };
     if !(p.iter().chain(r.iter()).all(|v| v.is_finite())) {
-        return Err(Error::Invalid(
+        return Err(Error::Usage(
             "--k / --rotation: values must be finite".into(),
         ));
     }
@@ -100,7 +101,7 @@ pub(super) fn run(a: Args) -> Result<()> {
     let src = GrayView::new(&gray, iw, ih)?;
     let out = RemapTable::new(&map, iw, ih)?.remap(&src)?;
     let img = image::GrayImage::from_raw(w as u32, h as u32, out)
-        .ok_or_else(|| Error::Invalid("rectify: output buffer size mismatch".into()))?;
+        .ok_or_else(|| Error::output("rectify", "output buffer size mismatch"))?;
     img.save(&a.out)
         .map_err(|e| Error::input(&a.out, format!("cannot write image: {e}")))?;
     if let Some(path) = &a.map_out {

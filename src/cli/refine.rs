@@ -120,7 +120,7 @@ fn load_gray(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
 /// The `KEY=VALUE` items of `flag`'s comma-separated `spec`, each KEY one of `keys` and each
 /// VALUE finite and positive (or ≥ 0 with `zero_ok`); one line naming the item otherwise.
 fn key_values(
-    flag: &str,
+    flag: &'static str,
     spec: Option<&str>,
     keys: &[&'static str],
     zero_ok: bool,
@@ -133,15 +133,19 @@ fn key_values(
         .filter(|t| !t.is_empty())
     {
         let bad = || {
-            Error::Invalid(format!(
-                "{flag} {item:?}: expected KEY=VALUE with KEY one of {} and a {}",
-                keys.join(", "),
-                if zero_ok {
-                    "finite number ≥ 0"
-                } else {
-                    "positive number"
-                }
-            ))
+            Error::arg_quoted(
+                flag,
+                item,
+                format!(
+                    "expected KEY=VALUE with KEY one of {} and a {}",
+                    keys.join(", "),
+                    if zero_ok {
+                        "finite number ≥ 0"
+                    } else {
+                        "positive number"
+                    }
+                ),
+            )
         };
         let (k, v) = item.split_once('=').ok_or_else(bad)?;
         let v: f64 = v.trim().parse().map_err(|_| bad())?;
@@ -175,10 +179,7 @@ fn point_sets(a: &Args, init: &ReadPose) -> Result<(Vec<Vec<GroundPoint>>, Crs, 
     match &a.tiles {
         Some(dir) => {
             if !(a.radius > 0.0 && a.radius.is_finite()) {
-                return Err(Error::Invalid(format!(
-                    "--radius {}: must be positive",
-                    a.radius
-                )));
+                return Err(Error::arg("--radius", a.radius, "must be positive"));
             }
             let crs = init.crs.ok_or_else(|| {
                 Error::input(&a.init, "no \"crs\": needed to find the tile in --tiles")
@@ -287,7 +288,7 @@ pub(super) fn run(mut a: Args) -> Result<()> {
     };
     let spread = start_spread(a.starts, a.start_spread.as_deref())?;
     if !a.points.is_empty() && a.points.len() != a.image.len() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Usage(format!(
             "--image given {} times but --points {} times: pooled pairs need one point file per image, paired in order",
             a.image.len(),
             a.points.len()
@@ -416,7 +417,7 @@ fn write_report(
 ) -> Result<()> {
     let (mode, mi, finish_label) = (head.mode, head.mi, head.finish_label);
     let mut report =
-        serde_json::to_value(r.report(mode)).map_err(|e| Error::Invalid(format!("report: {e}")))?;
+        serde_json::to_value(r.report(mode)).map_err(|e| Error::output("report", e))?;
     report["finish"] = finish_label.into();
     if let Some(sm) = smooth {
         report["smooth"] = serde_json::to_value(sm).unwrap_or_default();
@@ -434,8 +435,7 @@ fn write_report(
     if let Some(c) = check {
         report["self_check"] = serde_json::to_value(c).unwrap_or_default();
     }
-    let text = serde_json::to_string_pretty(&report)
-        .map_err(|e| Error::Invalid(format!("report: {e}")))?;
+    let text = serde_json::to_string_pretty(&report).map_err(|e| Error::output("report", e))?;
     crate::persist::write_atomic(path, (text + "\n").as_bytes())
 }
 
@@ -475,7 +475,7 @@ type Run = (Refinement, Option<SmoothRefinement>);
 /// (at least one).
 fn start_spread(starts: usize, spec: Option<&str>) -> Result<[f64; 3]> {
     if starts == 0 {
-        return Err(Error::Invalid("--starts 0: at least one start".into()));
+        return Err(Error::arg("--starts", 0, "at least one start"));
     }
     let mut s = START_SPREAD;
     for (k, v) in key_values("--start-spread", spec, &["xy", "z", "yaw"], true)? {

@@ -8,6 +8,7 @@ use crate::map::cache::{write_tile_with, Provenance};
 use crate::map::Crs;
 use crate::pose::CamFromMap;
 use crate::posefile::PoseFile;
+use crate::sim::error::SimError;
 use crate::sim::{self, Difficulty, GantryScene, GivenIntrinsics, Lens, Preset, Scene, Settings};
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
@@ -167,7 +168,7 @@ pub(super) fn run(a: Args) -> Result<()> {
         scene
             .montage(512)
             .save(m)
-            .map_err(|e| Error::Invalid(format!("{}: {e}", m.display())))?;
+            .map_err(|e| Error::output(m.display().to_string(), e))?;
     }
     let times = match scene.times.len() {
         0 | 1 => String::new(),
@@ -217,7 +218,7 @@ pub(super) fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
     };
     write_tile_with(&dir.join("tiles"), &scene.tile, &provenance)?;
     let truth = serde_json::to_string_pretty(&scene.truth_json())
-        .map_err(|e| Error::Invalid(format!("truth.json: {e}")))?;
+        .map_err(|e| Error::output("truth.json", e))?;
     write(&dir.join("truth.json"), truth + "\n")?;
     if let Some(g) = &scene.gantry {
         write_gantry(scene, g, dir)?;
@@ -231,7 +232,7 @@ pub(super) fn write_scene(scene: &Scene, dir: &Path) -> Result<()> {
     cfg.map.tiles = PathBuf::from("tiles");
     // `infraloc daemon --config DIR/infraloc.toml` runs the service on the scene, socket included.
     cfg.daemon.socket = PathBuf::from("control.sock");
-    let text = toml::to_string(&cfg).map_err(|e| Error::Invalid(format!("infraloc.toml: {e}")))?;
+    let text = toml::to_string(&cfg).map_err(|e| Error::output("infraloc.toml", e))?;
     write(
         &dir.join("infraloc.toml"),
         format!(
@@ -250,14 +251,14 @@ const START_YAW_DEG: f64 = 1.5;
 /// One `w`×`h` gray frame as an image.
 fn gray(path: &Path, w: u32, h: u32, pixels: &[u8]) -> Result<image::GrayImage> {
     image::GrayImage::from_raw(w, h, pixels.to_vec())
-        .ok_or_else(|| Error::Invalid(format!("{}: frame buffer size", path.display())))
+        .ok_or_else(|| Error::output(path.display().to_string(), "frame buffer size"))
 }
 
 /// Write one PNG frame of `w`×`h` gray pixels.
 fn write_png(path: &Path, w: u32, h: u32, pixels: &[u8]) -> Result<()> {
     gray(path, w, h, pixels)?
         .save(path)
-        .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))
+        .map_err(|e| Error::output(path.display().to_string(), e))
 }
 
 /// Write a burst as `dir`/000.png, 001.png, … (creating `dir`).
@@ -286,9 +287,9 @@ fn write_times(scene: &Scene, dir: &Path) -> Result<()> {
             .collect::<Result<Vec<_>>>()?;
         let mp = dir.join(sim::time_median(t));
         crate::capture::temporal_median(&burst)
-            .map_err(|e| Error::Invalid(format!("{}: {e}", mp.display())))?
+            .map_err(|e| Error::output(mp.display().to_string(), e))?
             .save(&mp)
-            .map_err(|e| Error::Invalid(format!("{}: {e}", mp.display())))?;
+            .map_err(|e| Error::output(mp.display().to_string(), e))?;
         if let Some(g) = &scene.gantry {
             let cam = &g.rig.camera;
             let pdir = dir.join("perspective").join(sim::time_dir(t));
@@ -386,8 +387,7 @@ fn write_gantry(scene: &Scene, g: &GantryScene, dir: &Path) -> Result<()> {
         "ring_elevations_deg": [sim::gantry::RING_TOP_DEG, sim::gantry::RING_BOTTOM_DEG],
         "sweeps": g.sweeps.iter().map(Vec::len).collect::<Vec<_>>(),
     });
-    let text = serde_json::to_string_pretty(&lidar)
-        .map_err(|e| Error::Invalid(format!("lidar.json: {e}")))?;
+    let text = serde_json::to_string_pretty(&lidar).map_err(|e| Error::output("lidar.json", e))?;
     write(&ldir.join("lidar.json"), text + "\n")
 }
 
@@ -397,9 +397,7 @@ fn checkerboard(a: &Args, n: usize) -> Result<()> {
     let (cols, rows) = a.board.pattern.unwrap_or((9, 6));
     let square = a.board.square.unwrap_or(0.04);
     if !(square.is_finite() && square > 0.0) || n == 0 {
-        return Err(Error::Invalid(format!(
-            "--checkerboard {n} --square {square}: need at least one view and a positive square"
-        )));
+        return Err(SimError::Checkerboard { views: n, square }.into());
     }
     let cam = match &a.board.camera {
         Some(p) => crate::camera::load_camera(p)?,
@@ -415,9 +413,9 @@ fn checkerboard(a: &Args, n: usize) -> Result<()> {
     for (i, v) in views.iter().enumerate() {
         let p = a.out.join(frame_name(i));
         image::GrayImage::from_raw(w, h, v.image.clone())
-            .ok_or_else(|| Error::Invalid(format!("{}: image buffer size", p.display())))?
+            .ok_or_else(|| Error::output(p.display().to_string(), "image buffer size"))?
             .save(&p)
-            .map_err(|e| Error::Invalid(format!("{}: {e}", p.display())))?;
+            .map_err(|e| Error::output(p.display().to_string(), e))?;
         let seen = v.corners.iter().filter(|c| c.is_some()).count();
         if seen == object.len() {
             full.push(crate::calib::View {
@@ -456,8 +454,8 @@ fn checkerboard(a: &Args, n: usize) -> Result<()> {
         "corner_order": "row by row: corner (i, j) at (i*square, j*square, 0) is entry j*cols + i",
         "views": json_views,
     });
-    let text = serde_json::to_string_pretty(&truth)
-        .map_err(|e| Error::Invalid(format!("checkerboard.json: {e}")))?;
+    let text =
+        serde_json::to_string_pretty(&truth).map_err(|e| Error::output("checkerboard.json", e))?;
     write(&a.out.join("checkerboard.json"), text + "\n")?;
     println!(
         "simulate: wrote {} ({n} views of a {cols}x{rows} board, {} with every corner in the image)",

@@ -98,7 +98,7 @@ pub enum Attitude {
 /// Run `study`.
 pub(super) fn run(a: Args) -> Result<()> {
     if a.trials == 0 {
-        return Err(Error::Invalid("--trials 0: need at least one trial".into()));
+        return Err(Error::arg("--trials", 0, "need at least one trial"));
     }
     let pert = Perturbation {
         xy_m: a.perturb_xy,
@@ -174,7 +174,7 @@ pub(super) fn run(a: Args) -> Result<()> {
                 .map_err(|e| Error::input(a.scene.join("truth.json"), e.to_string()))?
         }
         (Attitude::ControlPoints, None) => {
-            return Err(Error::Invalid(
+            return Err(Error::Usage(
                 "--attitude control-points with --sensor perspective: the perspective camera has no control points; use --attitude truth".into(),
             ))
         }
@@ -229,7 +229,7 @@ pub(super) fn run(a: Args) -> Result<()> {
     });
     let jpath = a.json.unwrap_or_else(|| a.scene.join("study.json"));
     let text = serde_json::to_string_pretty(&doc)
-        .map_err(|e| Error::Invalid(format!("{}: {e}", jpath.display())))?;
+        .map_err(|e| Error::output(jpath.display().to_string(), e))?;
     crate::persist::write_atomic(&jpath, (text + "\n").as_bytes())?;
     let png = a.out.unwrap_or_else(|| a.scene.join("study.png"));
     let note = format!(

@@ -68,7 +68,10 @@ impl Target {
     fn connect(&self) -> Result<Client> {
         let (path, note) = self.socket_and_note();
         Client::connect(&path).map_err(|e| match note {
-            Some(n) => Error::Invalid(format!("{e} ({n})")),
+            Some(note) => Error::Connect {
+                source: Box::new(e),
+                note,
+            },
             None => e,
         })
     }
@@ -144,7 +147,9 @@ pub(crate) fn daemon(a: DaemonArgs) -> Result<()> {
 fn served(a: &Answer) -> Result<()> {
     match a.refusal() {
         None => Ok(()),
-        Some(e) => Err(Error::Invalid(e.to_string())),
+        Some(e) => Err(Error::Refused {
+            reason: e.to_string(),
+        }),
     }
 }
 
@@ -476,7 +481,9 @@ pub(crate) fn validate_running(socket: Option<&Path>, config: &Path, json: bool)
         // A refusal naming the config file is the config error itself (same exit code as a
         // local validate); one that does not (busy) is the error as it came.
         let Ok(r) = answer.parse::<ConfigRefusal>("config error") else {
-            return Err(Error::Invalid(e.to_string()));
+            return Err(Error::Refused {
+                reason: e.to_string(),
+            });
         };
         let prefix = format!("config {}: ", r.config.display());
         let msg = r.error.strip_prefix(&prefix).unwrap_or(&r.error);

@@ -256,8 +256,13 @@ fn load_config(path: &Path) -> Result<(Config, Vec<String>)> {
 
 fn start_signals(tx: Sender<Event>) -> Result<()> {
     use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
-    let mut signals = signal_hook::iterator::Signals::new([SIGTERM, SIGINT, SIGHUP])
-        .map_err(|e| Error::Invalid(format!("cannot install signal handlers: {e}")))?;
+    let mut signals =
+        signal_hook::iterator::Signals::new([SIGTERM, SIGINT, SIGHUP]).map_err(|source| {
+            Error::System {
+                what: "install signal handlers",
+                source,
+            }
+        })?;
     std::thread::Builder::new()
         .name("signals".into())
         .spawn(move || {
@@ -272,7 +277,10 @@ fn start_signals(tx: Sender<Event>) -> Result<()> {
                 }
             }
         })
-        .map_err(|e| Error::Invalid(format!("cannot start the signal thread: {e}")))?;
+        .map_err(|source| Error::System {
+            what: "start the signal thread",
+            source,
+        })?;
     Ok(())
 }
 
@@ -583,11 +591,12 @@ impl Daemon {
                 let pooled = pool.used.into_inner().unwrap_or_else(|e| e.into_inner());
                 let _ = tx.send(Event::LocalizeDone(Box::new(r), pooled));
             });
-        if let Err(e) = spawned {
+        if let Err(source) = spawned {
             let _ = self.tx.send(Event::LocalizeDone(
-                Box::new(Err(Error::Invalid(format!(
-                    "cannot start the localization thread: {e}"
-                )))),
+                Box::new(Err(Error::System {
+                    what: "start the localization thread",
+                    source,
+                })),
                 Vec::new(),
             ));
         }
@@ -743,10 +752,11 @@ impl Daemon {
                 .unwrap_or_else(|p| Err(internal_error("drift", p)));
                 let _ = tx.send(Event::DriftDone(r));
             });
-        if let Err(e) = spawned {
-            let _ = self.tx.send(Event::DriftDone(Err(Error::Invalid(format!(
-                "cannot start the drift thread: {e}"
-            )))));
+        if let Err(source) = spawned {
+            let _ = self.tx.send(Event::DriftDone(Err(Error::System {
+                what: "start the drift thread",
+                source,
+            })));
         }
     }
 

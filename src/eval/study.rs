@@ -60,9 +60,7 @@ impl Perturbation {
             ("--perturb-yaw", self.yaw_deg),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(Error::Invalid(format!(
-                    "{flag} {v}: must be a finite number ≥ 0"
-                )));
+                return Err(Error::arg(flag, v, "must be a finite number ≥ 0"));
             }
         }
         Ok(())

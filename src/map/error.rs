@@ -43,6 +43,12 @@ pub enum MapError {
         /// The LiDAR layers' CRS.
         lidar: Crs,
     },
+    /// A tile whose height layer has no valid height to georeference on.
+    #[error("tile {id}: the height layer has no valid heights")]
+    NoHeights {
+        /// The tile.
+        id: String,
+    },
     /// A layer whose samples do not fill its grid.
     #[error("tile {id}: {layer} has {samples} samples for a grid of {grid}")]
     Samples {

@@ -7,7 +7,8 @@
 //! local solar time from the longitude, no equation of time): within a degree or two of an
 //! ephemeris, enough for plausible shadows.
 
-use crate::error::{Error, Result};
+use super::error::SimError;
+use crate::error::Result;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::TAU;
@@ -83,9 +84,12 @@ pub(crate) fn day(
     low_sun: bool,
 ) -> Result<Day> {
     if k == 0 || k > MAX_TIMES {
-        return Err(Error::Invalid(format!(
-            "simulate: --times {k} must be 1..={MAX_TIMES}"
-        )));
+        return Err(SimError::Count {
+            flag: "--times",
+            value: k,
+            max: MAX_TIMES,
+        }
+        .into());
     }
     let year = 2026;
     let (month, dom, (lo, hi)) = if low_sun {
@@ -110,9 +114,13 @@ pub(crate) fn day(
         .collect();
     let n = eligible.len();
     if n < 4 * k as usize {
-        return Err(Error::Invalid(format!(
-            "simulate: the sun is {lo}–{hi}° up for {n} minutes of the day, too few for --times {k}"
-        )));
+        return Err(SimError::FewSunMinutes {
+            lo,
+            hi,
+            minutes: n,
+            times: k,
+        }
+        .into());
     }
     let part = n as f64 / k as f64;
     let moments = (0..k)

@@ -239,9 +239,9 @@ pub(crate) fn satellite(
     let mut buf = Vec::new();
     image::codecs::jpeg::JpegEncoder::new_with_quality(&mut buf, shot.jpeg_quality)
         .encode(&rgb, gw as u32, gh as u32, image::ExtendedColorType::Rgb8)
-        .map_err(|e| Error::Invalid(format!("satellite JPEG encode: {e}")))?;
+        .map_err(|e| Error::output("satellite JPEG encode", e))?;
     let dec = image::load_from_memory_with_format(&buf, image::ImageFormat::Jpeg)
-        .map_err(|e| Error::Invalid(format!("satellite JPEG decode: {e}")))?
+        .map_err(|e| Error::output("satellite JPEG decode", e))?
         .to_rgb8();
     let data = dec.pixels().map(|p| p.0).collect();
     Ok(Raster {

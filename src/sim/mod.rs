@@ -10,6 +10,7 @@ pub(crate) mod appearance;
 pub(crate) mod calibrated;
 pub mod checkerboard;
 pub mod day;
+pub mod error;
 pub mod gantry;
 pub(crate) mod gps;
 pub(crate) mod layers;
@@ -21,10 +22,11 @@ pub(crate) mod solids;
 pub(crate) mod world;
 
 use crate::camera::{Camera, CameraModel, Equidistant, Mei};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::map::{ControlPoint, Crs, GeoGrid, Raster, Tile};
 use crate::pose::CamFromMap;
 use appearance::Appearance;
+use error::SimError;
 use nalgebra::{Point3, Vector3};
 use noise::mix64;
 use rand::{Rng, SeedableRng};
@@ -532,17 +534,20 @@ fn movers_at(w: &World, movers: &[Mover], frame: u32) -> Vec<Solid> {
 /// `--frames` and `--times` within their bounds, else one line naming the flag.
 fn check_counts(settings: &Settings) -> Result<()> {
     if settings.frames == 0 || settings.frames > 1000 {
-        return Err(Error::Invalid(format!(
-            "simulate: --frames {} must be 1..=1000",
-            settings.frames
-        )));
+        return Err(SimError::Count {
+            flag: "--frames",
+            value: settings.frames,
+            max: 1000,
+        }
+        .into());
     }
     if settings.times == 0 || settings.times > day::MAX_TIMES {
-        return Err(Error::Invalid(format!(
-            "simulate: --times {} must be 1..={}",
-            settings.times,
-            day::MAX_TIMES
-        )));
+        return Err(SimError::Count {
+            flag: "--times",
+            value: settings.times,
+            max: day::MAX_TIMES,
+        }
+        .into());
     }
     Ok(())
 }
@@ -586,7 +591,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
         GivenIntrinsics::Calibrated => {
             let (c, sigma) =
                 calibrated::calibrated_camera(&camera_true, mix64(settings.seed ^ 0xCA1B_0A2D))
-                    .map_err(|e| Error::Invalid(format!("simulate: given intrinsics: {e}")))?;
+                    .map_err(|reason| SimError::Intrinsics { reason })?;
             (c, Some(sigma))
         }
     };
