@@ -347,21 +347,20 @@ fn add_spread(
 }
 
 /// The σ per axis of `info` that the gate judges: the largest of the Cramér–Rao bound, the
-/// patch sandwich and, with several frames, the frame sandwich. A single frame cannot measure
-/// the error its own light and sweep share over all its patches; in its stead stands the floor,
-/// half the search's finest step ([`crate::localize::refine::uncertainty::sigma_floor`]). Where
-/// a frame sandwich exists it measures that error, and the floor gives way to it.
+/// patch sandwich, the frame sandwich (when there is one) and the floor, half the search's finest
+/// step ([`crate::localize::refine::uncertainty::sigma_floor`]). The floor stands for the error
+/// every frame shares, which no clustering of patches or frames can see: the light's common
+/// direction (a low sun casts its shadows to the same side all day) and the map's own. Pooled
+/// frames do not shrink it.
 fn judged_sigma(info: &Information, cfg: &crate::localize::mi::space::SearchConfig) -> Vec<f64> {
+    let frame = |i: usize| info.frame_sigma.as_ref().map_or(0.0, |f| f[i]);
     info.axes
         .iter()
         .zip(info.sigma.iter().zip(&info.sandwich_sigma))
         .enumerate()
-        .map(|(i, (a, (s, w)))| match &info.frame_sigma {
-            Some(f) => s.max(*w).max(f[i]),
-            None => {
-                let floor = crate::localize::refine::uncertainty::sigma_floor(cfg, a);
-                s.max(*w).max(floor)
-            }
+        .map(|(i, (a, (s, w)))| {
+            let floor = crate::localize::refine::uncertainty::sigma_floor(cfg, a);
+            s.max(*w).max(frame(i)).max(floor)
         })
         .collect()
 }
@@ -427,11 +426,11 @@ mod tests {
         assert_eq!(Sigma::of(&w).x, u.sigma[0]);
     }
 
-    /// With a frame sandwich the floor gives way to it, and each estimate is widened by its own
-    /// degrees of freedom: the frames' (K − 1) where they decide the axis, the patches' (31)
-    /// elsewhere.
+    /// With a frame sandwich each estimate is widened by its own degrees of freedom: the
+    /// frames' (K − 1) where they decide the axis, the patches' (31, the floor's too) elsewhere;
+    /// the floor stays.
     #[test]
-    fn a_frame_sandwich_replaces_the_floor_and_widens_by_its_own_frames() {
+    fn a_frame_sandwich_widens_by_its_own_frames_above_the_floor() {
         let axes: Vec<String> = ["x", "y", "z", "yaw"].map(String::from).to_vec();
         let diag = |sd: &[f64]| -> Vec<Vec<f64>> {
             (0..4)
@@ -443,7 +442,7 @@ mod tests {
                 .collect()
         };
         let patch = [0.003, 0.004, 0.006, 0.007];
-        let frame = [0.005, 0.001, 0.001, 0.004];
+        let frame = [0.008, 0.001, 0.001, 0.004];
         let info = |frames: usize| Information {
             axes: axes.clone(),
             units: ["m", "m", "m", "deg"].map(String::from).to_vec(),
@@ -460,14 +459,15 @@ mod tests {
         };
         let cfg = crate::localize::mi::space::SearchConfig::default();
         let judged = judged_sigma(&info(6), &cfg);
-        // Below the default floor (1 cm, 0.025°) on every axis: the largest estimate each.
-        assert_eq!(judged, vec![0.005, 0.004, 0.006, 0.007]);
+        // Every estimate is below the default floor (1 cm, 0.025°).
+        assert_eq!(judged, vec![0.01, 0.01, 0.01, 0.025]);
         let t = |dof: usize| super::super::uncertainty::student_t_3sigma(dof) / 3.0;
-        for (frames, dof) in [(6, 5), (12, 11)] {
+        // Six frames: x's frame σ widened by t₅ (1.46 cm) passes the floor widened by t₃₁
+        // (1.09 cm). Twelve: by t₁₁ (1.03 cm) it does not.
+        for (frames, x) in [(6, 0.008 * t(5)), (12, 0.01 * t(31))] {
             let u = information_covariance(&info(frames), &judged, None);
             assert_eq!(u.gate_sigma, judged);
-            // x: the frames decide (0.005 × t₅ > 0.003 × t₃₁); the rest the patches.
-            let want = [0.005 * t(dof), 0.004 * t(31), 0.006 * t(31), 0.007 * t(31)];
+            let want = [x, 0.01 * t(31), 0.01 * t(31), 0.025 * t(31)];
             for i in 0..4 {
                 assert!(
                     (u.sigma[i] - want[i]).abs() < 1e-12,
@@ -476,10 +476,5 @@ mod tests {
                 );
             }
         }
-        // Without the frame sandwich the floor is back and every axis takes the patches' t.
-        let mut one = info(0);
-        one.frame_sigma = None;
-        one.frame_matrix = None;
-        assert_eq!(judged_sigma(&one, &cfg), vec![0.01, 0.01, 0.01, 0.025]);
     }
 }
