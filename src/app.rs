@@ -16,7 +16,7 @@ use crate::localize::pipeline::{localize_pooled, Outcome, Params};
 use crate::map::cache::{load_covering, SkippedTile, TileRef};
 use crate::map::{Crs, Tile};
 use crate::persist::write_atomic;
-use crate::posefile::{format_utc, PoseFile};
+use crate::posefile::{format_utc, PoseFile, PoseQuality};
 use crate::stage::StageName;
 use image::GrayImage;
 use serde_json::{json, Value};
@@ -377,13 +377,13 @@ pub(crate) fn run_pooled(
     );
     pf.intrinsics = serde_json::to_value(&camera).unwrap_or(Value::Null);
     let q = &outcome.refinement.quality;
-    let quality = PoseQuality {
+    let quality = LocalizedQuality {
         refinement: q,
         score: q.nmi,
         pnp_inliers: outcome.init.inliers,
         pnp_rms_px: outcome.init.rms_px,
     };
-    pf.quality = serde_json::to_value(quality).unwrap_or(json!({}));
+    pf.quality = PoseQuality::from_value(serde_json::to_value(quality).unwrap_or(json!({})));
     pf.stages = outcome.stages.iter().map(|s| s.to_json()).collect();
     pf.stages[0]["source"] = prior_desc.clone();
 
@@ -509,7 +509,7 @@ enum Located {
 /// The pose file's `quality` block as a localization writes it: the refinement's figures with
 /// the initialization's beside them. Stored through a JSON value, so its keys stay sorted.
 #[derive(serde::Serialize)]
-struct PoseQuality<'a> {
+struct LocalizedQuality<'a> {
     #[serde(flatten)]
     refinement: &'a crate::localize::refine::quality::Quality,
     /// The pose store compares results by it: the MI optimum's NMI.

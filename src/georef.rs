@@ -11,7 +11,7 @@ use crate::geo::georef::{
 };
 use crate::map::error::MapError;
 use crate::map::{Crs, Raster};
-use crate::posefile::{pose_covariance_of, PoseFile};
+use crate::posefile::PoseFile;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 
@@ -208,7 +208,8 @@ impl ServedGeoref {
         height: Raster<f32>,
         tile_id: &str,
     ) -> Result<ServedGeoref> {
-        let covariance = pose_covariance_of(&pose.quality)
+        let covariance = pose
+            .pose_covariance()
             .map_err(|e| Error::input(pose_path, e.to_string()))?;
         let crs = height.grid.crs;
         if pose.crs != crs.to_string() {

@@ -205,13 +205,17 @@ mod tests {
     use super::*;
     use crate::map::Crs;
     use crate::pose::CamFromMap;
+    use crate::posefile::PoseQuality;
     use nalgebra::Point3;
 
     fn pose(status: &str, score: f64, x: f64) -> PoseFile {
         let p = CamFromMap::from_center_ypr(&Point3::new(x, 2.0, 8.0), 0.3, 0.0, 0.0);
         let mut f = PoseFile::new(&p, Crs::Epsg(32617), "t", "2026-11-21T12:00:00Z".into());
         f.status = status.into();
-        f.quality = serde_json::json!({ "score": score });
+        f.quality = PoseQuality {
+            score: Some(score),
+            ..Default::default()
+        };
         f
     }
 

@@ -10,7 +10,7 @@
 mod common;
 use infraloc::map::Crs;
 use infraloc::pose::CamFromMap;
-use infraloc::posefile::PoseFile;
+use infraloc::posefile::{PoseFile, PoseQuality};
 use infraloc::store::PoseStore;
 use nalgebra::Point3;
 use rand::{Rng, SeedableRng};
@@ -39,7 +39,9 @@ fn pose(i: u64) -> PoseFile {
         format!("2026-11-21T12:00:{:02}Z", i % 60),
     );
     // Vary the size so a torn write could not pass for a complete one by accident.
-    f.quality = serde_json::json!({ "score": 0.5, "pad": "x".repeat((i % 997) as usize) });
+    f.quality = PoseQuality::from_value(
+        serde_json::json!({ "score": 0.5, "pad": "x".repeat((i % 997) as usize) }),
+    );
     f
 }
 

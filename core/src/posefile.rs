@@ -59,8 +59,9 @@ pub struct PoseFile {
     pub yaw_pitch_roll_deg: [f64; 3],
     /// Camera intrinsics used (the native table, `model` first).
     pub intrinsics: Value,
-    /// Quality figures of the result.
-    pub quality: Value,
+    /// Quality figures of the result (a file without a `quality` object reads as an empty one).
+    #[serde(default)]
+    pub quality: PoseQuality,
     /// Per-stage records (`prior`, `pnp`, `mi`, …).
     pub stages: Vec<Value>,
     /// Who wrote it.
@@ -87,7 +88,7 @@ impl PoseFile {
             quaternion_map_from_cam_xyzw: pose.quaternion_map_from_cam_xyzw(),
             yaw_pitch_roll_deg: [y.to_degrees(), p.to_degrees(), r.to_degrees()],
             intrinsics: Value::Null,
-            quality: Value::Object(Default::default()),
+            quality: PoseQuality::default(),
             stages: Vec::new(),
             software: Software::default(),
             extra: Default::default(),
@@ -101,7 +102,7 @@ impl PoseFile {
 
     /// The marginal σ per axis of `quality.sigma`, if the file has a well-formed one.
     pub fn sigma(&self) -> Option<Sigma> {
-        self.quality_figure("sigma")
+        self.quality.sigma
     }
 
     /// The pose's covariance from `quality.covariance` (`axes` and `matrix`, docs/pose.md
@@ -110,18 +111,12 @@ impl PoseFile {
     pub fn pose_covariance(
         &self,
     ) -> std::result::Result<Option<PoseCovariance>, PoseCovarianceError> {
-        pose_covariance_of(&self.quality)
+        self.quality.pose_covariance()
     }
 
     /// The pose store's comparison score, `quality.score`, if the file has a numeric one.
     pub fn score(&self) -> Option<f64> {
-        self.quality_figure("score")
-    }
-
-    /// The `quality` block's figure `key` as a `T`. Each figure is read on its own, so a
-    /// malformed one (a hand-made file, an older writer) is absent rather than spoiling the rest.
-    fn quality_figure<T: serde::de::DeserializeOwned>(&self, key: &str) -> Option<T> {
-        self.quality.get(key).and_then(|v| T::deserialize(v).ok())
+        self.quality.score
     }
 
     /// Pretty JSON text with a trailing newline.
@@ -144,22 +139,165 @@ pub enum PoseCovarianceError {
     Entries(#[source] crate::geo::georef::CovarianceError),
 }
 
-/// [`PoseFile::pose_covariance`] of a `quality` block.
+/// [`PoseFile::pose_covariance`] of a `quality` block given as JSON (any value; one that is not
+/// an object has no covariance).
 pub fn pose_covariance_of(
     quality: &Value,
 ) -> std::result::Result<Option<PoseCovariance>, PoseCovarianceError> {
-    let Some(c) = quality.get("covariance") else {
-        return Ok(None);
-    };
-    #[derive(Deserialize)]
-    struct Cov {
-        axes: Vec<String>,
-        matrix: Vec<Vec<f64>>,
+    PoseQuality::from_value(quality.clone()).pose_covariance()
+}
+
+/// The pose file's `quality` block (docs/interfaces.md, "Pose file"): the figures readers use,
+/// typed, and every other key as written.
+///
+/// Each known figure is read on its own: one that is malformed (a hand-made file, an older or
+/// other writer) reads as absent and stays, as written, in [`rest`](Self::rest), rather than
+/// spoiling the rest of the file. A well-formed figure whose typed value would be written
+/// differently (`1` for `1.0`, a `sigma` with further keys) is typed and its text is kept in
+/// `rest` too, and written back as long as the typed value is unchanged; so a block read and
+/// written again is the same JSON. A typed figure set to `None` is dropped with its text; a
+/// malformed one in `rest` is kept.
+///
+/// It is written as one JSON object with its keys sorted (as a [`serde_json::Value`] writes
+/// them), nested objects too, whatever the fields' order here.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PoseQuality {
+    /// The pose store's comparison score (a localization writes its MI optimum's NMI).
+    pub score: Option<f64>,
+    /// The marginal σ per axis.
+    pub sigma: Option<Sigma>,
+    /// The marginal covariance: its axes, matrix and the rest of its object.
+    pub covariance: Option<QualityCovariance>,
+    /// The quality gate's verdict.
+    pub accepted: Option<bool>,
+    /// Why the gate refused (absent, or `null` kept in `rest`, when it accepted).
+    pub reason: Option<String>,
+    /// Every other key, and the text of a known figure that is malformed or spelled otherwise
+    /// than its typed value writes.
+    pub rest: serde_json::Map<String, Value>,
+}
+
+/// `quality.covariance` of a pose file: `axes` and `matrix`, and every other key (`units`,
+/// `sigma`, how it was estimated, …) as written.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct QualityCovariance {
+    /// Axis names, in the matrix's order (x, y, z, yaw, then pitch, roll when estimated).
+    pub axes: Vec<String>,
+    /// The covariance, row-major (m, deg).
+    pub matrix: Vec<Vec<f64>>,
+    /// Every other key of the object.
+    #[serde(flatten)]
+    pub rest: serde_json::Map<String, Value>,
+}
+
+impl PoseQuality {
+    /// The block of a JSON value: its known figures typed, the rest kept. A value that is not
+    /// an object (`null`, a number, …) reads as an empty block.
+    pub fn from_value(value: Value) -> Self {
+        let Value::Object(mut rest) = value else {
+            return PoseQuality::default();
+        };
+        PoseQuality {
+            score: take_figure(&mut rest, "score"),
+            sigma: take_figure(&mut rest, "sigma"),
+            covariance: take_figure(&mut rest, "covariance"),
+            accepted: take_figure(&mut rest, "accepted"),
+            reason: take_figure(&mut rest, "reason"),
+            rest,
+        }
     }
-    let c = Cov::deserialize(c).map_err(PoseCovarianceError::Malformed)?;
-    PoseCovariance::from_axes(&c.axes, &c.matrix)
-        .map(Some)
-        .map_err(PoseCovarianceError::Entries)
+
+    /// The block as the JSON object the pose file holds.
+    pub fn to_value(&self) -> Value {
+        let mut m = self.rest.clone();
+        put_figure(&mut m, "score", &self.score);
+        put_figure(&mut m, "sigma", &self.sigma);
+        put_figure(&mut m, "covariance", &self.covariance);
+        put_figure(&mut m, "accepted", &self.accepted);
+        put_figure(&mut m, "reason", &self.reason);
+        Value::Object(m)
+    }
+
+    /// The pose's covariance (see [`PoseFile::pose_covariance`]).
+    pub fn pose_covariance(
+        &self,
+    ) -> std::result::Result<Option<PoseCovariance>, PoseCovarianceError> {
+        let (axes, matrix) = match (&self.covariance, self.rest.get("covariance")) {
+            (Some(c), _) => (c.axes.clone(), c.matrix.clone()),
+            (None, None) => return Ok(None),
+            // A malformed one: read as before, for the same words (or the forms only this
+            // reading takes, an `[axes, matrix]` array).
+            (None, Some(raw)) => {
+                #[derive(Deserialize)]
+                struct Cov {
+                    axes: Vec<String>,
+                    matrix: Vec<Vec<f64>>,
+                }
+                let c = Cov::deserialize(raw).map_err(PoseCovarianceError::Malformed)?;
+                (c.axes, c.matrix)
+            }
+        };
+        PoseCovariance::from_axes(&axes, &matrix)
+            .map(Some)
+            .map_err(PoseCovarianceError::Entries)
+    }
+}
+
+/// Figure `key` of `m` as a `T`, `None` when absent or malformed (then left in `m`). Taken out
+/// of `m` when the `T` writes exactly what `m` holds; otherwise its text stays for
+/// [`put_figure`].
+fn take_figure<T: serde::de::DeserializeOwned + Serialize>(
+    m: &mut serde_json::Map<String, Value>,
+    key: &str,
+) -> Option<T> {
+    let raw = m.get(key)?;
+    let t = T::deserialize(raw).ok()?;
+    if serde_json::to_value(&t).ok().as_ref() == Some(raw) {
+        m.remove(key);
+    }
+    Some(t)
+}
+
+/// Write figure `key` into `m` (which holds what [`take_figure`] left): its kept text while that
+/// still reads as `v`, else `v` itself; for `None`, a kept text only if it is malformed.
+fn put_figure<T: serde::de::DeserializeOwned + Serialize + PartialEq>(
+    m: &mut serde_json::Map<String, Value>,
+    key: &str,
+    v: &Option<T>,
+) {
+    let kept = m.get(key).map(T::deserialize);
+    match (v, kept) {
+        (Some(t), Some(Ok(k))) if k == *t => {}
+        (Some(t), _) => {
+            m.insert(
+                key.to_string(),
+                serde_json::to_value(t).unwrap_or(Value::Null),
+            );
+        }
+        (None, Some(Ok(_))) => {
+            m.remove(key);
+        }
+        (None, _) => {}
+    }
+}
+
+impl Serialize for PoseQuality {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        // Through a JSON value: its map writes the keys sorted, as the untyped block did.
+        self.to_value().serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for PoseQuality {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        Value::deserialize(d).map(PoseQuality::from_value)
+    }
+}
+
+impl From<Value> for PoseQuality {
+    fn from(value: Value) -> Self {
+        PoseQuality::from_value(value)
+    }
 }
 
 /// The minimal pose content any pose-like JSON must carry.
@@ -316,6 +454,87 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.starts_with("x.json: not a pose file"), "{e}");
+    }
+
+    fn block(text: &str) -> PoseQuality {
+        serde_json::from_str(text).unwrap()
+    }
+
+    fn written(q: &PoseQuality) -> String {
+        serde_json::to_string(q).unwrap()
+    }
+
+    #[test]
+    fn the_quality_block_writes_its_keys_sorted_as_the_untyped_one_did() {
+        let v = serde_json::json!({
+            "sigma": {"yaw": 0.1, "x": 0.01, "y": 0.02, "z": f64::INFINITY},
+            "score": 0.5, "accepted": true, "reason": null, "mi": 0.3, "axes": [{"unit": "m", "axis": "x"}],
+            "covariance": {"units": ["m"], "matrix": [[1e-4]], "axes": ["x"], "points": 12},
+        });
+        let q = PoseQuality::from_value(v.clone());
+        assert_eq!(q.score, Some(0.5));
+        assert_eq!(q.accepted, Some(true));
+        assert_eq!(q.reason, None);
+        assert_eq!(q.covariance.as_ref().unwrap().matrix, [[1e-4]]);
+        // An infinite σ is written `null`: not a σ (as before), kept as written.
+        assert_eq!(q.sigma, None);
+        assert_eq!(q.to_value(), v);
+        // Pretty and compact, the same text as the value's.
+        assert_eq!(written(&q), serde_json::to_string(&v).unwrap());
+        assert_eq!(
+            serde_json::to_string_pretty(&q).unwrap(),
+            serde_json::to_string_pretty(&v).unwrap()
+        );
+        // Built typed, written as the value of the same figures.
+        let typed = PoseQuality {
+            score: Some(0.25),
+            sigma: Some(Sigma::by_axis(|_| Some(0.5))),
+            accepted: Some(false),
+            reason: Some("why".into()),
+            ..Default::default()
+        };
+        assert_eq!(
+            written(&typed),
+            r#"{"accepted":false,"reason":"why","score":0.25,"sigma":{"pitch":0.5,"roll":0.5,"x":0.5,"y":0.5,"yaw":0.5,"z":0.5}}"#
+        );
+        assert_eq!(block(&written(&typed)), typed);
+    }
+
+    #[test]
+    fn a_malformed_figure_reads_as_absent_and_is_kept_as_written() {
+        let text = r#"{"covariance":{"axes":["x"]},"extra":{"a":[1,2],"b":1},"score":"high","sigma":{"x":"wide"}}"#;
+        let q = block(text);
+        assert_eq!((q.score, q.sigma, q.accepted), (None, None, None));
+        assert!(q.covariance.is_none());
+        assert_eq!(written(&q), text);
+        // The covariance's error is the one an untyped block gave.
+        let e = q.pose_covariance().unwrap_err().to_string();
+        assert_eq!(e, "quality.covariance: missing field `matrix`");
+        // A figure set over a malformed one replaces it; cleared, the malformed text stays.
+        let mut q = q;
+        q.score = Some(2.0);
+        assert!(written(&q).contains(r#""score":2.0"#));
+        q.score = None;
+        assert_eq!(written(&q), text);
+        // Not an object at all: an empty block, no figures.
+        assert_eq!(
+            PoseQuality::from_value(serde_json::json!(5)),
+            PoseQuality::default()
+        );
+        assert!(pose_covariance_of(&Value::Null).unwrap().is_none());
+    }
+
+    #[test]
+    fn a_figure_spelled_otherwise_is_typed_and_written_as_it_was() {
+        let text = r#"{"accepted":true,"score":1,"sigma":{"note":"by hand","x":1,"y":0.02,"yaw":0.1,"z":0.03}}"#;
+        let mut q = block(text);
+        assert_eq!(q.score, Some(1.0));
+        assert_eq!(q.sigma.unwrap().x, 1.0);
+        assert_eq!(written(&q), text);
+        // Changed, the new value is written; cleared, the figure goes.
+        q.score = Some(0.5);
+        q.sigma = None;
+        assert_eq!(written(&q), r#"{"accepted":true,"score":0.5}"#);
     }
 
     #[test]

@@ -17,7 +17,7 @@ use crate::localize::refine::{finish_name, refine_polished, Refinement};
 use crate::map::{cache, Crs};
 use crate::points_io::read_points;
 use crate::pose::{offsets_between, CamFromMap};
-use crate::posefile::{format_utc, read_pose, PoseFile, ReadPose};
+use crate::posefile::{format_utc, read_pose, PoseFile, PoseQuality, ReadPose};
 use std::path::{Path, PathBuf};
 
 /// Default radius (m) of tile ground points around the camera's nadir: at 6 m height that is
@@ -457,7 +457,7 @@ fn write_pose_out(
         .map(|d| d.as_secs() as i64)
         .unwrap_or(0);
     let mut pf = PoseFile::new(&r.pose, crs, tile_id, format_utc(now, None));
-    pf.quality = serde_json::to_value(&r.quality).unwrap_or_default();
+    pf.quality = PoseQuality::from_value(serde_json::to_value(&r.quality).unwrap_or_default());
     pf.stages = vec![
         serde_json::json!({ "name": "mi", "mode": a.mode, "search": a.search, "polish": a.polish, "finish": finish_label }),
     ];

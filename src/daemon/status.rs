@@ -497,6 +497,7 @@ impl DriftCheck {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::posefile::PoseQuality;
 
     fn localized(sigma: Option<Sigma>, skipped: Vec<SkippedTile>) -> RunResult {
         RunResult {
@@ -555,13 +556,13 @@ mod tests {
         );
         let mut p = PoseFile::new(&pose, crate::map::Crs::Local, "t", "2026".into());
         assert_eq!(Served::of(Path::new("p.json"), &p).sigma, None);
-        p.quality = serde_json::json!({"score": 0.1,
-            "sigma": {"x": 0.01, "y": 0.02, "z": 0.03, "yaw": 0.1}});
+        p.quality = PoseQuality::from_value(serde_json::json!({"score": 0.1,
+            "sigma": {"x": 0.01, "y": 0.02, "z": 0.03, "yaw": 0.1}}));
         let s = Served::of(Path::new("p.json"), &p).sigma.unwrap();
         assert_eq!((s.x, s.y, s.z, s.yaw), (0.01, 0.02, 0.03, 0.1));
         assert_eq!((s.pitch, s.roll), (None, None));
         // A malformed block is "no σ", not an error.
-        p.quality = serde_json::json!({"sigma": {"x": "wide"}});
+        p.quality = PoseQuality::from_value(serde_json::json!({"sigma": {"x": "wide"}}));
         assert_eq!(Served::of(Path::new("p.json"), &p).sigma, None);
     }
 }

@@ -9,7 +9,7 @@
 
 use crate::common;
 
-use infraloc::posefile::{read_pose, PoseFile};
+use infraloc::posefile::{read_pose, PoseFile, PoseQuality};
 use serde_json::Value;
 use serialport::{SerialPort, TTYPort};
 use std::io::Write;
@@ -654,7 +654,7 @@ fn stored_pose(dir: &Path) -> Vec<u8> {
         "sim-0001",
         "2026-11-01T00:00:00Z".into(),
     );
-    f.quality = serde_json::json!({"score": 1.0});
+    f.quality = PoseQuality::from_value(serde_json::json!({"score": 1.0}));
     let bytes = f.to_json().into_bytes();
     std::fs::write(dir.join("pose.json"), &bytes).unwrap();
     bytes

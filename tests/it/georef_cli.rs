@@ -6,7 +6,7 @@
 use infraloc::camera::{to_opencv_yaml, Camera, CameraModel, Mei};
 use infraloc::map::{Crs, GeoGrid, Raster, Tile};
 use infraloc::pose::CamFromMap;
-use infraloc::posefile::PoseFile;
+use infraloc::posefile::{PoseFile, PoseQuality};
 use nalgebra::{Point3, Vector3};
 use std::path::PathBuf;
 use std::process::{Command, Output, Stdio};
@@ -89,14 +89,14 @@ fn scene() -> Scene {
     let camera = dir.path().join("camera.yaml");
     std::fs::write(&camera, to_opencv_yaml(&Camera::Mei(lens()))).unwrap();
     let mut pf = PoseFile::new(&pose(), CRS, "patch", "2026-11-27T00:00:00Z".into());
-    pf.quality = serde_json::json!({
+    pf.quality = PoseQuality::from_value(serde_json::json!({
         "sigma": {"x": 0.01, "y": 0.012, "z": 0.02, "yaw": 0.02, "pitch": 0.01, "roll": 0.01},
         "covariance": {
             "axes": ["x", "y", "z", "yaw", "pitch", "roll"],
             "units": ["m", "m", "m", "deg", "deg", "deg"],
             "matrix": diag(&[1e-4, 1.44e-4, 4e-4, 4e-4, 1e-4, 1e-4]),
         }
-    });
+    }));
     let pose = dir.path().join("pose.json");
     std::fs::write(&pose, pf.to_json()).unwrap();
     Scene {

@@ -3,7 +3,7 @@
 //! stays served). Shared by `tests/it/georef_service.rs` and `benches/georef_socket.rs`.
 #![allow(dead_code)]
 
-use infraloc::posefile::{read_pose, PoseFile};
+use infraloc::posefile::{read_pose, PoseFile, PoseQuality};
 use serde_json::{json, Value};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -80,7 +80,7 @@ pub(crate) fn store_truth(scene: &Path, work: &Path) {
         &tile.to_string_lossy(),
         STORED_AT.into(),
     );
-    f.quality = json!({
+    f.quality = PoseQuality::from_value(json!({
         "score": 1.0,
         "sigma": {"x": 0.01, "y": 0.01, "z": 0.01, "yaw": 0.05},
         "covariance": {
@@ -89,7 +89,7 @@ pub(crate) fn store_truth(scene: &Path, work: &Path) {
             "matrix": [[1e-4, 0.0, 0.0, 0.0], [0.0, 1e-4, 0.0, 0.0],
                        [0.0, 0.0, 1e-4, 0.0], [0.0, 0.0, 0.0, 0.0025]],
         },
-    });
+    }));
     std::fs::write(work.join("pose.json"), f.to_json()).unwrap();
 }
 
