@@ -50,11 +50,7 @@ fn text(b: &[u8]) -> String {
 /// A working directory with a config derived from the scene's: absolute scene paths, the pose,
 /// socket and history in the work dir, and `edit` applied to the TOML table.
 fn workdir(edit: impl FnOnce(&mut toml::Table)) -> (tempfile::TempDir, PathBuf) {
-    workdir_of(scene(), edit)
-}
-
-/// [`workdir`] for the scene in `s`.
-fn workdir_of(s: &Path, edit: impl FnOnce(&mut toml::Table)) -> (tempfile::TempDir, PathBuf) {
+    let s = scene();
     let w = tempfile::tempdir().unwrap();
     let mut t: toml::Table =
         toml::from_str(&std::fs::read_to_string(s.join("infraloc.toml")).unwrap()).unwrap();
@@ -242,13 +238,8 @@ fn wait_for_result(cfg: &Path, d: &Daemon) -> (Value, i32) {
 
 /// Errors of a pose file against the scene's truth: horizontal m, height m, yaw deg.
 fn errors(pose: &Path) -> (f64, f64, f64) {
-    errors_of(scene(), pose)
-}
-
-/// [`errors`] against the truth of the scene in `s`.
-fn errors_of(s: &Path, pose: &Path) -> (f64, f64, f64) {
     let p = read_pose(pose).unwrap().pose;
-    let t = read_pose(&s.join("truth.json")).unwrap().pose;
+    let t = read_pose(&scene().join("truth.json")).unwrap().pose;
     let (c, tc) = (p.center(), t.center());
     let dyaw = infraloc::pose::angle_difference(p.yaw_pitch_roll().0, t.yaw_pitch_roll().0);
     (
