@@ -89,9 +89,10 @@ pub fn camera_fingerprint(camera: &Camera) -> String {
     format!("{h:016x}")
 }
 
-/// The frame directory of the service whose pose file is `pose`: `frames/` beside it.
+/// The frame directory of the service whose pose file is `pose`: `stored-frames/` beside it
+/// (not `frames/`, the name a scene directory gives its camera frames next to its pose).
 pub fn frame_dir(pose: &Path) -> PathBuf {
-    pose.with_file_name("frames")
+    pose.with_file_name("stored-frames")
 }
 
 /// The stored frames in one directory under one set of bounds.
@@ -481,6 +482,6 @@ mod tests {
         );
         s.put(&frame(8, 6, 0), "00000000000000aa", 0).unwrap();
         assert!(s.list().is_empty());
-        assert!(!d.path().join("frames").exists());
+        assert!(!d.path().join("stored-frames").exists());
     }
 }

@@ -949,7 +949,7 @@ fn frames_of_earlier_runs_are_stored_pooled_skipped_and_cleared() {
             metrics.path().display().to_string(),
         );
     });
-    let frames = w.path().join("frames");
+    let frames = w.path().join("stored-frames");
     let listed = || -> Vec<String> {
         let mut v: Vec<String> = std::fs::read_dir(&frames)
             .map(|rd| {
