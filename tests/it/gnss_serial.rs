@@ -174,7 +174,10 @@ fn device_disappears_and_comes_back() {
     let st = h.status().unwrap();
     assert_eq!(st.state, GpsState::Fix, "{st:?}");
 
-    // Unplug: both ends go away, the pts node vanishes, the link dangles.
+    // Unplug: both ends go away, the pts node vanishes, the link dangles. The link is pointed at
+    // a path that never exists first: left at the freed pts number, it could meet the pty that a
+    // test running alongside opens next under that number.
+    make_link(&link, &dir.path().join("unplugged").display().to_string());
     drop(m1);
     drop(s1);
     wait_for("reconnecting state", Duration::from_secs(5), || {
