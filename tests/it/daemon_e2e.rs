@@ -1134,7 +1134,10 @@ fn an_ambiguous_first_run_is_served_once_the_hours_are_pooled() {
         set(t, "daemon", "retry-initial-s", 2.0);
         set(t, "daemon", "retry-max-s", 2.0);
     });
-    let dmn = Daemon::start(&cfg);
+    let mut dmn = Daemon::start(&cfg);
+    // READY=1 comes once the first run has ended, saying that nothing is served.
+    let ready = dmn.wait_notify("READY=1", LOCALIZE_TIMEOUT);
+    assert!(ready.contains("STATUS=failed: no pose served"), "{ready}");
     let (first, code) = wait_for_result(&cfg, &dmn);
     let r = &first["last_result"];
     let why = r["error"].as_str().unwrap_or_default();
