@@ -294,12 +294,6 @@ impl<'de> Deserialize<'de> for PoseQuality {
     }
 }
 
-impl From<Value> for PoseQuality {
-    fn from(value: Value) -> Self {
-        PoseQuality::from_value(value)
-    }
-}
-
 /// The minimal pose content any pose-like JSON must carry.
 #[derive(Debug, Clone, Deserialize)]
 struct MinimalPose {

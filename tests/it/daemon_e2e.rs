@@ -209,16 +209,18 @@ fn status(cfg: &Path) -> (Value, i32) {
 /// Poll `status` until `cond` holds (a minute at most: signals are handled within a second on
 /// an idle machine, much later on a loaded one).
 fn poll_status(cfg: &Path, cond: impl Fn(&Value) -> bool) -> Value {
+    poll_status_within(cfg, Duration::from_secs(60), cond)
+}
+
+/// [`poll_status`] for at most `timeout`.
+fn poll_status_within(cfg: &Path, timeout: Duration, cond: impl Fn(&Value) -> bool) -> Value {
     let start = Instant::now();
     loop {
         let (v, _) = status(cfg);
         if cond(&v) {
             return v;
         }
-        assert!(
-            start.elapsed() < Duration::from_secs(60),
-            "status never got there: {v}"
-        );
+        assert!(start.elapsed() < timeout, "status never got there: {v}");
         std::thread::sleep(Duration::from_millis(100));
     }
 }
@@ -1157,19 +1159,9 @@ fn an_ambiguous_first_run_is_served_once_the_hours_are_pooled() {
             runs.join("\n")
         );
         hour(runs.len());
-        let start = Instant::now();
-        let v = loop {
-            let (v, _) = status(&cfg);
-            if v["last_result"]["finished_utc"] != finished {
-                break v;
-            }
-            assert!(
-                start.elapsed() < LOCALIZE_TIMEOUT,
-                "no run: {v}; {}",
-                dmn.log()
-            );
-            std::thread::sleep(Duration::from_millis(200));
-        };
+        let v = poll_status_within(&cfg, LOCALIZE_TIMEOUT, |v| {
+            v["last_result"]["finished_utc"] != finished
+        });
         let r = &v["last_result"];
         finished = r["finished_utc"].clone();
         assert_eq!(
