@@ -319,7 +319,7 @@ pub struct DaemonConfig {
     /// atomically). `None`: no metrics file.
     pub metrics_dir: Option<PathBuf>,
     /// Frames pooled into one localization at most, the run's own included: the service keeps
-    /// the burst median of each run in `frames/` beside the pose and pools those of earlier
+    /// the burst median of each run in `stored-frames/` beside the pose and pools those of earlier
     /// hours into the refinement (`crate::frames`). 1 = no pooling, nothing stored.
     pub pool_frames: usize,
     /// A stored frame older than this, hours, is dropped.

@@ -287,11 +287,20 @@ fn camera(cfg: &Config, f: &mut Findings) {
                 "[camera] intrinsics-file {} is a directory, not an intrinsics file",
                 file.display()
             )),
-            Ok(_) => {
-                if let Err(e) = crate::camera::load_camera(p) {
-                    f.problems.push(format!("[camera] intrinsics-file: {e}"));
+            Ok(_) => match crate::camera::load_camera(p) {
+                Err(e) => f.problems.push(format!("[camera] intrinsics-file: {e}")),
+                Ok(cam) => {
+                    use crate::camera::CameraModel;
+                    let total = std::fs::read_to_string("/proc/meminfo")
+                        .ok()
+                        .and_then(|t| mem_total_bytes(&t));
+                    if let Some(w) = total.and_then(|t| {
+                        pool_memory_warning(cfg.daemon.pool_frames, cam.width(), cam.height(), t)
+                    }) {
+                        f.warnings.push(w);
+                    }
                 }
-            }
+            },
         }
     }
     match c.source {
@@ -311,6 +320,38 @@ fn camera(cfg: &Config, f: &mut Findings) {
             }
         }
         FrameSourceKind::Aravis => {}
+    }
+}
+
+/// Memory a pooled refinement holds per frame and pixel, bytes: six 5 MP hours took 470–511 MB
+/// against one burst's 114 MB (docs/benchmarks.md, "Pooled refinement"), about 75 MB for each
+/// frame of 5.0 Mpx pooled.
+const POOL_BYTES_PER_PIXEL: f64 = 15.0;
+
+/// A warning when pooling `frames` frames of `width` × `height` would take over half of the
+/// machine's `total` bytes of memory in one run: a node that runs out of memory mid-run is
+/// killed and restarted into the same run.
+fn pool_memory_warning(frames: usize, width: u32, height: u32, total: u64) -> Option<String> {
+    let need = frames as f64 * POOL_BYTES_PER_PIXEL * f64::from(width) * f64::from(height);
+    let gb = |b: f64| b / 1e9;
+    (frames > 1 && need > 0.5 * total as f64).then(|| {
+        format!(
+            "[daemon] pool-frames = {frames}: pooling {frames} frames of {width}×{height} takes about {:.1} GB in one run, over half of this machine's {:.1} GB; lower pool-frames",
+            gb(need),
+            gb(total as f64)
+        )
+    })
+}
+
+/// `MemTotal` of `/proc/meminfo`'s text, bytes.
+fn mem_total_bytes(meminfo: &str) -> Option<u64> {
+    let line = meminfo.lines().find(|l| l.starts_with("MemTotal:"))?;
+    let mut it = line["MemTotal:".len()..].split_whitespace();
+    let n: u64 = it.next()?.parse().ok()?;
+    match it.next() {
+        Some("kB") => n.checked_mul(1024),
+        None => Some(n),
+        Some(_) => None,
     }
 }
 
@@ -470,6 +511,25 @@ fn socket(p: &Path, f: &mut Findings) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pooling_more_frames_than_memory_holds_is_a_warning_naming_the_key() {
+        let meminfo = "MemTotal:        2009980 kB\nMemFree:          100000 kB\n";
+        let total = mem_total_bytes(meminfo).unwrap();
+        assert_eq!(total, 2_009_980 * 1024);
+        // 32 frames of 5 MP: about 2.4 GB on a 2 GB node.
+        let w = pool_memory_warning(32, 2448, 2048, total).unwrap();
+        assert!(
+            w.starts_with("[daemon] pool-frames = 32:") && w.contains("2448×2048"),
+            "{w}"
+        );
+        assert!(!w.contains('\n'));
+        // The default six on the same node, and one frame anywhere, are quiet.
+        assert_eq!(pool_memory_warning(6, 2448, 2048, total), None);
+        assert_eq!(pool_memory_warning(1, 2448, 2048, 1), None);
+        assert_eq!(mem_total_bytes("MemFree: 1 kB\n"), None);
+        assert_eq!(mem_total_bytes("MemTotal: x kB\n"), None);
+    }
 
     fn cfg_in(dir: &Path, extra: &str) -> Config {
         let text = format!(
