@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# The gantry table of docs/accuracy.md ("Gantry preset"): N seeded `simulate --preset gantry`
-# scenes, `study --sensor perspective` with T seeded starts on each (the study's seed = the
-# scene's), then the pooled trials as one table row.
+# The gantry tables of docs/accuracy.md ("Gantry preset"): N seeded `simulate --preset gantry`
+# scenes, `study --sensor SENSOR` with T seeded starts on each (the study's seed = the scene's),
+# then the pooled trials as one table row. SENSOR is `perspective` (the gantry's side camera
+# against its own sweep) unless SENSOR=fisheye (the node's fisheye against the map tile, its
+# starts' tilt from the control points as a perfect PnP would give it).
 #
 #   cargo build --release && docs/scripts/gantry_study.sh [FIRST LAST TRIALS [BIN [OUT]]]
 #
@@ -13,13 +15,16 @@ LAST=${2:-100}
 TRIALS=${3:-1}
 BIN=$(realpath "${4:-target/release/infraloc}")
 OUT=${5:-/tmp/gantry-study}
+SENSOR=${SENSOR:-perspective}
+ATT=
+[ "$SENSOR" = perspective ] || ATT="--attitude control-points"
 mkdir -p "$OUT"
 for s in $(seq "$FIRST" "$LAST"); do
   [ -f "$OUT/study-$s.json" ] && continue
   "$BIN" simulate --preset gantry --seed "$s" --frames 1 --out "$OUT/g-$s" >/dev/null
   # shellcheck disable=SC2086
-  "$BIN" study --scene "$OUT/g-$s" --sensor perspective --trials "$TRIALS" --seed "$s" \
-      ${STUDY_FLAGS:-} --out "$OUT/study-$s.png" --json "$OUT/study-$s.json" >/dev/null
+  "$BIN" study --scene "$OUT/g-$s" --sensor "$SENSOR" --trials "$TRIALS" --seed "$s" \
+      $ATT ${STUDY_FLAGS:-} --out "$OUT/study-$s.png" --json "$OUT/study-$s.json" >/dev/null
   # Keep the study and the truth; the frames and tiles are 20 MB a scene.
   rm -rf "$OUT/g-$s/tiles" "$OUT/g-$s/frames"
 done

@@ -4,8 +4,11 @@
 #   fisheye: `simulate --difficulty hard --low-sun --times K` (a burst of 5 per time), then
 #            `study --attitude control-points` on the first time's burst median (single) and
 #            with `--times` on all K medians (pooled), the same seeded start for both;
-#   gantry:  `simulate --preset gantry --times K --frames 1`, then `study --sensor perspective`
-#            on the first time's frame and sweep (single) and on all K pairs (pooled).
+#   gantry:  `simulate --preset gantry --times K --frames 1`, then `study --sensor SENSOR`
+#            on the first time's frame and sweep (single) and on all K pairs (pooled);
+#            SENSOR is GANTRY_SENSOR, `perspective` (the gantry's side camera, files g-*) by
+#            default or `fisheye` (the node's own camera on the gantry, files gf-*, with
+#            `--attitude control-points` as for the fisheye scenes).
 # Seeds are interleaved (fisheye s, gantry s) so a partial run has both; finished seeds are
 # skipped on a rerun. Then the table rows.
 #
@@ -18,6 +21,9 @@ LAST=${2:-30}
 K=${3:-6}
 BIN=$(realpath "${4:-target/release/infraloc}")
 OUT=${5:-/tmp/times-study}
+SENSOR=${GANTRY_SENSOR:-perspective}
+G=g ATT=
+if [ "$SENSOR" != perspective ]; then G=gf ATT="--attitude control-points"; fi
 mkdir -p "$OUT"
 study() { # scene seed json [flags…]
   local scene=$1 seed=$2 json=$3
@@ -33,17 +39,18 @@ for s in $(seq "$FIRST" "$LAST"); do
     cp "$OUT/f-$s/truth.json" "$OUT/f-$s-truth.json"
     rm -rf "$OUT/f-$s"
   fi
-  if [ "${GANTRY:-1}" = 1 ] && [ ! -f "$OUT/g-$s-pooled.json" ]; then
-    "$BIN" simulate --preset gantry --seed "$s" --times "$K" --frames 1 --out "$OUT/g-$s" >/dev/null
-    study "$OUT/g-$s" "$s" "$OUT/g-$s-single.json" --sensor perspective
-    study "$OUT/g-$s" "$s" "$OUT/g-$s-pooled.json" --sensor perspective --times
-    cp "$OUT/g-$s/truth.json" "$OUT/g-$s-truth.json"
-    rm -rf "$OUT/g-$s"
+  if [ "${GANTRY:-1}" = 1 ] && [ ! -f "$OUT/$G-$s-pooled.json" ]; then
+    "$BIN" simulate --preset gantry --seed "$s" --times "$K" --frames 1 --out "$OUT/$G-$s" >/dev/null
+    study "$OUT/$G-$s" "$s" "$OUT/$G-$s-single.json" --sensor "$SENSOR" $ATT
+    study "$OUT/$G-$s" "$s" "$OUT/$G-$s-pooled.json" --sensor "$SENSOR" --times $ATT
+    cp "$OUT/$G-$s/truth.json" "$OUT/$G-$s-truth.json"
+    rm -rf "$OUT/$G-$s"
   fi
 done
-python3 - "$OUT" "$FIRST" "$LAST" "$K" "$(dirname "$0")" <<'PY'
+python3 - "$OUT" "$FIRST" "$LAST" "$K" "$(dirname "$0")" "$G" "$SENSOR" <<'PY'
 import json, math, os, sys
 out, first, last, k = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+g, sensor = sys.argv[6], sys.argv[7]
 sys.path.insert(0, sys.argv[5])
 from sigma_ratio import median
 AXES = ["x", "y", "z", "yaw"]
@@ -81,7 +88,7 @@ print(f"seeds {first}–{last}, K = {k}")
 print("| scenes | frames | accepted / run | ground median / p95 (cm, accepted) | horizontal median / p95 (cm, all) "
       "| horizontal (cm, accepted) | median σ x, y, z (cm), yaw (°), accepted | 3σ coverage x/y/z/yaw (%) |")
 print("|---|---|---|---|---|---|---|---|")
-for kind, name in (("f", "fisheye, hard, low sun"), ("g", "gantry perspective")):
+for kind, name in (("f", "fisheye, hard, low sun"), (g, f"gantry {sensor}")):
     single, pooled = trials(kind, "single"), trials(kind, "pooled")
     if not single:
         continue
