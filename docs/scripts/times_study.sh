@@ -41,7 +41,9 @@ for s in $(seq "$FIRST" "$LAST"); do
   fi
   if [ "${GANTRY:-1}" = 1 ] && [ ! -f "$OUT/$G-$s-pooled.json" ]; then
     "$BIN" simulate --preset gantry --seed "$s" --times "$K" --frames 1 --out "$OUT/$G-$s" >/dev/null
+    # shellcheck disable=SC2086
     study "$OUT/$G-$s" "$s" "$OUT/$G-$s-single.json" --sensor "$SENSOR" $ATT
+    # shellcheck disable=SC2086
     study "$OUT/$G-$s" "$s" "$OUT/$G-$s-pooled.json" --sensor "$SENSOR" --times $ATT
     cp "$OUT/$G-$s/truth.json" "$OUT/$G-$s-truth.json"
     rm -rf "$OUT/$G-$s"
