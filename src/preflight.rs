@@ -1,9 +1,9 @@
 //! What a configuration names, checked on this machine before any work (I/O shell).
 //!
 //! [`crate::config::Config::load`] checks the keys; this module opens what they point at: the
-//! intrinsics parse, the frames source exists, the tile cache holds a tile with a readable
-//! manifest, the match file parses, output directories exist and are writable, the control
-//! socket's path is free. Every problem is collected (each naming its `[section] key`), so a
+//! intrinsics parse (and the frames pooled at their size fit in memory), the frames source
+//! exists, the tile cache holds a tile with a readable manifest, the match file parses, output
+//! directories exist and are writable, the control socket's path is free. Every problem is collected (each naming its `[section] key`), so a
 //! technician fixes them all in one pass. Things that may legitimately appear later (a camera or
 //! receiver device that is plugged in after boot, the service's state and runtime directories,
 //! which the service creates) are warnings, not problems.
