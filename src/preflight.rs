@@ -3,8 +3,8 @@
 //! [`crate::config::Config::load`] checks the keys; this module opens what they point at: the
 //! intrinsics parse (and the frames pooled at their size fit in memory), the frames source
 //! exists, the tile cache holds a tile with a readable manifest, the match file parses, output
-//! directories exist and are writable, the control socket's path is free. Every problem is collected (each naming its `[section] key`), so a
-//! technician fixes them all in one pass. Things that may legitimately appear later (a camera or
+//! directories exist and are writable, the control socket's path is free. Every problem is
+//! collected (each naming its `[section] key`), so a technician fixes them all in one pass. Things that may legitimately appear later (a camera or
 //! receiver device that is plugged in after boot, the service's state and runtime directories,
 //! which the service creates) are warnings, not problems.
 //!
@@ -103,7 +103,9 @@ pub(crate) fn check(cfg: &Config, scope: Scope) -> Findings {
     drop_empty(&mut cfg.init.matcher_path);
     let cfg = &cfg;
     let mut f = Findings::default();
-    camera(cfg, &mut f);
+    if let Some(cam) = camera(cfg, &mut f) {
+        pool_memory(cfg, &cam, &mut f);
+    }
     gps(cfg, &mut f);
     tiles(cfg, &mut f);
     if cfg.init.matcher == MatcherKind::MatchFile {
@@ -275,8 +277,10 @@ fn not_writable(dir: &Path, _m: &std::fs::Metadata) -> Option<String> {
     })
 }
 
-fn camera(cfg: &Config, f: &mut Findings) {
+/// The `[camera]` checks; the intrinsics when they parse.
+fn camera(cfg: &Config, f: &mut Findings) -> Option<crate::camera::Camera> {
     let c = &cfg.camera;
+    let mut cam = None;
     if let Some(p) = &c.intrinsics_file {
         let file = strip_selector(p);
         match std::fs::metadata(&file) {
@@ -289,17 +293,7 @@ fn camera(cfg: &Config, f: &mut Findings) {
             )),
             Ok(_) => match crate::camera::load_camera(p) {
                 Err(e) => f.problems.push(format!("[camera] intrinsics-file: {e}")),
-                Ok(cam) => {
-                    use crate::camera::CameraModel;
-                    let total = std::fs::read_to_string("/proc/meminfo")
-                        .ok()
-                        .and_then(|t| mem_total_bytes(&t));
-                    if let Some(w) = total.and_then(|t| {
-                        pool_memory_warning(cfg.daemon.pool_frames, cam.width(), cam.height(), t)
-                    }) {
-                        f.warnings.push(w);
-                    }
-                }
+                Ok(c) => cam = Some(c),
             },
         }
     }
@@ -320,6 +314,20 @@ fn camera(cfg: &Config, f: &mut Findings) {
             }
         }
         FrameSourceKind::Aravis => {}
+    }
+    cam
+}
+
+/// `[daemon] pool-frames` against this machine's memory ([`pool_memory_warning`]).
+fn pool_memory(cfg: &Config, cam: &crate::camera::Camera, f: &mut Findings) {
+    use crate::camera::CameraModel;
+    let total = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|t| mem_total_bytes(&t));
+    if let Some(w) = total
+        .and_then(|t| pool_memory_warning(cfg.daemon.pool_frames, cam.width(), cam.height(), t))
+    {
+        f.warnings.push(w);
     }
 }
 
