@@ -1041,7 +1041,7 @@ mod tests {
 
     /// With the start's Hessian the ascent ends where the plain one does, to a fraction of a
     /// Cramér–Rao σ, in fewer evaluations; a Hessian that is not negative definite leaves the
-    /// plain ascent as it is.
+    /// plain ascent as it is; a tolerance on the Newton step left ends it sooner, that close.
     #[test]
     fn the_start_s_curvature_shortens_the_ascent_to_the_same_peak() {
         use crate::localize::refine::ascent::{ascend, ascend_with, AscentConfig};
@@ -1083,6 +1083,40 @@ mod tests {
         // No basin in the given curvature: the plain ascent, bit for bit.
         let flat = [[0.0; 6]; 6];
         assert_eq!(ascend_with(&est, &start, &cfg, Some(&flat)), plain);
+        // With `max_newton_step` it ends as soon as the Newton step left is within it: in
+        // fewer evaluations than an ascent to the gradient's tolerance, and that close to its end.
+        let far = step(&s.pose, &[0.03, -0.025, 0.012, 0.0, 0.0, 0.003]);
+        let h_peak = est.hessian(&s.pose, &cfg.free, &HESSIAN_STEP);
+        // The full ascent climbs on to the gradient's tolerance.
+        let tight = AscentConfig {
+            max_newton_decrement: 0.0,
+            ..cfg
+        };
+        let full = ascend_with(&est, &far, &tight, Some(&h_peak));
+        let tol = [0.004, 0.004, 0.004, 1e-4, 1e-4, 1e-4];
+        let located = ascend_with(
+            &est,
+            &far,
+            &AscentConfig {
+                max_newton_step: tol,
+                ..tight
+            },
+            Some(&h_peak),
+        );
+        assert_eq!(located.stop, "newton step");
+        assert!(
+            located.evaluations < full.evaluations,
+            "{} vs {}",
+            located.evaluations,
+            full.evaluations
+        );
+        for k in [0, 1, 2, 5] {
+            let d = (located.theta[k] - full.theta[k]).abs();
+            assert!(
+                d <= 2.0 * tol[k],
+                "axis {k}: {d:.5} from the full ascent's end"
+            );
+        }
     }
 
     /// With five pairs or more the information carries the sandwich of one cluster per pair;

@@ -43,6 +43,11 @@ pub struct AscentConfig {
     /// at most this. 0.25: the answer is within half a Cramér–Rao σ of where the step leads, and
     /// that σ is the smallest the gate judges (the sandwich's is several times larger).
     pub max_newton_decrement: f64,
+    /// With a Hessian H at the start ([`ascend_with`]): also stop when the Newton step left,
+    /// (−H)⁻¹g, is within this on every free parameter (m, rad; 0 turns it off). An ascent that
+    /// only has to locate a peak to a given distance (the competing optima's climbs, on a
+    /// thinned set whose gradient stays rough near its peak) stops there instead of creeping.
+    pub max_newton_step: [f64; 6],
 }
 
 impl AscentConfig {
@@ -64,6 +69,7 @@ impl AscentConfig {
             grad_tol: 1e-6,
             max_iter: 50,
             max_newton_decrement: 0.25,
+            max_newton_step: [0.0; 6],
         }
     }
 }
@@ -87,7 +93,7 @@ pub struct Ascent {
     /// Objective evaluations (each with its gradient).
     pub evaluations: usize,
     /// Why it stopped: `gradient`, `newton step` (the step left within
-    /// [`AscentConfig::max_newton_decrement`]), `no gain`, `edge`, `iterations` or `non-finite`.
+    /// [`AscentConfig::max_newton_decrement`] or [`AscentConfig::max_newton_step`]), `no gain`, `edge`, `iterations` or `non-finite`.
     pub stop: &'static str,
 }
 
@@ -132,6 +138,17 @@ impl Metric {
             }
         }
         d
+    }
+
+    /// Whether the Newton step left, (−H)⁻¹g in θ, is within `tol` on every free parameter
+    /// (`false` when `tol` is all zero).
+    fn step_within(&self, g: &[f64; 6], cfg: &AscentConfig) -> bool {
+        let d = self.apply(g);
+        cfg.max_newton_step.iter().any(|t| *t > 0.0)
+            && self
+                .free
+                .iter()
+                .all(|&k| (d[k] * cfg.scale[k]).abs() <= cfg.max_newton_step[k])
     }
 
     /// N·gᵀ(−H)⁻¹g: the Newton step left, squared, in Cramér–Rao σ.
@@ -190,7 +207,7 @@ pub fn ascend_with(
         }
         if metric
             .as_ref()
-            .is_some_and(|m| m.decrement(&g) <= cfg.max_newton_decrement)
+            .is_some_and(|m| m.decrement(&g) <= cfg.max_newton_decrement || m.step_within(&g, cfg))
         {
             stop = "newton step";
             break;

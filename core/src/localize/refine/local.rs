@@ -182,7 +182,7 @@ pub fn smooth_stage(
             cov.map(|c| c.as_slice()),
         )?;
         r.stats.poses += o.evaluations as u64;
-        r.stats.point_evaluations += (o.evaluations * o.points) as u64;
+        r.stats.point_evaluations += o.point_evaluations;
         let optima = Some(o);
         // An optimum the data prefers to the answer is where the answer should be: the stage
         // climbs again from it, once.

@@ -8,6 +8,9 @@
 //! along the three directions the answer's covariance is longest in, at [`REACH`]; each of x,
 //! y, z and yaw both ways where there is no covariance), on one fixed point set that every pose
 //! of a box 2.6 × [`REACH`] wide sees (each climb may move 1.6 × [`REACH`] from its start).
+//! The climbs run on a thinning of that set; an end the test below cannot tell from the answer
+//! climbs on over every point before it counts, since a thinned climb can stop short of the
+//! answer's basin (on its iteration limit, or a thinned σ from the full peak).
 //!
 //! Whether the data tells an optimum apart from the answer is a test, not a height ratio: the MI
 //! difference D between them and its standard error over the same patches of ground the sandwich
@@ -19,7 +22,8 @@
 //! An optimum better than the answer by more than [`SEPARATION`] standard errors means the
 //! answer is not the data's best ([`Optima::better`]); the local stage then starts again from it.
 
-use super::ascent::{ascend, box_spec, AscentConfig};
+use super::ascent::{ascend_with, box_spec, AscentConfig};
+use super::information::HESSIAN_STEP;
 use crate::camera::Camera;
 use crate::error::Result;
 use crate::localize::mi::objective::{Evaluator, View};
@@ -49,11 +53,25 @@ pub const PATCHES: usize = super::information::SANDWICH_CLUSTERS;
 /// the Hessian's own steps (2 cm, 0.1°), inside which the estimator's value is one basin.
 const SAME: [f64; 6] = [0.02, 0.02, 0.02, 0.1, 0.1, 0.1];
 
+/// A climb stops once the Newton step left (from the answer's curvature) is within this on every
+/// free parameter (m, m, m, rad, rad, rad of θ): half of [`SAME`], so that the end it stands
+/// for is located well within the merge distance. Near its peak the thinned set's gradient is
+/// rough and a climb would otherwise creep for tens of iterations.
+const LOCATE: [f64; 6] = [0.01, 0.01, 0.01, 8.7e-4, 8.7e-4, 8.7e-4];
+
 /// How far each competitor's ascent may move from its start, in units of [`REACH`].
 const CLIMB_BOX: f64 = 1.6;
 
-/// Iterations of each competitor's ascent at most: it needs to reach a peak, not polish it.
-const MAX_ITER: usize = 20;
+/// Iterations of each competitor's ascent at most. The first step is Newton's (the answer's
+/// curvature), so a climb that returns to the answer's basin needs a few; one that finds a
+/// shallow peak of its own can need tens. A climb stopped by this limit has not found an
+/// optimum; when the test cannot tell its end from the answer, its climb goes on over every
+/// point ([`CONFIRM_ITER`]).
+const MAX_ITER: usize = 60;
+
+/// Iterations at most of the continuation on every point of an end the test could not tell
+/// apart from the answer (or that beat it).
+const CONFIRM_ITER: usize = 40;
 
 /// Points the competitors' ascents climb on at most (a regular thinning of the fixed set): they
 /// locate the optima; the test between each and the answer uses every point.
@@ -77,6 +95,10 @@ pub struct Optimum {
     pub from: String,
     /// Its ascent ended on its box's edge: the valley goes on beyond it.
     pub edge: bool,
+    /// Why its last ascent stopped (`gradient`, `newton step`, `no gain`, `edge`,
+    /// `iterations`): an end that stopped on `iterations` is a climb that had not converged.
+    #[serde(default)]
+    pub stop: String,
     /// The optimum's pose.
     #[serde(skip)]
     pub pose: Option<CamFromMap>,
@@ -89,8 +111,11 @@ pub struct Optima {
     pub found: Vec<Optimum>,
     /// Ascents climbed (grid maxima and dispersed starts).
     pub starts: usize,
-    /// Objective evaluations spent.
+    /// Objective evaluations spent (on every point of the set or on the climbs' thinning).
     pub evaluations: usize,
+    /// Points evaluated, summed over those evaluations.
+    #[serde(default)]
+    pub point_evaluations: u64,
     /// Points of the common fixed set.
     pub points: usize,
     /// Axes of [`Optima::spread`] (those of the answer's covariance).
@@ -251,6 +276,113 @@ fn dispersed_offsets(axes: &[String], cov: Option<&[Vec<f64>]>) -> Vec<[f64; 6]>
     out
 }
 
+/// One climb's end.
+struct End {
+    pose: CamFromMap,
+    value: f64,
+    from: &'static str,
+    stop: &'static str,
+}
+
+impl End {
+    /// The end of climb `a` from a start of kind `from`; an error (one line) when the climb met
+    /// a value or gradient that is not finite.
+    fn of(a: super::ascent::Ascent, from: &'static str) -> Result<Self> {
+        if a.stop == "non-finite" || !a.value.is_finite() {
+            return Err(crate::error::Error::stage(
+                crate::stage::StageName::Mi,
+                "competing optima: the smooth estimator's value or gradient is not finite",
+            ));
+        }
+        Ok(End {
+            pose: a.pose,
+            value: a.value,
+            from,
+            stop: a.stop,
+        })
+    }
+}
+
+/// The reason names of [`crate::localize::refine::ascent::Ascent::stop`], as `'static`.
+fn stop_name(s: &str) -> &'static str {
+    [
+        "gradient",
+        "newton step",
+        "no gain",
+        "edge",
+        "iterations",
+        "non-finite",
+    ]
+    .into_iter()
+    .find(|n| *n == s)
+    .unwrap_or("iterations")
+}
+
+/// θ (m, m, m, rad, rad, rad, in the order of [`AscentConfig::bound`]) of `p` from `answer`.
+fn offsets_theta(answer: &CamFromMap, p: &CamFromMap) -> [f64; 6] {
+    let o = offsets_between(answer, p);
+    let r = 1f64.to_radians();
+    [o[0], o[1], o[2], o[5] * r, o[4] * r, o[3] * r]
+}
+
+/// `ends` without those in the answer's basin or in the basin of a higher end (`same`).
+fn distinct(
+    answer: &CamFromMap,
+    mut ends: Vec<End>,
+    same: &impl Fn(&CamFromMap, &CamFromMap) -> bool,
+) -> Vec<End> {
+    // Best first, so that of two ends in one basin the higher stands for it.
+    ends.sort_by(|a, b| b.value.total_cmp(&a.value));
+    let mut kept: Vec<End> = Vec::new();
+    for e in ends {
+        if same(answer, &e.pose) || kept.iter().any(|q| same(&q.pose, &e.pose)) {
+            continue;
+        }
+        kept.push(e);
+    }
+    kept
+}
+
+/// Each end tested against the answer (`at`: the answer's per-patch histograms) on every point
+/// of `est`.
+fn test_ends(
+    est: &Smooth<'_>,
+    answer: &CamFromMap,
+    at: &[Vec<Vec<f64>>],
+    ends: Vec<End>,
+    evaluations: &mut usize,
+) -> Result<Vec<Optimum>> {
+    let mut found = Vec::with_capacity(ends.len());
+    for e in ends {
+        let h = est.cluster_histograms(&e.pose, PATCHES);
+        *evaluations += 1;
+        let (d, se) = difference_se(est, at, &h);
+        if !(d.is_finite() && se.is_finite()) {
+            return Err(crate::error::Error::stage(
+                crate::stage::StageName::Mi,
+                "competing optima: the MI difference or its standard error is not finite",
+            ));
+        }
+        let z = if se > 0.0 {
+            d / se
+        } else {
+            d.signum() * f64::INFINITY
+        };
+        found.push(Optimum {
+            offset: offsets_between(answer, &e.pose),
+            delta_mi: d,
+            se,
+            z,
+            separated: z > SEPARATION,
+            from: e.from.to_string(),
+            edge: e.stop == "edge",
+            stop: e.stop.to_string(),
+            pose: Some(e.pose),
+        });
+    }
+    Ok(found)
+}
+
 /// The optima that compete with `answer` (module docs): climbs of the smooth estimator
 /// (4-DoF, the answer's tilt held) from the grid search's other local maxima `grid_peaks` that
 /// lie within [`REACH`] of the answer and from the dispersed starts, on the fixed point set of a
@@ -283,6 +415,7 @@ pub fn competing_optima(
     let climb = AscentConfig {
         bound: reach.map(|b| CLIMB_BOX * b),
         max_iter: MAX_ITER,
+        max_newton_step: LOCATE,
         ..AscentConfig::four_dof()
     };
     let wide = AscentConfig {
@@ -312,60 +445,68 @@ pub fn competing_optima(
             .iter()
             .map(|o| (at_answer(o), "start")),
     );
-    let mut evaluations = 0;
-    let mut ends: Vec<(CamFromMap, f64, &'static str, bool)> = Vec::new();
+    // The answer's curvature on every point of the set (a thinning's is too rough to be negative
+    // definite where the basin is shallow): each climb's first step is Newton's, so a start in
+    // the answer's basin returns to it in a few iterations instead of creeping there from a
+    // millimetre first step, and the climb stops once the step left is within `LOCATE`.
+    let h = est.hessian(answer, &climb.free, &HESSIAN_STEP);
+    // Evaluations on every point, and on the climbers' (the same set when it is not thinned).
+    let mut evaluations = Smooth::hessian_evaluations(&climb.free);
+    let mut climber_evaluations = 0;
+    let mut ends: Vec<End> = Vec::new();
     for (s, from) in &starts {
-        let a = ascend(&climber, s, &climb);
-        evaluations += a.evaluations;
-        if a.stop == "non-finite" || !a.value.is_finite() {
-            return Err(crate::error::Error::stage(
-                crate::stage::StageName::Mi,
-                "competing optima: the smooth estimator's value or gradient is not finite",
-            ));
-        }
-        ends.push((a.pose, a.value, from, a.stop == "edge"));
+        let a = ascend_with(&climber, s, &climb, Some(&h));
+        climber_evaluations += a.evaluations;
+        ends.push(End::of(a, from)?);
     }
-    // Best first, so that of two ends in one basin the higher stands for it.
-    ends.sort_by(|a, b| b.1.total_cmp(&a.1));
     let same = |a: &CamFromMap, b: &CamFromMap| {
         let o = offsets_between(a, b);
         (0..6).map(|k| (o[k] / SAME[k]).powi(2)).sum::<f64>() <= 1.0
     };
-    let mut kept: Vec<(CamFromMap, &'static str, bool)> = Vec::new();
-    for (p, _, from, edge) in ends {
-        if same(answer, &p) || kept.iter().any(|(q, _, _)| same(q, &p)) {
-            continue;
-        }
-        kept.push((p, from, edge));
-    }
     let at = est.cluster_histograms(answer, PATCHES);
     evaluations += 1;
-    let mut found = Vec::with_capacity(kept.len());
-    for (p, from, edge) in kept {
-        let h = est.cluster_histograms(&p, PATCHES);
-        evaluations += 1;
-        let (d, se) = difference_se(&est, &at, &h);
-        if !(d.is_finite() && se.is_finite()) {
-            return Err(crate::error::Error::stage(
-                crate::stage::StageName::Mi,
-                "competing optima: the MI difference or its standard error is not finite",
-            ));
+    let test = |ends: Vec<End>, evaluations: &mut usize| {
+        test_ends(
+            &est,
+            answer,
+            &at,
+            distinct(answer, ends, &same),
+            evaluations,
+        )
+    };
+    let mut found = test(ends, &mut evaluations)?;
+    // An end the test cannot tell apart from the answer, or that beats it, decides the answer's
+    // σ or sends the local stage elsewhere; when it was found on a thinned set, its climb goes
+    // on over every point (the thinned peak sits up to a thinned σ from the full one, and a
+    // climb may have stopped on its iteration limit), from the answer's curvature on every
+    // point, inside the fixed set's box.
+    if thin.is_some() && found.iter().any(|o| !o.separated) {
+        let mut ends = Vec::with_capacity(found.len());
+        for o in found.drain(..) {
+            let Some(p) = o.pose else { continue };
+            if o.separated {
+                ends.push(End {
+                    pose: p,
+                    value: f64::NEG_INFINITY,
+                    from: if o.from == "grid" { "grid" } else { "start" },
+                    stop: stop_name(&o.stop),
+                });
+                continue;
+            }
+            let room: [f64; 6] = std::array::from_fn(|k| {
+                (wide.bound[k] - offsets_theta(answer, &p)[k].abs()).clamp(0.0, climb.bound[k])
+            });
+            let cont = AscentConfig {
+                bound: room,
+                max_iter: CONFIRM_ITER,
+                max_newton_step: [0.0; 6],
+                ..climb
+            };
+            let a = ascend_with(&est, &p, &cont, Some(&h));
+            evaluations += a.evaluations;
+            ends.push(End::of(a, if o.from == "grid" { "grid" } else { "start" })?);
         }
-        let z = if se > 0.0 {
-            d / se
-        } else {
-            d.signum() * f64::INFINITY
-        };
-        found.push(Optimum {
-            offset: offsets_between(answer, &p),
-            delta_mi: d,
-            se,
-            z,
-            separated: z > SEPARATION,
-            from: from.to_string(),
-            edge,
-            pose: Some(p),
-        });
+        found = test(ends, &mut evaluations)?;
     }
     found.sort_by(|a, b| a.z.total_cmp(&b.z));
     let index = |name: &str| {
@@ -385,7 +526,8 @@ pub fn competing_optima(
     Ok(Optima {
         found,
         starts: starts.len(),
-        evaluations,
+        evaluations: evaluations + climber_evaluations,
+        point_evaluations: (evaluations * est.n() + climber_evaluations * climber.n()) as u64,
         points: est.n(),
         axes: axes.to_vec(),
         spread: mixture_spread(&deltas, axes.len()),
@@ -537,6 +679,7 @@ mod tests {
             separated: d / se > SEPARATION,
             from: "start".into(),
             edge: false,
+            stop: "gradient".into(),
             pose: None,
         };
         let mut q = Optima {
