@@ -55,6 +55,10 @@ pub struct Information {
     /// Pairs (clusters) of the frame sandwich, 0 without one.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub frames: usize,
+    /// The objective's Hessian in θ ([`Smooth::hessian`]) the bound was taken from: the
+    /// curvature the competing optima's climbs start from.
+    #[serde(skip)]
+    pub hessian: [[f64; 6]; 6],
 }
 
 fn is_zero(n: &usize) -> bool {
@@ -193,6 +197,7 @@ pub fn information_with_step(
         frame_sigma: frame.as_ref().map(sigma_of),
         frame_matrix: frame.as_ref().map(rows_of),
         frames: if frame.is_some() { est.views() } else { 0 },
+        hessian: h,
     })
 }
 

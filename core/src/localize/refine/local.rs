@@ -164,12 +164,13 @@ pub fn smooth_stage(
         )?;
         // The optima that compete with the answer, sought on purpose: the data may not tell
         // them apart from it, and no local measure at the answer sees them.
-        let (axes, cov) = match &information {
+        let (axes, cov, curvature) = match &information {
             Ok(info) => (
                 info.axes.clone(),
                 Some(info.frame_matrix.as_ref().unwrap_or(&info.sandwich_matrix)),
+                Some(&info.hessian),
             ),
-            Err(_) => (free.axis_names(), None),
+            Err(_) => (free.axis_names(), None, None),
         };
         let o = super::optima::competing_optima(
             cam,
@@ -180,6 +181,7 @@ pub fn smooth_stage(
             pooling,
             &axes,
             cov.map(|c| c.as_slice()),
+            curvature,
         )?;
         r.stats.poses += o.evaluations as u64;
         r.stats.point_evaluations += o.point_evaluations;
@@ -405,6 +407,7 @@ mod tests {
             frame_sigma: None,
             frame_matrix: None,
             frames: 0,
+            hessian: [[0.0; 6]; 6],
         };
         let judged = judged_sigma(&info, &crate::localize::mi::space::SearchConfig::default());
         // The default search's floor: half of 2 cm and of 0.05°.
@@ -456,6 +459,7 @@ mod tests {
             frame_sigma: Some(frame.to_vec()),
             frame_matrix: Some(diag(&frame)),
             frames,
+            hessian: [[0.0; 6]; 6],
         };
         let cfg = crate::localize::mi::space::SearchConfig::default();
         let judged = judged_sigma(&info(6), &cfg);

@@ -388,7 +388,9 @@ fn test_ends(
 /// lie within [`REACH`] of the answer and from the dispersed starts, on the fixed point set of a
 /// box 2.6 × [`REACH`] wide around the answer (`cfg`'s estimator and grid otherwise), pooled as
 /// `pooling` says; each distinct end tested against the answer. `axes` and `cov` are the
-/// answer's covariance (its long axes get starts of their own, and the spread is over `axes`).
+/// answer's covariance (its long axes get starts of their own, and the spread is over `axes`);
+/// `curvature`, the objective's Hessian in θ at the answer where the local stage has one (the
+/// information's), is where the climbs' Newton steps start, else it is measured on the set.
 /// Errors (one line) when the box sees no points or the values are not finite.
 #[allow(clippy::too_many_arguments)]
 pub fn competing_optima(
@@ -400,6 +402,7 @@ pub fn competing_optima(
     pooling: Pooling,
     axes: &[String],
     cov: Option<&[Vec<f64>]>,
+    curvature: Option<&[[f64; 6]; 6]>,
 ) -> Result<Optima> {
     let deg = 1f64.to_radians();
     // Each climb may go CLIMB_BOX × REACH from its start, so that the answer (REACH away) lies
@@ -445,13 +448,21 @@ pub fn competing_optima(
             .iter()
             .map(|o| (at_answer(o), "start")),
     );
-    // The answer's curvature on every point of the set (a thinning's is too rough to be negative
-    // definite where the basin is shallow): each climb's first step is Newton's, so a start in
-    // the answer's basin returns to it in a few iterations instead of creeping there from a
-    // millimetre first step, and the climb stops once the step left is within `LOCATE`.
-    let h = est.hessian(answer, &climb.free, &HESSIAN_STEP);
-    // Evaluations on every point, and on the climbers' (the same set when it is not thinned).
-    let mut evaluations = Smooth::hessian_evaluations(&climb.free);
+    // The answer's curvature on every point (a thinning's is too rough to be negative definite
+    // where the basin is shallow): the local stage's, whose point set sees the same ground, or
+    // measured on this set. Each climb's first step is Newton's, so a start in the answer's
+    // basin returns to it in a few iterations instead of creeping there from a millimetre first
+    // step, and the climb stops once the step left is within `LOCATE`.
+    let mut evaluations = 0;
+    let h = match curvature {
+        Some(h) => *h,
+        None => {
+            evaluations += Smooth::hessian_evaluations(&climb.free);
+            est.hessian(answer, &climb.free, &HESSIAN_STEP)
+        }
+    };
+    // Evaluations on every point (above), and on the climbers' (the same set when it is not
+    // thinned).
     let mut climber_evaluations = 0;
     let mut ends: Vec<End> = Vec::new();
     for (s, from) in &starts {
