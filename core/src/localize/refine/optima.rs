@@ -520,6 +520,19 @@ pub fn competing_optima(
         found = test(ends, &mut evaluations)?;
     }
     found.sort_by(|a, b| a.z.total_cmp(&b.z));
+    Ok(Optima {
+        spread: unresolved_spread(&found, axes),
+        found,
+        starts: starts.len(),
+        evaluations: evaluations + climber_evaluations,
+        point_evaluations: (evaluations * est.n() + climber_evaluations * climber.n()) as u64,
+        points: est.n(),
+        axes: axes.to_vec(),
+    })
+}
+
+/// [`mixture_spread`] of the optima in `found` the data cannot tell from the answer, over `axes`.
+fn unresolved_spread(found: &[Optimum], axes: &[String]) -> Vec<Vec<f64>> {
     let index = |name: &str| {
         ["x", "y", "z", "yaw", "pitch", "roll"]
             .iter()
@@ -534,15 +547,7 @@ pub fn competing_optima(
                 .collect()
         })
         .collect();
-    Ok(Optima {
-        found,
-        starts: starts.len(),
-        evaluations: evaluations + climber_evaluations,
-        point_evaluations: (evaluations * est.n() + climber_evaluations * climber.n()) as u64,
-        points: est.n(),
-        axes: axes.to_vec(),
-        spread: mixture_spread(&deltas, axes.len()),
-    })
+    mixture_spread(&deltas, axes.len())
 }
 
 /// Spread of the self-check's starts by default ([`self_check_starts`]): 0.2 m horizontally,
