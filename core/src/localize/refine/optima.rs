@@ -303,21 +303,6 @@ impl End {
     }
 }
 
-/// The reason names of [`crate::localize::refine::ascent::Ascent::stop`], as `'static`.
-fn stop_name(s: &str) -> &'static str {
-    [
-        "gradient",
-        "newton step",
-        "no gain",
-        "edge",
-        "iterations",
-        "non-finite",
-    ]
-    .into_iter()
-    .find(|n| *n == s)
-    .unwrap_or("iterations")
-}
-
 /// θ (m, m, m, rad, rad, rad, in the order of [`AscentConfig::bound`]) of `p` from `answer`.
 fn offsets_theta(answer: &CamFromMap, p: &CamFromMap) -> [f64; 6] {
     let o = offsets_between(answer, p);
@@ -492,18 +477,11 @@ pub fn competing_optima(
     // climb may have stopped on its iteration limit), from the answer's curvature on every
     // point, inside the fixed set's box.
     if thin.is_some() && found.iter().any(|o| !o.separated) {
-        let mut ends = Vec::with_capacity(found.len());
-        for o in found.drain(..) {
+        let (mut kept, unresolved): (Vec<Optimum>, Vec<Optimum>) =
+            found.into_iter().partition(|o| o.separated);
+        let mut ends = Vec::with_capacity(unresolved.len());
+        for o in unresolved {
             let Some(p) = o.pose else { continue };
-            if o.separated {
-                ends.push(End {
-                    pose: p,
-                    value: f64::NEG_INFINITY,
-                    from: if o.from == "grid" { "grid" } else { "start" },
-                    stop: stop_name(&o.stop),
-                });
-                continue;
-            }
             let room: [f64; 6] = std::array::from_fn(|k| {
                 (wide.bound[k] - offsets_theta(answer, &p)[k].abs()).clamp(0.0, climb.bound[k])
             });
@@ -517,7 +495,15 @@ pub fn competing_optima(
             evaluations += a.evaluations;
             ends.push(End::of(a, if o.from == "grid" { "grid" } else { "start" })?);
         }
-        found = test(ends, &mut evaluations)?;
+        let confirmed = test(ends, &mut evaluations)?;
+        // A told-apart end in the basin of a confirmed one is that one's slope.
+        kept.retain(|o| {
+            !confirmed
+                .iter()
+                .any(|c| o.pose.zip(c.pose).is_some_and(|(a, b)| same(&a, &b)))
+        });
+        kept.extend(confirmed);
+        found = kept;
     }
     found.sort_by(|a, b| a.z.total_cmp(&b.z));
     Ok(Optima {
