@@ -154,6 +154,18 @@ pub struct SmoothValue {
     pub grad: Option<[f64; 6]>,
 }
 
+/// The objective at one pose with what its gradient needs ([`Smooth::evaluate_value`]).
+#[derive(Debug, Clone)]
+pub struct Valued {
+    /// The value (no gradient).
+    pub value: SmoothValue,
+    /// The pose's rotation and translation as the passes over the points take them.
+    r: Matrix3<f64>,
+    t: Vector3<f64>,
+    /// Per view, the cell weights ∂objective/∂h and the view's weight.
+    cells: Vec<(Vec<f64>, f64)>,
+}
+
 /// [`Smooth::pool`]'s answer.
 struct Pooled {
     value: f64,
@@ -495,29 +507,45 @@ impl<'a> Smooth<'a> {
 
     /// The objective at `pose`, with its gradient when `grad`.
     pub fn evaluate(&self, pose: &CamFromMap, grad: bool) -> SmoothValue {
+        let valued = self.evaluate_value(pose);
+        let g = grad.then(|| self.gradient_of(&valued));
+        SmoothValue {
+            grad: g,
+            ..valued.value
+        }
+    }
+
+    /// The objective at `pose` without its gradient, keeping what the gradient needs: a caller
+    /// that only wants the gradient at some of the poses it tries (a line search's accepted step)
+    /// asks [`Self::gradient_of`] for it and skips the second pass over the points elsewhere.
+    /// The two together are [`Self::evaluate`] with `grad`, to the bit.
+    pub fn evaluate_value(&self, pose: &CamFromMap) -> Valued {
         let (r, t) = self.rt(pose);
-        let n = self.n();
         let hists = self.histograms(&r, &t);
         let valid = hists.iter().map(|h| h.h.iter().sum::<f64>()).sum::<f64>();
-        let mut out = SmoothValue {
-            value: 0.0,
-            mi: Vec::new(),
-            n,
-            valid,
-            grad: None,
-        };
         let pooled = self.pool(&hists);
-        out.value = pooled.value;
-        out.mi = pooled.mi;
-        if grad {
-            let mut gsum = [0.0; 6];
-            for (v, (g, w)) in self.views.iter().zip(&pooled.cells) {
-                let d = self.pull_back(v, &r, &t, g);
-                gsum.iter_mut().zip(d).for_each(|(a, b)| *a += w * b);
-            }
-            out.grad = Some(gsum);
+        Valued {
+            value: SmoothValue {
+                value: pooled.value,
+                mi: pooled.mi,
+                n: self.n(),
+                valid,
+                grad: None,
+            },
+            r,
+            t,
+            cells: pooled.cells,
         }
-        out
+    }
+
+    /// The gradient over θ at the pose of `valued` ([`Self::evaluate_value`] of this estimator).
+    pub fn gradient_of(&self, valued: &Valued) -> [f64; 6] {
+        let mut gsum = [0.0; 6];
+        for (v, (g, w)) in self.views.iter().zip(&valued.cells) {
+            let d = self.pull_back(v, &valued.r, &valued.t, g);
+            gsum.iter_mut().zip(d).for_each(|(a, b)| *a += w * b);
+        }
+        gsum
     }
 
     /// The gradient of the objective at `pose` cut into `k` clusters of points: cluster j holds
@@ -966,6 +994,39 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    /// The value first and the gradient after ([`Smooth::evaluate_value`], [`Smooth::gradient_of`])
+    /// are one evaluation with its gradient, to the bit: the ascent's line search relies on it.
+    #[test]
+    fn a_deferred_gradient_is_the_evaluation_s_own() {
+        let cam = mei();
+        let s = scene(&cam, 16);
+        let halves = halves(&s.pts);
+        for pooling in [Pooling::Joint, Pooling::PerPair] {
+            let est = Smooth::new(
+                &cam,
+                two_views(&s.img, &halves),
+                s.origin,
+                16,
+                16,
+                true,
+                pooling,
+            );
+            let at = step(&s.pose, &[0.03, -0.02, 0.01, 0.004, -0.003, 0.01]);
+            let whole = est.evaluate(&at, true);
+            let valued = est.evaluate_value(&at);
+            assert_eq!(
+                valued.value,
+                SmoothValue {
+                    grad: None,
+                    ..whole.clone()
+                }
+            );
+            let g = est.gradient_of(&valued);
+            assert_eq!(whole.grad, Some(g), "{pooling}");
+            assert!(g.iter().any(|v| *v != 0.0));
         }
     }
 

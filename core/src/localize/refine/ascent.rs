@@ -14,7 +14,7 @@
 // Small fixed-size matrices indexed by row and column read as the formulas do.
 #![allow(clippy::needless_range_loop)]
 
-use crate::localize::mi::smooth::{step, Smooth};
+use crate::localize::mi::smooth::{step, Smooth, Valued};
 use crate::pose::CamFromMap;
 use nalgebra::DMatrix;
 use serde::Serialize;
@@ -90,8 +90,10 @@ pub struct Ascent {
     pub grad_norm: f64,
     /// Iterations done.
     pub iterations: usize,
-    /// Objective evaluations (each with its gradient).
+    /// Objective evaluations.
     pub evaluations: usize,
+    /// How many of them also took the gradient (the start and every accepted step).
+    pub gradients: usize,
     /// Why it stopped: `gradient`, `newton step` (the step left within
     /// [`AscentConfig::max_newton_decrement`] or [`AscentConfig::max_newton_step`]), `no gain`, `edge`, `iterations` or `non-finite`.
     pub stop: &'static str,
@@ -173,25 +175,30 @@ pub fn ascend_with(
     hessian: Option<&[[f64; 6]; 6]>,
 ) -> Ascent {
     let metric = hessian.and_then(|h| Metric::new(h, cfg, est.n()));
-    let mut evals = 0usize;
-    // f(y) = objective at θ = y ⊙ scale, and its gradient in y (free axes only).
-    let mut eval = |y: &[f64; 6]| -> (f64, [f64; 6]) {
+    let (mut evals, mut gradients) = (0usize, 0usize);
+    // f(y) = objective at θ = y ⊙ scale; its gradient in y (free axes only) only where a step is
+    // taken: a line search's refused trial needs no second pass over the points.
+    let mut value = |y: &[f64; 6]| -> (f64, Valued) {
         evals += 1;
         let th: [f64; 6] = std::array::from_fn(|k| y[k] * cfg.scale[k]);
-        let v = est.evaluate(&step(start, &th), true);
-        let g = v.grad.unwrap_or([f64::NAN; 6]);
-        let gy: [f64; 6] = std::array::from_fn(|k| {
+        let v = est.evaluate_value(&step(start, &th));
+        (v.value.value, v)
+    };
+    let mut gradient = |v: &Valued| -> [f64; 6] {
+        gradients += 1;
+        let g = est.gradient_of(v);
+        std::array::from_fn(|k| {
             if cfg.free[k] {
                 g[k] * cfg.scale[k]
             } else {
                 0.0
             }
-        });
-        (v.value, gy)
+        })
     };
     let lim: [f64; 6] = std::array::from_fn(|k| cfg.bound[k] / cfg.scale[k]);
     let mut y = [0.0; 6];
-    let (f0, mut g) = eval(&y);
+    let (f0, v0) = value(&y);
+    let mut g = gradient(&v0);
     let mut f = f0;
     let mut hist: Vec<([f64; 6], [f64; 6])> = Vec::new();
     let mut stop = "iterations";
@@ -259,9 +266,9 @@ pub fn ascend_with(
                     clipped = true;
                 }
             }
-            let (fnew, gnew) = eval(&yn);
+            let (fnew, vnew) = value(&yn);
             if fnew.is_finite() && fnew >= f + 1e-4 * t * slope.min(dot(&g, &sub(&yn, &y)) / t) {
-                accepted = Some((yn, fnew, gnew));
+                accepted = Some((yn, fnew, gradient(&vnew)));
                 hit_edge = clipped;
                 break;
             }
@@ -302,6 +309,7 @@ pub fn ascend_with(
         grad_norm: dot(&g, &g).sqrt(),
         iterations: it,
         evaluations: evals,
+        gradients,
         stop,
     }
 }
