@@ -13,7 +13,7 @@ use crate::localize::init::{initialize, FineParams, InitResult, SearchArea};
 use crate::localize::mi::objective::View;
 use crate::localize::mi::space::SearchConfig;
 use crate::localize::refine::quality::QualityConfig;
-use crate::localize::refine::{refine_polished, PolishedSearch, Refinement, Report, Round};
+use crate::localize::refine::{PolishedSearch, Refinement, Report, Round};
 use crate::map::{ground_points, Tile};
 use crate::pose::CamFromMap;
 use crate::stage::StageName;
@@ -43,7 +43,7 @@ pub struct Params {
     /// … and within this off-nadir angle, degrees (default [`MI_MAX_OFF_NADIR_DEG`]).
     pub mi_max_off_nadir_deg: f64,
     /// The local 6-DoF polish after the 4-DoF search and the search rounds (pitch/roll about the
-    /// ground under the camera, see [`crate::localize::refine::polish`] and [`refine_polished`]); `None` keeps
+    /// ground under the camera, see [`crate::localize::refine::polish`] and [`crate::localize::refine::refine_polished`]); `None` keeps
     /// PnP's roll and pitch and searches once.
     pub polish: Option<PolishedSearch>,
     /// Initialization's matcher: `None` = the built-in satellite matching (dense orientation
@@ -347,7 +347,7 @@ pub fn quality_gate(o: &Outcome) -> Result<()> {
 }
 
 /// The MI stage from `start`, whose tilt σ is `tilt_sigma_deg` (NaN: unknown): the nearest-pixel
-/// search rounds ([`refine_polished`]) on the ground points around it, stopping at the basin
+/// search rounds ([`crate::localize::refine::refine_polished`]) on the ground points around it, stopping at the basin
 /// ([`PolishedSearch::basin`]) with the start's tilt polished first when its σ says it is
 /// uncertain ([`PolishedSearch::settle_uncertain_tilt`]), then the smooth estimator's stage: its
 /// 4-DoF gradient ascent, its information over all six axes, the competing optima (the σ) and
@@ -385,7 +385,9 @@ fn refine_at(
     let polish = p
         .polish
         .map(|q| q.basin().settle_uncertain_tilt(tilt_sigma_deg));
-    let (r, rounds) = refine_polished(
+    // The searches, polishes and the smooth stage share one preparation of each frame.
+    let cache = crate::localize::mi::objective::ImageCache::default();
+    let (r, rounds) = crate::localize::refine::rounds::refine_polished_cached(
         camera,
         &views,
         start,
@@ -393,6 +395,7 @@ fn refine_at(
         &p.quality,
         polish.as_ref(),
         &pivot,
+        &cache,
     )?;
     // The polish estimated the tilt: the information covers it too.
     let free = if polish.is_some_and(|q| q.polish.frees_tilt()) {
@@ -401,7 +404,7 @@ fn refine_at(
         crate::localize::refine::local::SmoothFree::Four
     };
     let (r, _) = crate::localize::refine::local::smooth_stage(
-        camera, &views, start, r, &search, &p.quality, free,
+        camera, &views, start, r, &search, &p.quality, free, &cache,
     )?;
     Ok((r, rounds))
 }

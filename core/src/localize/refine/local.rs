@@ -55,7 +55,7 @@ pub fn refine_smooth(
     } else {
         SmoothFree::Four
     };
-    smooth_stage(cam, views, init, r, cfg, qcfg, free)
+    smooth_stage(cam, views, init, r, cfg, qcfg, free, &cache)
 }
 
 /// Refine `init` against one frame `gray` (row-major, camera size; the validity mask is the
@@ -128,15 +128,18 @@ impl SmoothFree {
 /// the answer, and the gate of [`refine_smooth`]. `r` keeps its grid checks; its pose, offsets
 /// and verdict become the stage's, and its covariance the information's
 /// ([`information_covariance`]) with the competing optima's spread. The pairs pool as
-/// `cfg.mi.pooling` says, as in the grid search.
-pub fn smooth_stage(
+/// `cfg.mi.pooling` says, as in the grid search. The views' image preparations come from
+/// `cache`, the one the search before it filled.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn smooth_stage<'a>(
     cam: &crate::camera::Camera,
-    views: &[crate::localize::mi::objective::View<'_>],
+    views: &[crate::localize::mi::objective::View<'a>],
     init: &CamFromMap,
     mut r: super::rounds::Refinement,
     cfg: &crate::localize::mi::space::SearchConfig,
     qcfg: &super::quality::QualityConfig,
     free: SmoothFree,
+    cache: &crate::localize::mi::objective::ImageCache<'a>,
 ) -> crate::error::Result<(super::rounds::Refinement, SmoothRefinement)> {
     let pooling = cfg.mi.pooling;
     let grid_reason = r.quality.reason.clone();
@@ -161,6 +164,7 @@ pub fn smooth_stage(
             &mut pose,
             &mut ascents,
             &mut r,
+            cache,
         )?;
         // The optima that compete with the answer, sought on purpose: the data may not tell
         // them apart from it, and no local measure at the answer sees them.
@@ -182,6 +186,7 @@ pub fn smooth_stage(
             &axes,
             cov.map(|c| c.as_slice()),
             curvature,
+            cache,
         )?;
         r.stats.poses += o.evaluations as u64;
         r.stats.point_evaluations += o.point_evaluations;
@@ -275,20 +280,23 @@ pub fn smooth_stage(
 /// the answer over the axes of `free`, and the MI per histogram there. The work goes into `r`'s
 /// counters, the ascents into `ascents`.
 #[allow(clippy::too_many_arguments)]
-fn climb(
+fn climb<'a>(
     cam: &crate::camera::Camera,
-    views: &[crate::localize::mi::objective::View<'_>],
+    views: &[crate::localize::mi::objective::View<'a>],
     local: &crate::localize::mi::space::SearchConfig,
     acfg: &AscentConfig,
     free: SmoothFree,
     pose: &mut CamFromMap,
     ascents: &mut Vec<Ascent>,
     r: &mut super::rounds::Refinement,
+    cache: &crate::localize::mi::objective::ImageCache<'a>,
 ) -> crate::error::Result<(std::result::Result<Information, InformationError>, Vec<f64>)> {
     let pooling = local.mi.pooling;
     let mut last = None;
     for _ in 0..ASCENT_ROUNDS {
-        let ev = crate::localize::mi::objective::Evaluator::pooled(cam, views, pose, local, 0)?;
+        let ev = crate::localize::mi::objective::Evaluator::pooled_cached(
+            cam, views, pose, local, 0, cache,
+        )?;
         let est = Smooth::of_evaluator(cam, &ev, pooling);
         // The curvature at the start (the information's Hessian, a basin-wide central
         // difference): with it the first step is Newton's, and the ascent stops once the step

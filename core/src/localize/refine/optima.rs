@@ -26,7 +26,7 @@ use super::ascent::{ascend_with, box_spec, AscentConfig};
 use super::information::HESSIAN_STEP;
 use crate::camera::Camera;
 use crate::error::Result;
-use crate::localize::mi::objective::{Evaluator, View};
+use crate::localize::mi::objective::{Evaluator, ImageCache, View};
 use crate::localize::mi::smooth::{Pooling, Smooth};
 use crate::localize::mi::space::{pose_at, SearchConfig};
 use crate::pose::{offsets_between, CamFromMap};
@@ -376,11 +376,12 @@ fn test_ends(
 /// answer's covariance (its long axes get starts of their own, and the spread is over `axes`);
 /// `curvature`, the objective's Hessian in θ at the answer where the local stage has one (the
 /// information's), is where the climbs' Newton steps start, else it is measured on the set.
-/// Errors (one line) when the box sees no points or the values are not finite.
+/// The views' image preparations come from `cache` (the refinement's). Errors (one line) when
+/// the box sees no points or the values are not finite.
 #[allow(clippy::too_many_arguments)]
-pub fn competing_optima(
+pub(crate) fn competing_optima<'a>(
     cam: &Camera,
-    views: &[View<'_>],
+    views: &[View<'a>],
     answer: &CamFromMap,
     grid_peaks: &[CamFromMap],
     cfg: &SearchConfig,
@@ -388,6 +389,7 @@ pub fn competing_optima(
     axes: &[String],
     cov: Option<&[Vec<f64>]>,
     curvature: Option<&[[f64; 6]; 6]>,
+    cache: &ImageCache<'a>,
 ) -> Result<Optima> {
     let deg = 1f64.to_radians();
     // Each climb may go CLIMB_BOX × REACH from its start, so that the answer (REACH away) lies
@@ -414,7 +416,7 @@ pub fn competing_optima(
         spec: box_spec(&wide),
         ..*cfg
     };
-    let ev = Evaluator::pooled(cam, views, answer, &local, 0)?;
+    let ev = Evaluator::pooled_cached(cam, views, answer, &local, 0, cache)?;
     let est = Smooth::of_evaluator(cam, &ev, pooling);
     let stride = ev.n_points.div_ceil(CLIMB_POINTS).max(1);
     let thin = (stride > 1).then(|| ev.thinned(stride));

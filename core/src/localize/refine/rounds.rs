@@ -305,11 +305,26 @@ pub fn refine_polished(
     p: Option<&PolishedSearch>,
     pivot: &dyn Fn(&CamFromMap) -> Option<f64>,
 ) -> Result<(Refinement, Vec<Round>)> {
-    // Every search, polish and uncertainty estimate below works on the same frames: they share
-    // one image preparation.
+    // Every search and polish below works on the same frames: they share one image preparation.
     let cache = ImageCache::default();
+    refine_polished_cached(cam, views, init, cfg, qcfg, p, pivot, &cache)
+}
+
+/// [`refine_polished`] taking the views' image preparations from `cache` (and leaving its own
+/// there): for a caller whose smooth stage follows on the same frames.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn refine_polished_cached<'a>(
+    cam: &Camera,
+    views: &[View<'a>],
+    init: &CamFromMap,
+    cfg: &SearchConfig,
+    qcfg: &QualityConfig,
+    p: Option<&PolishedSearch>,
+    pivot: &dyn Fn(&CamFromMap) -> Option<f64>,
+    cache: &ImageCache<'a>,
+) -> Result<(Refinement, Vec<Round>)> {
     let Some(p) = p else {
-        let r = search_views(cam, views, init, cfg, qcfg, (1, 0), &cache)?;
+        let r = search_views(cam, views, init, cfg, qcfg, (1, 0), cache)?;
         return Ok((r, Vec::new()));
     };
     let mut rounds = Vec::new();
@@ -330,7 +345,7 @@ pub fn refine_polished(
             pivot(&start),
             cfg,
             &params,
-            &cache,
+            cache,
         )?;
         poses += record.all_evaluations() as u64;
         point_evaluations += record.point_evaluations();
@@ -345,7 +360,7 @@ pub fn refine_polished(
             cfg,
             qcfg,
             (p.search_thinning, p.basin_level),
-            &cache,
+            cache,
         )?;
         poses += r.stats.poses;
         point_evaluations += r.stats.point_evaluations;
@@ -370,7 +385,7 @@ pub fn refine_polished(
                 pivot(&r.pose),
                 cfg,
                 &params,
-                &cache,
+                cache,
             )?;
             r.pose = pose;
             poses += record.all_evaluations() as u64;
