@@ -24,7 +24,7 @@ STAGES = [
     ("intrinsics propagation", ["uncertainty::intrinsics_deltas"]),
     ("jackknife region", ["refine::uncertainty::region"]),
     ("jackknife groups", ["refine::uncertainty::"]),
-    ("smooth stage", ["mi::smooth::", "refine::gradient::"]),
+    ("smooth stage", ["mi::smooth::", "refine::ascent::", "refine::information::"]),
     ("polish (Nelder-Mead)", ["refine::polish::"]),
     ("grid searches", ["refine::search::", "Evaluator::score"]),
     ("decoding frames and tiles", ["capture::file::", "map::geotiff::", "png::"]),
