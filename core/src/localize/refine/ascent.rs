@@ -145,12 +145,13 @@ impl Metric {
     /// Whether the Newton step left, (−H)⁻¹g in θ, is within `tol` on every free parameter
     /// (`false` when `tol` is all zero).
     fn step_within(&self, g: &[f64; 6], cfg: &AscentConfig) -> bool {
+        if cfg.max_newton_step.iter().all(|t| *t <= 0.0) {
+            return false;
+        }
         let d = self.apply(g);
-        cfg.max_newton_step.iter().any(|t| *t > 0.0)
-            && self
-                .free
-                .iter()
-                .all(|&k| (d[k] * cfg.scale[k]).abs() <= cfg.max_newton_step[k])
+        self.free
+            .iter()
+            .all(|&k| (d[k] * cfg.scale[k]).abs() <= cfg.max_newton_step[k])
     }
 
     /// N·gᵀ(−H)⁻¹g: the Newton step left, squared, in Cramér–Rao σ.

@@ -303,9 +303,10 @@ impl End {
     }
 }
 
-/// θ (m, m, m, rad, rad, rad, in the order of [`AscentConfig::bound`]) of `p` from `answer`.
-fn offsets_theta(answer: &CamFromMap, p: &CamFromMap) -> [f64; 6] {
-    let o = offsets_between(answer, p);
+/// Offsets as reported (m, m, m, then yaw, pitch, roll in degrees: [`REACH`],
+/// [`offsets_between`]) in θ's units and order (m, m, m, rad, rad, rad, as
+/// [`AscentConfig::bound`] takes them).
+fn theta_order(o: &[f64; 6]) -> [f64; 6] {
     let r = 1f64.to_radians();
     [o[0], o[1], o[2], o[5] * r, o[4] * r, o[3] * r]
 }
@@ -391,17 +392,9 @@ pub(crate) fn competing_optima<'a>(
     curvature: Option<&[[f64; 6]; 6]>,
     cache: &ImageCache<'a>,
 ) -> Result<Optima> {
-    let deg = 1f64.to_radians();
     // Each climb may go CLIMB_BOX × REACH from its start, so that the answer (REACH away) lies
     // well inside its box: a box whose edge passed through the answer would stop climbs there.
-    let reach = [
-        REACH[0],
-        REACH[1],
-        REACH[2],
-        REACH[5] * deg,
-        REACH[4] * deg,
-        REACH[3] * deg,
-    ];
+    let reach = theta_order(&REACH);
     let climb = AscentConfig {
         bound: reach.map(|b| CLIMB_BOX * b),
         max_iter: MAX_ITER,
@@ -484,9 +477,9 @@ pub(crate) fn competing_optima<'a>(
         let mut ends = Vec::with_capacity(unresolved.len());
         for o in unresolved {
             let Some(p) = o.pose else { continue };
-            let room: [f64; 6] = std::array::from_fn(|k| {
-                (wide.bound[k] - offsets_theta(answer, &p)[k].abs()).clamp(0.0, climb.bound[k])
-            });
+            let off = theta_order(&offsets_between(answer, &p));
+            let room: [f64; 6] =
+                std::array::from_fn(|k| (wide.bound[k] - off[k].abs()).clamp(0.0, climb.bound[k]));
             let cont = AscentConfig {
                 bound: room,
                 max_iter: CONFIRM_ITER,
