@@ -296,6 +296,8 @@ pub enum Refusal {
         information_sigma: f64,
         /// The patch sandwich's σ.
         sandwich_sigma: f64,
+        /// The region sandwich's σ.
+        region_sigma: f64,
         /// The frame sandwich's σ, when there is one.
         frame_sigma: Option<f64>,
         /// The competing optima's σ on the axis and their description, when there are any.
@@ -359,12 +361,13 @@ impl fmt::Display for Refusal {
                 limit,
                 information_sigma,
                 sandwich_sigma,
+                region_sigma,
                 frame_sigma,
                 optima,
             } => {
                 write!(
                     f,
-                    "σ {axis} {sigma:.4} {unit} over the limit {limit_key}={limit} (information σ {information_sigma:.4}, sandwich σ {sandwich_sigma:.4}"
+                    "σ {axis} {sigma:.4} {unit} over the limit {limit_key}={limit} (information σ {information_sigma:.4}, sandwich σ {sandwich_sigma:.4}, region σ {region_sigma:.4}"
                 )?;
                 if let Some(s) = frame_sigma {
                     write!(f, ", frame σ {s:.4}")?;

@@ -44,6 +44,18 @@ pub struct Information {
     pub sandwich_matrix: Vec<Vec<f64>>,
     /// Clusters (compact patches of ground) the sandwich's score scatter is taken over.
     pub clusters: usize,
+    /// The sandwich over regions of [`REGION_PATCHES`] neighbouring patches (σ per axis, same
+    /// axes and units), which sees errors that neighbouring patches share: a shadow or a
+    /// reflectance change longer than a patch moves them alike, and the patch sandwich, taking
+    /// them as independent, would count them as evidence.
+    #[serde(default)]
+    pub region_sigma: Vec<f64>,
+    /// The region-clustered covariance (m, deg), row-major.
+    #[serde(default)]
+    pub region_matrix: Vec<Vec<f64>>,
+    /// Regions of the region sandwich.
+    #[serde(default)]
+    pub regions: usize,
     /// With [`FRAME_CLUSTERS_MIN`] or more pairs: the sandwich with each pair as one cluster
     /// (σ per axis, same axes and units), which sees what a frame's own systematic errors (its
     /// sweep's skew, its light) do to the answer; patches of one frame share those.
@@ -73,6 +85,49 @@ pub const FRAME_CLUSTERS_MIN: usize = 5;
 /// few enough that each patch spans more ground than a texture's correlation length on the
 /// frames measured (docs/refine.md "Sampling").
 pub const SANDWICH_CLUSTERS: usize = 32;
+
+/// Neighbouring patches per region of [`Information::region_sigma`]: 8 regions of the 32
+/// patches. A patch is a contiguous run of the points' Morton order, so consecutive patches are
+/// neighbours on the ground and a run of them is a compact region too. Fewer, larger clusters
+/// see longer-range correlation at the price of fewer degrees of freedom, which the reported
+/// covariance's Student-t widening pays ([`information_covariance`]).
+pub const REGION_PATCHES: usize = 4;
+
+/// N²·B of the sandwich: the scatter of the clusters' scores `scores` over the θ indices `idx`,
+/// about their mean, ×K/(K − 1) for K clusters, times the squared count `n` of points (the
+/// scores are sums over points of gradients of a mean).
+fn score_scatter(scores: &[[f64; 6]], idx: &[usize], n: usize) -> DMatrix<f64> {
+    let d = idx.len();
+    let k = scores.len() as f64;
+    let mean: Vec<f64> = (0..d)
+        .map(|i| scores.iter().map(|g| g[idx[i]]).sum::<f64>() / k)
+        .collect();
+    let nn = (n as f64).powi(2);
+    DMatrix::from_fn(d, d, |i, j| {
+        nn * k / (k - 1.0).max(1.0)
+            * scores
+                .iter()
+                .map(|g| (g[idx[i]] - mean[i]) * (g[idx[j]] - mean[j]))
+                .sum::<f64>()
+    })
+}
+
+/// Patch scores summed over runs of `per` consecutive patches: the scores of the regions those
+/// runs cover (a patch's score is the sum of its points').
+fn merged_scores(scores: &[[f64; 6]], per: usize) -> Vec<[f64; 6]> {
+    scores
+        .chunks(per.max(1))
+        .map(|c| {
+            let mut s = [0.0; 6];
+            for g in c {
+                for (a, b) in s.iter_mut().zip(g) {
+                    *a += b;
+                }
+            }
+            s
+        })
+        .collect()
+}
 
 /// The Cramér–Rao covariance at `pose` over the free axes of `free` (θ of [`step`]): inverse of
 /// −N·∇²(objective), and beside it the cluster-robust ("sandwich", Huber–White) covariance
@@ -128,22 +183,12 @@ pub fn information_with_step(
     let cov_theta = chol.inverse();
     // The sandwich over θ: A⁻¹·B·A⁻¹ = (N·A)⁻¹ (N²·B) (N·A)⁻¹ with N·A the information above.
     let sandwich = |scores: &[[f64; 6]]| -> DMatrix<f64> {
-        let k = scores.len() as f64;
-        let mean: Vec<f64> = (0..d)
-            .map(|i| scores.iter().map(|g| g[idx[i]]).sum::<f64>() / k)
-            .collect();
-        let scatter = DMatrix::from_fn(d, d, |i, j| {
-            let nn = (n as f64).powi(2);
-            nn * k / (k - 1.0).max(1.0)
-                * scores
-                    .iter()
-                    .map(|g| (g[idx[i]] - mean[i]) * (g[idx[j]] - mean[j]))
-                    .sum::<f64>()
-        });
-        &cov_theta * scatter * &cov_theta
+        &cov_theta * score_scatter(scores, &idx, n) * &cov_theta
     };
     let scores = est.cluster_gradients(pose, SANDWICH_CLUSTERS);
     let sandwich_theta = sandwich(&scores);
+    let regions = merged_scores(&scores, REGION_PATCHES);
+    let region_theta = sandwich(&regions);
     let frame_theta =
         (est.views() >= FRAME_CLUSTERS_MIN).then(|| sandwich(&est.view_gradients(pose)));
     let cov = &minv * cov_theta * minv.transpose();
@@ -154,6 +199,12 @@ pub fn information_with_step(
     if !sw.iter().all(|v| v.is_finite()) {
         return Err(InformationError::NotFinite {
             what: "sandwich covariance",
+        });
+    }
+    let region = &minv * region_theta * minv.transpose();
+    if !region.iter().all(|v| v.is_finite()) {
+        return Err(InformationError::NotFinite {
+            what: "region-clustered covariance",
         });
     }
     let frame = frame_theta.map(|f| &minv * f * minv.transpose());
@@ -194,6 +245,9 @@ pub fn information_with_step(
         sandwich_sigma: sigma_of(&sw),
         sandwich_matrix: rows_of(&sw),
         clusters: scores.len(),
+        region_sigma: sigma_of(&region),
+        region_matrix: rows_of(&region),
+        regions: regions.len(),
         frame_sigma: frame.as_ref().map(sigma_of),
         frame_matrix: frame.as_ref().map(rows_of),
         frames: if frame.is_some() { est.views() } else { 0 },
@@ -295,8 +349,17 @@ impl Information {
         let frames = self.frame_sigma.as_ref().map_or(String::new(), |f| {
             format!("; frame σ {} (one cluster per pair)", line(f))
         });
+        let regions = if self.region_sigma.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "; region σ {} ({} regions)",
+                line(&self.region_sigma),
+                self.regions
+            )
+        };
         format!(
-            "σ {} (Cramér–Rao, N = {}); sandwich σ {} ({} patches){frames}",
+            "σ {} (Cramér–Rao, N = {}); sandwich σ {} ({} patches){regions}{frames}",
             line(&self.sigma),
             self.points,
             line(&self.sandwich_sigma),
@@ -327,9 +390,9 @@ pub fn theta_between(from: &CamFromMap, to: &CamFromMap) -> [f64; 6] {
 /// sandwich's, each axis scaled up to the σ the gate judged (`judged`, [`judged_sigma`];
 /// correlations kept) and widened to a Student-t 3σ quantile, then the intrinsics' part added
 /// (`deltas`, [`crate::localize::refine::uncertainty::intrinsics_deltas`]). Each estimate is
-/// widened by its own degrees of freedom: the patch sandwich's (and the bound's and the floor's
-/// with it) by its clusters − 1, the frame sandwich's by its frames − 1, and an axis takes the
-/// widest. `gate_sigma` is `judged`.
+/// widened by its own degrees of freedom: the patch sandwich's (and the bound's with it) by its
+/// clusters − 1, the region sandwich's by its regions − 1, the frame sandwich's by its
+/// frames − 1, and an axis takes the widest. `gate_sigma` is `judged`.
 pub fn information_covariance(
     info: &Information,
     judged: &[f64],
@@ -349,24 +412,21 @@ pub fn information_covariance(
         .collect();
     let t = |dof: usize| crate::localize::refine::uncertainty::student_t_3sigma(dof.max(1)) / 3.0;
     let patches = t(info.clusters.saturating_sub(1));
+    let regions = t(info.regions.saturating_sub(1));
+    let frames = t(info.frames.max(FRAME_CLUSTERS_MIN).saturating_sub(1));
     // Per axis, the widening that takes the judged σ to the widest of the widened estimates.
-    let tau: Vec<f64> = match &info.frame_sigma {
-        None => vec![patches; d],
-        Some(fs) => {
-            let frames = t(info.frames.max(FRAME_CLUSTERS_MIN).saturating_sub(1));
-            (0..d)
-                .map(|i| {
-                    let own = judged[i] * patches;
-                    let by_frames = fs[i] * frames;
-                    if judged[i] > 0.0 && by_frames > own {
-                        by_frames / judged[i]
-                    } else {
-                        patches
-                    }
-                })
-                .collect()
-        }
-    };
+    let tau: Vec<f64> = (0..d)
+        .map(|i| {
+            let by_regions = info.region_sigma.get(i).map_or(0.0, |s| s * regions);
+            let by_frames = info.frame_sigma.as_ref().map_or(0.0, |f| f[i] * frames);
+            let widest = (judged[i] * patches).max(by_regions).max(by_frames);
+            if judged[i] > 0.0 && widest > judged[i] * patches {
+                widest / judged[i]
+            } else {
+                patches
+            }
+        })
+        .collect();
     let matrix: Vec<Vec<f64>> = (0..d)
         .map(|i| {
             (0..d)
@@ -450,5 +510,41 @@ mod tests {
         let th = theta_between(&p, &crate::localize::mi::space::pose_at(&p, &off));
         assert!((th[5] - 1e-6f64.to_radians()).abs() < 1e-15, "{th:?}");
         assert!(th[..5].iter().all(|v| v.abs() < 1e-15), "{th:?}");
+    }
+
+    /// A region's score is the sum of its patches' (runs of consecutive patches, one region per
+    /// run). Error that neighbouring patches share is invisible to the patch scatter's count of
+    /// evidence and shows in the regions': patches that move alike in runs of four give the
+    /// region scatter 4 × (8/7)/(32/31) of the patch scatter's fourfold-counted variance, and
+    /// patches that cancel within each run give the regions none.
+    #[test]
+    fn the_region_sandwich_sees_what_neighbouring_patches_share() {
+        let idx = [0usize, 3];
+        let at = |x: f64, yaw: f64| [x, 0.0, 0.0, yaw, 0.0, 0.0];
+        let merged = merged_scores(&[at(1.0, 2.0), at(3.0, -1.0), at(0.5, 0.5)], 2);
+        assert_eq!(merged, vec![at(4.0, 1.0), at(0.5, 0.5)]);
+        // Eight regions of four identical patches each.
+        let shared: Vec<[f64; 6]> = (0..32)
+            .map(|j| {
+                let g = (j / 4) as f64;
+                at(g - 3.5, 0.5 * (g - 3.5))
+            })
+            .collect();
+        let patches = score_scatter(&shared, &idx, 100);
+        let regions = score_scatter(&merged_scores(&shared, REGION_PATCHES), &idx, 100);
+        let want = 4.0 * (8.0 / 7.0) / (32.0 / 31.0);
+        for (r, p) in regions.iter().zip(patches.iter()) {
+            assert!((r / p - want).abs() < 1e-12, "{r} {p}");
+        }
+        // Patches that cancel within each region: the regions see no scatter at all.
+        let cancel: Vec<[f64; 6]> = (0..32)
+            .map(|j| {
+                let s = [1.0, -1.0, 2.0, -2.0][j % 4];
+                at(s, -s)
+            })
+            .collect();
+        assert!(score_scatter(&cancel, &idx, 100)[(0, 0)] > 0.0);
+        let none = score_scatter(&merged_scores(&cancel, REGION_PATCHES), &idx, 100);
+        assert!(none.iter().all(|v| *v == 0.0), "{none}");
     }
 }

@@ -37,8 +37,8 @@ pub const ASCENT_ROUNDS: usize = 3;
 /// gate: the grid's checks of the global basin (too few points, points lost, the optimum on the
 /// box's edge) stand; its local-shape checks (basin width, curvature, second peak) are replaced
 /// by the information's — a Hessian that is negative definite and finite — and the σ limits,
-/// which judge per axis the largest of the information's bound, its patch and frame sandwiches
-/// and the search's floor, with the spread of the optima the data cannot tell apart added
+/// which judge per axis the largest of the information's bound, its patch, region and frame
+/// sandwiches and (x, y, z) the search's floor, with the spread of the optima the data cannot tell apart added
 /// ([`judged_sigma`]).
 pub fn refine_smooth(
     cam: &crate::camera::Camera,
@@ -357,20 +357,22 @@ fn add_spread(
 }
 
 /// The σ per axis of `info` that the gate judges: the largest of the Cramér–Rao bound, the
-/// patch sandwich, the frame sandwich (when there is one) and the floor, half the search's finest
-/// step ([`crate::localize::refine::uncertainty::sigma_floor`]). The floor stands for the error
-/// every frame shares, which no clustering of patches or frames can see: the light's common
-/// direction (a low sun casts its shadows to the same side all day) and the map's own. Pooled
-/// frames do not shrink it.
+/// patch sandwich, the region sandwich, the frame sandwich (when there is one) and the floor
+/// ([`crate::localize::refine::uncertainty::sigma_floor`]). Each sandwich sees error shared over
+/// a wider scale than the one before: a point's with its neighbours in the same pixels, a
+/// patch's with its neighbours over a region of ground (a long shadow, a reflectance change), a
+/// frame's over its whole view (its light, its sweep). The floor stands for what every frame
+/// shares; pooled frames do not shrink it.
 fn judged_sigma(info: &Information, cfg: &crate::localize::mi::space::SearchConfig) -> Vec<f64> {
     let frame = |i: usize| info.frame_sigma.as_ref().map_or(0.0, |f| f[i]);
+    let region = |i: usize| info.region_sigma.get(i).copied().unwrap_or(0.0);
     info.axes
         .iter()
         .zip(info.sigma.iter().zip(&info.sandwich_sigma))
         .enumerate()
         .map(|(i, (a, (s, w)))| {
             let floor = crate::localize::refine::uncertainty::sigma_floor(cfg, a);
-            s.max(*w).max(frame(i)).max(floor)
+            s.max(*w).max(region(i)).max(frame(i)).max(floor)
         })
         .collect()
 }
@@ -412,14 +414,17 @@ mod tests {
             sandwich_sigma: sd.to_vec(),
             sandwich_matrix: sandwich,
             clusters: 32,
+            region_sigma: Vec::new(),
+            region_matrix: Vec::new(),
+            regions: 0,
             frame_sigma: None,
             frame_matrix: None,
             frames: 0,
             hessian: [[0.0; 6]; 6],
         };
         let judged = judged_sigma(&info, &crate::localize::mi::space::SearchConfig::default());
-        // The default search's floor: half of 2 cm and of 0.05°.
-        assert_eq!(judged, vec![0.01, 0.02, 0.01, 0.025, 0.05, 0.03]);
+        // The default search's floor: half of 2 cm on x, y and z, none on the angles.
+        assert_eq!(judged, vec![0.01, 0.02, 0.01, 0.01, 0.05, 0.03]);
         let t = (super::super::uncertainty::student_t_3sigma(31) / 3.0).powi(2);
         let u = information_covariance(&info, &judged, None);
         assert_eq!(u.gate_sigma, judged);
@@ -437,11 +442,11 @@ mod tests {
         assert_eq!(Sigma::of(&w).x, u.sigma[0]);
     }
 
-    /// With a frame sandwich each estimate is widened by its own degrees of freedom: the
-    /// frames' (K − 1) where they decide the axis, the patches' (31, the floor's too) elsewhere;
-    /// the floor stays.
+    /// With region and frame sandwiches each estimate is widened by its own degrees of freedom:
+    /// the frames' (K − 1) or the regions' (7) where they decide the axis, the patches' (31, the
+    /// floor's too) elsewhere; the floor stays.
     #[test]
-    fn a_frame_sandwich_widens_by_its_own_frames_above_the_floor() {
+    fn each_sandwich_widens_by_its_own_clusters_above_the_floor() {
         let axes: Vec<String> = ["x", "y", "z", "yaw"].map(String::from).to_vec();
         let diag = |sd: &[f64]| -> Vec<Vec<f64>> {
             (0..4)
@@ -454,6 +459,7 @@ mod tests {
         };
         let patch = [0.003, 0.004, 0.006, 0.007];
         let frame = [0.008, 0.001, 0.001, 0.004];
+        let region = [0.002, 0.009, 0.001, 0.012];
         let info = |frames: usize| Information {
             axes: axes.clone(),
             units: ["m", "m", "m", "deg"].map(String::from).to_vec(),
@@ -464,6 +470,9 @@ mod tests {
             sandwich_sigma: patch.to_vec(),
             sandwich_matrix: diag(&patch),
             clusters: 32,
+            region_sigma: region.to_vec(),
+            region_matrix: diag(&region),
+            regions: 8,
             frame_sigma: Some(frame.to_vec()),
             frame_matrix: Some(diag(&frame)),
             frames,
@@ -471,15 +480,16 @@ mod tests {
         };
         let cfg = crate::localize::mi::space::SearchConfig::default();
         let judged = judged_sigma(&info(6), &cfg);
-        // Every estimate is below the default floor (1 cm, 0.025°).
-        assert_eq!(judged, vec![0.01, 0.01, 0.01, 0.025]);
+        // x, y and z at the default floor (1 cm); yaw, which has none, at its region σ.
+        assert_eq!(judged, vec![0.01, 0.01, 0.01, 0.012]);
         let t = |dof: usize| super::super::uncertainty::student_t_3sigma(dof) / 3.0;
         // Six frames: x's frame σ widened by t₅ (1.46 cm) passes the floor widened by t₃₁
-        // (1.09 cm). Twelve: by t₁₁ (1.03 cm) it does not.
+        // (1.09 cm). Twelve: by t₁₁ (1.03 cm) it does not. y's and yaw's region σ widened by
+        // t₇ pass their judged σ widened by t₃₁.
         for (frames, x) in [(6, 0.008 * t(5)), (12, 0.01 * t(31))] {
             let u = information_covariance(&info(frames), &judged, None);
             assert_eq!(u.gate_sigma, judged);
-            let want = [x, 0.01 * t(31), 0.01 * t(31), 0.025 * t(31)];
+            let want = [x, 0.009 * t(7), 0.01 * t(31), 0.012 * t(7)];
             for i in 0..4 {
                 assert!(
                     (u.sigma[i] - want[i]).abs() < 1e-12,

@@ -561,7 +561,8 @@ fn gate(
 
 /// The smooth stage's gate ([`crate::localize::refine::local::smooth_stage`]) on `q`: the grid's global checks stand, its local ones are replaced
 /// by `information`'s (a finite, negative-definite Hessian; the largest of the bound's, the
-/// sandwiches' and the search's floor, with the competing optima's spread, within the limits).
+/// sandwiches' and, on x, y and z, the search's floor, with the competing optima's spread, within
+/// the limits).
 /// `judged`: `judged_sigma` of the local stage of `information` when it is `Ok` (unread otherwise).
 pub(crate) fn smooth_gate(
     q: &mut Quality,
@@ -603,7 +604,7 @@ pub(crate) fn smooth_gate(
                 };
                 // The Cramér–Rao σ counts every point as independent; on real frames it was
                 // 40–90× smaller than the answers' scatter. The gate judges the largest of it,
-                // the sandwich σs and the search's floor, with the competing optima's spread.
+                // the sandwich σs, with the competing optima's spread.
                 if let Some((i, (lim, key))) = info
                     .axes
                     .iter()
@@ -620,6 +621,7 @@ pub(crate) fn smooth_gate(
                         limit: lim,
                         information_sigma: info.sigma[i],
                         sandwich_sigma: info.sandwich_sigma[i],
+                        region_sigma: info.region_sigma.get(i).copied().unwrap_or(0.0),
                         frame_sigma: info.frame_sigma.as_ref().map(|f| f[i]),
                         optima: optima.and_then(|o| o.describe().map(|d| (o.sigma(axis), d))),
                     };

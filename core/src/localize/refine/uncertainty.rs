@@ -37,7 +37,7 @@ pub struct Uncertainty {
     /// Poses scored for the estimate (the information's Hessian and cluster scores).
     pub poses: usize,
     /// The σ the gate judges (same axes): the largest of the information's bound, its
-    /// sandwiches and the floor, with the competing optima's spread; without the Student-t
+    /// sandwiches and the translation floor, with the competing optima's spread; without the Student-t
     /// widening that makes the reported `sigma`'s 3σ bounds cover and without the intrinsics'
     /// part.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -72,14 +72,18 @@ pub(crate) fn student_t_3sigma(dof: usize) -> f64 {
         + (79.0 * z9 + 776.0 * z7 + 1482.0 * z5 - 1920.0 * z3 - 945.0 * z) / (92160.0 * v.powi(4))
 }
 
-/// The σ floor of a named axis (x, y, z, yaw, pitch, roll): half the search's finest step on it
-/// (tilts the yaw's): below it the grid that found the basin resolves nothing. An unknown name
-/// has none (0).
+/// The σ floor of a named axis: half the search's finest step on x, y and z (1 cm by default),
+/// none on the angles (0, as for an unknown name). It stands for an error every frame shares,
+/// which no clustering of patches or frames can see: a low sun casts its shadows to the same side
+/// all day and so shifts every frame's answer alike (on `simulate --low-sun`, +0.8 cm north
+/// pooled or not). A shift, not a turn: a shared rotation has not been measured, and the
+/// angles' longer-range errors are what the region sandwich sees.
 pub(crate) fn sigma_floor(search: &SearchConfig, axis: &str) -> f64 {
     let axes = search.spec.axes();
     AXES.iter()
         .position(|a| *a == axis)
-        .map_or(0.0, |i| 0.5 * axes[i.min(3)].step)
+        .filter(|&i| i < 3)
+        .map_or(0.0, |i| 0.5 * axes[i].step)
 }
 
 /// The change of the camera centre (map metres) and of the yaw, pitch and roll (degrees) from
