@@ -513,10 +513,10 @@ mod tests {
     }
 
     /// A region's score is the sum of its patches' (runs of consecutive patches, one region per
-    /// run). Error that neighbouring patches share is invisible to the patch scatter's count of
-    /// evidence and shows in the regions': patches that move alike in runs of four give the
-    /// region scatter 4 × (8/7)/(32/31) of the patch scatter's fourfold-counted variance, and
-    /// patches that cancel within each run give the regions none.
+    /// run). The patch scatter takes patches that move alike as independent evidence; the
+    /// regions' sees the shared motion: patches alike in runs of four give the regions
+    /// 4·(8/7)/(32/31) ≈ 4.4 times the patches' scatter (σ about twice), and patches that cancel
+    /// within each run give the regions none.
     #[test]
     fn the_region_sandwich_sees_what_neighbouring_patches_share() {
         let idx = [0usize, 3];

@@ -38,8 +38,8 @@ pub const ASCENT_ROUNDS: usize = 3;
 /// box's edge) stand; its local-shape checks (basin width, curvature, second peak) are replaced
 /// by the information's — a Hessian that is negative definite and finite — and the σ limits,
 /// which judge per axis the largest of the information's bound, its patch, region and frame
-/// sandwiches and (x, y, z) the search's floor, with the spread of the optima the data cannot tell apart added
-/// ([`judged_sigma`]).
+/// sandwiches and (x, y, z) the search's floor, with the spread of the optima the data cannot
+/// tell apart added ([`judged_sigma`]).
 pub fn refine_smooth(
     cam: &crate::camera::Camera,
     views: &[crate::localize::mi::objective::View<'_>],
