@@ -728,6 +728,8 @@ fn sweep_by(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
 
     /// [`magnitude`] is glibc's `hypotf` to the bit (what `Complex32::norm` calls), on
     /// magnitudes from sub-normal to huge and on Sobel-like integers.
@@ -754,8 +756,6 @@ mod tests {
             assert_eq!(magnitude(z).to_bits(), z.norm().to_bits(), "{a:e} {b:e}");
         }
     }
-    use rand::{Rng, SeedableRng};
-    use rand_chacha::ChaCha8Rng;
 
     /// A procedural "ground": random bright bars and blobs on a textured background.
     fn ground(seed: u64) -> impl Fn(f64, f64) -> f32 {
