@@ -15,7 +15,8 @@
 //!
 //! Score: masked normalised correlation `Re Σ z_s·z̄_t / √(Σ_mask|z_s|² · Σ|z_t|²)`. The mask is a
 //! disk whose radius depends on h only, so the local energy `Σ_mask|z_s|²` costs one FFT pair per
-//! height, and each (ψ, h) hypothesis costs one forward and one inverse FFT.
+//! height, and each pair of hypotheses (ψ, h), (ψ + π, h) costs one forward and one inverse FFT
+//! (the second template is the first reflected through its centre: [`YawPair`]).
 
 use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
@@ -407,6 +408,7 @@ impl SearchField {
 const SCORE_SLACK: f64 = 1e-9;
 
 /// A shift of the template inside the search field that [`sweep`] scores.
+#[derive(Clone)]
 struct Shift {
     /// Its element of the correlation buffer (row-major, side n).
     index: usize,
@@ -477,6 +479,7 @@ fn scored_shifts(
 }
 
 /// One height of [`sweep`]: what every height shares.
+#[derive(Clone)]
 struct HeightSweep<'a> {
     search: &'a SearchField,
     nominal: &'a NominalField,
@@ -496,6 +499,9 @@ struct HeightSweep<'a> {
     shifts: Vec<Shift>,
     /// The template's disk, row by row: the columns dx ∈ [lo, hi) inside.
     disk_rows: Vec<(usize, usize)>,
+    /// Set when the yaws come in pairs ψ, ψ + π (an even count that divides the turn): the
+    /// sweep then transforms once per pair.
+    pair: Option<YawPair>,
 }
 
 impl<'a> HeightSweep<'a> {
@@ -528,6 +534,9 @@ impl<'a> HeightSweep<'a> {
                 (lo, hi)
             })
             .collect();
+        let half_turn = (n_yaw / 2) as f64 * p.yaw_step_deg;
+        let pair = (n_yaw % 2 == 0 && (half_turn - 180.0).abs() < 1e-9)
+            .then(|| YawPair::new(&search.spec, n, side));
         Some(HeightSweep {
             search,
             nominal,
@@ -541,6 +550,7 @@ impl<'a> HeightSweep<'a> {
             inv_n2: 1.0 / (n * n) as f64,
             shifts,
             disk_rows,
+            pair,
         })
     }
 
@@ -572,29 +582,73 @@ impl<'a> HeightSweep<'a> {
     /// The body of [`HeightSweep::run`], for the target's baseline features.
     #[inline(always)]
     fn run_plain(&self, h: f64) -> Vec<Candidate> {
-        let HeightSweep {
-            search,
-            nominal,
-            p,
-            n,
-            res,
-            n_yaw,
-            r_px,
-            side,
-            valid,
-            inv_n2,
-            ref shifts,
-            ref disk_rows,
-        } = *self;
+        let n = self.n;
+        let fft = &self.search.fft;
         let mut scratch = Vec::new();
-        // Pyramid level whose step is closest to (not finer than half) the template step.
-        let want = res / h;
+        let level = self.level(h);
+        let mut buf = vec![Complex32::new(0.0, 0.0); n * n];
+        let (mut xs, mut ys) = (vec![0.0f32; self.side], vec![0.0f32; self.side]);
+        let yaw = |k: usize| (k as f64 * self.p.yaw_step_deg).to_radians();
+        // One slot per yaw, filled in any order and read in yaw order.
+        let mut best: Vec<Option<Candidate>> = vec![None; self.n_yaw];
+        // The template fills the first `side` rows; only the first `valid` rows of the
+        // correlation are read (≈ 35 % of the two transforms' row passes saved).
+        if let Some(pair) = &self.pair {
+            let half = self.n_yaw / 2;
+            let mut z = vec![Complex32::new(0.0, 0.0); n * n];
+            for k in 0..half {
+                let tnorm = self.template(level, h, yaw(k), &mut buf, &mut xs, &mut ys);
+                if tnorm <= 0.0 {
+                    continue;
+                }
+                fft.forward_top_rows(&mut buf, &mut scratch, self.side);
+                pair.combine(&buf, &mut z);
+                fft.inverse_top_rows(&mut z, &mut scratch, self.valid);
+                best[k] = self.best_shift(&z, |v| v.re, yaw(k), h, tnorm);
+                best[k + half] = self.best_shift(&z, |v| v.im, yaw(k + half), h, tnorm);
+            }
+        } else {
+            for (k, slot) in best.iter_mut().enumerate() {
+                let tnorm = self.template(level, h, yaw(k), &mut buf, &mut xs, &mut ys);
+                if tnorm <= 0.0 {
+                    continue;
+                }
+                fft.forward_top_rows(&mut buf, &mut scratch, self.side);
+                for (b, s) in buf.iter_mut().zip(&self.search.spec) {
+                    *b = s * b.conj();
+                }
+                fft.inverse_top_rows(&mut buf, &mut scratch, self.valid);
+                *slot = self.best_shift(&buf, |v| v.re, yaw(k), h, tnorm);
+            }
+        }
+        best.into_iter().flatten().collect()
+    }
+
+    /// The pyramid level whose step is closest to (not finer than half) the template step at
+    /// height `h`.
+    fn level(&self, h: f64) -> usize {
+        let (levels, dq) = (&self.nominal.levels, self.nominal.dq);
+        let want = self.res / h;
         let mut level = 0;
-        while level + 1 < nominal.levels.len()
-            && nominal.dq * 2f64.powi(level as i32 + 1) <= want * 1.5
-        {
+        while level + 1 < levels.len() && dq * 2f64.powi(level as i32 + 1) <= want * 1.5 {
             level += 1;
         }
+        level
+    }
+
+    /// Samples the template of yaw `yaw` at height `h` from pyramid level `level` into the
+    /// first `side` rows of `buf` (everything else zero) and returns its energy Σ|z|².
+    #[inline(always)]
+    fn template(
+        &self,
+        level: usize,
+        h: f64,
+        yaw: f64,
+        buf: &mut [Complex32],
+        xs: &mut [f32],
+        ys: &mut [f32],
+    ) -> f64 {
+        let (nominal, n, res, r_px, side) = (self.nominal, self.n, self.res, self.r_px, self.side);
         let f = &nominal.levels[level];
         // A power of two: multiplying by its inverse is exactly dividing by it.
         let inv_scale = 1.0 / 2f64.powi(level as i32);
@@ -602,78 +656,153 @@ impl<'a> HeightSweep<'a> {
         // level-0 coordinate (X + 0.5)·2^l − 0.5.
         let c0 = (nominal.levels[0].width as f64 - 1.0) / 2.0;
         let to_level = |x0: f64| ((x0 + 0.5) * inv_scale - 0.5) as f32;
-        let mut best: Vec<Candidate> = Vec::new();
-        let mut buf = vec![Complex32::new(0.0, 0.0); n * n];
-        let (mut xs, mut ys) = (vec![0.0f32; side], vec![0.0f32; side]);
-        for k in 0..n_yaw {
-            let yaw = (k as f64 * p.yaw_step_deg).to_radians();
-            let (s, c) = yaw.sin_cos();
-            // Image rows run south, so a counter-clockwise map rotation by ψ turns image
-            // orientations by −ψ and doubled angles by −2ψ.
-            let phase = Complex32::from_polar(1.0, (-2.0 * yaw) as f32);
-            buf.iter_mut().for_each(|v| *v = Complex32::new(0.0, 0.0));
-            let mut tnorm = 0.0f64;
-            for (dy, &(lo, hi)) in disk_rows.iter().enumerate() {
-                let ey = dy as isize - r_px;
-                // Where each template pixel of the row samples the nominal field: the
-                // coordinates first (a loop of divisions the compiler can pair), then the
-                // samples.
-                for dx in lo..hi {
-                    let ex = dx as isize - r_px;
-                    // Map offset u (east, north) of this pixel, then q = Rz(−ψ)u / h.
-                    let (ux, uy) = (ex as f64 * res, -(ey as f64) * res);
-                    let (qx, qy) = ((c * ux + s * uy) / h, (-s * ux + c * uy) / h);
-                    xs[dx] = to_level(c0 + qx / nominal.dq);
-                    ys[dx] = to_level(c0 - qy / nominal.dq);
-                }
-                let row = &mut buf[dy * n..dy * n + side];
-                for dx in lo..hi {
-                    let z = f.sample(xs[dx], ys[dx]) * phase;
-                    tnorm += z.norm_sqr() as f64;
-                    row[dx] = z;
-                }
+        let (s, c) = yaw.sin_cos();
+        // Image rows run south, so a counter-clockwise map rotation by ψ turns image
+        // orientations by −ψ and doubled angles by −2ψ.
+        let phase = Complex32::from_polar(1.0, (-2.0 * yaw) as f32);
+        buf.iter_mut().for_each(|v| *v = Complex32::new(0.0, 0.0));
+        let mut tnorm = 0.0f64;
+        for (dy, &(lo, hi)) in self.disk_rows.iter().enumerate() {
+            let ey = dy as isize - r_px;
+            // Where each template pixel of the row samples the nominal field: the coordinates
+            // first (a loop of divisions the compiler can pair), then the samples.
+            for dx in lo..hi {
+                let ex = dx as isize - r_px;
+                // Map offset u (east, north) of this pixel, then q = Rz(−ψ)u / h.
+                let (ux, uy) = (ex as f64 * res, -(ey as f64) * res);
+                let (qx, qy) = ((c * ux + s * uy) / h, (-s * ux + c * uy) / h);
+                xs[dx] = to_level(c0 + qx / nominal.dq);
+                ys[dx] = to_level(c0 - qy / nominal.dq);
             }
-            if tnorm <= 0.0 {
-                continue;
-            }
-            // The template fills the first `side` rows; only the first `valid` rows of the
-            // correlation are read (≈ 35 % of the two transforms' row passes saved).
-            search.fft.forward_top_rows(&mut buf, &mut scratch, side);
-            for (b, s) in buf.iter_mut().zip(&search.spec) {
-                *b = s * b.conj();
-            }
-            search.fft.inverse_top_rows(&mut buf, &mut scratch, valid);
-            // Both inverse transforms are unscaled (×n²). The score of a shift is
-            // a / √(e·tnorm); the first of the highest wins. Its estimate a·(1/√e)·(1/√tnorm)
-            // is within ~10⁻¹⁵ (relative) of it, so a shift whose estimate falls short of the
-            // best score so far by more than `SCORE_SLACK` cannot beat it, and only the
-            // others pay for the exact square root and division: the same winner, from the
-            // same exact scores.
-            let inv_sqrt_t = 1.0 / tnorm.sqrt();
-            let mut top = Candidate {
-                yaw,
-                height: h,
-                offset: [0.0; 2],
-                score: f64::NEG_INFINITY,
-            };
-            let mut bar = f64::NEG_INFINITY;
-            for sh in shifts {
-                let a = buf[sh.index].re as f64 * inv_n2;
-                if a * sh.inv_sqrt_energy * inv_sqrt_t < bar {
-                    continue;
-                }
-                let sc = a / (sh.energy * tnorm).sqrt();
-                if sc > top.score {
-                    top.score = sc;
-                    top.offset = sh.offset;
-                    bar = sc - SCORE_SLACK * sc.abs() - f64::MIN_POSITIVE;
-                }
-            }
-            if top.score.is_finite() {
-                best.push(top);
+            let row = &mut buf[dy * n..dy * n + side];
+            for dx in lo..hi {
+                let z = f.sample(xs[dx], ys[dx]) * phase;
+                tnorm += z.norm_sqr() as f64;
+                row[dx] = z;
             }
         }
-        best
+        tnorm
+    }
+
+    /// The best shift of one correlation, read from `part` of the unscaled inverse transform
+    /// `corr` (×n²), for a template of energy `tnorm`; `None` when no score is finite.
+    ///
+    /// The score of a shift is a / √(e·tnorm); the first of the highest wins. Its estimate
+    /// a·(1/√e)·(1/√tnorm) is within ~10⁻¹⁵ (relative) of it, so a shift whose estimate falls
+    /// short of the best score so far by more than `SCORE_SLACK` cannot beat it, and only the
+    /// others pay for the exact square root and division: the same winner, from the same exact
+    /// scores.
+    #[inline(always)]
+    fn best_shift(
+        &self,
+        corr: &[Complex32],
+        part: impl Fn(Complex32) -> f32,
+        yaw: f64,
+        h: f64,
+        tnorm: f64,
+    ) -> Option<Candidate> {
+        let inv_sqrt_t = 1.0 / tnorm.sqrt();
+        let mut top = Candidate {
+            yaw,
+            height: h,
+            offset: [0.0; 2],
+            score: f64::NEG_INFINITY,
+        };
+        let mut bar = f64::NEG_INFINITY;
+        for sh in &self.shifts {
+            let a = part(corr[sh.index]) as f64 * self.inv_n2;
+            if a * sh.inv_sqrt_energy * inv_sqrt_t < bar {
+                continue;
+            }
+            let sc = a / (sh.energy * tnorm).sqrt();
+            if sc > top.score {
+                top.score = sc;
+                top.offset = sh.offset;
+                bar = sc - SCORE_SLACK * sc.abs() - f64::MIN_POSITIVE;
+            }
+        }
+        top.score.is_finite().then_some(top)
+    }
+}
+
+/// What lets one forward and one inverse transform serve two yaws ψ and ψ + π.
+///
+/// Turning the map by π maps every template offset u to −u and leaves the doubled-angle phase
+/// as it was, so the template of ψ + π is that of ψ reflected through its centre: with the
+/// template in the corner `[0, d]²` of its padding (d = side − 1), T′(x) = T(d − x), and its
+/// spectrum is T̂′(k) = φ(k)·T̂(−k) with φ(k) = e^{−2πi(k_x + k_y)d/n}. The sweep reads only
+/// the real part of a correlation C = IFFT(Ŝ·conj T̂), which is the inverse of the spectrum's
+/// Hermitian part ½(P(k) + conj P(−k)); the Hermitian parts of the two yaws, the second times
+/// i, add into one spectrum Z whose inverse holds Re C in its real and Re C′ in its imaginary
+/// part. Z(k) = ½Ŝ(k)·conj T̂(k) + ½conj Ŝ(−k)·T̂(−k) + ½i·conj φ(k)·(Ŝ(k)·conj T̂(−k) +
+/// conj Ŝ(−k)·T̂(k)): four products per frequency with the factors below, in place of a second
+/// template's sampling and forward transform and a second inverse.
+#[derive(Debug, Clone)]
+struct YawPair {
+    /// Side of the spectra.
+    n: usize,
+    /// ½Ŝ(k).
+    s_half: Vec<Complex32>,
+    /// ½·conj Ŝ(−k).
+    s_neg_half: Vec<Complex32>,
+    /// ½i·conj φ(k)·Ŝ(k).
+    s_turn: Vec<Complex32>,
+    /// ½i·conj φ(k)·conj Ŝ(−k).
+    s_neg_turn: Vec<Complex32>,
+}
+
+impl YawPair {
+    /// The factors for the satellite spectrum `spec` (n × n, transposed like every spectrum
+    /// here: the formulas are symmetric in the two axes) and templates of side `side`.
+    fn new(spec: &[Complex32], n: usize, side: usize) -> Self {
+        let d = side - 1;
+        let neg = |a: usize| (n - a) % n;
+        let len = n * n;
+        let mut p = YawPair {
+            n,
+            s_half: Vec::with_capacity(len),
+            s_neg_half: Vec::with_capacity(len),
+            s_turn: Vec::with_capacity(len),
+            s_neg_turn: Vec::with_capacity(len),
+        };
+        for a in 0..n {
+            for b in 0..n {
+                let s = spec[a * n + b];
+                let s_neg = spec[neg(a) * n + neg(b)].conj();
+                // i·conj φ(k) = i·e^{2πi(a + b)d/n}, its angle reduced exactly in integers.
+                let m = ((a + b) * d) % n;
+                let turn = 2.0 * std::f64::consts::PI * m as f64 / n as f64;
+                let (sin, cos) = turn.sin_cos();
+                let i_conj_phi = Complex32::new(-sin as f32, cos as f32);
+                p.s_half.push(s * 0.5);
+                p.s_neg_half.push(s_neg * 0.5);
+                p.s_turn.push(s * i_conj_phi * 0.5);
+                p.s_neg_turn.push(s_neg * i_conj_phi * 0.5);
+            }
+        }
+        p
+    }
+
+    /// Z (see the type) of the template spectrum `t` into `z`; both n × n.
+    #[inline(always)]
+    fn combine(&self, t: &[Complex32], z: &mut [Complex32]) {
+        let n = self.n;
+        for a in 0..n {
+            let row = &t[a * n..(a + 1) * n];
+            let row_neg = &t[((n - a) % n) * n..((n - a) % n + 1) * n];
+            let range = a * n..(a + 1) * n;
+            let (zr, sh, snh, st, snt) = (
+                &mut z[range.clone()],
+                &self.s_half[range.clone()],
+                &self.s_neg_half[range.clone()],
+                &self.s_turn[range.clone()],
+                &self.s_neg_turn[range],
+            );
+            for b in 0..n {
+                let (x, x_neg) = (row[b], row_neg[(n - b) % n]);
+                zr[b] = sh[b] * x.conj() + snh[b] * x_neg + st[b] * x_neg.conj() + snt[b] * x;
+            }
+        }
     }
 }
 
@@ -754,6 +883,56 @@ mod tests {
             };
             let z = Complex32::new(a, b);
             assert_eq!(magnitude(z).to_bits(), z.norm().to_bits(), "{a:e} {b:e}");
+        }
+    }
+
+    /// The pair's one spectrum Z inverts to the real parts of two correlations, the template's
+    /// and its reflection through its centre's, checked against the sums themselves (n = 12, a
+    /// 5-pixel template, every valid shift).
+    #[test]
+    fn a_yaw_pair_inverts_to_both_real_correlations() {
+        let (n, side) = (12usize, 5usize);
+        let valid = n - side + 1;
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut cplx = || Complex32::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+        let sat: Vec<Complex32> = (0..n * n).map(|_| cplx()).collect();
+        let mut t = vec![Complex32::new(0.0, 0.0); n * n];
+        for y in 0..side {
+            for x in 0..side {
+                t[y * n + x] = cplx();
+            }
+        }
+        let fft = Fft2::new(n);
+        let mut scratch = Vec::new();
+        let mut spec = sat.clone();
+        fft.forward(&mut spec, &mut scratch);
+        let pair = YawPair::new(&spec, n, side);
+        let mut t_spec = t.clone();
+        fft.forward(&mut t_spec, &mut scratch);
+        let mut z = vec![Complex32::new(0.0, 0.0); n * n];
+        pair.combine(&t_spec, &mut z);
+        fft.inverse(&mut z, &mut scratch);
+        let d = side - 1;
+        for sy in 0..valid {
+            for sx in 0..valid {
+                let (mut c, mut c_turned) = (0.0f64, 0.0f64);
+                for y in 0..side {
+                    for x in 0..side {
+                        let s = sat[(sy + y) * n + sx + x];
+                        c += (s * t[y * n + x].conj()).re as f64;
+                        c_turned += (s * t[(d - y) * n + d - x].conj()).re as f64;
+                    }
+                }
+                let got = z[sy * n + sx] / (n * n) as f32;
+                assert!(
+                    (got.re as f64 - c).abs() < 1e-4,
+                    "({sx}, {sy}): {got} vs {c}"
+                );
+                assert!(
+                    (got.im as f64 - c_turned).abs() < 1e-4,
+                    "({sx}, {sy}): {got} vs {c_turned}"
+                );
+            }
         }
     }
 
@@ -928,5 +1107,20 @@ mod tests {
         let plain = sweep_by(&search, &nominal, &every, |j, h| j.run_plain(h));
         assert!(plain.len() > 20, "{} candidates", plain.len());
         assert_eq!(plain, sweep_by(&search, &nominal, &every, |j, h| j.run(h)));
+        // Yaws in pairs ψ, ψ + π (one transform pair for two yaws) give every candidate of
+        // one yaw at a time, with scores equal to single precision's rounding.
+        let single = sweep_by(&search, &nominal, &every, |j, h| {
+            assert!(j.pair.is_some(), "3° steps pair their yaws");
+            HeightSweep {
+                pair: None,
+                ..j.clone()
+            }
+            .run_plain(h)
+        });
+        assert_eq!(plain.len(), single.len());
+        for (a, b) in plain.iter().zip(&single) {
+            assert_eq!((a.yaw, a.height, a.offset), (b.yaw, b.height, b.offset));
+            assert!((a.score - b.score).abs() < 1e-5, "{a:?} vs {b:?}");
+        }
     }
 }
