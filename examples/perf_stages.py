@@ -9,7 +9,7 @@ by perf's copy of the stack fall under "the rest".
 
 usage:
     RAYON_NUM_THREADS=1 perf record -F 400 --call-graph dwarf,16384 -o P.data -- \\
-        taskset -c 1 target/release/infraloc localize --config SCENE/pv.toml
+        taskset -c 1 target/release/infraloc localize --config SCENE/infraloc.toml
     perf script -i P.data > P.txt
     python3 examples/perf_stages.py P.txt
 """
