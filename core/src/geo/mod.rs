@@ -15,6 +15,7 @@
 mod crs;
 pub mod error;
 pub mod georef;
+pub mod stated;
 
 pub use crs::{Crs, SUPPORTED_CRS};
 pub use error::GeoError;
