@@ -33,6 +33,9 @@ pub struct BuildArgs {
     /// The tile's CRS, for clouds that carry none (PCD); must match the clouds' own.
     #[arg(long, value_name = "EPSG:N")]
     pub crs: Option<String>,
+    /// Take --crs instead of the CRS the clouds state (a wrong label), with a warning per cloud.
+    #[arg(long)]
+    pub override_crs: bool,
     /// Tile box in the map CRS.
     #[arg(long, value_name = "XMIN,YMIN,XMAX,YMAX", value_parser = floats::<4>,
           conflicts_with_all = ["center", "center_wgs84"], required_unless_present_any = ["center", "center_wgs84"])]
@@ -156,6 +159,7 @@ fn build(a: &BuildArgs) -> Result<()> {
         id: a.id.clone(),
         inputs: a.inputs.clone(),
         crs,
+        override_crs: a.override_crs,
         area,
         res: a.res,
         ground: GroundParams {

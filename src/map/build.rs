@@ -66,6 +66,8 @@ pub(crate) struct BuildSpec {
     pub inputs: Vec<PathBuf>,
     /// The tile's CRS when the inputs do not say (or to confirm what they say).
     pub crs: Option<Crs>,
+    /// `crs` replaces whatever CRS the inputs state (a wrong label), with a warning each.
+    pub override_crs: bool,
     /// The tile's extent.
     pub area: Area,
     /// LiDAR layer resolution, metres.
@@ -375,11 +377,12 @@ pub(crate) fn build_tile(spec: &BuildSpec) -> Result<(Tile, super::cache::Proven
     // An Autoware map directory's files are chosen by the box, which needs the CRS first: no
     // directory has a CRS, so a provisional everything-box is fine for choosing, then refined.
     let everything = [f64::MIN, f64::MIN, f64::MAX, f64::MAX];
-    let probe: Vec<Cloud> = spec
+    let mut probe: Vec<Cloud> = spec
         .inputs
         .iter()
         .map(|p| cloud::open(p, &everything))
         .collect::<Result<_>>()?;
+    cloud::settle_crs(&mut probe, spec.override_crs, spec.crs)?;
     let crs = tile_crs(&probe, spec.crs)?;
     let bx = resolve_area(spec.area, crs)?;
     let tile_grid = snapped_grid(crs, &bx, res, "tile")?;
