@@ -44,6 +44,8 @@ pub(crate) enum Area {
     Center { xy: (f64, f64), size: f64 },
     /// A square of `size` metres centred on a WGS84 position (e.g. the node's GPS fix).
     CenterWgs84 { lat: f64, lon: f64, size: f64 },
+    /// The clouds' own extent ([`cloud::extent`]).
+    Extent,
 }
 
 /// Ground filter parameters (inputs without LAS classification).
@@ -175,7 +177,7 @@ fn tile_crs(clouds: &[Cloud], flag: Option<Crs>) -> Result<Crs> {
 }
 
 /// The box of the tile in its CRS.
-fn resolve_area(area: Area, crs: Crs) -> Result<Box2> {
+fn resolve_area(area: Area, crs: Crs, clouds: &[Cloud]) -> Result<Box2> {
     let square = |(x, y): (f64, f64), size: f64| -> Result<Box2> {
         if !(size > 0.0) || !size.is_finite() {
             return Err(MapError::NotPositive {
@@ -197,6 +199,7 @@ fn resolve_area(area: Area, crs: Crs) -> Result<Box2> {
             })?;
             square(xy, size)?
         }
+        Area::Extent => cloud::extent(clouds)?,
     };
     if !b.iter().all(|v| v.is_finite()) || !(b[2] > b[0]) || !(b[3] > b[1]) {
         return Err(MapError::BadBox { bbox: b }.into());
@@ -384,7 +387,7 @@ pub(crate) fn build_tile(spec: &BuildSpec) -> Result<(Tile, super::cache::Proven
         .collect::<Result<_>>()?;
     cloud::settle_crs(&mut probe, spec.override_crs, spec.crs)?;
     let crs = tile_crs(&probe, spec.crs)?;
-    let bx = resolve_area(spec.area, crs)?;
+    let bx = resolve_area(spec.area, crs, &probe)?;
     let tile_grid = snapped_grid(crs, &bx, res, "tile")?;
     let margin_cells = (gp.window / 2.0 / gp.cell).ceil() as usize * ratio;
     let (read_grid, read_box) = read_grid(&tile_grid, margin_cells)?;

@@ -467,6 +467,68 @@ fn autoware_files(dir: &Path, bx: &Box2) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
+/// Largest side of a tile taken from the clouds' own extent, metres: a node's tile covers the
+/// camera's surroundings (a few hundred metres); a survey file is a tile of at most a few square
+/// kilometres (1 km at 0.1 m is 10⁸ cells, about 3 GB while building, so a coarser `--res` for a
+/// whole one). A larger survey is cut with `--bbox` or `--center`.
+pub(crate) const MAX_EXTENT_SIDE_M: f64 = 2000.0;
+
+/// The clouds' extent in the tile's CRS: of the points themselves (one more pass over each file),
+/// because headers can be wrong; COPC's header bounds, which its writers compute from the points
+/// to build the octree. Noise classes do not count. Refused above [`MAX_EXTENT_SIDE_M`] a side.
+pub(crate) fn extent(clouds: &[Cloud]) -> Result<Box2> {
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    let mut grow = |x: f64, y: f64| {
+        b = [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)];
+    };
+    let everything = [f64::MIN, f64::MIN, f64::MAX, f64::MAX];
+    for c in clouds {
+        match (&c.kind, c.header_bounds) {
+            (Kind::Copc, Some(h)) => {
+                let lo = c.to_tile.apply([h[0], h[1], h[2]]);
+                let hi = c.to_tile.apply([h[3], h[4], h[5]]);
+                grow(lo[0], lo[1]);
+                grow(hi[0], hi[1]);
+            }
+            _ => {
+                read(c, &everything, |p| grow(p.xyz[0], p.xyz[1]))?;
+            }
+        }
+    }
+    let names = || {
+        clouds
+            .iter()
+            .map(|c| c.path.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    if !(b[2] >= b[0] && b[3] >= b[1]) {
+        return Err(Error::input(
+            names(),
+            "no points to take an extent from; give --bbox or --center",
+        ));
+    }
+    let (w, h) = (b[2] - b[0], b[3] - b[1]);
+    if w > MAX_EXTENT_SIDE_M || h > MAX_EXTENT_SIDE_M {
+        return Err(Error::input(
+            names(),
+            format!(
+                "the clouds' extent is {w:.0} m × {h:.0} m (x {}..{}, y {}..{}), more than \
+                 {MAX_EXTENT_SIDE_M} m a side: cut the node's tile with --bbox or --center",
+                b[0], b[2], b[1], b[3]
+            ),
+        ));
+    }
+    // The box is half-open: the last point must fall inside it.
+    let pad = |v: f64| v + (v.abs() * f64::EPSILON * 4.0).max(1e-9);
+    Ok([b[0], b[1], pad(b[2]), pad(b[3])])
+}
+
 /// Per-input statistics gathered while reading, for the builder's normalisation and messages.
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct ReadStats {
