@@ -168,9 +168,16 @@ fn tile_crs(clouds: &[Cloud], flag: Option<Crs>) -> Result<Crs> {
         }
     };
     if flag == Some(crs) || from.is_none() {
-        geo::check_crs(crs).map_err(|source| MapError::Flag {
-            flag: "--crs",
-            source,
+        geo::check_crs(crs).map_err(|source| {
+            // Name the cloud that takes --crs, so that the line says whose CRS it is.
+            match clouds.iter().find(|c| c.crs.is_none()) {
+                Some(c) => Error::input(&c.path, format!("--crs {crs}: {source}")),
+                None => MapError::Flag {
+                    flag: "--crs",
+                    source,
+                }
+                .into(),
+            }
         })?;
     }
     Ok(crs)

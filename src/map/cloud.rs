@@ -473,6 +473,10 @@ fn autoware_files(dir: &Path, bx: &Box2) -> Result<Vec<PathBuf>> {
 /// whole one). A larger survey is cut with `--bbox` or `--center`.
 pub(crate) const MAX_EXTENT_SIDE_M: f64 = 2000.0;
 
+/// Added to the extent's east and north edges, metres: a micrometre, below any LAS scale factor
+/// and above the rounding of coordinates up to 10⁸ m.
+const EXTENT_PAD_M: f64 = 1e-6;
+
 /// The clouds' extent in the tile's CRS: of the points themselves (one more pass over each file),
 /// because headers can be wrong; COPC's header bounds, which its writers compute from the points
 /// to build the octree. Noise classes do not count. Refused above [`MAX_EXTENT_SIDE_M`] a side.
@@ -524,9 +528,8 @@ pub(crate) fn extent(clouds: &[Cloud]) -> Result<Box2> {
             ),
         ));
     }
-    // The box is half-open: the last point must fall inside it.
-    let pad = |v: f64| v + (v.abs() * f64::EPSILON * 4.0).max(1e-9);
-    Ok([b[0], b[1], pad(b[2]), pad(b[3])])
+    // The box is half-open: points on its east and north edges must fall inside it.
+    Ok([b[0], b[1], b[2] + EXTENT_PAD_M, b[3] + EXTENT_PAD_M])
 }
 
 /// Per-input statistics gathered while reading, for the builder's normalisation and messages.
