@@ -324,14 +324,20 @@ pub fn epsg_in_metres(code: u32, unit: Option<(&str, f64)>) -> Result<Metric, St
              on {datum}"
         ))
     })?;
+    Ok(into_twin(&p, twin, (uname, f)))
+}
+
+/// The conversion of coordinates of projection `src` in `unit` into its metre twin `twin`: the
+/// unit's scale and the difference of the false origins.
+fn into_twin(src: &Params, twin: u32, unit: (String, f64)) -> Metric {
     let tp = parse_proj4(definition(twin).unwrap_or_default());
-    Ok(Metric {
+    Metric {
         crs: Crs::Epsg(twin),
-        unit: (uname, f),
-        dx: tp.x_0 - p.x_0,
-        dy: tp.y_0 - p.y_0,
+        unit,
+        dx: tp.x_0 - src.x_0,
+        dy: tp.y_0 - src.y_0,
         vertical: None,
-    })
+    }
 }
 
 fn unit_name(f: f64) -> String {
@@ -516,8 +522,8 @@ pub fn wkt_in_metres(wkt: &str) -> Result<Metric, StatedError> {
                 .iter()
                 .find_map(|a| match a {
                     Arg::Node(n)
-                        if n.key.to_ascii_uppercase() != "AUTHORITY"
-                            && n.key.to_ascii_uppercase() != "ID" =>
+                        if !n.key.eq_ignore_ascii_case("AUTHORITY")
+                            && !n.key.eq_ignore_ascii_case("ID") =>
                     {
                         Some(n)
                     }
@@ -660,14 +666,7 @@ fn wkt1_in_metres(
             datum.name()
         ))
     })?;
-    let tp = parse_proj4(definition(twin).unwrap_or_default());
-    Ok(Metric {
-        crs: Crs::Epsg(twin),
-        unit: (uname, uf),
-        dx: tp.x_0 - src.x_0,
-        dy: tp.y_0 - src.y_0,
-        vertical: None,
-    })
+    Ok(into_twin(&src, twin, (uname, uf)))
 }
 
 #[cfg(test)]
