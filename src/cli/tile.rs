@@ -206,18 +206,22 @@ fn import_with<'a>(a: &'a ImportArgs) -> Result<()> {
 fn report(tile: &crate::map::Tile, out: &std::path::Path) {
     let g = tile.reflectivity.grid;
     let (xmin, ymin, xmax, ymax) = g.bounds();
+    let satellite = match &tile.satellite {
+        Some(s) => format!(
+            "satellite {}x{} at {} m/px",
+            s.grid.width, s.grid.height, s.grid.res
+        ),
+        None => "no satellite layer (LiDAR-only)".to_string(),
+    };
     println!(
         "tile {} written to {}: {}, LiDAR {}x{} at {} m/px, extent x {xmin}..{xmax}, y {ymin}..{ymax}; \
-         satellite {}x{} at {} m/px; {} control points",
+         {satellite}; {} control points",
         tile.id,
         out.join(&tile.id).display(),
         g.crs,
         g.width,
         g.height,
         g.res,
-        tile.satellite.grid.width,
-        tile.satellite.grid.height,
-        tile.satellite.grid.res,
         tile.control_points.len()
     );
 }

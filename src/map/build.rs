@@ -17,7 +17,8 @@
 //!    each line's brightest point.
 //! 5. Satellite layer: an orthophoto warped bilinearly into the satellite grid (any CRS the geodesy
 //!    relates to the tile's), else the colour of the highest point of each cell (the view from
-//!    above), 16-bit colours scaled by 1/257 when the input's largest exceeds 255.
+//!    above), 16-bit colours scaled by 1/257 when the input's largest exceeds 255; with neither,
+//!    none (a LiDAR-only tile, said in one warning).
 
 use super::cloud::{self, Box2, Cloud, CloudPoint, Kind, CLASS_GROUND};
 use super::geotiff::{Image, Pixels};
@@ -329,8 +330,20 @@ fn source_lines(
         .collect()
 }
 
+/// A tile without a satellite layer: the one warning (naming the inputs and why) and the
+/// provenance line.
+fn lidar_only(names: &str, why: &str, sources: &mut Vec<String>) {
+    eprintln!(
+        "infraloc: warning: {names}: {why} and no --orthophoto was given: the tile has no \
+         satellite layer (LiDAR-only: refine, the drift check and georef work; localize's \
+         initializer needs one)"
+    );
+    sources.push("satellite: none (LiDAR-only: no orthophoto, no colour in the points)".into());
+}
+
 /// The satellite layer: the orthophoto warped onto `sat_grid`, else the highest point's colour
-/// per cell; its provenance line is added to `sources`.
+/// per cell, else none (a LiDAR-only tile, with one warning on stderr naming `names`); its
+/// provenance line is added to `sources`.
 fn satellite_layer(
     ortho: Option<(&Path, (Image, GeoGrid))>,
     top: Option<TopColour>,
@@ -338,11 +351,11 @@ fn satellite_layer(
     sat_grid: &GeoGrid,
     names: &str,
     sources: &mut Vec<String>,
-) -> Result<Raster<[u8; 3]>> {
+) -> Result<Option<Raster<[u8; 3]>>> {
     match (ortho, top) {
         (Some((path, img)), _) => {
             sources.push(format!("satellite: {} warped bilinearly", path.display()));
-            warp_rgb(&img, path, sat_grid)
+            warp_rgb(&img, path, sat_grid).map(Some)
         }
         (None, Some(t)) => {
             let scale: Vec<f64> = facts
@@ -356,13 +369,11 @@ fn satellite_layer(
                 })
                 .collect();
             if t.filled == 0 {
-                return Err(Error::input(
-                    names,
-                    "no satellite layer: the points in the box carry no RGB; give --orthophoto",
-                ));
+                lidar_only(names, "the points in the box carry no RGB", sources);
+                return Ok(None);
             }
             sources.push("satellite: RGB of the highest point per cell".into());
-            Ok(t.into_raster(&scale))
+            Ok(Some(t.into_raster(&scale)))
         }
         (None, None) => unreachable!("the top colour is kept whenever there is no orthophoto"),
     }
