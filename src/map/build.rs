@@ -27,6 +27,9 @@ use crate::error::{Error, Result};
 use crate::geo;
 use std::path::{Path, PathBuf};
 
+mod scans;
+pub(crate) use scans::{build_from_scans, ScansSpec};
+
 /// Reflectivity no-data value of built tiles.
 const REFLECTIVITY_NODATA: u8 = 0;
 /// Largest tile accepted, cells per layer: a 1 km tile at 5 cm. Bounds memory on a mistyped box.
@@ -215,7 +218,11 @@ fn check_params(spec: &BuildSpec) -> Result<usize> {
         }
         .into());
     }
-    let res = spec.res;
+    grid_params(spec.res, spec.ground)
+}
+
+/// Check the grid and ground parameters; returns ground cell ÷ `res`.
+fn grid_params(res: f64, gp: GroundParams) -> Result<usize> {
     if !(res > 0.0) || !res.is_finite() {
         return Err(MapError::NotPositive {
             flag: "--res",
@@ -223,7 +230,6 @@ fn check_params(spec: &BuildSpec) -> Result<usize> {
         }
         .into());
     }
-    let gp = spec.ground;
     let ratio = (gp.cell / res).round();
     if !(ratio >= 1.0) || (gp.cell - ratio * res).abs() > 1e-9 * gp.cell.max(1.0) {
         return Err(MapError::GroundCell { cell: gp.cell, res }.into());
@@ -527,9 +533,15 @@ fn ground_surface(
         let g = (row / ratio) * gw + col / ratio;
         low[g] = low[g].min(k.z);
     }
+    Some(open_surface(&low, gw, gh, gp))
+}
+
+/// The opening of `low`, the lowest point of each of the `gw × gh` ground cells (`+∞` where
+/// empty), with the ground window: the ground surface, `+∞` where no point lies within the window.
+fn open_surface(low: &[f32], gw: usize, gh: usize, gp: GroundParams) -> Vec<f32> {
     let r = (gp.window / 2.0 / gp.cell).round() as usize;
     // Erosion ignores empty cells (+∞); dilation of the eroded surface must ignore them too.
-    let eroded = filter2(&low, gw, gh, r, f32::INFINITY, f32::min);
+    let eroded = filter2(low, gw, gh, r, f32::INFINITY, f32::min);
     let opened = filter2(&eroded, gw, gh, r, f32::NEG_INFINITY, |a, b| {
         if b.is_finite() {
             a.max(b)
@@ -537,12 +549,10 @@ fn ground_surface(
             a
         }
     });
-    Some(
-        opened
-            .into_iter()
-            .map(|v| if v.is_finite() { v } else { f32::INFINITY })
-            .collect(),
-    )
+    opened
+        .into_iter()
+        .map(|v| if v.is_finite() { v } else { f32::INFINITY })
+        .collect()
 }
 
 /// Separable square min/max filter of radius `r` cells (rows, then columns).
