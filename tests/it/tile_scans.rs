@@ -424,3 +424,108 @@ fn bad_poses_and_scans_are_one_line_and_write_nothing() {
     }
     let _ = std::fs::remove_dir_all(&out);
 }
+
+/// `refine --tiles` on the LiDAR-only tile of the nine posed scans, from each frame's true camera
+/// pose (`kitti import`'s camera 00 in the Velodyne frame, composed with the frame's
+/// `velo→world` and the offset), with the overlay of the tile's ground points on the image: the
+/// road markings fall on the image's where the tile is right. The overlays are left in
+/// `OVERLAYS` (in the temporary directory) for a person to look at. A single forward frame is
+/// too little for the quality gate, which refuses every one of them at 0.25 m with the radius
+/// cut to 15 m (the scans see only ahead): the test asks that refinement runs on the LiDAR-only
+/// tile and reports, not that it is accepted.
+#[test]
+fn refine_runs_on_the_lidar_only_tile_at_each_frames_true_pose() {
+    let Some(dir) = kitti360_dir("refine_runs_on_the_lidar_only_tile_at_each_frames_true_pose")
+    else {
+        return;
+    };
+    let out = scratch("refine");
+    // 0.25 m: at 0.1 m one pass's rings leave most cells of the camera's ground empty.
+    scans(
+        &out,
+        "k360",
+        &[
+            "--res",
+            "0.25",
+            "--poses",
+            s(&dir.join("poses/poses.txt")),
+            "--calib",
+            s(&dir.join("calibration")),
+            s(&dir.join("velodyne")),
+        ],
+    );
+    let (cam, calib) = (out.join("cam.yaml"), out.join("calib.json"));
+    let o = infraloc(&[
+        "kitti",
+        "import",
+        "--calib",
+        s(&dir),
+        "--camera-out",
+        s(&cam),
+        "--pose-out",
+        s(&calib),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let cv = infraloc::posefile::read_pose(&calib).unwrap().pose;
+    let overlays = std::env::temp_dir().join(OVERLAYS);
+    std::fs::create_dir_all(&overlays).unwrap();
+    let v2w = velo_to_world(&dir);
+    for f in POSED {
+        // cam ← map = cam ← velo · (velo → world)⁻¹ · (map − offset).
+        let w = v2w[&f];
+        let r = cv.rotation * w.rotation.to_rotation_matrix().inverse();
+        let t = cv.translation - r * (offset() + w.translation.vector);
+        let rows: Vec<[f64; 3]> = (0..3).map(|i| [r[(i, 0)], r[(i, 1)], r[(i, 2)]]).collect();
+        let truth = out.join(format!("truth_{f}.json"));
+        std::fs::write(
+            &truth,
+            serde_json::json!({
+                "crs": CRS,
+                "rotation_cam_from_map": rows,
+                "translation_cam_from_map": [t.x, t.y, t.z],
+            })
+            .to_string(),
+        )
+        .unwrap();
+        let overlay = overlays.join(format!("{f:010}.png"));
+        let report = out.join(format!("report_{f}.json"));
+        let o = infraloc(&[
+            "refine",
+            "--camera",
+            s(&cam),
+            "--image",
+            s(&dir.join(format!("image_00/{f:010}.png"))),
+            "--tiles",
+            s(&out.join("tiles")),
+            // The scans see forward only: half of a disc around the camera has no ground.
+            "--radius",
+            "15",
+            "--init",
+            s(&truth),
+            "--search",
+            "x=0.2:0.02,y=0.2:0.02,z=0.1:0.02,yaw=1:0.05",
+            "--report",
+            s(&report),
+            "--overlay",
+            s(&overlay),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        // Accepted (0) or refused by the quality gate (a verdict, with its report): never an
+        // error about the tile.
+        assert!(report.is_file(), "frame {f}: no report: {err}");
+        assert!(!err.contains("satellite"), "frame {f}: {err}");
+        let png = image::open(&overlay).unwrap();
+        assert_eq!((png.width(), png.height()), (2 * 1408, 376), "frame {f}");
+        let r: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+        let off = &r["offsets"];
+        eprintln!(
+            "frame {f}: exit {:?}, report offsets {off}",
+            o.status.code()
+        );
+    }
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Where [`refine_runs_on_the_lidar_only_tile_at_each_frames_true_pose`] leaves its overlays.
+const OVERLAYS: &str = "infraloc-tile-scans-overlays";

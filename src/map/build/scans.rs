@@ -73,13 +73,16 @@ pub(crate) enum PoseFormat {
     Quaternion,
 }
 
+/// The poses of a pose file by frame.
+pub(crate) type FramePoses = BTreeMap<u64, Isometry3<f64>>;
+
 /// Parse a pose file: the pose of each frame (map ← vehicle for KITTI-360, map ← scanner for the
 /// quaternion form), the layout, and the notes of re-orthonormalised rotations. Blank lines and
 /// lines starting with `#` are skipped. `path` is for messages.
 pub(crate) fn parse_poses(
     text: &str,
     path: &Path,
-) -> Result<(BTreeMap<u64, Isometry3<f64>>, PoseFormat, Vec<String>)> {
+) -> Result<(FramePoses, PoseFormat, Vec<String>)> {
     let mut poses = BTreeMap::new();
     let mut format = None;
     let mut notes = Vec::new();
