@@ -60,13 +60,13 @@ fn bench_tile(c: &mut Criterion) {
     let (sat, lidar) = (grid(0.1, 1000), grid(0.2, 500));
     let tile = Tile {
         id: "bench".into(),
-        satellite: Raster {
+        satellite: Some(Raster {
             grid: sat,
             data: (0..sat.len())
                 .map(|i| [(i % 251) as u8, (i % 13) as u8, 7])
                 .collect(),
             nodata: None,
-        },
+        }),
         reflectivity: Raster {
             grid: lidar,
             data: (0..lidar.len()).map(|i| (i % 255) as u8).collect(),

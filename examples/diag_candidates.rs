@@ -14,6 +14,10 @@ use rand::SeedableRng;
 fn main() {
     let (scene, (lat, lon, sigma)) = scene_and_prior();
     let tile = &scene.tile;
+    let satellite = tile
+        .satellite
+        .as_ref()
+        .expect("the tile has a satellite layer");
     let prior = infraloc::geo::wgs84_to_map(tile.reflectivity.grid.crs, lat, lon).unwrap();
     let cam = &scene.camera_given;
     let (w, h) = scene.frame_size();
@@ -48,7 +52,7 @@ fn main() {
         radius
     );
     let t = std::time::Instant::now();
-    let cands = coarse_candidates(cam, img.as_raw(), &tile.satellite, prior, radius, &p.coarse);
+    let cands = coarse_candidates(cam, img.as_raw(), satellite, prior, radius, &p.coarse);
     println!(
         "sweep {:.1} s, {} candidates",
         t.elapsed().as_secs_f64(),
@@ -126,7 +130,7 @@ fn main() {
         match fine_stage(
             &frame,
             MapLayers {
-                satellite: &tile.satellite,
+                satellite,
                 heights: &tile.height,
             },
             prior,

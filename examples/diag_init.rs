@@ -19,6 +19,10 @@ fn main() {
         .unwrap()
         .path();
     let tile = infraloc::map::cache::load_tile(&tdir).unwrap();
+    let satellite = tile
+        .satellite
+        .as_ref()
+        .expect("the tile has a satellite layer");
     let c = truth.center();
     let (y, p, r) = truth.yaw_pitch_roll();
     let zg = height_at(&tile.height, c.x, c.y).unwrap();
@@ -35,7 +39,7 @@ fn main() {
     let cands = coarse_candidates(
         &cam,
         img.as_raw(),
-        &tile.satellite,
+        satellite,
         prior,
         15.0,
         &CoarseParams::default(),
@@ -66,7 +70,7 @@ fn main() {
             let m = match_anchors(
                 &cam,
                 img.as_raw(),
-                &tile.satellite,
+                satellite,
                 &tile.height,
                 &start,
                 (ph, sh, res),
@@ -108,7 +112,7 @@ fn main() {
     let r = initialize(
         &Frame::new(&cam, img.as_raw()).unwrap(),
         MapLayers {
-            satellite: &tile.satellite,
+            satellite,
             heights: &tile.height,
         },
         SearchArea {

@@ -344,7 +344,10 @@ fn init_only(
     let init = infraloc::localize::init::initialize(
         frame,
         MapLayers {
-            satellite: &tile.satellite,
+            satellite: tile
+                .satellite
+                .as_ref()
+                .expect("the tile has a satellite layer"),
             heights: &tile.height,
         },
         SearchArea {

@@ -6,6 +6,8 @@ use crate::map::import::{import_tile, Source};
 use crate::map::{Crs, MapError};
 use std::path::PathBuf;
 
+mod scans;
+
 /// Tile subcommands.
 #[derive(Debug, clap::Subcommand)]
 pub enum Command {
@@ -16,6 +18,11 @@ pub enum Command {
     /// reflectivity and height rasterised in the clouds' CRS, satellite layer from an orthophoto
     /// or the points' RGB (docs/map.md, "From a survey to a tile").
     Build(Box<BuildArgs>),
+    /// Build CACHE/TILE_ID/ from a vehicle's scans (KITTI .bin, PCD, LAS) and a pose per scan
+    /// (KITTI-360 poses.txt with its calibration, or `frame x y z qx qy qz qw` lines), placed in a
+    /// projected CRS by --crs and --offset; ground filtered and rasterised as `tile build` does
+    /// (docs/map.md, "From a drive's scans to a tile").
+    Scans(Box<scans::ScansArgs>),
 }
 
 /// Arguments of `tile build`.
@@ -125,6 +132,7 @@ pub(super) fn run(c: Command) -> Result<()> {
     match c {
         Command::Import(a) => import(a),
         Command::Build(a) => build(&a),
+        Command::Scans(a) => scans::run(&a),
     }
 }
 
@@ -172,15 +180,25 @@ fn build(a: &BuildArgs) -> Result<()> {
         satellite_res: a.satellite_res,
     };
     let (mut tile, mut provenance) = build_tile(&spec)?;
-    if let Some(p) = &a.control_points {
+    add_control_points(&mut tile, &mut provenance, a.control_points.as_deref())?;
+    write_tile_with(&a.out, &tile, &provenance)?;
+    report(&tile, &a.out);
+    Ok(())
+}
+
+/// Read `--control-points` into a built tile and its provenance.
+fn add_control_points(
+    tile: &mut crate::map::Tile,
+    provenance: &mut crate::map::cache::Provenance,
+    path: Option<&std::path::Path>,
+) -> Result<()> {
+    if let Some(p) = path {
         let text = std::fs::read_to_string(p).map_err(|e| Error::io(p, e))?;
         tile.control_points = crate::map::cache::parse_control_points(&text, p)?;
         provenance
             .sources
             .push(format!("control points: {}", p.display()));
     }
-    write_tile_with(&a.out, &tile, &provenance)?;
-    report(&tile, &a.out);
     Ok(())
 }
 
@@ -211,18 +229,22 @@ fn import_with<'a>(a: &'a ImportArgs) -> Result<()> {
 fn report(tile: &crate::map::Tile, out: &std::path::Path) {
     let g = tile.reflectivity.grid;
     let (xmin, ymin, xmax, ymax) = g.bounds();
+    let satellite = match &tile.satellite {
+        Some(s) => format!(
+            "satellite {}x{} at {} m/px",
+            s.grid.width, s.grid.height, s.grid.res
+        ),
+        None => "no satellite layer (LiDAR-only)".to_string(),
+    };
     println!(
         "tile {} written to {}: {}, LiDAR {}x{} at {} m/px, extent x {xmin}..{xmax}, y {ymin}..{ymax}; \
-         satellite {}x{} at {} m/px; {} control points",
+         {satellite}; {} control points",
         tile.id,
         out.join(&tile.id).display(),
         g.crs,
         g.width,
         g.height,
         g.res,
-        tile.satellite.grid.width,
-        tile.satellite.grid.height,
-        tile.satellite.grid.res,
         tile.control_points.len()
     );
 }

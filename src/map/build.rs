@@ -17,7 +17,8 @@
 //!    each line's brightest point.
 //! 5. Satellite layer: an orthophoto warped bilinearly into the satellite grid (any CRS the geodesy
 //!    relates to the tile's), else the colour of the highest point of each cell (the view from
-//!    above), 16-bit colours scaled by 1/257 when the input's largest exceeds 255.
+//!    above), 16-bit colours scaled by 1/257 when the input's largest exceeds 255; with neither,
+//!    none (a LiDAR-only tile, said in one warning).
 
 use super::cloud::{self, Box2, Cloud, CloudPoint, Kind, CLASS_GROUND};
 use super::geotiff::{Image, Pixels};
@@ -25,6 +26,9 @@ use super::{Crs, GeoGrid, MapError, Raster, Tile};
 use crate::error::{Error, Result};
 use crate::geo;
 use std::path::{Path, PathBuf};
+
+mod scans;
+pub(crate) use scans::{build_from_scans, ScansSpec};
 
 /// Reflectivity no-data value of built tiles.
 const REFLECTIVITY_NODATA: u8 = 0;
@@ -226,7 +230,11 @@ fn check_params(spec: &BuildSpec) -> Result<usize> {
         }
         .into());
     }
-    let res = spec.res;
+    grid_params(spec.res, spec.ground)
+}
+
+/// Check the grid and ground parameters; returns ground cell ÷ `res`.
+fn grid_params(res: f64, gp: GroundParams) -> Result<usize> {
     if !(res > 0.0) || !res.is_finite() {
         return Err(MapError::NotPositive {
             flag: "--res",
@@ -234,7 +242,6 @@ fn check_params(spec: &BuildSpec) -> Result<usize> {
         }
         .into());
     }
-    let gp = spec.ground;
     let ratio = (gp.cell / res).round();
     if !(ratio >= 1.0) || (gp.cell - ratio * res).abs() > 1e-9 * gp.cell.max(1.0) {
         return Err(MapError::GroundCell { cell: gp.cell, res }.into());
@@ -341,8 +348,20 @@ fn source_lines(
         .collect()
 }
 
+/// A tile without a satellite layer: the one warning (naming the inputs and why) and the
+/// provenance line.
+fn lidar_only(names: &str, why: &str, sources: &mut Vec<String>) {
+    eprintln!(
+        "infraloc: warning: {names}: {why} and no --orthophoto was given: the tile has no \
+         satellite layer (LiDAR-only: refine, the drift check and georef work; localize's \
+         initializer needs one)"
+    );
+    sources.push("satellite: none (LiDAR-only: no orthophoto, no colour in the points)".into());
+}
+
 /// The satellite layer: the orthophoto warped onto `sat_grid`, else the highest point's colour
-/// per cell; its provenance line is added to `sources`.
+/// per cell, else none (a LiDAR-only tile, with one warning on stderr naming `names`); its
+/// provenance line is added to `sources`.
 fn satellite_layer(
     ortho: Option<(&Path, (Image, GeoGrid))>,
     top: Option<TopColour>,
@@ -350,11 +369,11 @@ fn satellite_layer(
     sat_grid: &GeoGrid,
     names: &str,
     sources: &mut Vec<String>,
-) -> Result<Raster<[u8; 3]>> {
+) -> Result<Option<Raster<[u8; 3]>>> {
     match (ortho, top) {
         (Some((path, img)), _) => {
             sources.push(format!("satellite: {} warped bilinearly", path.display()));
-            warp_rgb(&img, path, sat_grid)
+            warp_rgb(&img, path, sat_grid).map(Some)
         }
         (None, Some(t)) => {
             let scale: Vec<f64> = facts
@@ -368,13 +387,11 @@ fn satellite_layer(
                 })
                 .collect();
             if t.filled == 0 {
-                return Err(Error::input(
-                    names,
-                    "no satellite layer: the points in the box carry no RGB; give --orthophoto",
-                ));
+                lidar_only(names, "the points in the box carry no RGB", sources);
+                return Ok(None);
             }
             sources.push("satellite: RGB of the highest point per cell".into());
-            Ok(t.into_raster(&scale))
+            Ok(Some(t.into_raster(&scale)))
         }
         (None, None) => unreachable!("the top colour is kept whenever there is no orthophoto"),
     }
@@ -529,9 +546,15 @@ fn ground_surface(
         let g = (row / ratio) * gw + col / ratio;
         low[g] = low[g].min(k.z);
     }
+    Some(open_surface(&low, gw, gh, gp))
+}
+
+/// The opening of `low`, the lowest point of each of the `gw × gh` ground cells (`+∞` where
+/// empty), with the ground window: the ground surface, `+∞` where no point lies within the window.
+fn open_surface(low: &[f32], gw: usize, gh: usize, gp: GroundParams) -> Vec<f32> {
     let r = (gp.window / 2.0 / gp.cell).round() as usize;
     // Erosion ignores empty cells (+∞); dilation of the eroded surface must ignore them too.
-    let eroded = filter2(&low, gw, gh, r, f32::INFINITY, f32::min);
+    let eroded = filter2(low, gw, gh, r, f32::INFINITY, f32::min);
     let opened = filter2(&eroded, gw, gh, r, f32::NEG_INFINITY, |a, b| {
         if b.is_finite() {
             a.max(b)
@@ -539,12 +562,10 @@ fn ground_surface(
             a
         }
     });
-    Some(
-        opened
-            .into_iter()
-            .map(|v| if v.is_finite() { v } else { f32::INFINITY })
-            .collect(),
-    )
+    opened
+        .into_iter()
+        .map(|v| if v.is_finite() { v } else { f32::INFINITY })
+        .collect()
 }
 
 /// Separable square min/max filter of radius `r` cells (rows, then columns).

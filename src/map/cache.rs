@@ -2,7 +2,8 @@
 //!
 //! ```text
 //! <cache>/<tile-id>/tile.toml            manifest: crs, layers (file, grid, nodata), provenance
-//! <cache>/<tile-id>/satellite.tif        u8 RGB GeoTIFF (gray accepted on read)
+//! <cache>/<tile-id>/satellite.tif        u8 RGB GeoTIFF (gray accepted on read); absent from a
+//!                                        LiDAR-only tile (no `[layers.satellite]` in its manifest)
 //! <cache>/<tile-id>/reflectivity.tif     u8 GeoTIFF + GDAL_NODATA
 //! <cache>/<tile-id>/height.tif           f32 GeoTIFF + GDAL_NODATA (NaN is no-data too)
 //! <cache>/<tile-id>/control_points.csv   optional: id,x,y,z (map CRS)
@@ -68,8 +69,9 @@ pub struct Manifest {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case", deny_unknown_fields)]
 pub struct Layers {
-    /// Satellite/aerial image.
-    pub satellite: Layer,
+    /// Satellite/aerial image; `None` (no `[layers.satellite]` table) for a LiDAR-only tile.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub satellite: Option<Layer>,
     /// LiDAR ground reflectivity.
     pub reflectivity: Layer,
     /// LiDAR ground height.
@@ -163,7 +165,8 @@ pub struct TileRef {
     pub crs: Crs,
     /// The queried position in the tile's CRS (easting, northing).
     pub position: (f64, f64),
-    /// Covered extent `(xmin, ymin, xmax, ymax)`: where the satellite and LiDAR layers overlap.
+    /// Covered extent `(xmin, ymin, xmax, ymax)`: where the satellite and LiDAR layers overlap
+    /// (the LiDAR layers' extent for a LiDAR-only tile).
     pub extent: (f64, f64, f64, f64),
     /// Other tile directories of the cache that were skipped as unreadable.
     pub skipped: Vec<SkippedTile>,
@@ -198,16 +201,28 @@ fn check_tile(t: &Tile) -> Result<Crs> {
         }
         .into());
     }
-    if t.satellite.grid.crs != crs {
+    if let Some(sat) = t.satellite.as_ref().filter(|s| s.grid.crs != crs) {
         return Err(MapError::CrsDiffer {
             id: t.id.clone(),
-            satellite: t.satellite.grid.crs,
+            satellite: sat.grid.crs,
             lidar: crs,
         }
         .into());
     }
+    if let Some(sat) = t
+        .satellite
+        .as_ref()
+        .filter(|s| s.data.len() != s.grid.len())
+    {
+        return Err(MapError::Samples {
+            id: t.id.clone(),
+            layer: "satellite",
+            samples: sat.data.len(),
+            grid: sat.grid.len(),
+        }
+        .into());
+    }
     for (name, n, want) in [
-        ("satellite", t.satellite.data.len(), t.satellite.grid.len()),
         (
             "reflectivity",
             t.reflectivity.data.len(),
@@ -278,10 +293,14 @@ fn sync_path(p: &Path) -> Result<()> {
 }
 
 fn write_tile_files(dir: &Path, t: &Tile, crs: Crs, provenance: &Provenance) -> Result<()> {
-    geotiff::write_rgb8(&dir.join(SATELLITE_FILE), &t.satellite)?;
+    let mut files = Vec::new();
+    if let Some(sat) = &t.satellite {
+        geotiff::write_rgb8(&dir.join(SATELLITE_FILE), sat)?;
+        files.push(SATELLITE_FILE);
+    }
     geotiff::write_gray8(&dir.join(REFLECTIVITY_FILE), &t.reflectivity)?;
     geotiff::write_f32(&dir.join(HEIGHT_FILE), &t.height)?;
-    let mut files = vec![SATELLITE_FILE, REFLECTIVITY_FILE, HEIGHT_FILE];
+    files.extend([REFLECTIVITY_FILE, HEIGHT_FILE]);
     let control_points = if t.control_points.is_empty() {
         None
     } else {
@@ -312,7 +331,10 @@ fn write_tile_files(dir: &Path, t: &Tile, crs: Crs, provenance: &Provenance) -> 
         id: t.id.clone(),
         crs: crs.to_string(),
         layers: Layers {
-            satellite: layer(SATELLITE_FILE, &t.satellite.grid, None),
+            satellite: t
+                .satellite
+                .as_ref()
+                .map(|s| layer(SATELLITE_FILE, &s.grid, None)),
             reflectivity: layer(
                 REFLECTIVITY_FILE,
                 &t.reflectivity.grid,
@@ -453,7 +475,12 @@ pub fn load_tile(tile_dir: &Path) -> Result<Tile> {
     }
     check_id(&m.id).map_err(|e| Error::input(&mpath, e.to_string()))?;
 
-    let sp = layer_path(tile_dir, &mpath, "satellite", &m.layers.satellite.file)?;
+    let sp = m
+        .layers
+        .satellite
+        .as_ref()
+        .map(|l| Ok::<_, Error>((layer_path(tile_dir, &mpath, "satellite", &l.file)?, l.grid)))
+        .transpose()?;
     let rp = layer_path(
         tile_dir,
         &mpath,
@@ -465,11 +492,13 @@ pub fn load_tile(tile_dir: &Path) -> Result<Tile> {
     // The three layers decode in parallel (tens of milliseconds each for a 5 MP scene's tile);
     // their errors are reported in the order a serial read would meet them.
     let (satellite, (reflectivity, height)) = rayon::join(
-        || geotiff::read_rgb8(&sp),
+        || sp.as_ref().map(|(p, _)| geotiff::read_rgb8(p)),
         || rayon::join(|| geotiff::read_gray8(&rp), || geotiff::read_f32(&hp)),
     );
-    let satellite = satellite?;
-    check_layer_grid(&sp, &satellite.grid, &m.layers.satellite.grid.with_crs(crs))?;
+    let satellite = satellite.transpose()?;
+    if let (Some(s), Some((p, g))) = (&satellite, &sp) {
+        check_layer_grid(p, &s.grid, &g.with_crs(crs))?;
+    }
     let reflectivity = reflectivity?;
     check_layer_grid(
         &rp,
@@ -586,10 +615,12 @@ pub(crate) fn parse_control_points(text: &str, path: &Path) -> Result<Vec<Contro
     Ok(out)
 }
 
-/// Extent where the satellite and LiDAR layers of a manifest overlap.
+/// Extent where the satellite and LiDAR layers of a manifest overlap (a LiDAR-only tile: its
+/// LiDAR layers' extent).
 fn coverage(m: &Manifest) -> (f64, f64, f64, f64) {
     let b = |g: &GridSpec| g.with_crs(Crs::Local).bounds();
-    let (a, r) = (b(&m.layers.satellite.grid), b(&m.layers.reflectivity.grid));
+    let r = b(&m.layers.reflectivity.grid);
+    let a = m.layers.satellite.as_ref().map_or(r, |s| b(&s.grid));
     (a.0.max(r.0), a.1.max(r.1), a.2.min(r.2), a.3.min(r.3))
 }
 

@@ -679,6 +679,12 @@ const LAZ_SUB: usize = 2;
 /// the cell's height and reflectivity (× 257, the 16-bit intensity of LAS) and the colour of the
 /// satellite pixel under it (× 257). `tile build` on the file gives back the tile's LiDAR layers.
 pub(crate) fn write_lidar_laz(tile: &super::Tile, path: &Path) -> Result<()> {
+    let Some(sat) = &tile.satellite else {
+        return Err(Error::input(
+            path,
+            "the tile has no satellite layer to colour the points",
+        ));
+    };
     let g = tile.reflectivity.grid;
     let Crs::Epsg(code) = g.crs else {
         return Err(Error::input(path, "a LOCAL tile has no CRS to write"));
@@ -708,7 +714,6 @@ pub(crate) fn write_lidar_laz(tile: &super::Tile, path: &Path) -> Result<()> {
     });
     let header = b.into_header().map_err(lerr)?;
     let mut w = las::Writer::from_path(path, header).map_err(lerr)?;
-    let sat = &tile.satellite;
     for row in 0..g.height {
         for col in 0..g.width {
             let i = row * g.width + col;

@@ -270,7 +270,7 @@ pub(crate) fn import_tile(
     };
     let tile = Tile {
         id: id.to_string(),
-        satellite: sat,
+        satellite: Some(sat),
         reflectivity: refl,
         height: hgt,
         control_points: cps,

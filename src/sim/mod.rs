@@ -668,7 +668,7 @@ pub fn generate(settings: &Settings) -> Result<Scene> {
 
     let tile = Tile {
         id: format!("sim-{:04}", settings.seed % 10_000),
-        satellite: sat.image,
+        satellite: Some(sat.image),
         reflectivity: lidar.reflectivity,
         height: lidar.height,
         control_points: tile_points,
@@ -1047,7 +1047,11 @@ impl Scene {
     /// `panel` pixels high. The three map panels show the same central square of the tile.
     pub(crate) fn montage(&self, panel: u32) -> image::RgbImage {
         use image::imageops::{resize, FilterType};
-        let sat = &self.tile.satellite;
+        let sat = self
+            .tile
+            .satellite
+            .as_ref()
+            .expect("a simulated tile has a satellite layer");
         let satimg =
             image::RgbImage::from_fn(sat.grid.width as u32, sat.grid.height as u32, |x, y| {
                 image::Rgb(sat.data[y as usize * sat.grid.width + x as usize])

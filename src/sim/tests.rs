@@ -104,7 +104,7 @@ fn correlation(a: &[f64], b: &[f64]) -> f64 {
 #[test]
 fn satellite_and_reflectivity_are_related_but_not_equal() {
     let s = scene();
-    let (refl, sat) = (&s.tile.reflectivity, &s.tile.satellite);
+    let (refl, sat) = (&s.tile.reflectivity, s.tile.satellite.as_ref().unwrap());
     let (mut a, mut b) = (Vec::new(), Vec::new());
     for row in (0..refl.grid.height).step_by(3) {
         for col in (0..refl.grid.width).step_by(3) {

@@ -79,7 +79,7 @@ fn scene() -> Scene {
     }
     let tile = Tile {
         id: "patch".into(),
-        satellite: Raster::filled(g, [90, 90, 90], None),
+        satellite: Some(Raster::filled(g, [90, 90, 90], None)),
         reflectivity: Raster::filled(g, 100u8, Some(0)),
         height: h,
         control_points: vec![],

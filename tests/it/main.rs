@@ -58,4 +58,5 @@ mod systemd_units;
 mod tile_build;
 mod tile_cache;
 mod tile_import;
+mod tile_scans;
 mod validate_cli;

@@ -146,8 +146,9 @@ fn laz_copc_and_pcd_match_numpy() {
     assert_matches(&laz, &class, "LAZ");
     // The satellite layer from the points' RGB: the highest point's colour per cell.
     let rgb = std::fs::read(d.join("ref_rgb.u8")).unwrap();
-    let got: Vec<u8> = laz.satellite.data.iter().flatten().copied().collect();
-    assert_eq!(laz.satellite.grid, laz.reflectivity.grid);
+    let sat = laz.satellite.as_ref().unwrap();
+    let got: Vec<u8> = sat.data.iter().flatten().copied().collect();
+    assert_eq!(sat.grid, laz.reflectivity.grid);
     assert!(got == rgb, "satellite RGB differs from numpy");
     let copc = built(
         out.path(),
@@ -459,7 +460,7 @@ fn simulated_lidar_round_trips_through_tile_build() {
                 "--res",
                 &own.reflectivity.grid.res.to_string(),
                 "--satellite-res",
-                &own.satellite.grid.res.to_string(),
+                &own.satellite.as_ref().unwrap().grid.res.to_string(),
                 "--orthophoto",
                 s(&tiles.join(&id).join("satellite.tif")),
             ],
@@ -469,18 +470,19 @@ fn simulated_lidar_round_trips_through_tile_build() {
         assert_eq!(got.reflectivity.grid, own.reflectivity.grid, "seed {seed}");
         // The simulator's satellite grid is offset from its LiDAR grid by a fraction of a pixel, so
         // the built satellite layer is the bilinear resample of it onto the tile's grid.
-        let (sg, og) = (got.satellite.grid, own.satellite.grid);
+        let (gs, os) = (got.satellite.unwrap(), own.satellite.unwrap());
+        let (sg, og) = (gs.grid, os.grid);
         assert_eq!((sg.x0, sg.y0, sg.res), (x0, y1, og.res), "seed {seed}");
         let mut sum = 0.0;
-        for (i, px) in got.satellite.data.iter().enumerate() {
+        for (i, px) in gs.data.iter().enumerate() {
             let (x, y) = sg.pixel_center(i % sg.width, i / sg.width);
             let (c, r) = og.to_pixel(x, y);
-            let near = own.satellite.data[r.round() as usize * og.width + c.round() as usize];
+            let near = os.data[r.round() as usize * og.width + c.round() as usize];
             sum += (0..3)
                 .map(|k| f64::from(px[k].abs_diff(near[k])))
                 .sum::<f64>();
         }
-        let mean = sum / (3 * got.satellite.data.len()) as f64;
+        let mean = sum / (3 * gs.data.len()) as f64;
         assert!(
             mean < 3.0,
             "seed {seed}: satellite {mean} levels from the nearest pixel"

@@ -17,7 +17,7 @@ fn tile(id: &str, crs: Crs, x0: f64, y0: f64, n: usize) -> Tile {
     };
     Tile {
         id: id.into(),
-        satellite: Raster::filled(
+        satellite: Some(Raster::filled(
             GeoGrid {
                 res: 0.25,
                 width: 2 * n,
@@ -26,7 +26,7 @@ fn tile(id: &str, crs: Crs, x0: f64, y0: f64, n: usize) -> Tile {
             },
             [9, 8, 7],
             None,
-        ),
+        )),
         reflectivity: Raster {
             grid,
             data: (0..grid.len()).map(|i| (i % 200) as u8 + 1).collect(),

@@ -133,7 +133,8 @@ fn import_png_with_world_files_matches_gdal() {
     );
     let td = cache.join("site-1");
     let t = load_tile(&td).unwrap();
-    assert_eq!(t.satellite.grid.crs, Crs::Epsg(32617));
+    let sat = t.satellite.as_ref().unwrap();
+    assert_eq!(sat.grid.crs, Crs::Epsg(32617));
     // GDAL reading the source PNG + world file and GDAL reading our tile agree on the corners.
     for (src, layer) in [(&i.sat, "satellite.tif"), (&i.refl, "reflectivity.tif")] {
         let a = gdal_geotransform(src);
@@ -151,7 +152,7 @@ fn import_png_with_world_files_matches_gdal() {
     );
     assert_eq!(t.height.data[299], 100.0 + 299.0 * 0.25);
     assert_eq!(t.reflectivity.data[21], 11); // (x=1, y=1)
-    assert_eq!(t.satellite.data[41], [6, 8, 77]);
+    assert_eq!(sat.data[41], [6, 8, 77]);
     assert_eq!(t.control_points.len(), 2);
     // The manifest records where the data came from.
     let manifest = std::fs::read_to_string(td.join("tile.toml")).unwrap();

@@ -292,14 +292,7 @@ pub fn kitti360(f: Kitti360Files, n: u8, tangential: FisheyeTangential) -> Resul
             what: what.to_string(),
         })
     };
-    // calib_cam_to_velo.txt has no key: its twelve numbers are the file.
-    let mut cv = KeyFile {
-        path: f.cam_to_velo.path,
-        entries: vec![("T_cam00_to_velo", f.cam_to_velo.text)],
-        notes: Vec::new(),
-    };
-    let velo_from_cam0 = cv.rigid("T_cam00_to_velo")?;
-    let mut notes = std::mem::take(&mut cv.notes);
+    let (velo_from_cam0, mut notes) = velo_from_cam0(f.cam_to_velo)?;
     let velo_from_cam = if n == 0 {
         velo_from_cam0
     } else {
@@ -358,6 +351,34 @@ pub fn kitti360(f: Kitti360Files, n: u8, tangential: FisheyeTangential) -> Resul
         }
         _ => Err(CameraError::Kitti360Camera { camera: n }.into()),
     }
+}
+
+/// KITTI-360's Velodyne → vehicle ("pose") transform, `T_cam00→pose · T_cam00→velo⁻¹`, from
+/// `calib_cam_to_velo.txt` and the `image_00` row of `calib_cam_to_pose.txt`: a scan point `X` is
+/// in the world frame at `pose · (R·X + t)`, `pose` a row of `poses/poses.txt`. Returns `(R, t)`
+/// and the notes of any rotation re-orthonormalised.
+pub fn kitti360_velo_to_pose(
+    cam_to_velo: Source,
+    cam_to_pose: Source,
+) -> Result<(Rotation3<f64>, Vector3<f64>, Vec<String>)> {
+    let (velo_from_cam0, mut notes) = velo_from_cam0(cam_to_velo)?;
+    let mut cp = KeyFile::parse(cam_to_pose)?;
+    let pose_from_cam0 = cp.rigid("image_00")?;
+    let pose_from_velo = pose_from_cam0.after(&velo_from_cam0.inverse());
+    notes.append(&mut cp.notes);
+    Ok((pose_from_velo.r, pose_from_velo.t, notes))
+}
+
+/// Camera 00 → Velodyne from `calib_cam_to_velo.txt`, and its notes.
+fn velo_from_cam0(cam_to_velo: Source) -> Result<(Rigid, Vec<String>)> {
+    // calib_cam_to_velo.txt has no key: its twelve numbers are the file.
+    let mut cv = KeyFile {
+        path: cam_to_velo.path,
+        entries: vec![("T_cam00_to_velo", cam_to_velo.text)],
+        notes: Vec::new(),
+    };
+    let r = cv.rigid("T_cam00_to_velo")?;
+    Ok((r, cv.notes))
 }
 
 fn row_major(r: &Rotation3<f64>) -> [f64; 9] {

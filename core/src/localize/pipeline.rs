@@ -453,7 +453,18 @@ pub(crate) fn localize_ungated(
         seconds: 0.0,
         detail: StageDetail::Prior(PriorDetail::new(prior_xy, prior_sigma_m, p)),
     }];
-    if !tile.satellite.grid.contains(prior_xy.0, prior_xy.1, 0.0) {
+    // A LiDAR-only tile (no orthophoto, no colour) has nothing for the initializer to match.
+    let Some(satellite) = tile.satellite.as_ref() else {
+        return Err(Error::stage(
+            StageName::Tile,
+            format!(
+                "tile {:?} has no satellite layer: the initializer needs one; add an orthophoto \
+                 with `infraloc tile build --orthophoto FILE` or `infraloc tile import --satellite FILE`",
+                tile.id
+            ),
+        ));
+    };
+    if !satellite.grid.contains(prior_xy.0, prior_xy.1, 0.0) {
         return Err(Error::stage(
             StageName::Prior,
             format!(
@@ -474,7 +485,7 @@ pub(crate) fn localize_ungated(
         None => initialize(
             frame,
             MapLayers {
-                satellite: &tile.satellite,
+                satellite,
                 heights: &tile.height,
             },
             SearchArea {
@@ -490,7 +501,7 @@ pub(crate) fn localize_ungated(
             let q = MatchQuery {
                 camera,
                 image,
-                satellite: &tile.satellite,
+                satellite,
                 heights: &tile.height,
                 prior_xy,
                 search_radius_m: radius,

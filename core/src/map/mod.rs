@@ -116,8 +116,10 @@ pub struct ControlPoint {
 pub struct Tile {
     /// Tile identifier (its directory name in the cache).
     pub id: String,
-    /// BEV satellite/aerial image, RGB (gray sources are replicated), on its own grid.
-    pub satellite: Raster<[u8; 3]>,
+    /// BEV satellite/aerial image, RGB (gray sources are replicated), on its own grid. `None`: a
+    /// LiDAR-only tile (a survey with neither colour nor orthophoto). Refinement, the drift check
+    /// and georeferencing read only the LiDAR layers; the initializer needs this one.
+    pub satellite: Option<Raster<[u8; 3]>>,
     /// LiDAR ground reflectivity 0..255.
     pub reflectivity: Raster<u8>,
     /// LiDAR ground height, metres; NaN = no data. Same grid as `reflectivity`.
@@ -408,7 +410,7 @@ mod tests {
         h.data[g.width * 3 + 3] = -9999.0; // nodata height
         Tile {
             id: "t".into(),
-            satellite: Raster::filled(g, [0, 0, 0], None),
+            satellite: Some(Raster::filled(g, [0, 0, 0], None)),
             reflectivity: refl,
             height: h,
             control_points: vec![],
@@ -467,7 +469,7 @@ mod tests {
         }
         Tile {
             id: "holey".into(),
-            satellite: Raster::filled(g, [0, 0, 0], None),
+            satellite: Some(Raster::filled(g, [0, 0, 0], None)),
             reflectivity: refl,
             height: h,
             control_points: vec![],

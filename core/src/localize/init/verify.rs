@@ -452,7 +452,7 @@ mod tests {
         }
         let tile = Tile {
             id: "synthetic".into(),
-            satellite: Raster::filled(grid, [0u8; 3], None),
+            satellite: Some(Raster::filled(grid, [0u8; 3], None)),
             reflectivity: refl,
             height: Raster::filled(grid, 0f32, None),
             control_points: Vec::new(),
