@@ -29,12 +29,13 @@ KITTI-360 sets; judged for every answer with a σ, counted for served ones).
 Usage (from the repository root; resumable: a set whose OUT/runs/SET/run.json exists is not run
 again, delete it to rerun; sets run one after the other):
   docs/scripts/real_views.py [BIN [OUT]] [--data DIR] [--only SUBSTR …] [--summary-only]
-      [--cross-via points|tiles] [--cross-ground] [--json FILE]
+      [--cross-via points|tiles] [--cross-ground] [--extra "REFINE FLAGS"] [--json FILE]
 BIN defaults to target/release/infraloc, OUT to /tmp/real-views, DATA to ../shared/data/real.
 Writes OUT/real_views.json (every run of the sets selected, and their summary; --json names
 another file, e.g. for an --only or --cross-ground subset) and prints the table (Markdown).
 `--cross-ground` runs the cross-pass sets on the map scan's ground band instead (sets
-cross-Q-in-M-ground); `--cross-via tiles` is the hook for the product's tile path (not yet).
+cross-Q-in-M-ground); `--cross-via tiles` is the hook for the product's tile path (not yet);
+`--extra` adds refine flags to every run (then not the default settings: give another OUT).
 Needs Python 3 and numpy (cv2 optional, see kitti360_cross_pass.py).
 """
 import argparse
@@ -126,7 +127,7 @@ def prepare(bin_, data, inp, cross_via="points", cross_ground=False):
     return sets
 
 
-def run_set(bin_, name, args, out):
+def run_set(bin_, name, args, out, extra=()):
     """One `refine --starts 3` run, its outputs in OUT/runs/NAME (skipped when done)."""
     d = os.path.join(out, "runs", name)
     done = os.path.join(d, "run.json")
@@ -137,7 +138,8 @@ def run_set(bin_, name, args, out):
     for p in (report, pose):
         if os.path.exists(p):
             os.remove(p)
-    cmd = [bin_, "refine"] + args + ["--starts", str(STARTS), "--report", report, "--out", pose]
+    cmd = ([bin_, "refine"] + args + ["--starts", str(STARTS)] + list(extra)
+           + ["--report", report, "--out", pose])
     t0 = time.monotonic()
     with open(os.path.join(d, "stdout"), "w") as so, open(os.path.join(d, "stderr"), "w") as se:
         rc = sh(cmd, stdout=so, stderr=se).returncode
@@ -351,6 +353,9 @@ def main():
     ap.add_argument("--cross-ground", action="store_true",
                     help="the cross-pass maps from the scan's ground band only (a comparison; the "
                          "default keeps every point, as `refine --points FILE.bin` does)")
+    ap.add_argument("--extra", default="", help="more refine flags for every run, e.g. "
+                    "\"--search x=0.4:0.02,y=0.4:0.02,z=0.4:0.02,yaw=2.5:0.05\" (not the default "
+                    "settings: use another OUT)")
     ap.add_argument("--json", help="where to write the runs and summary (default OUT/real_views.json)")
     ap.add_argument("--summary-only", action="store_true", help="tabulate the runs already made")
     a = ap.parse_args()
@@ -370,7 +375,7 @@ def main():
         args, tol = sets[n]
         if a.summary_only and not os.path.exists(os.path.join(out, "runs", n, "run.json")):
             continue
-        rec = run_set(bin_, n, args, out)
+        rec = run_set(bin_, n, args, out, shlex.split(a.extra))
         r = analyse(rec, tol)
         results.append(r)
         last = r["starts"]
