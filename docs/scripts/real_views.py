@@ -48,6 +48,8 @@ import subprocess
 import sys
 import time
 
+import numpy as np
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 CROSS_PAIRS = [(947, 1134), (1134, 947), (1280, 1338), (1338, 1280)]
 KITTI360_FRAMES = [100, 250, 360, 570, 644, 729, 947, 1134, 1280, 1338]
@@ -212,6 +214,24 @@ def agree(served):
     return not bad, bad
 
 
+def pose_error(cal, ans):
+    """x, y, z (m) of the answer's camera centre minus the calibration's, the rotation between
+    them about the map's up axis (deg, from the relative rotation's vector) and in all (deg)."""
+    def centre_rot(p):
+        r = np.array(p["rotation_cam_from_map"], float)
+        return -r.T @ np.array(p["translation_cam_from_map"], float), r.T
+    (c0, m0), (c1, m1) = centre_rot(cal), centre_rot(ans)
+    rel = m1 @ m0.T
+    angle = math.acos(max(-1.0, min(1.0, (np.trace(rel) - 1) / 2)))
+    axis = np.array([rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]])
+    n = np.linalg.norm(axis)
+    vec = axis / n * angle if n > 0 else np.zeros(3)
+    d = c1 - c0
+    return {"x": float(d[0]), "y": float(d[1]), "z": float(d[2]),
+            "horizontal": float(math.hypot(d[0], d[1])),
+            "yaw_deg": float(math.degrees(vec[2])), "angle_deg": float(math.degrees(angle))}
+
+
 def analyse(rec, tol_m):
     """Per-start rows and the set's verdict from the run's report."""
     d = os.path.dirname(rec["command"][rec["command"].index("--report") + 1])
@@ -227,14 +247,27 @@ def analyse(rec, tol_m):
     res["sigma"] = sigma_of(q)
     sc = rep.get("self_check") or {}
     res["self_check"] = {k: sc.get(k) for k in ("accepted", "agree", "disagreement", "answer")}
-    for n, s in enumerate(sc.get("starts", []), 1):
+    starts = sc.get("starts") or []
+    if not starts and "offsets" in rep:
+        # No self-check in the report (a format this script does not know): the answer alone,
+        # its offsets from the start that produced it (the calibration when that is start 1).
+        starts = [dict(q, start=[0.0] * 6, offsets=rep["offsets"])]
+        res["note"] = "no self_check.starts in the report: one row from its offsets"
+    for n, s in enumerate(starts, 1):
         err = [float(v) for v in s["offsets"]]
         sig = sigma_of(s)
         ok, axes_out = within(err, sig, tol_m)
         res["starts"].append({
             "start": n, "start_offset": s["start"], "grade": grade_of(s), "reason": reason_of(s),
             "sigma": sig, "error": err, "horizontal_m": math.hypot(err[0], err[1]),
-            "mi": s.get("mi"), "within": ok, "outside_on": axes_out})
+            "mi": s.get("mi"), "within": ok, "outside_on": axes_out,
+            "answer": n - 1 == (sc.get("answer") or 0)})
+    # The pose file (written when served), checked against the calibration without the tool's
+    # chart: centre difference and the relative rotation's angle about the map's up axis.
+    pf = os.path.join(d, "pose.json")
+    init = rec["command"][rec["command"].index("--init") + 1]
+    if os.path.exists(pf):
+        res["pose_file_error"] = pose_error(json.load(open(init)), json.load(open(pf)))
     served = [s for s in res["starts"] if s["grade"] in ("precise", "coarse")]
     res["served_agree"], res["served_disagree"] = agree(served)
     res["outcome"] = "ran"
@@ -274,7 +307,7 @@ def table(results):
             w = "–" if s["within"] is None else ("yes" if s["within"] else "no (" + ", ".join(s["outside_on"]) + ")")
             why = short_reason(s["reason"]) if s["grade"] == "refused" else ""
             lines.append(
-                f"| {r['set']} | {s['start']} | {s['grade']} | {fmt_sigma(s['sigma'])} | "
+                f"| {r['set']} | {s['start']}{'*' if s.get('answer') else ''} | {s['grade']} | {fmt_sigma(s['sigma'])} | "
                 f"{100 * e[0]:+.1f}, {100 * e[1]:+.1f}, {100 * e[2]:+.1f}, {e[3]:+.2f} | "
                 f"{100 * s['horizontal_m']:.1f} | {w} | {why} |")
     return "\n".join(lines)
@@ -394,6 +427,16 @@ def main():
         json.dump(doc, f, indent=2)
     print()
     print(table(results))
+    print("(* the start whose answer the tool gives: the served one of the highest MI, else start 1)")
+    for r in results:
+        pe, ans = r.get("pose_file_error"), [s for s in r["starts"] if s.get("answer")]
+        if pe and ans:
+            e = ans[0]["error"]
+            gap = max(abs(pe[k] - e[i]) for i, k in enumerate("xyz"))
+            if gap > 1e-3 or abs(pe["yaw_deg"] - e[3]) > 0.05:
+                print(f"note: {r['set']}: the pose file's error ({pe['x']:+.3f}, {pe['y']:+.3f}, "
+                      f"{pe['z']:+.3f}) m, yaw {pe['yaw_deg']:+.3f}° differs from the report's "
+                      f"answer row")
     print()
     print(family_table(results))
     print()
