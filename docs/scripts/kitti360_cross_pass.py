@@ -165,12 +165,15 @@ def nn_median(a, b):
 def tile_inputs(out, scan_world, args):
     """Hook for the product's path: M's scan → `tile build` in a projected CRS → `refine --tiles`.
 
-    Not implemented: it waits for `tile build` from scans with poses (branch survey-tiles). What
-    it will need: the scan (world frame here) written as the input `tile build` takes, in a
-    projected CRS (KITTI-360's world frame is a local metric frame with z up; an offset into a
-    UTM zone, with the same offset on truth.json and the starts, serves as that CRS), `tile
-    build` into OUT/tiles, and truth.json / start-*.json rewritten with that `crs`. Then
-    real_views.sh runs `refine --tiles OUT/tiles` in place of `--points OUT/map.csv`."""
+    Not implemented here: it waits for `tile build` from scans with poses (branch survey-tiles).
+    What it needs: the scan (world frame here) in a projected CRS (KITTI-360's world frame is a
+    local metric frame with z up near Karlsruhe; an offset into UTM 32N, EPSG:32632, applied
+    alike to the points, truth.json and the starts, serves), `tile build` into OUT/tiles (id
+    e.g. `kitti360-M`), and truth.json / start-*.json rewritten with that `crs`; real_views.py
+    --cross-via tiles then runs `refine --tiles OUT/tiles` in place of `--points OUT/map.csv`.
+    Today's `tile build CLOUD.pcd --crs EPSG:N` already rasterises a cloud given in a map CRS;
+    note that a tile keeps only the ground its filter finds (--ground-*), at --res, so the tile
+    path compares with `--ground` here more than with every point."""
     sys.exit(
         "--via tiles: not yet; needs `tile build` from scans with poses (branch survey-tiles). "
         "See tile_inputs() in docs/scripts/kitti360_cross_pass.py."
