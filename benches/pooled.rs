@@ -89,7 +89,7 @@ fn main() {
             "| {n} | {cpu:.2} | {evals:.3e} | {:.2} | {:.3e} | {} | {:.2} |",
             cpu / n as f64,
             evals / n as f64,
-            r.quality.accepted,
+            r.quality.precise(),
             100.0 * (r.pose.center() - truth.center()).norm()
         );
         if n == 1 {

@@ -123,7 +123,7 @@ fn main() {
                 });
                 let (res, st1) = timed(&pool, || search(&ev, &cfg));
                 let (q, st2) = timed(&pool, || assess(&ev, &res, &qcfg));
-                assert!(q.accepted, "quality gate: {:?}", q.reason);
+                assert!(q.precise(), "quality gate: {}", q.grade);
                 let run = Run {
                     stages: [st0, st1, st2],
                     answer: (

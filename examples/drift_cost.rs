@@ -112,7 +112,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         points.len(),
         all_points.len(),
         ev.n_points,
-        q.accepted,
+        q.grid_refusal().is_none(),
     );
     Ok(())
 }

@@ -123,7 +123,7 @@ fn main() {
         match r {
             Ok((r, _)) => {
                 let o = offsets_between(&truth, &r.pose);
-                let acc = r.quality.accepted;
+                let acc = r.quality.precise();
                 // Along / across the viewing direction.
                 let along = o[0] * heading.sin() + o[1] * heading.cos();
                 let across = o[0] * heading.cos() - o[1] * heading.sin();
@@ -136,7 +136,7 @@ fn main() {
                     o[2],
                     o[3],
                     acc,
-                    r.quality.reason.clone().unwrap_or_default()
+                    r.quality.grade.to_string()
                 );
                 eh.push((o[0] * o[0] + o[1] * o[1]).sqrt());
                 ez.push(o[2].abs());

@@ -199,8 +199,8 @@ fn run_seed(settings: &Settings, true_intrinsics: bool) -> infraloc::Result<Valu
             .map(|s| e.within(&s, 3.0, [0.0; 4]).iter().all(|&b| b));
         rec[v] = json!({
             "horizontal_m": e.horizontal_m(), "height_m": e.z.abs(), "yaw_deg": e.yaw.abs(),
-            "signed": e, "sigma": res.quality.sigma, "accepted": res.quality.accepted,
-            "reason": res.quality.reason, "within_3sigma": within, "points": res.points.1,
+            "signed": e, "sigma": res.quality.sigma, "accepted": res.quality.served(), "grade": res.quality.grade.name(),
+            "reason": res.quality.grade.to_string(), "within_3sigma": within, "points": res.points.1,
         });
     }
     Ok(rec)

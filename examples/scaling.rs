@@ -91,7 +91,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         r.stats.poses,
         r.stats.point_evaluations as f64,
         e.norm(),
-        r.quality.accepted,
+        r.quality.precise(),
     );
     Ok(())
 }

@@ -15,6 +15,9 @@ pub use infraloc_core::Error as CoreError;
 pub const EXIT_CONFIG: i32 = 78;
 /// Exit code for any other failure.
 pub(crate) const EXIT_FAILURE: i32 = 1;
+/// `refine` and `localize`: a result served graded `coarse` (its σ beyond the precise limits,
+/// within the coarse ones); the pose is written, flagged `quality.grade = "coarse"`.
+pub const EXIT_COARSE: i32 = 5;
 
 /// The application's error.
 #[derive(Debug, thiserror::Error)]

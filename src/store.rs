@@ -2,8 +2,10 @@
 //! results, in the service's state directory.
 //!
 //! `pose.json` is replaced only atomically (`crate::persist::write_atomic`) and only by a result
-//! that is `status = "ok"` and not worse than the served one (unless forced by the technician), so a
-//! failed re-localization never costs the node its last good pose. Quality is compared through
+//! that is `status = "ok"` and not worse than the served one (unless forced: by the technician,
+//! or by the drift check that found the camera moved), so a failed re-localization never costs
+//! the node its last good pose. Grades come first: a precise result replaces a coarse pose, a
+//! coarse result never replaces a precise one; within a grade, quality is compared through
 //! `quality.score` (higher is better; the pipeline documents what it puts there).
 
 use crate::error::{Error, Result};
@@ -41,6 +43,18 @@ pub struct HistoryEntry {
     /// node's pooled frames of earlier hours narrow it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sigma: Option<crate::localize::refine::quality::Sigma>,
+    /// The result's grade (`precise` or `coarse`), when it made a pose.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grade: Option<String>,
+}
+
+/// A served grade's rank: precise over coarse (an unknown name ranks lowest).
+pub(crate) fn grade_rank(grade: &str) -> u8 {
+    match grade {
+        "precise" => 2,
+        "coarse" => 1,
+        _ => 0,
+    }
 }
 
 /// What [`PoseStore::offer`] decided.
@@ -113,9 +127,11 @@ impl PoseStore {
         }
     }
 
-    /// Offer a new result. It replaces the served pose if it is `ok` and not worse than the served
-    /// one by more than `SCORE_TOLERANCE`, or if `force` is set (technician override; a failed
-    /// result is never served even then). The history records it either way.
+    /// Offer a new result. It replaces the served pose if it is `ok` and of a better grade
+    /// (precise over coarse), or of the same grade and not worse than the served one by more than
+    /// `SCORE_TOLERANCE`, or if `force` is set (the technician's override, or the drift check's
+    /// finding that the camera moved; a failed result is never served even then). The history
+    /// records it either way.
     pub fn offer(&self, candidate: &PoseFile, force: bool) -> Result<Decision> {
         // An unreadable served pose must not block a good new one: treat it as absent, and say so.
         let (current, unreadable) = match self.current() {
@@ -134,6 +150,21 @@ impl PoseStore {
                 }),
                 Some(cur) if cur.status != "ok" => {
                     Decision::Replaced("served pose was not ok".into())
+                }
+                Some(cur) if candidate.grade() != cur.grade() => {
+                    if grade_rank(candidate.grade()) > grade_rank(cur.grade()) {
+                        Decision::Replaced(format!(
+                            "{} replaces the served {} pose",
+                            candidate.grade(),
+                            cur.grade()
+                        ))
+                    } else {
+                        Decision::Kept(format!(
+                            "a {} result never replaces the served {} pose",
+                            candidate.grade(),
+                            cur.grade()
+                        ))
+                    }
                 }
                 Some(cur) => match (candidate.score(), cur.score()) {
                     (Some(new), Some(old)) if new < old - SCORE_TOLERANCE => Decision::Kept(
@@ -158,6 +189,7 @@ impl PoseStore {
             accepted,
             reason,
             sigma: candidate.sigma(),
+            grade: Some(candidate.grade().to_string()),
         })?;
         Ok(decision)
     }
@@ -172,6 +204,7 @@ impl PoseStore {
             accepted: false,
             reason: why.to_string(),
             sigma: candidate.sigma(),
+            grade: Some(candidate.grade().to_string()),
         })
     }
 
@@ -186,6 +219,7 @@ impl PoseStore {
             accepted: false,
             reason: "localization failed; served pose kept".into(),
             sigma: None,
+            grade: None,
         })
     }
 
@@ -255,6 +289,40 @@ mod tests {
         let h = s.history().unwrap();
         assert_eq!(h.len(), 3, "history is capped");
         assert!(!h[2].accepted && h[2].reason.contains("not ok"));
+    }
+
+    /// A coarse first result is served; a precise one replaces it whatever its score; a coarse
+    /// one then never replaces the precise pose, unless forced (the drift check's move, or the
+    /// technician); within a grade the score decides.
+    #[test]
+    fn grades_come_before_scores() {
+        let graded = |grade: &str, score: f64, x: f64| {
+            let mut f = pose("ok", score, x);
+            f.quality.grade = Some(grade.into());
+            f
+        };
+        let d = tempfile::tempdir().unwrap();
+        let s = PoseStore::new(d.path(), 10);
+        let replaced =
+            |f: &PoseFile, force: bool| matches!(s.offer(f, force).unwrap(), Decision::Replaced(_));
+        assert!(replaced(&graded("coarse", 0.8, 1.0), false));
+        assert_eq!(s.current().unwrap().unwrap().grade(), "coarse");
+        assert!(replaced(&graded("precise", 0.2, 2.0), false));
+        assert!(!replaced(&graded("coarse", 0.9, 3.0), false));
+        assert!(replaced(&graded("precise", 0.19, 4.0), false));
+        assert!(!replaced(&graded("precise", 0.1, 5.0), false));
+        assert!((s.current().unwrap().unwrap().camera_center[0] - 4.0).abs() < 1e-9);
+        assert!(replaced(&graded("coarse", 0.1, 6.0), true));
+        let h = s.history().unwrap();
+        assert!(
+            h[2].reason
+                .contains("a coarse result never replaces the served precise pose"),
+            "{:?}",
+            h[2]
+        );
+        assert_eq!(h[2].grade.as_deref(), Some("coarse"));
+        // A file written before grades is precise.
+        assert_eq!(pose("ok", 0.5, 0.0).grade(), "precise");
     }
 
     #[test]

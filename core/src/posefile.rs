@@ -114,6 +114,12 @@ impl PoseFile {
         self.quality.pose_covariance()
     }
 
+    /// The grade of the pose, `quality.grade`: `precise` for a file written before grades (it
+    /// was served, so it passed the precise limits).
+    pub fn grade(&self) -> &str {
+        self.quality.grade.as_deref().unwrap_or("precise")
+    }
+
     /// The pose store's comparison score, `quality.score`, if the file has a numeric one.
     pub fn score(&self) -> Option<f64> {
         self.quality.score
@@ -172,6 +178,9 @@ pub struct PoseQuality {
     pub accepted: Option<bool>,
     /// Why the gate refused (absent, or `null` kept in `rest`, when it accepted).
     pub reason: Option<String>,
+    /// The grade: `precise`, `coarse` or `refused` (docs/pose.md "Grade"); absent in files
+    /// written before grades, whose served poses were all precise.
+    pub grade: Option<String>,
     /// Every other key, and the text of a known figure that is malformed or spelled otherwise
     /// than its typed value writes.
     pub rest: serde_json::Map<String, Value>,
@@ -203,6 +212,7 @@ impl PoseQuality {
             covariance: take_figure(&mut rest, "covariance"),
             accepted: take_figure(&mut rest, "accepted"),
             reason: take_figure(&mut rest, "reason"),
+            grade: take_figure(&mut rest, "grade"),
             rest,
         }
     }
@@ -215,6 +225,7 @@ impl PoseQuality {
         put_figure(&mut m, "covariance", &self.covariance);
         put_figure(&mut m, "accepted", &self.accepted);
         put_figure(&mut m, "reason", &self.reason);
+        put_figure(&mut m, "grade", &self.grade);
         Value::Object(m)
     }
 

@@ -111,17 +111,26 @@ pub(crate) fn run_and_write(
     Ok(run)
 }
 
-/// Run `localize`: write the outputs and print a one-line summary.
-pub(super) fn run(a: Args) -> Result<()> {
+/// Run `localize`: write the outputs and print a one-line summary; the exit code of the
+/// served grade (0 precise, [`crate::error::EXIT_COARSE`] coarse).
+pub(super) fn run(a: Args) -> Result<i32> {
     let r = run_pipeline(&a)?;
     let (y, p, ro) = r.outcome.pose.yaw_pitch_roll();
     let c = r.outcome.pose.center();
+    let q = &r.outcome.refinement.quality;
     println!(
-        "pose ok: tile {} centre ({:.3}, {:.3}, {:.3}) yaw {:.3}° pitch {:.3}° roll {:.3}°  NMI {:.4}",
-        r.tile.id, c.x, c.y, c.z, y.to_degrees(), p.to_degrees(), ro.to_degrees(), r.outcome.refinement.quality.nmi
+        "pose {}: tile {} centre ({:.3}, {:.3}, {:.3}) yaw {:.3}° pitch {:.3}° roll {:.3}°  NMI {:.4}",
+        q.grade.name(), r.tile.id, c.x, c.y, c.z, y.to_degrees(), p.to_degrees(), ro.to_degrees(), q.nmi
     );
+    if let crate::localize::refine::verdict::Grade::Coarse(o) = &q.grade {
+        println!("coarse: {o} (precise)");
+    }
     if let Some(t) = r.report.get("truth") {
         println!("vs truth: {t}");
     }
-    Ok(())
+    Ok(if q.precise() {
+        0
+    } else {
+        crate::error::EXIT_COARSE
+    })
 }

@@ -100,15 +100,21 @@ pub enum Command {
 /// Run the CLI with the process arguments; returns the exit code.
 pub fn main() -> i32 {
     let cli = Cli::parse();
-    // `status` reports the service's state in its exit code too.
-    if let Command::Status(t) = cli.command {
-        return match tech::status(t) {
-            Ok(code) => code,
-            Err(e) => report(&e),
-        };
-    }
-    match run(cli) {
-        Ok(()) => 0,
+    // `status` reports the service's state in its exit code too, and `refine` and `localize`
+    // the grade of what they served.
+    let coded = match cli.command {
+        Command::Status(t) => tech::status(t),
+        Command::Refine(a) => refine::run(a),
+        Command::Localize(a) => localize::run(a),
+        command => {
+            return match run(Cli { command }) {
+                Ok(()) => 0,
+                Err(e) => report(&e),
+            }
+        }
+    };
+    match coded {
+        Ok(code) => code,
         Err(e) => report(&e),
     }
 }
@@ -125,12 +131,12 @@ fn report(e: &Error) -> i32 {
 pub(crate) fn run(cli: Cli) -> Result<(), Error> {
     match cli.command {
         Command::Demo(a) => demo::run(a),
-        Command::Localize(a) => localize::run(a),
+        Command::Localize(a) => localize::run(a).map(|_| ()),
         Command::Simulate(a) => simulate::run(a),
         Command::Project(a) => project::run(a),
         Command::Georef(a) => georef::run(a),
         Command::Rectify(a) => rectify::run(a),
-        Command::Refine(a) => refine::run(a),
+        Command::Refine(a) => refine::run(a).map(|_| ()),
         Command::Calibrate(a) => calibrate::run(a),
         Command::Study(a) => study::run(a),
         Command::Plot(c) => plot::run(c),

@@ -13,6 +13,7 @@ use crate::localize::refine::optima::{
     disagreement as disagreement_of, self_check_starts, START_SPREAD,
 };
 use crate::localize::refine::quality::QualityConfig;
+use crate::localize::refine::verdict::{Axis, Grade, Stop};
 use crate::localize::refine::{finish_name, refine_polished, Refinement};
 use crate::map::{cache, Crs};
 use crate::points_io::read_points;
@@ -270,8 +271,9 @@ fn print_result(r: &Refinement, smooth: Option<&SmoothRefinement>) {
     }
 }
 
-/// Run `refine`.
-pub(super) fn run(mut a: Args) -> Result<()> {
+/// Run `refine`; the exit code of a served result (0 precise, [`crate::error::EXIT_COARSE`]
+/// coarse).
+pub(super) fn run(mut a: Args) -> Result<i32> {
     if let Some(file) = &a.pairs {
         for (image, points) in super::pairs::read(file)? {
             a.image.push(image);
@@ -345,11 +347,8 @@ pub(super) fn run(mut a: Args) -> Result<()> {
     }
     let pick = check.as_ref().map_or(0, |c| c.answer);
     let (mut r, smooth) = runs.swap_remove(pick);
-    if let Some(c) = &check {
-        if let Some(why) = &c.disagreement {
-            r.quality.accepted = false;
-            r.quality.reason = Some(why.clone());
-        }
+    if let Some(stop) = check.as_ref().and_then(|c| c.disagreement.clone()) {
+        r.quality.grade = Grade::Refused(stop);
     }
     let finish_label = match (&smooth, a.polish) {
         (Some(_), true) => "6-dof-gradient",
@@ -374,16 +373,14 @@ pub(super) fn run(mut a: Args) -> Result<()> {
         let png = crate::viz::before_after_png(&frame, &cam, &init.pose, &r.pose, &point_sets[0])?;
         crate::persist::write_atomic(path, &png)?;
     }
-    if !r.quality.accepted {
+    if let Grade::Refused(stop) = &r.quality.grade {
         return Err(Error::stage(
             crate::stage::StageName::Mi,
-            format!(
-                "result rejected: {}",
-                r.quality.reason.clone().unwrap_or_default()
-            ),
+            format!("result refused: {stop}"),
         ));
     }
     print_result(&r, smooth.as_ref());
+    println!("grade: {}", r.quality.grade);
     if let Some(path) = &a.out {
         write_pose_out(
             path,
@@ -396,7 +393,10 @@ pub(super) fn run(mut a: Args) -> Result<()> {
             pooling,
         )?;
     }
-    Ok(())
+    Ok(match r.quality.grade {
+        Grade::Coarse(_) => crate::error::EXIT_COARSE,
+        _ => 0,
+    })
 }
 
 /// What the report names beside the refinement: the settings and the start's note.
@@ -495,11 +495,9 @@ struct StartOutcome {
     start: [f64; 6],
     /// The answer's offset from `--init`.
     offsets: [f64; 6],
-    /// Accepted by the gate.
-    accepted: bool,
-    /// The gate's reason when refused.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    reason: Option<String>,
+    /// Its grade, and why it is not precise.
+    #[serde(flatten)]
+    grade: Grade,
     /// The answer's σ when it has one.
     #[serde(skip_serializing_if = "Option::is_none")]
     sigma: Option<crate::pose::Sigma>,
@@ -507,20 +505,24 @@ struct StartOutcome {
     mi: f64,
 }
 
-/// The truth-free self-check of `--starts`: every start's outcome and whether the accepted
-/// answers agree within their combined 3σ.
+/// The truth-free self-check of `--starts`: every start's outcome and whether the served
+/// answers (precise or coarse) agree within their combined 3σ.
 #[derive(Debug, Clone, serde::Serialize)]
 struct SelfCheck {
     /// Per start, in order (the first is `--init`).
     starts: Vec<StartOutcome>,
-    /// Accepted answers.
-    accepted: usize,
-    /// The accepted answers agree pairwise within their combined 3σ (vacuous below two).
+    /// Served answers.
+    served: usize,
+    /// The served answers agree pairwise within their combined 3σ (vacuous below two).
     agree: bool,
-    /// Why not, naming the two starts and the axis.
+    /// Why not: the axis that disagrees most, between the starts `pair`.
+    #[serde(skip)]
+    disagreement: Option<Stop>,
+    /// The two starts (1-based) that disagree.
     #[serde(skip_serializing_if = "Option::is_none")]
-    disagreement: Option<String>,
-    /// The start whose answer is the result: the accepted one of the highest MI, else the first.
+    pair: Option<(usize, usize)>,
+    /// The start whose answer is the result: the served one of the best grade and then the
+    /// highest MI, else the first.
     answer: usize,
 }
 
@@ -532,16 +534,16 @@ impl SelfCheck {
             .map(|(s, (r, _))| StartOutcome {
                 start: offsets_between(init, s),
                 offsets: offsets_between(init, &r.pose),
-                accepted: r.quality.accepted,
-                reason: r.quality.reason.clone(),
+                grade: r.quality.grade.clone(),
                 sigma: r.quality.sigma,
                 mi: r.quality.mi,
             })
             .collect();
         let ok: Vec<usize> = (0..runs.len())
-            .filter(|&i| runs[i].0.quality.accepted && runs[i].0.quality.sigma.is_some())
+            .filter(|&i| runs[i].0.quality.served() && runs[i].0.quality.sigma.is_some())
             .collect();
         let mut disagreement = None;
+        let mut pair = None;
         'pairs: for (n, &i) in ok.iter().enumerate() {
             for &j in &ok[n + 1..] {
                 let (a, b) = (&runs[i].0, &runs[j].0);
@@ -549,30 +551,31 @@ impl SelfCheck {
                     continue;
                 };
                 if let Some((axis, d, z)) = disagreement_of(&a.pose, &sa, &b.pose, &sb) {
-                    let unit = if ["x", "y", "z"].contains(&axis) {
-                        " m"
-                    } else {
-                        "°"
-                    };
-                    disagreement = Some(format!(
-                        "self-check: the answers from start {} and start {} disagree: {axis} differs by {d:+.3}{unit}, {z:.1} combined σ (> 3)",
-                        i + 1,
-                        j + 1
-                    ));
+                    disagreement = Some(Stop::Disagree {
+                        axis: Axis::from_name(axis).unwrap_or(Axis::X),
+                        difference: d,
+                        sigmas: z,
+                    });
+                    pair = Some((i + 1, j + 1));
                     break 'pairs;
                 }
             }
         }
+        let key = |i: usize| (runs[i].0.quality.precise(), runs[i].0.quality.mi);
         let answer = ok
             .iter()
             .copied()
-            .max_by(|&i, &j| runs[i].0.quality.mi.total_cmp(&runs[j].0.quality.mi))
+            .max_by(|&i, &j| {
+                let (a, b) = (key(i), key(j));
+                a.0.cmp(&b.0).then(a.1.total_cmp(&b.1))
+            })
             .unwrap_or(0);
         SelfCheck {
             starts: outcomes,
-            accepted: ok.len(),
+            served: ok.len(),
             agree: disagreement.is_none(),
             disagreement,
+            pair,
             answer,
         }
     }
@@ -581,12 +584,9 @@ impl SelfCheck {
     fn print(&self) {
         for (k, s) in self.starts.iter().enumerate() {
             let o = &s.offsets;
-            let verdict = if s.accepted {
-                s.sigma.map_or("accepted".to_string(), |g| {
-                    format!("accepted, {}", g.describe())
-                })
-            } else {
-                format!("refused: {}", s.reason.as_deref().unwrap_or(""))
+            let verdict = match (&s.grade, s.sigma) {
+                (Grade::Refused(_), _) | (_, None) => s.grade.to_string(),
+                (g, Some(sig)) => format!("{}, {}", g.name(), sig.describe()),
             };
             println!(
                 "start {} at ({:+.2}, {:+.2}, {:+.2}) m, yaw {:+.2}°: answer ({:+.3}, {:+.3}, {:+.3}) m, yaw {:+.3}°, MI {:.4}; {verdict}",
@@ -602,16 +602,16 @@ impl SelfCheck {
                 s.mi
             );
         }
-        match &self.disagreement {
-            Some(d) => println!("{d}"),
-            None => println!(
-                "self-check: {} of {} starts accepted; {}",
-                self.accepted,
+        match (&self.disagreement, self.pair) {
+            (Some(d), Some((i, j))) => println!("self-check: starts {i} and {j}: {d}"),
+            _ => println!(
+                "self-check: {} of {} starts served; {}",
+                self.served,
                 self.starts.len(),
-                if self.accepted >= 2 {
+                if self.served >= 2 {
                     "their answers agree within their combined 3σ"
                 } else {
-                    "fewer than two accepted answers to compare"
+                    "fewer than two served answers to compare"
                 }
             ),
         }

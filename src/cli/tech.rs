@@ -168,9 +168,11 @@ pub(crate) fn status(a: StatusArgs) -> Result<i32> {
             crate::daemon::metrics::render(&s, crate::daemon::metrics::now_unix())
         ),
     }
+    let coarse = s.served.as_ref().is_some_and(|p| p.grade == "coarse");
     Ok(match s.state {
         State::Degraded => EXIT_DEGRADED,
         State::Failed => EXIT_FAILED,
+        State::Ok if coarse => crate::error::EXIT_COARSE,
         State::Starting | State::Ok => 0,
     })
 }
@@ -203,6 +205,14 @@ pub(crate) fn human_status(v: &Status) -> String {
             format!("{:.3} {:.3} {:.3} m", c[0], c[1], c[2]),
         );
         line(&mut o, "yaw", format!("{:.3}°", p.yaw_pitch_roll_deg[0]));
+        line(
+            &mut o,
+            "grade",
+            match &p.grade_reason {
+                Some(why) => format!("{} ({why})", p.grade),
+                None => p.grade.clone(),
+            },
+        );
         line(&mut o, "uncertainty", sigma_line(p.sigma.as_ref()));
         line(&mut o, "computed", p.timestamp_utc.clone());
     } else {
@@ -522,6 +532,8 @@ mod tests {
                 yaw_pitch_roll_deg: [10.0, -80.0, 0.0],
                 score: Some(0.1),
                 sigma,
+                grade: "precise".into(),
+                grade_reason: None,
             }),
             running: None,
             last_result: Some(RunResult {

@@ -33,12 +33,16 @@ pub struct BuildArgs {
     /// The tile's CRS, for clouds that carry none (PCD); must match the clouds' own.
     #[arg(long, value_name = "EPSG:N")]
     pub crs: Option<String>,
-    /// Tile box in the map CRS.
+    /// Take --crs instead of the CRS the clouds state (a wrong label), with a warning per cloud.
+    #[arg(long)]
+    pub override_crs: bool,
+    /// Tile box in the map CRS (default: the clouds' extent, at most 2000 m a side).
     #[arg(long, value_name = "XMIN,YMIN,XMAX,YMAX", value_parser = floats::<4>,
-          conflicts_with_all = ["center", "center_wgs84"], required_unless_present_any = ["center", "center_wgs84"])]
+          allow_hyphen_values = true, conflicts_with_all = ["center", "center_wgs84"])]
     pub bbox: Option<[f64; 4]>,
     /// Tile centre in the map CRS (a square of --size).
-    #[arg(long, value_name = "X,Y", value_parser = floats::<2>, conflicts_with = "center_wgs84")]
+    #[arg(long, value_name = "X,Y", value_parser = floats::<2>, allow_hyphen_values = true,
+          conflicts_with = "center_wgs84")]
     pub center: Option<[f64; 2]>,
     /// Tile centre as WGS84 latitude,longitude, e.g. the node's GPS fix (a square of --size).
     #[arg(long, value_name = "LAT,LON", value_parser = floats::<2>, allow_hyphen_values = true)]
@@ -150,12 +154,13 @@ fn build(a: &BuildArgs) -> Result<()> {
             lon: c[1],
             size: a.size,
         },
-        _ => return Err(MapError::NoArea.into()),
+        _ => Area::Extent,
     };
     let spec = BuildSpec {
         id: a.id.clone(),
         inputs: a.inputs.clone(),
         crs,
+        override_crs: a.override_crs,
         area,
         res: a.res,
         ground: GroundParams {

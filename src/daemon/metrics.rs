@@ -159,6 +159,18 @@ const METRICS: &[Metric] = &[
         read: |s, _| sigma_degrees(s.served.as_ref()?.sigma.as_ref()),
     },
     Metric {
+        name: "infraloc_pose_grade",
+        help: "1 for the served pose's grade (precise, coarse); 0 for the other.",
+        kind: Kind::Gauge,
+        read: |s, _| {
+            let g = s.served.as_ref()?.grade.as_str();
+            Some(Sample::by(
+                "grade",
+                ["precise", "coarse"].map(|n| (n, flag(g == n))),
+            ))
+        },
+    },
+    Metric {
         name: "infraloc_job_running",
         help: "1 for the job running now (localize, drift-check).",
         kind: Kind::Gauge,

@@ -630,11 +630,12 @@ impl Daemon {
                     Decision::Kept(w) => (false, w.clone()),
                 };
                 let c = run.pose_file.camera_center;
-                tracing::info!(served = accepted, "localized in {seconds:.1} s: centre ({:.3}, {:.3}, {:.3}), score {:.4}; {} ({why})",
+                tracing::info!(served = accepted, grade = run.pose_file.grade(), "localized in {seconds:.1} s: centre ({:.3}, {:.3}, {:.3}), score {:.4}, graded {}; {} ({why})",
                         c[0],
                         c[1],
                         c[2],
                         run.outcome.refinement.quality.nmi,
+                        run.outcome.refinement.quality.grade,
                         if accepted { "served" } else { "not served" });
                 if accepted {
                     self.served = Some(run.pose_file.clone());
@@ -682,6 +683,7 @@ impl Daemon {
                 self.policy.localized(
                     Instant::now(),
                     self.served.is_some(),
+                    self.served.as_ref().is_some_and(|p| p.grade() == "coarse"),
                     &Timing::of(&self.cfg),
                 );
                 {
@@ -925,9 +927,18 @@ impl Daemon {
                 State::Degraded,
                 format!("degraded: serving pose from {}; drift check found the camera moved, re-localizing", p.timestamp_utc),
             ),
+            (Some(p), _) if p.grade() == "coarse" => (
+                State::Ok,
+                format!(
+                    "ok: serving pose from {} (tile {}, coarse: {}); re-localizing to make it precise",
+                    p.timestamp_utc,
+                    p.tile_id,
+                    p.quality.reason.as_deref().unwrap_or("σ over the precise limits")
+                ),
+            ),
             (Some(p), _) => (
                 State::Ok,
-                format!("ok: serving pose from {} (tile {})", p.timestamp_utc, p.tile_id),
+                format!("ok: serving pose from {} (tile {}, {})", p.timestamp_utc, p.tile_id, p.grade()),
             ),
         };
         let summary = match &s.reload_error {
@@ -1007,6 +1018,11 @@ const CROSS_CHECK_SEARCH: DriftParams = DriftParams {
 fn cross_check(run: &Run, served: &PoseFile, cfg: &Config) -> Option<CrossCheck> {
     let (d, dyaw) = pose_distance(&run.outcome.pose, &served.pose());
     if d < cfg.daemon.drift_threshold_m && dyaw < cfg.daemon.drift_threshold_deg {
+        return None;
+    }
+    // A better grade is better evidence than the served pose's MI peak on one frame.
+    let new = run.outcome.refinement.quality.grade.name();
+    if crate::store::grade_rank(new) > crate::store::grade_rank(served.grade()) {
         return None;
     }
     if served.tile_id != run.tile.id {

@@ -173,12 +173,20 @@ impl Policy {
     }
 
     /// The running localization produced a pose (served or not; `serving`: whether a pose is
-    /// served now). The periodic localization and drift check count from `now`.
-    pub(super) fn localized(&mut self, now: Instant, serving: bool, t: &Timing) {
+    /// served now, `coarse`: whether it is graded coarse). The periodic localization and drift
+    /// check count from `now`; while the served pose is coarse the next localization comes
+    /// after the longest retry wait at most (`retry-max-s`), so that later frames, pooled with
+    /// this run's, can make it precise.
+    pub(super) fn localized(&mut self, now: Instant, serving: bool, coarse: bool, t: &Timing) {
         self.end_localize();
         self.serving = serving;
         self.failures_in_a_row = 0;
-        self.next_localize = self.period(now, t.relocalize_interval_s);
+        let every = match (coarse, t.relocalize_interval_s > 0.0) {
+            (true, true) => t.relocalize_interval_s.min(t.retry_max_s),
+            (true, false) => t.retry_max_s,
+            (false, _) => t.relocalize_interval_s,
+        };
+        self.next_localize = self.period(now, every);
         self.next_drift = self.period(now, t.drift_check_interval_s);
     }
 
@@ -296,7 +304,7 @@ mod tests {
         assert_eq!(p.failed(t1, &T), 20.0);
         assert_eq!(p.failures_in_a_row, 2);
         assert!(p.due(t1 + secs(20.0)).is_some());
-        p.localized(t1 + secs(30.0), true, &T);
+        p.localized(t1 + secs(30.0), true, false, &T);
         assert_eq!(p.failures_in_a_row, 0);
         // Periodic schedules count from the result.
         assert_eq!(p.next_localize, Some(t1 + secs(30.0 + 3600.0)));
@@ -318,7 +326,7 @@ mod tests {
         let mut p = Policy::new(t0, false);
         p.due(t0);
         // Localized, but the store kept nothing (no pose served): no periodic schedule.
-        p.localized(t0, false, &T);
+        p.localized(t0, false, false, &T);
         assert_eq!((p.next_localize, p.next_drift), (None, None));
         assert_eq!(p.due(t0 + secs(1e6)), None);
     }
@@ -333,7 +341,7 @@ mod tests {
         assert!(!p.forced());
         assert_eq!(p.request(true, "technician".into()), Requested::Joined);
         assert!(p.forced());
-        p.localized(t0, true, &T);
+        p.localized(t0, true, false, &T);
         assert!(!p.forced(), "the next run starts unforced");
         // During a drift check: queued, and forced if any queued request was.
         assert_eq!(p.due(t0 + secs(600.0)), Some(Action::DriftCheck));
@@ -349,7 +357,7 @@ mod tests {
             })
         );
         // Idle: starts at once.
-        p.localized(t0 + secs(700.0), true, &T);
+        p.localized(t0 + secs(700.0), true, false, &T);
         assert_eq!(
             p.request(false, "c".into()),
             Requested::Start(Action::Localize {
@@ -359,12 +367,49 @@ mod tests {
         );
     }
 
+    /// A coarse pose is re-localized after the longest retry wait at most, to be made precise;
+    /// a precise one on the configured period (none here).
+    #[test]
+    fn a_coarse_pose_is_relocalized_to_make_it_precise() {
+        let t0 = Instant::now();
+        let no_period = Timing {
+            relocalize_interval_s: 0.0,
+            drift_check_interval_s: 0.0,
+            ..T
+        };
+        let mut p = Policy::new(t0, false);
+        p.due(t0);
+        p.localized(t0, true, true, &no_period);
+        assert_eq!(p.due(t0 + secs(59.0)), None);
+        assert_eq!(
+            p.due(t0 + secs(60.0)),
+            Some(Action::Localize {
+                force: false,
+                why: "scheduled".into()
+            })
+        );
+        p.localized(t0 + secs(90.0), true, false, &no_period);
+        assert_eq!(p.due(t0 + secs(1e6)), None);
+        // With a period shorter than the longest wait, the period.
+        p.due(t0);
+        p.localized(
+            t0,
+            true,
+            true,
+            &Timing {
+                relocalize_interval_s: 30.0,
+                ..no_period
+            },
+        );
+        assert!(p.due(t0 + secs(30.0)).is_some());
+    }
+
     #[test]
     fn a_moved_camera_queues_a_forced_localization_before_anything_else() {
         let t0 = Instant::now();
         let mut p = Policy::new(t0, true);
         p.due(t0);
-        p.localized(t0, true, &T);
+        p.localized(t0, true, false, &T);
         assert_eq!(p.due(t0 + secs(600.0)), Some(Action::DriftCheck));
         p.drift_checked(t0 + secs(610.0), true, &T);
         assert_eq!(

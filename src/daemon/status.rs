@@ -97,6 +97,17 @@ pub struct Served {
     /// one (written by an older version, or a hand-made initial pose).
     #[serde(default)]
     pub sigma: Option<Sigma>,
+    /// The pose's grade, `precise` or `coarse` (docs/pose.md "Grade").
+    #[serde(default = "precise")]
+    pub grade: String,
+    /// Why it is coarse (its σ over the precise limit), when it is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grade_reason: Option<String>,
+}
+
+/// The grade of a served pose whose status was written before grades.
+fn precise() -> String {
+    "precise".into()
 }
 
 impl Served {
@@ -111,6 +122,10 @@ impl Served {
             yaw_pitch_roll_deg: p.yaw_pitch_roll_deg,
             score: p.score(),
             sigma: p.sigma(),
+            grade: p.grade().to_string(),
+            grade_reason: (p.grade() != "precise")
+                .then(|| p.quality.reason.clone())
+                .flatten(),
         }
     }
 }

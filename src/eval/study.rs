@@ -143,9 +143,12 @@ pub(crate) struct Trial {
     pub yaw_deg: f64,
     /// Within the success bounds ([`SUCCESS_HORIZONTAL_M`], …).
     pub success: bool,
-    /// The quality gate accepted the result.
+    /// The result was served: graded precise or coarse.
     pub accepted: bool,
-    /// The gate's reason when it rejected.
+    /// Its grade: `precise`, `coarse` or `refused`.
+    #[serde(default)]
+    pub grade: String,
+    /// Why it is not precise, when it is not.
     pub reason: Option<String>,
     /// MI at the optimum, nats.
     pub mi: f64,
@@ -217,8 +220,11 @@ pub(crate) struct Summary {
     pub yaw_deg: Spread,
     /// Fraction of trials within 10 cm horizontal, 10 cm height and 0.2° yaw.
     pub success_fraction: f64,
-    /// Trials the quality gate rejected.
+    /// Trials refused.
     pub gate_rejections: usize,
+    /// Trials served graded coarse.
+    #[serde(default)]
+    pub coarse: usize,
     /// Total refinement wall time, seconds.
     pub seconds_total: f64,
     /// Median refinement wall time per trial, seconds.
@@ -237,6 +243,7 @@ impl Summary {
             yaw_deg: Spread::of(&col(|t| t.yaw_deg)),
             success_fraction: trials.iter().filter(|t| t.success).count() as f64 / n.max(1) as f64,
             gate_rejections: trials.iter().filter(|t| !t.accepted).count(),
+            coarse: trials.iter().filter(|t| t.grade == "coarse").count(),
             seconds_total: trials.iter().map(|t| t.seconds).sum(),
             seconds_median: Spread::of(&col(|t| t.seconds)).median,
         }
@@ -386,8 +393,9 @@ pub(crate) fn run_trial(
         success: horizontal_m <= SUCCESS_HORIZONTAL_M
             && height_m <= SUCCESS_HEIGHT_M
             && yaw_deg <= SUCCESS_YAW_DEG,
-        accepted: r.quality.accepted,
-        reason: r.quality.reason.clone(),
+        accepted: r.quality.served(),
+        grade: r.quality.grade.name().to_string(),
+        reason: (!r.quality.precise()).then(|| r.quality.grade.to_string()),
         mi: r.quality.mi,
         points: r.points.1,
         sigma: r.quality.sigma,

@@ -44,6 +44,8 @@ pub(crate) enum Area {
     Center { xy: (f64, f64), size: f64 },
     /// A square of `size` metres centred on a WGS84 position (e.g. the node's GPS fix).
     CenterWgs84 { lat: f64, lon: f64, size: f64 },
+    /// The clouds' own extent ([`cloud::extent`]).
+    Extent,
 }
 
 /// Ground filter parameters (inputs without LAS classification).
@@ -66,6 +68,8 @@ pub(crate) struct BuildSpec {
     pub inputs: Vec<PathBuf>,
     /// The tile's CRS when the inputs do not say (or to confirm what they say).
     pub crs: Option<Crs>,
+    /// `crs` replaces whatever CRS the inputs state (a wrong label), with a warning each.
+    pub override_crs: bool,
     /// The tile's extent.
     pub area: Area,
     /// LiDAR layer resolution, metres.
@@ -164,16 +168,23 @@ fn tile_crs(clouds: &[Cloud], flag: Option<Crs>) -> Result<Crs> {
         }
     };
     if flag == Some(crs) || from.is_none() {
-        geo::check_crs(crs).map_err(|source| MapError::Flag {
-            flag: "--crs",
-            source,
+        geo::check_crs(crs).map_err(|source| {
+            // Name the cloud that takes --crs, so that the line says whose CRS it is.
+            match clouds.iter().find(|c| c.crs.is_none()) {
+                Some(c) => Error::input(&c.path, format!("--crs {crs}: {source}")),
+                None => MapError::Flag {
+                    flag: "--crs",
+                    source,
+                }
+                .into(),
+            }
         })?;
     }
     Ok(crs)
 }
 
 /// The box of the tile in its CRS.
-fn resolve_area(area: Area, crs: Crs) -> Result<Box2> {
+fn resolve_area(area: Area, crs: Crs, clouds: &[Cloud]) -> Result<Box2> {
     let square = |(x, y): (f64, f64), size: f64| -> Result<Box2> {
         if !(size > 0.0) || !size.is_finite() {
             return Err(MapError::NotPositive {
@@ -195,6 +206,7 @@ fn resolve_area(area: Area, crs: Crs) -> Result<Box2> {
             })?;
             square(xy, size)?
         }
+        Area::Extent => cloud::extent(clouds)?,
     };
     if !b.iter().all(|v| v.is_finite()) || !(b[2] > b[0]) || !(b[3] > b[1]) {
         return Err(MapError::BadBox { bbox: b }.into());
@@ -375,13 +387,14 @@ pub(crate) fn build_tile(spec: &BuildSpec) -> Result<(Tile, super::cache::Proven
     // An Autoware map directory's files are chosen by the box, which needs the CRS first: no
     // directory has a CRS, so a provisional everything-box is fine for choosing, then refined.
     let everything = [f64::MIN, f64::MIN, f64::MAX, f64::MAX];
-    let probe: Vec<Cloud> = spec
+    let mut probe: Vec<Cloud> = spec
         .inputs
         .iter()
         .map(|p| cloud::open(p, &everything))
         .collect::<Result<_>>()?;
+    cloud::settle_crs(&mut probe, spec.override_crs, spec.crs)?;
     let crs = tile_crs(&probe, spec.crs)?;
-    let bx = resolve_area(spec.area, crs)?;
+    let bx = resolve_area(spec.area, crs, &probe)?;
     let tile_grid = snapped_grid(crs, &bx, res, "tile")?;
     let margin_cells = (gp.window / 2.0 / gp.cell).ceil() as usize * ratio;
     let (read_grid, read_box) = read_grid(&tile_grid, margin_cells)?;

@@ -7,8 +7,10 @@
 //! the caller keeps what falls in its box. Noise classes (LAS 7 low noise, 18 high noise) are
 //! dropped on read.
 
+use super::las_header::LasLayout;
 use super::Crs;
 use crate::error::{Error, Result};
+use crate::geo::stated::{self, Metric, StatedError};
 use std::path::{Path, PathBuf};
 
 /// Points decompressed per chunk of a LAS/LAZ file.
@@ -55,6 +57,38 @@ pub(crate) enum Kind {
     Pcd(Vec<PathBuf>),
 }
 
+/// How a cloud's coordinates become the tile's: `x · xy + dx`, `y · xy + dy`, `z · z` (feet to
+/// metres, and the false-origin shift between a feet CRS and its metre twin; `geo::stated`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct ToTile {
+    /// Metres per horizontal unit of the file.
+    pub xy: f64,
+    /// Added to x, metres.
+    pub dx: f64,
+    /// Added to y, metres.
+    pub dy: f64,
+    /// Metres per vertical unit of the file.
+    pub z: f64,
+}
+
+impl ToTile {
+    /// Coordinates that pass unchanged.
+    pub(crate) const IDENTITY: ToTile = ToTile {
+        xy: 1.0,
+        dx: 0.0,
+        dy: 0.0,
+        z: 1.0,
+    };
+
+    /// A file point in the tile's CRS.
+    pub(crate) fn apply(&self, [x, y, z]: [f64; 3]) -> [f64; 3] {
+        if *self == Self::IDENTITY {
+            return [x, y, z];
+        }
+        [x * self.xy + self.dx, y * self.xy + self.dy, z * self.z]
+    }
+}
+
 /// An opened input: its kind and the CRS its header declares.
 #[derive(Debug, Clone)]
 pub(crate) struct Cloud {
@@ -62,8 +96,17 @@ pub(crate) struct Cloud {
     pub path: PathBuf,
     /// How it is read.
     pub kind: Kind,
-    /// CRS from the file's GeoTIFF keys or WKT; `None` if it has none (PCD never has one).
+    /// The tile CRS of the file's GeoTIFF keys or WKT; `None` if it has none (PCD never has one)
+    /// or states one that makes no tile CRS (`refusal`).
     pub crs: Option<Crs>,
+    /// From the file's coordinates to `crs`'s.
+    pub to_tile: ToTile,
+    /// The CRS as the file states it, for messages (`GeoTIFF keys EPSG:2229`, `WKT PROJCS[…]`).
+    pub stated: Option<String>,
+    /// Why the stated CRS makes no tile CRS: refused unless `--override-crs` replaces it.
+    pub refusal: Option<String>,
+    /// Header bounds `[xmin, ymin, zmin, xmax, ymax, zmax]` in the file's units (LAS only).
+    pub header_bounds: Option<[f64; 6]>,
 }
 
 fn las_err(path: &Path) -> impl Fn(las::Error) -> Error + '_ {
@@ -83,13 +126,17 @@ fn las_err(path: &Path) -> impl Fn(las::Error) -> Error + '_ {
 
 /// Open an input and read its header (not its points). `bx` selects an Autoware map's files.
 pub(crate) fn open(path: &Path, bx: &Box2) -> Result<Cloud> {
+    let bare = |kind| Cloud {
+        path: path.to_path_buf(),
+        kind,
+        crs: None,
+        to_tile: ToTile::IDENTITY,
+        stated: None,
+        refusal: None,
+        header_bounds: None,
+    };
     if path.is_dir() {
-        let files = autoware_files(path, bx)?;
-        return Ok(Cloud {
-            path: path.to_path_buf(),
-            kind: Kind::Pcd(files),
-            crs: None,
-        });
+        return Ok(bare(Kind::Pcd(autoware_files(path, bx)?)));
     }
     let ext = path
         .extension()
@@ -97,12 +144,14 @@ pub(crate) fn open(path: &Path, bx: &Box2) -> Result<Cloud> {
         .unwrap_or("")
         .to_ascii_lowercase();
     match ext.as_str() {
-        "pcd" => Ok(Cloud {
-            path: path.to_path_buf(),
-            kind: Kind::Pcd(vec![path.to_path_buf()]),
-            crs: None,
-        }),
+        "pcd" => Ok(bare(Kind::Pcd(vec![path.to_path_buf()]))),
         "las" | "laz" => {
+            // The layout first: the las crate would read whatever lengths the header states.
+            let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+            let len = f.metadata().map_err(|e| Error::io(path, e))?.len();
+            let mut buf = std::io::BufReader::new(&mut f);
+            let layout =
+                super::las_header::read_layout(&mut buf, len).map_err(|m| Error::input(path, m))?;
             let reader = las::Reader::from_path(path).map_err(las_err(path))?;
             let header = reader.header();
             let kind = if header.copc_info_vlr().is_some() {
@@ -110,158 +159,251 @@ pub(crate) fn open(path: &Path, bx: &Box2) -> Result<Cloud> {
             } else {
                 Kind::Las
             };
-            Ok(Cloud {
-                path: path.to_path_buf(),
-                kind,
-                crs: match las_crs(header, path)? {
-                    Some(c) => Some(c),
-                    None => evlr_wkt_crs(path)?,
-                },
-            })
+            let mut cloud = bare(kind);
+            cloud.header_bounds = Some(layout.bounds);
+            let stated = las_crs(&layout, header, path)?;
+            for n in &stated.notes {
+                warn(path, n);
+            }
+            cloud.stated = stated.label;
+            match stated.metric {
+                Some(Ok(m)) => {
+                    let z = stated.vertical.unwrap_or(m.unit.1);
+                    cloud.to_tile = ToTile {
+                        xy: m.unit.1,
+                        dx: m.dx,
+                        dy: m.dy,
+                        z,
+                    };
+                    cloud.crs = Some(m.crs);
+                    if cloud.to_tile != ToTile::IDENTITY {
+                        crate::cli::note(&format!(
+                            "{}: {} is in {}: the tile is in {}, x and y × {} {:+.4} m, {:+.4} m, \
+                             heights × {z}",
+                            path.display(),
+                            cloud.stated.as_deref().unwrap_or("its CRS"),
+                            m.unit.0,
+                            m.crs,
+                            m.unit.1,
+                            m.dx,
+                            m.dy
+                        ));
+                    }
+                }
+                Some(Err(e)) => cloud.refusal = Some(refusal(&e, &layout.bounds)),
+                None => {}
+            }
+            Ok(cloud)
         }
         _ => Err(Error::input(
             path,
-            "unknown point cloud type (expected .las, .laz, .copc.laz, .pcd or an Autoware map directory)",
+            "unknown point cloud type (expected .las, .laz, .copc.laz, .pcd or an Autoware split map directory)",
         )),
     }
 }
 
-/// The CRS a LAS header declares: GeoTIFF keys (ProjectedCSTypeGeoKey) or an OGC WKT VLR.
-fn las_crs(header: &las::Header, path: &Path) -> Result<Option<Crs>> {
-    if let Some(wkt) = header.get_wkt_crs_bytes() {
-        let text = String::from_utf8_lossy(wkt);
-        return wkt_epsg(text.trim_end_matches('\0'))
-            .map(|c| Some(Crs::Epsg(c)))
-            .map_err(|m| Error::input(path, format!("WKT CRS VLR: {m}")));
+/// One warning line on stderr about an input.
+fn warn(path: &Path, msg: &str) {
+    eprintln!("infraloc: warning: {}: {msg}", path.display());
+}
+
+/// Mean Earth radius ± the highest and lowest ground, metres: where geocentric points lie.
+const EARTH_SURFACE_M: std::ops::RangeInclusive<f64> = 6_300_000.0..=6_400_000.0;
+
+/// The refusal of a stated CRS, saying whether the points contradict it (then the label, not
+/// the points, is what is wrong, and `--override-crs` is the way out).
+fn refusal(e: &StatedError, b: &[f64; 6]) -> String {
+    let c = [
+        (b[0] + b[3]) / 2.0,
+        (b[1] + b[4]) / 2.0,
+        (b[2] + b[5]) / 2.0,
+    ];
+    match e {
+        StatedError::Geocentric(_) => {
+            let r = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
+            if EARTH_SURFACE_M.contains(&r) {
+                format!("{e}; reproject the points to a projected CRS in metres first")
+            } else {
+                format!(
+                    "{e}, but its points are {:.0} km from the Earth's centre, not on its surface: \
+                     the label is wrong; give the right CRS with --crs EPSG:N --override-crs",
+                    r / 1000.0
+                )
+            }
+        }
+        StatedError::Geographic(_) => {
+            if c[0].abs() <= 360.0 && c[1].abs() <= 90.0 {
+                format!("{e}; reproject the points to a projected CRS in metres first")
+            } else {
+                format!(
+                    "{e}, but its points (x {:.0}, y {:.0}) are no longitude and latitude: the \
+                     label is wrong; give the right CRS with --crs EPSG:N --override-crs",
+                    c[0], c[1]
+                )
+            }
+        }
+        StatedError::Other(m) => m.clone(),
     }
+}
+
+/// Clouds whose stated CRS made no tile CRS are refused; with `override_crs` every stated CRS is
+/// replaced by `--crs` instead, one warning per cloud.
+pub(crate) fn settle_crs(
+    clouds: &mut [Cloud],
+    override_crs: bool,
+    flag: Option<Crs>,
+) -> Result<()> {
+    if override_crs {
+        let Some(crs) = flag else {
+            return Err(Error::Usage(
+                "--override-crs replaces the clouds' CRS with --crs: give --crs EPSG:N".into(),
+            ));
+        };
+        for c in clouds.iter_mut() {
+            if let Some(s) = c.stated.take() {
+                warn(
+                    &c.path,
+                    &format!("its CRS ({s}) is replaced by --crs {crs} (--override-crs)"),
+                );
+            }
+            c.crs = None;
+            c.refusal = None;
+            c.to_tile = ToTile::IDENTITY;
+        }
+        return Ok(());
+    }
+    match clouds.iter().find_map(|c| Some((c, c.refusal.as_ref()?))) {
+        Some((c, why)) => Err(Error::input(&c.path, format!("CRS: {why}"))),
+        None => Ok(()),
+    }
+}
+
+/// What a LAS header states about its CRS.
+struct Stated {
+    /// The tile CRS it makes, or why it makes none; `None` if it states none.
+    metric: Option<std::result::Result<Metric, StatedError>>,
+    /// How the file states it.
+    label: Option<String>,
+    /// Metres per vertical unit, if the file states the vertical unit.
+    vertical: Option<f64>,
+    /// Warnings (GeoTIFF keys and WKT that disagree).
+    notes: Vec<String>,
+}
+
+/// The CRS a LAS header declares: GeoTIFF keys (ProjectedCSTypeGeoKey, with ProjLinearUnits and
+/// VerticalUnits) and an OGC WKT (E)VLR. When both are there and disagree, LAS 1.4's rule decides:
+/// the WKT for point formats 6–10 or when the global encoding's WKT bit is set, else the keys.
+fn las_crs(layout: &LasLayout, header: &las::Header, path: &Path) -> Result<Stated> {
+    let wkt = layout
+        .crs_records
+        .iter()
+        .find(|r| r.record_id == super::las_header::WKT_RECORD)
+        .map(|r| {
+            String::from_utf8_lossy(&r.data)
+                .trim_end_matches(['\0', ' ', '\n'])
+                .to_string()
+        })
+        .filter(|t| !t.is_empty());
     let keys = header
         .get_geotiff_crs()
         .map_err(|e| Error::input(path, format!("GeoTIFF CRS VLR: {e}")))?;
-    let Some(keys) = keys else { return Ok(None) };
-    match (
-        keys.get_projected_crs_geo_key_value(),
-        keys.get_geodetic_crs_geo_key_value(),
-    ) {
-        (Some(code), _) if code != USER_DEFINED => Ok(Some(Crs::Epsg(u32::from(code)))),
-        (Some(_), _) => Err(Error::input(
-            path,
-            "GeoTIFF CRS VLR: user-defined projected CRS (no EPSG code); give the tile's --crs \
-             after reprojecting, or write the file with an EPSG code",
+    let key = |id: u16| {
+        keys.as_ref()?
+            .entries
+            .iter()
+            .find_map(|k| match (k.id == id, &k.data) {
+                (true, las::crs::GeoTiffData::U16(v)) => Some(*v),
+                _ => None,
+            })
+    };
+    let unit_key =
+        |id: u16, what: &str| -> std::result::Result<Option<(&'static str, f64)>, StatedError> {
+            match key(id) {
+                None => Ok(None),
+                Some(c) => stated::linear_unit(c).map(Some).ok_or_else(|| {
+                    StatedError::Other(format!("GeoTIFF {what} {c}: not metres or feet"))
+                }),
+            }
+        };
+    let from_keys = match (key(3072), key(2048)) {
+        (Some(USER_DEFINED), _) => Some((
+            "GeoTIFF keys: a user-defined projected CRS".to_string(),
+            Err(StatedError::Other(
+                "GeoTIFF CRS VLR: user-defined projected CRS (no EPSG code); give --crs EPSG:N \
+                 --override-crs, or write the file with an EPSG code"
+                    .into(),
+            )),
         )),
-        (None, Some(code)) => Ok(Some(Crs::Epsg(u32::from(code)))),
-        (None, None) => Ok(None),
-    }
-}
-
-/// LAS 1.4 header: start of the first EVLR (u64) and the number of EVLRs (u32).
-const START_OF_FIRST_EVLR: u64 = 235;
-/// Bytes of an EVLR header: reserved, user id, record id, length after header, description.
-const EVLR_HEADER: usize = 60;
-
-/// The WKT CRS of an EVLR past the first (the `las` crate reads only the first EVLR; COPC files
-/// keep their hierarchy there and their CRS in a later one).
-fn evlr_wkt_crs(path: &Path) -> Result<Option<Crs>> {
-    use std::io::{Read, Seek, SeekFrom};
-    let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let mut head = [0u8; 12];
-    let io = |e: std::io::Error| Error::input(path, format!("EVLRs: {e}"));
-    f.seek(SeekFrom::Start(START_OF_FIRST_EVLR)).map_err(io)?;
-    if f.read_exact(&mut head).is_err() {
-        return Ok(None);
-    }
-    let mut at = u64::from_le_bytes(head[..8].try_into().unwrap_or_default());
-    let count = u32::from_le_bytes(head[8..].try_into().unwrap_or_default());
-    for _ in 0..count.min(1024) {
-        let mut h = [0u8; EVLR_HEADER];
-        f.seek(SeekFrom::Start(at)).map_err(io)?;
-        f.read_exact(&mut h).map_err(io)?;
-        let user = String::from_utf8_lossy(&h[2..18]);
-        let record = u16::from_le_bytes([h[18], h[19]]);
-        let len = u64::from_le_bytes(h[20..28].try_into().unwrap_or_default());
-        if user
-            .trim_end_matches('\0')
-            .eq_ignore_ascii_case("LASF_Projection")
-            && record == 2112
-        {
-            let mut wkt = Vec::new();
-            (&mut f)
-                .take(len.min(1 << 20))
-                .read_to_end(&mut wkt)
-                .map_err(io)?;
-            let text = String::from_utf8_lossy(&wkt);
-            return wkt_epsg(text.trim_end_matches('\0'))
-                .map(|c| Some(Crs::Epsg(c)))
-                .map_err(|m| Error::input(path, format!("WKT CRS EVLR: {m}")));
+        (Some(code), _) => {
+            let unit = unit_key(3076, "ProjLinearUnits");
+            let label = match unit {
+                Ok(Some((n, _))) => format!("GeoTIFF keys EPSG:{code} with ProjLinearUnits {n}"),
+                _ => format!("GeoTIFF keys EPSG:{code}"),
+            };
+            Some((
+                label,
+                unit.and_then(|u| stated::epsg_in_metres(u32::from(code), u)),
+            ))
         }
-        at = at.saturating_add(EVLR_HEADER as u64).saturating_add(len);
-    }
-    Ok(None)
+        (None, Some(code)) => Some((
+            format!("GeoTIFF keys EPSG:{code}"),
+            Err(StatedError::Geographic(format!("EPSG:{code}"))),
+        )),
+        (None, None) => None,
+    };
+    let from_wkt = wkt.map(|w| {
+        let name = w.split('"').nth(1).unwrap_or("").to_string();
+        (format!("WKT \"{name}\""), stated::wkt_in_metres(&w))
+    });
+    let wkt_rules = layout.wkt_bit() || layout.point_format >= 6;
+    let mut notes = Vec::new();
+    let (first, second) = if wkt_rules {
+        (from_wkt, from_keys)
+    } else {
+        (from_keys, from_wkt)
+    };
+    let chosen = match (first, second) {
+        (Some((l1, Ok(m1))), Some((l2, Ok(m2)))) => {
+            if m1.crs != m2.crs || m1.unit.1 != m2.unit.1 {
+                notes.push(format!(
+                    "{l1} (tile {}, {}) and {l2} (tile {}, {}) disagree; {} decides (LAS 1.4: \
+                     the WKT for point formats 6–10 or with the WKT bit, else the keys)",
+                    m1.crs, m1.unit.0, m2.crs, m2.unit.0, l1
+                ));
+            }
+            Some((l1, Ok(m1)))
+        }
+        (Some((l1, Err(e1))), Some((l2, Ok(m2)))) => {
+            notes.push(format!("{l1}: {e1}; taking {l2} instead"));
+            Some((l2, Ok(m2)))
+        }
+        (Some(c), _) | (None, Some(c)) => Some(c),
+        (None, None) => None,
+    };
+    let vertical = match chosen.as_ref().map(|(_, m)| m) {
+        Some(Ok(Metric {
+            vertical: Some((_, f)),
+            ..
+        })) => Some(*f),
+        _ => unit_key(4099, "VerticalUnits")
+            .ok()
+            .flatten()
+            .map(|(_, f)| f),
+    };
+    let (label, metric) = match chosen {
+        Some((l, m)) => (Some(l), Some(m)),
+        None => (None, None),
+    };
+    Ok(Stated {
+        metric,
+        label,
+        vertical,
+        notes,
+    })
 }
 
 /// GeoKey value meaning "user-defined".
 const USER_DEFINED: u16 = 32767;
-
-/// The EPSG code of the horizontal CRS of an OGC WKT (WKT1 or WKT2): the last authority of its
-/// projected CRS element, or of the whole text when it is not compound.
-pub(crate) fn wkt_epsg(wkt: &str) -> std::result::Result<u32, String> {
-    let upper = wkt.to_ascii_uppercase();
-    // A compound CRS names its horizontal part first; its own code would be the compound's.
-    let start = ["PROJCS[", "PROJCRS[", "PROJECTEDCRS["]
-        .iter()
-        .filter_map(|k| upper.find(k))
-        .min();
-    let part = match start {
-        Some(s) => &wkt[s..s + element_len(&wkt[s..])],
-        None => wkt,
-    };
-    // The CRS's own authority is a direct child of its element (depth 1); deeper ones name its
-    // datum, units or base CRS.
-    let up = part.to_ascii_uppercase();
-    let mut depth = 0i32;
-    let mut found = None;
-    for (i, c) in up.char_indices() {
-        match c {
-            '[' | '(' => depth += 1,
-            ']' | ')' => depth -= 1,
-            _ if depth == 1 => {
-                for k in ["AUTHORITY[\"EPSG\",", "ID[\"EPSG\","] {
-                    if up[i..].starts_with(k) && (i == 0 || !up[..i].ends_with(char::is_alphabetic))
-                    {
-                        found = Some(i + k.len());
-                    }
-                }
-            }
-            _ => {}
-        }
-    }
-    let pos = found
-        .ok_or_else(|| "the WKT's CRS has no EPSG authority of its own; give --crs".to_string())?;
-    let code: String = part[pos..]
-        .trim_start_matches(['"', ' '])
-        .chars()
-        .take_while(char::is_ascii_digit)
-        .collect();
-    code.parse::<u32>()
-        .map_err(|_| "the WKT's EPSG authority is not a number; give --crs".to_string())
-}
-
-/// Length of the bracketed WKT element starting at `s` (up to its matching `]`).
-fn element_len(s: &str) -> usize {
-    let mut depth = 0i32;
-    for (i, c) in s.char_indices() {
-        match c {
-            '[' | '(' => depth += 1,
-            ']' | ')' => {
-                depth -= 1;
-                if depth == 0 {
-                    return i + 1;
-                }
-            }
-            _ => {}
-        }
-    }
-    s.len()
-}
 
 /// The PCD files of an Autoware split map that meet `bx` (all `.pcd` files of the directory, in
 /// name order, when it has no metadata file).
@@ -325,6 +467,71 @@ fn autoware_files(dir: &Path, bx: &Box2) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
+/// Largest side of a tile taken from the clouds' own extent, metres: a node's tile covers the
+/// camera's surroundings (a few hundred metres); a survey file is a tile of at most a few square
+/// kilometres (1 km at 0.1 m is 10⁸ cells, about 3 GB while building, so a coarser `--res` for a
+/// whole one). A larger survey is cut with `--bbox` or `--center`.
+pub(crate) const MAX_EXTENT_SIDE_M: f64 = 2000.0;
+
+/// Added to the extent's east and north edges, metres: a micrometre, below any LAS scale factor
+/// and above the rounding of coordinates up to 10⁸ m.
+const EXTENT_PAD_M: f64 = 1e-6;
+
+/// The clouds' extent in the tile's CRS: of the points themselves (one more pass over each file),
+/// because headers can be wrong; COPC's header bounds, which its writers compute from the points
+/// to build the octree. Noise classes do not count. Refused above [`MAX_EXTENT_SIDE_M`] a side.
+pub(crate) fn extent(clouds: &[Cloud]) -> Result<Box2> {
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    let mut grow = |x: f64, y: f64| {
+        b = [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)];
+    };
+    let everything = [f64::MIN, f64::MIN, f64::MAX, f64::MAX];
+    for c in clouds {
+        match (&c.kind, c.header_bounds) {
+            (Kind::Copc, Some(h)) => {
+                let lo = c.to_tile.apply([h[0], h[1], h[2]]);
+                let hi = c.to_tile.apply([h[3], h[4], h[5]]);
+                grow(lo[0], lo[1]);
+                grow(hi[0], hi[1]);
+            }
+            _ => {
+                read(c, &everything, |p| grow(p.xyz[0], p.xyz[1]))?;
+            }
+        }
+    }
+    let names = || {
+        clouds
+            .iter()
+            .map(|c| c.path.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    if !(b[2] >= b[0] && b[3] >= b[1]) {
+        return Err(Error::input(
+            names(),
+            "no points to take an extent from; give --bbox or --center",
+        ));
+    }
+    let (w, h) = (b[2] - b[0], b[3] - b[1]);
+    if w > MAX_EXTENT_SIDE_M || h > MAX_EXTENT_SIDE_M {
+        return Err(Error::input(
+            names(),
+            format!(
+                "the clouds' extent is {w:.0} m × {h:.0} m (x {}..{}, y {}..{}), more than \
+                 {MAX_EXTENT_SIDE_M} m a side: cut the node's tile with --bbox or --center",
+                b[0], b[2], b[1], b[3]
+            ),
+        ));
+    }
+    // The box is half-open: points on its east and north edges must fall inside it.
+    Ok([b[0], b[1], b[2] + EXTENT_PAD_M, b[3] + EXTENT_PAD_M])
+}
+
 /// Per-input statistics gathered while reading, for the builder's normalisation and messages.
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct ReadStats {
@@ -353,9 +560,13 @@ pub(crate) fn read(
         if let Some(c) = p.rgb {
             st.max_rgb = st.max_rgb.max(c[0]).max(c[1]).max(c[2]);
         }
+        let p = CloudPoint {
+            xyz: cloud.to_tile.apply(p.xyz),
+            ..*p
+        };
         if in_box(bx, p.xyz[0], p.xyz[1]) && !CLASS_NOISE.contains(&p.class) {
             st.kept += 1;
-            sink(p);
+            sink(&p);
         }
     };
     match &cloud.kind {
@@ -535,22 +746,45 @@ mod tests {
     use super::*;
 
     #[test]
-    fn wkt_codes() {
+    fn wkt_crss() {
         let wkt1 = r#"PROJCS["Amersfoort / RD New",GEOGCS["Amersfoort",DATUM["Amersfoort",SPHEROID["Bessel 1841",6377397.155,299.1528128,AUTHORITY["EPSG","7004"]],AUTHORITY["EPSG","6289"]],UNIT["degree",0.0174532925199433,AUTHORITY["EPSG","9122"]],AUTHORITY["EPSG","4289"]],PROJECTION["Oblique_Stereographic"],UNIT["metre",1,AUTHORITY["EPSG","9001"]],AUTHORITY["EPSG","28992"]]"#;
-        assert_eq!(wkt_epsg(wkt1), Ok(28992));
+        let crs = |w: &str| stated::wkt_in_metres(w).map(|m| m.crs);
+        assert_eq!(crs(wkt1), Ok(Crs::Epsg(28992)));
         let compound = format!(
-            r#"COMPD_CS["RD + NAP",{wkt1},VERT_CS["NAP height",VERT_DATUM["NAP",2005],AUTHORITY["EPSG","5709"]],AUTHORITY["EPSG","7415"]]"#
+            r#"COMPD_CS["RD + NAP",{wkt1},VERT_CS["NAP height",VERT_DATUM["NAP",2005],UNIT["metre",1],AUTHORITY["EPSG","5709"]],AUTHORITY["EPSG","7415"]]"#
         );
-        assert_eq!(wkt_epsg(&compound), Ok(28992));
+        let m = stated::wkt_in_metres(&compound).unwrap();
+        assert_eq!(
+            (m.crs, m.vertical),
+            (Crs::Epsg(28992), Some(("metre".into(), 1.0)))
+        );
         let wkt2 = r#"PROJCRS["ETRS89 / UTM zone 32N",BASEGEOGCRS["ETRS89",ID["EPSG",4258]],CONVERSION["UTM zone 32N",ID["EPSG",16032]],CS[Cartesian,2],ID["EPSG",25832]]"#;
-        assert_eq!(wkt_epsg(wkt2), Ok(25832));
+        assert_eq!(crs(wkt2), Ok(Crs::Epsg(25832)));
         let geographic = r#"GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563]],AUTHORITY["EPSG","4326"]]"#;
-        assert_eq!(wkt_epsg(geographic), Ok(4326));
-        // The last authority is the unit's: the CRS itself has none.
+        assert!(matches!(crs(geographic), Err(StatedError::Geographic(_))));
+        // A projected CRS with neither an EPSG code nor parameters to identify it by.
         let anonymous = r#"PROJCS["custom",GEOGCS["x"],UNIT["metre",1,AUTHORITY["EPSG","9001"]]]"#;
-        assert!(wkt_epsg(anonymous).unwrap_err().contains("give --crs"));
-        assert!(wkt_epsg("LOCAL_CS[\"x\"]")
-            .unwrap_err()
-            .contains("give --crs"));
+        assert!(crs(anonymous).is_err());
+        assert!(crs("LOCAL_CS[\"x\"]").is_err());
+    }
+
+    #[test]
+    fn geocentric_labels_on_projected_points_are_called_wrong() {
+        let e = StatedError::Geocentric("WKT GEOCCS[\"unnamed\"]".into());
+        let lone_star = [515368.6, 4918340.4, 2322.9, 515401.0, 4918381.1, 2338.6];
+        let m = refusal(&e, &lone_star);
+        assert!(
+            m.contains("4945 km from the Earth's centre") && m.contains("--override-crs"),
+            "{m}"
+        );
+        let truly = [
+            4_000_000.0,
+            800_000.0,
+            4_900_000.0,
+            4_000_010.0,
+            800_010.0,
+            4_900_010.0,
+        ];
+        assert!(refusal(&e, &truly).contains("reproject"));
     }
 }

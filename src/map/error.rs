@@ -115,9 +115,6 @@ pub enum MapError {
         /// xmin, ymin, xmax, ymax.
         bbox: [f64; 4],
     },
-    /// `tile build` without an area.
-    #[error("tile build: give --bbox, --center or --center-wgs84")]
-    NoArea,
     /// `tile build` without input.
     #[error("tile build: no point cloud given")]
     NoInputs,

@@ -11,3 +11,4 @@ pub(crate) mod cloud;
 pub mod error;
 pub mod geotiff;
 pub(crate) mod import;
+pub mod las_header;

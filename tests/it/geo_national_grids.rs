@@ -1,6 +1,6 @@
 //! WGS84 ↔ national grids against pyproj (PROJ 9): `tests/data/geo/national_pyproj.csv`, made by
 //! `tests/reference/make_national_grid_refs.py` — a 9 × 9 grid over the EPSG area of use of each of
-//! RD New (28992), CH1903+ / LV95 (2056), ETRS89 / UTM 28N–38N (25828–25838), Lambert-93 (2154),
+//! RD New (28992), CH1903+ / LV95 (2056), CH1903 / LV03 (21781), ETRS89 / UTM 28N–38N (25828–25838), Lambert-93 (2154),
 //! Poland CS92 (2180, transverse Mercator), three NAD83 State Planes in metres (32118, 26943, 32139).
 //! Forward (against pyproj's x, y) and inverse (against pyproj's inverse of them) must agree to
 //! 1 mm, as the UTM zones do (tests/it/geo_reference.rs).
@@ -39,7 +39,7 @@ fn national_grids_match_pyproj_to_1mm() {
     }
     assert_eq!(
         per_crs.len(),
-        18,
+        19,
         "CRSs in the reference: {:?}",
         per_crs.keys()
     );

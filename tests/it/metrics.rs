@@ -77,6 +77,8 @@ fn status(full: bool, uptime_s: f64) -> Status {
             yaw_pitch_roll_deg: [135.765, -88.0, 0.1],
             score: Some(0.123),
             sigma: Some(sigma),
+            grade: "precise".into(),
+            grade_reason: None,
         }),
         running: full.then_some(Running {
             job: JobKind::DriftCheck,

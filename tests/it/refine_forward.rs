@@ -86,9 +86,9 @@ fn four_dof_polish_pins_the_along_track_position_of_a_forward_camera() {
         let s = scene(seed, heading);
         let (r, e) = run(&s, start, Some(&PolishedSearch::four_dof()));
         assert!(
-            r.quality.accepted,
+            r.quality.precise(),
             "seed {seed}: refused: {:?}",
-            r.quality.reason
+            r.quality.grade
         );
         assert!(
             e[0].abs() <= 0.03 && e[1].abs() <= 0.02 && e[2].abs() <= 0.02 && e[3].abs() <= 0.08,

@@ -94,7 +94,7 @@ fn recovers_truth_from_perturbed_starts() {
             res.stats.point_evaluations,
             res.stats.exhaustive_point_evaluations,
             res.stats.exhaustive_point_evaluations / res.stats.point_evaluations.max(1),
-            q.reason
+            q.grade
         );
         assert!(
             err.x.abs() <= 0.02 && err.y.abs() <= 0.02,
@@ -106,7 +106,7 @@ fn recovers_truth_from_perturbed_starts() {
             res.stats.point_evaluations * 50 <= res.stats.exhaustive_point_evaluations,
             "tiled must evaluate ≥ 50× fewer point-poses"
         );
-        assert!(q.accepted, "{:?}", q.reason);
+        assert!(q.precise(), "{}", q.grade);
         assert!(q
             .axes
             .iter()

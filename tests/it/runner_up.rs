@@ -28,8 +28,9 @@ fn json(path: &Path) -> serde_json::Value {
 fn the_runner_up_is_refined_when_the_first_choice_is_refused() {
     let dir = scene(69);
     let out = common::localize_scene(BIN, &dir, false);
+    // Served: 0 precise, 5 coarse.
     assert!(
-        out.status.success(),
+        matches!(out.status.code(), Some(0 | 5)),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );

@@ -242,7 +242,7 @@ fn gdal_reads_the_built_tile_in_its_crs() {
 }
 
 /// One line on stderr naming `file` and containing `what`, non-zero exit, nothing written.
-fn assert_refused(o: &Output, out: &Path, file: &str, what: &str) {
+pub(crate) fn assert_refused(o: &Output, out: &Path, file: &str, what: &str) {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "accepted; stderr {err}");
     assert_eq!(err.trim_end().lines().count(), 1, "one line: {err}");

@@ -9,7 +9,7 @@ a 3-D Helmert on 2-D points (PROJ keeps the height of each side at 0: CH1903+ 1.
 0.6 mm), so the inverse is compared with pyproj's inverse, not with (lat, lon). Each CRS gets a
 9 x 9 grid over its EPSG area of use.
 
-CRSs: Amersfoort / RD New (28992); CH1903+ / LV95 (2056); ETRS89 / UTM 28N..38N (25828-25838);
+CRSs: Amersfoort / RD New (28992); CH1903+ / LV95 (2056); CH1903 / LV03 (21781); ETRS89 / UTM 28N..38N (25828-25838);
 RGF93 / Lambert-93 (2154); ETRF2000-PL / CS92 (2180, tmerc); NAD83 State Planes in metres: New
 York Long Island (32118), California zone 3 (26943), Texas Central (32139).
 
@@ -22,7 +22,7 @@ import numpy as np
 import pyproj
 
 OUT = os.path.join(os.path.dirname(__file__), "..", "data", "geo", "national_pyproj.csv")
-CODES = [28992, 2056] + list(range(25828, 25839)) + [2154, 2180, 32118, 26943, 32139]
+CODES = [28992, 2056, 21781] + list(range(25828, 25839)) + [2154, 2180, 32118, 26943, 32139]
 N = 9
 
 

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 pub const SUPPORTED_CRS: &str =
     "supported: WGS84 UTM 326xx/327xx; projected EPSG CRSs in metres in transverse Mercator or \
      Lambert conformal conic on ETRS89, NAD83 or another GRS80 datum (e.g. ETRS89 UTM 258xx, \
-     Lambert-93 2154, NAD83 State Planes); RD New 28992; CH1903+ / LV95 2056";
+     Lambert-93 2154, NAD83 State Planes); RD New 28992; CH1903+ / LV95 2056; CH1903 / LV03 21781";
 
 /// A coordinate reference system of map data.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

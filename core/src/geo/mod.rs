@@ -15,6 +15,7 @@
 mod crs;
 pub mod error;
 pub mod georef;
+pub mod stated;
 
 pub use crs::{Crs, SUPPORTED_CRS};
 pub use error::GeoError;
@@ -90,8 +91,10 @@ static OTHER: Mutex<BTreeMap<u32, std::result::Result<&'static Proj, GeoError>>>
 /// cannot give as PROJ uses them: the table carries no `+towgs84`, so a datum other than WGS84's
 /// would be taken for WGS84 itself (CH1903+ came out 189 m off). Each carries PROJ's default
 /// WGS84 operation (rotations in the position-vector convention of `+towgs84`): RD New
-/// "Amersfoort to WGS 84 (4)", CH1903+ / LV95 "CH1903+ to WGS 84 (1)".
-const DEFINITION_OVERRIDES: [(u32, &str); 2] = [
+/// "Amersfoort to WGS 84 (4)", CH1903+ / LV95 "CH1903+ to WGS 84 (1)", CH1903 / LV03 "CH1903 to
+/// WGS 84 (2)" (the same shift: the two frames differ by LV95's local distortions, ≤ 1.6 m, which
+/// PROJ's default operation ignores as well).
+const DEFINITION_OVERRIDES: [(u32, &str); 3] = [
     (
         28992,
         "+proj=sterea +lat_0=52.15616055555555 +lon_0=5.38763888888889 +k=0.9999079 +x_0=155000 \
@@ -102,6 +105,11 @@ const DEFINITION_OVERRIDES: [(u32, &str); 2] = [
         2056,
         "+proj=somerc +lat_0=46.9524055555556 +lon_0=7.43958333333333 +k_0=1 +x_0=2600000 \
          +y_0=1200000 +ellps=bessel +towgs84=674.374,15.056,405.346,0,0,0,0 +units=m +no_defs",
+    ),
+    (
+        21781,
+        "+proj=somerc +lat_0=46.9524055555556 +lon_0=7.43958333333333 +k_0=1 +x_0=600000 \
+         +y_0=200000 +ellps=bessel +towgs84=674.374,15.056,405.346,0,0,0,0 +units=m +no_defs",
     ),
 ];
 
@@ -426,14 +434,8 @@ mod tests {
                 "{e}"
             );
         }
-        // Methods not verified against PROJ to 1 mm: LAEA Europe, Krovak, Swiss LV03 (somerc
-        // without the Helmert of the LV95 override), Polar stereographic.
-        for (code, method) in [
-            (3035, "laea"),
-            (5514, "krovak"),
-            (21781, "somerc"),
-            (3413, "stere"),
-        ] {
+        // Methods not verified against PROJ to 1 mm: LAEA Europe, Krovak, Polar stereographic.
+        for (code, method) in [(3035, "laea"), (5514, "krovak"), (3413, "stere")] {
             let e = check_crs(Crs::Epsg(code)).unwrap_err().to_string();
             let want = format!("EPSG:{code} uses the {method} projection, which infraloc does not");
             assert!(e.starts_with(&want) && !e.contains('\n'), "{e}");
@@ -445,7 +447,7 @@ mod tests {
             assert!(e.starts_with(&want), "{e}");
         }
         // National grids are accepted (tests/it/geo_national_grids.rs checks them against pyproj).
-        for code in [28992, 2056, 25832, 2154, 2180, 32118, 26943, 32139] {
+        for code in [28992, 2056, 21781, 25832, 2154, 2180, 32118, 26943, 32139] {
             check_crs(Crs::Epsg(code)).unwrap();
         }
         assert!(map_to_wgs84(Crs::Local, 0.0, 0.0).is_err());

@@ -196,6 +196,18 @@ pub enum QualityConfigError {
         /// Its value.
         value: f64,
     },
+    /// A coarse σ limit below its precise one (or not a finite number).
+    #[error("{key} = {value}: must be a finite number at least {precise_key} = {precise}")]
+    CoarseBelowPrecise {
+        /// The key.
+        key: &'static str,
+        /// Its value.
+        value: f64,
+        /// The precise limit's key.
+        precise_key: &'static str,
+        /// The precise limit.
+        precise: f64,
+    },
     /// A fraction outside 0..1.
     #[error("{key} = {value}: must lie in 0..1")]
     NotFraction {
@@ -222,7 +234,8 @@ pub enum QualityConfigError {
     },
 }
 
-/// Why the quality gate refused a result: the grid search's checks, then the smooth stage's.
+/// Why the grid search's checks refused a result (the smooth stage's verdict is
+/// [`crate::localize::refine::verdict::Grade`]).
 #[derive(Debug, Clone, PartialEq)]
 pub enum Refusal {
     /// Too few points seen from every pose of the box.
@@ -273,36 +286,6 @@ pub enum Refusal {
         /// The largest accepted.
         max: f64,
     },
-    /// The information gives no covariance.
-    NoInformation {
-        /// Why.
-        information: InformationError,
-        /// The competing optima, in words, when there are any.
-        optima: Option<String>,
-    },
-    /// A σ over its limit.
-    Sigma {
-        /// The axis (`x`, `yaw`, …).
-        axis: String,
-        /// The σ judged.
-        sigma: f64,
-        /// The axis's unit.
-        unit: String,
-        /// The limit's name (`xy`, `z`, `yaw`, `tilt`).
-        limit_key: &'static str,
-        /// The limit.
-        limit: f64,
-        /// The Cramér–Rao σ.
-        information_sigma: f64,
-        /// The patch sandwich's σ.
-        sandwich_sigma: f64,
-        /// The region sandwich's σ.
-        region_sigma: f64,
-        /// The frame sandwich's σ, when there is one.
-        frame_sigma: Option<f64>,
-        /// The competing optima's σ on the axis and their description, when there are any.
-        optima: Option<(f64, String)>,
-    },
 }
 
 impl fmt::Display for Refusal {
@@ -346,37 +329,6 @@ impl fmt::Display for Refusal {
                 a[0] + o[0], a[1] + o[1], a[2] + o[2], a[3] + o[3],
                 o[0], o[1], o[2], o[3], 100.0 * contrast, 100.0 * max
             ),
-            Refusal::NoInformation {
-                information,
-                optima,
-            } => match optima {
-                Some(d) => write!(f, "{information}; {d}"),
-                None => write!(f, "{information}"),
-            },
-            Refusal::Sigma {
-                axis,
-                sigma,
-                unit,
-                limit_key,
-                limit,
-                information_sigma,
-                sandwich_sigma,
-                region_sigma,
-                frame_sigma,
-                optima,
-            } => {
-                write!(
-                    f,
-                    "σ {axis} {sigma:.4} {unit} over the limit {limit_key}={limit} (information σ {information_sigma:.4}, sandwich σ {sandwich_sigma:.4}, region σ {region_sigma:.4}"
-                )?;
-                if let Some(s) = frame_sigma {
-                    write!(f, ", frame σ {s:.4}")?;
-                }
-                if let Some((s, d)) = optima {
-                    write!(f, ", optima σ {s:.4}; {d}")?;
-                }
-                write!(f, ")")
-            }
         }
     }
 }

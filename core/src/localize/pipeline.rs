@@ -327,7 +327,7 @@ pub fn localize_pooled(
 
 /// The MI quality gate's verdict on an outcome as the error [`localize`] returns.
 pub fn quality_gate(o: &Outcome) -> Result<()> {
-    if o.refinement.quality.accepted {
+    if o.refinement.quality.served() {
         return Ok(());
     }
     // Both hypotheses refused: the first choice's reason, then the runner-up's.
@@ -513,10 +513,10 @@ pub(crate) fn localize_ungated(
     let mut other = None;
     let runner_up = init.runner_up.take();
     if let Some(alt) = runner_up.filter(|a| {
-        !refinement.quality.accepted && outside_box(&p.search.spec, &init.pose, &a.pose)
+        !refinement.quality.precise() && outside_box(&p.search.spec, &init.pose, &a.pose)
     }) {
         match refine(&alt) {
-            Ok((second, second_rounds)) if second.quality.accepted => {
+            Ok((second, second_rounds)) if rank(&second) > rank(&refinement) => {
                 other = Some(OtherHypothesis::new(&init, refusal(&refinement), true));
                 (init, refinement, rounds) = (*alt, second, second_rounds);
                 init.runner_up = None;
@@ -555,9 +555,22 @@ pub(crate) fn localize_ungated(
     })
 }
 
-/// Why the gate refused `r` (its reason, as the gate's error says it).
+/// Why `r` is not precise: its refusal, or its coarse grade, in words.
 fn refusal(r: &Refinement) -> String {
-    r.quality.reason.clone().unwrap_or_default()
+    match &r.quality.grade {
+        crate::localize::refine::verdict::Grade::Refused(s) => s.to_string(),
+        g => g.to_string(),
+    }
+}
+
+/// A grade's rank for choosing between two hypotheses' refinements: precise over coarse over
+/// refused.
+fn rank(r: &Refinement) -> u8 {
+    match r.quality.grade {
+        crate::localize::refine::verdict::Grade::Precise => 2,
+        crate::localize::refine::verdict::Grade::Coarse(_) => 1,
+        crate::localize::refine::verdict::Grade::Refused(_) => 0,
+    }
 }
 
 /// Whether `b`'s camera lies outside the search box `spec` around `a` (in x, y, height or yaw):

@@ -15,6 +15,61 @@ use serde::{Deserialize, Serialize};
 
 /// Axis names in grid order.
 pub const AXES: [&str; 6] = ["x", "y", "z", "yaw", "pitch", "roll"];
+/// One axis of a pose's offsets: x, y, z in metres, yaw, pitch, roll in degrees.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Axis {
+    /// Map x (easting).
+    X,
+    /// Map y (northing).
+    Y,
+    /// Height.
+    Z,
+    /// Rotation about the map's up axis.
+    Yaw,
+    /// Pitch.
+    Pitch,
+    /// Roll.
+    Roll,
+}
+
+impl Axis {
+    /// All six, in the offsets' order.
+    pub const ALL: [Axis; 6] = [
+        Axis::X,
+        Axis::Y,
+        Axis::Z,
+        Axis::Yaw,
+        Axis::Pitch,
+        Axis::Roll,
+    ];
+
+    /// The axis's name as reports and pose files spell it.
+    pub fn name(self) -> &'static str {
+        ["x", "y", "z", "yaw", "pitch", "roll"][self as usize]
+    }
+
+    /// The axis named `name`, if any.
+    pub fn from_name(name: &str) -> Option<Axis> {
+        Axis::ALL.into_iter().find(|a| a.name() == name)
+    }
+
+    /// `m` or `deg`.
+    pub fn unit(self) -> &'static str {
+        if (self as usize) < 3 {
+            "m"
+        } else {
+            "deg"
+        }
+    }
+}
+
+impl std::fmt::Display for Axis {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// Largest accepted half range for x and y (m): beyond this the prior is not a refinement start.
 pub(crate) const MAX_HALF_XY: f64 = 50.0;
 /// Largest accepted half range for z (m).

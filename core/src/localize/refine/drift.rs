@@ -207,10 +207,11 @@ pub fn drift_search_with(
     }
     let verdict = drift_verdict(
         &res.offsets,
-        match (quality.accepted, quality.refused_by) {
-            (true, _) => None,
-            (false, check) => Some((check, quality.reason.as_deref().unwrap_or("quality gate"))),
-        },
+        quality
+            .grid_refusal()
+            .map(|r| (Some(r.check()), r.to_string()))
+            .as_ref()
+            .map(|(c, w)| (*c, w.as_str())),
         thresholds.shift_m,
         thresholds.yaw_deg,
     );

@@ -259,7 +259,7 @@ pub fn information_with_step(
 /// roll when the tilt is free) and the inverse of M = dθ/d(reported offsets) over them: θ's x, y,
 /// z are the offsets', yaw is rz (rad → deg), pitch and roll go through the Jacobian of
 /// [`crate::localize::mi::space::pose_at`]'s Euler increments.
-fn reported_axes(
+pub(crate) fn reported_axes(
     pose: &CamFromMap,
     free: &[bool; 6],
 ) -> Result<(Vec<&'static str>, DMatrix<f64>), InformationError> {
@@ -384,75 +384,6 @@ pub fn theta_between(from: &CamFromMap, to: &CamFromMap) -> [f64; 6] {
     let angle = s.atan2(0.5 * (m.trace() - 1.0));
     let r = if s > 0.0 { v * (angle / s) } else { v };
     [d.x, d.y, d.z, r.x, r.y, r.z]
-}
-
-/// The reported covariance of the smooth estimator's answer: the patch
-/// sandwich's, each axis scaled up to the σ the gate judged (`judged`, [`judged_sigma`];
-/// correlations kept) and widened to a Student-t 3σ quantile, then the intrinsics' part added
-/// (`deltas`, [`crate::localize::refine::uncertainty::intrinsics_deltas`]). Each estimate is
-/// widened by its own degrees of freedom: the patch sandwich's (and the bound's with it) by its
-/// clusters − 1, the region sandwich's by its regions − 1, the frame sandwich's by its
-/// frames − 1, and an axis takes the widest. `gate_sigma` is `judged`.
-pub fn information_covariance(
-    info: &Information,
-    judged: &[f64],
-    deltas: Option<&[[f64; 6]]>,
-) -> crate::localize::refine::uncertainty::Uncertainty {
-    let d = info.axes.len();
-    let base = &info.sandwich_matrix;
-    let have: Vec<f64> = (0..d).map(|i| base[i][i].max(0.0).sqrt()).collect();
-    let f: Vec<f64> = (0..d)
-        .map(|i| {
-            if have[i] > 0.0 && judged[i] > have[i] {
-                judged[i] / have[i]
-            } else {
-                1.0
-            }
-        })
-        .collect();
-    let t = |dof: usize| crate::localize::refine::uncertainty::student_t_3sigma(dof.max(1)) / 3.0;
-    let patches = t(info.clusters.saturating_sub(1));
-    let regions = t(info.regions.saturating_sub(1));
-    let frames = t(info.frames.max(FRAME_CLUSTERS_MIN).saturating_sub(1));
-    // Per axis, the widening that takes the judged σ to the widest of the widened estimates.
-    let tau: Vec<f64> = (0..d)
-        .map(|i| {
-            let by_regions = info.region_sigma.get(i).map_or(0.0, |s| s * regions);
-            let by_frames = info.frame_sigma.as_ref().map_or(0.0, |f| f[i] * frames);
-            let widest = (judged[i] * patches).max(by_regions).max(by_frames);
-            if judged[i] > 0.0 && widest > judged[i] * patches {
-                widest / judged[i]
-            } else {
-                patches
-            }
-        })
-        .collect();
-    let matrix: Vec<Vec<f64>> = (0..d)
-        .map(|i| {
-            (0..d)
-                .map(|j| match (have[i] > 0.0, have[j] > 0.0) {
-                    (true, true) => base[i][j] * f[i] * f[j] * (tau[i] * tau[j]),
-                    // An axis the patches left without scatter still carries its judged σ.
-                    _ if i == j => judged[i] * judged[i] * (tau[i] * tau[i]),
-                    _ => 0.0,
-                })
-                .collect()
-        })
-        .collect();
-    let mut u = crate::localize::refine::uncertainty::Uncertainty {
-        axes: info.axes.clone(),
-        units: info.units.clone(),
-        sigma: (0..d).map(|i| matrix[i][i].max(0.0).sqrt()).collect(),
-        matrix,
-        intrinsics: Vec::new(),
-        points: info.points,
-        poses: info.evaluations,
-        gate_sigma: judged.to_vec(),
-    };
-    if let Some(deltas) = deltas {
-        crate::localize::refine::uncertainty::add_intrinsics(&mut u, deltas);
-    }
-    u
 }
 
 #[cfg(test)]

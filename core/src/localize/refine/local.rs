@@ -1,12 +1,17 @@
 //! The smooth estimator's local stage: from the grid search's basin, the gradient ascent
-//! ([`super::ascent`]) of the partial-volume MI, the observed information at the answer
-//! ([`super::information`]), and the σ the gate judges ([`super::quality::smooth_gate`]).
+//! ([`super::ascent`]) of the partial-volume MI, the evidence at the answer (its observed
+//! [`super::information`], the competing [`super::optima`], the indifference [`super::region`]),
+//! the covariance composed from it ([`super::uncertainty::compose`]) and the grade judged from
+//! that ([`super::verdict::judge`]).
 
 // Small fixed-size matrices indexed by row and column read as the formulas do.
 #![allow(clippy::needless_range_loop)]
 
 use super::ascent::{ascend_with, Ascent, AscentConfig};
-use super::information::{information, information_covariance, Information, HESSIAN_STEP};
+use super::information::{information, Information, HESSIAN_STEP};
+use super::quality::GateCheck;
+use super::uncertainty::{compose, Evidence};
+use super::verdict::{judge, Grade, Stop};
 use crate::localize::error::InformationError;
 use crate::localize::mi::smooth::Smooth;
 use crate::pose::CamFromMap;
@@ -33,13 +38,7 @@ pub const ASCENT_ROUNDS: usize = 3;
 
 /// The tiled grid search for the global basin (nearest-pixel, to the finest step, no
 /// uncertainty estimate of its own), then the smooth estimator's gradient ascent from its cell,
-/// the observed information at the answer and the competing optima ([`smooth_stage`]). The
-/// gate: the grid's checks of the global basin (too few points, points lost, the optimum on the
-/// box's edge) stand; its local-shape checks (basin width, curvature, second peak) are replaced
-/// by the information's — a Hessian that is negative definite and finite — and the σ limits,
-/// which judge per axis the largest of the information's bound, its patch, region and frame
-/// sandwiches and (x, y, z) the search's floor, with the spread of the optima the data cannot
-/// tell apart added ([`judged_sigma`]).
+/// the evidence at the answer, its covariance and its grade ([`smooth_stage`]).
 pub fn refine_smooth(
     cam: &crate::camera::Camera,
     views: &[crate::localize::mi::objective::View<'_>],
@@ -61,8 +60,8 @@ pub fn refine_smooth(
 /// Refine `init` against one frame `gray` (row-major, camera size; the validity mask is the
 /// camera's image circle) and its ground `points`, over x, y, z and yaw: [`refine_smooth`] on one
 /// view. Errors (one line) on empty/invisible/non-finite points, image size ≠ camera size, a bad
-/// search spec or a non-finite value or gradient. A result the gate refuses is returned with
-/// `quality.accepted = false`; the caller decides whether to write it.
+/// search spec or a non-finite value or gradient. Every result is returned with its grade
+/// (`quality.grade`); the caller decides whether to write it.
 pub fn refine(
     cam: &crate::camera::Camera,
     gray: &[u8],
@@ -122,27 +121,29 @@ impl SmoothFree {
     }
 }
 
-/// The smooth estimator's stage after a nearest-pixel refinement `r` that started at `init`:
-/// its gradient ascent from `r`'s pose over the axes of `free` (in the box of [`AscentConfig`],
-/// re-centred while it ends on the edge, [`ASCENT_ROUNDS`] at most), the observed information at
-/// the answer, and the gate of [`refine_smooth`]. `r` keeps its grid checks; its pose, offsets
-/// and verdict become the stage's, and its covariance the information's
-/// ([`information_covariance`]) with the competing optima's spread. The pairs pool as
-/// `cfg.mi.pooling` says, as in the grid search. The views' image preparations come from
-/// `cache`, the one the search before it filled.
+/// The smooth estimator's stage after the grid's refinement `grid` that started at `init`: its
+/// gradient ascent from `grid`'s pose over the axes of `free` (in the box of [`AscentConfig`],
+/// re-centred while it ends on the edge, [`ASCENT_ROUNDS`] at most), the evidence at the answer
+/// (the observed information, the competing optima, and where the Hessian has no basin the
+/// poses the data cannot tell from the answer), the covariance composed from it
+/// ([`compose`]) and the grade judged from that ([`judge`]); the grid's global checks (too few
+/// points, points lost, its optimum on the box's edge) refuse before any of it. The answer is a
+/// new [`Refinement`](super::rounds::Refinement) with the grid's counters and the stage's
+/// work added. The pairs pool as `cfg.mi.pooling` says, as in the grid search. The views'
+/// image preparations come from `cache`, the one the search before it filled.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn smooth_stage<'a>(
     cam: &crate::camera::Camera,
     views: &[crate::localize::mi::objective::View<'a>],
     init: &CamFromMap,
-    mut r: super::rounds::Refinement,
+    grid: super::rounds::Refinement,
     cfg: &crate::localize::mi::space::SearchConfig,
     qcfg: &super::quality::QualityConfig,
     free: SmoothFree,
     cache: &crate::localize::mi::objective::ImageCache<'a>,
 ) -> crate::error::Result<(super::rounds::Refinement, SmoothRefinement)> {
     let pooling = cfg.mi.pooling;
-    let grid_reason = r.quality.reason.clone();
+    let grid_reason = grid.quality.grid_refusal().map(|r| r.to_string());
     let acfg = free.ascent();
     // The fixed point set is the ascent's box's. With `FourAfterSix` the information also steps
     // the tilt (±0.1°, inside that box's margins): on 96 seeds of `small` and `5mp` a set built
@@ -151,7 +152,8 @@ pub(crate) fn smooth_stage<'a>(
         spec: super::ascent::box_spec(&acfg),
         ..*cfg
     };
-    let mut pose = r.pose;
+    let mut work = Work::default();
+    let mut pose = grid.pose;
     let mut ascents = Vec::new();
     let mut restarted = false;
     let (information, mi, optima) = loop {
@@ -163,7 +165,7 @@ pub(crate) fn smooth_stage<'a>(
             free,
             &mut pose,
             &mut ascents,
-            &mut r,
+            &mut work,
             cache,
         )?;
         // The optima that compete with the answer, sought on purpose: the data may not tell
@@ -180,7 +182,7 @@ pub(crate) fn smooth_stage<'a>(
             cam,
             views,
             &pose,
-            &r.peaks,
+            &grid.peaks,
             cfg,
             pooling,
             &axes,
@@ -188,83 +190,84 @@ pub(crate) fn smooth_stage<'a>(
             curvature,
             cache,
         )?;
-        r.stats.poses += o.evaluations as u64;
-        r.stats.point_evaluations += o.point_evaluations;
-        let optima = Some(o);
+        work.add(o.evaluations, o.point_evaluations);
         // An optimum the data prefers to the answer is where the answer should be: the stage
         // climbs again from it, once.
-        let better = optima
-            .as_ref()
-            .and_then(|o| o.better())
-            .and_then(|b| b.pose);
-        match better {
+        match o.better().and_then(|b| b.pose) {
             Some(b) if !restarted => {
                 restarted = true;
                 pose = b;
             }
-            _ => break (information, mi, optima),
+            _ => break (information, mi, o),
         }
     };
-    r.pose = pose;
-    r.offsets = crate::pose::offsets_between(init, &pose);
-    // The σ the gate judges, once: the gate refuses on it and the report is widened to it. The
-    // local part (bound, sandwiches, floor) shapes the reported covariance; the
-    // optima the data cannot tell apart add their spread to both.
-    let local_judged = information
-        .as_ref()
-        .ok()
-        .map(|info| judged_sigma(info, cfg));
-    let judged = match (&information, &local_judged) {
-        (Ok(info), Some(j)) => Some(
-            info.axes
-                .iter()
-                .zip(j)
-                .map(|(a, s)| {
-                    let o = optima.as_ref().map_or(0.0, |o| o.sigma(a));
-                    s.hypot(o)
-                })
-                .collect::<Vec<f64>>(),
-        ),
+    // Where the Hessian has no basin, the poses the data cannot tell from the answer.
+    let region = match &information {
+        Err(InformationError::NoBasin { .. }) => {
+            let r = super::region::indifference_region(
+                cam,
+                views,
+                &pose,
+                cfg,
+                pooling,
+                &free.information(),
+                cache,
+            )?;
+            work.add(r.evaluations, (r.evaluations * r.points) as u64);
+            Some(r)
+        }
         _ => None,
     };
-    super::quality::smooth_gate(
-        &mut r.quality,
-        &information,
-        judged.as_deref().unwrap_or_default(),
-        qcfg,
-        optima.as_ref(),
-    );
-    if let (Ok(info), Some(local_judged), Some(judged)) = (&information, &local_judged, &judged) {
-        // The information's covariance, with the camera file's intrinsics uncertainty added.
-        let deltas = qcfg
-            .intrinsics_sigma
-            .as_ref()
-            .map(|s| crate::localize::refine::uncertainty::intrinsics_deltas(cam, views, &pose, s));
-        let mut u = information_covariance(info, local_judged, deltas.as_deref());
-        if let Some(o) = &optima {
-            add_spread(&mut u, o);
-        }
-        // The gate judged the local σ with the optima's spread: that is the covariance's too.
-        u.gate_sigma = judged.clone();
-        r.quality.sigma = Some(super::quality::Sigma::of(&u));
-        // Each part was finite on its own; their sum is checked too, as the pose file and the
-        // gate would carry it.
-        if r.quality.accepted && !u.is_finite() {
-            r.quality.accepted = false;
-            r.quality.reason = Some("uncertainty: the reported covariance is not finite".into());
-            r.quality.refused_by = Some(super::quality::GateCheck::Uncertain);
-        }
-        r.quality.covariance = Some(u);
-    }
-    r.quality.optima = optima;
-    r.quality.information = information.as_ref().ok().cloned();
-    if let Some(v) = mi.first() {
-        if pooling == crate::localize::mi::smooth::Pooling::Joint {
-            r.quality.mi = *v;
-        }
-    }
+    let deltas = qcfg
+        .intrinsics_sigma
+        .as_ref()
+        .map(|s| super::uncertainty::intrinsics_deltas(cam, views, &pose, s));
+    let evidence = Evidence {
+        information: &information,
+        region: region.as_ref(),
+        optima: Some(&optima),
+        search: cfg,
+        intrinsics: deltas.as_deref(),
+    };
+    // The grid's global checks stand; its local ones (basin, curvature, second peak) are the
+    // evidence's: the grid's second peak was one of the optima's starts.
+    let global = grid.quality.grid_refusal().filter(|r| {
+        matches!(
+            r.check(),
+            GateCheck::TooFewPoints | GateCheck::PointsLost | GateCheck::OnEdge
+        )
+    });
+    let composed = compose(&evidence);
+    let grade = match (global, &composed) {
+        (Some(g), _) => Grade::Refused(Stop::Grid(g.clone())),
+        (None, Ok(u)) => judge(u, &qcfg.limits()),
+        (None, Err(e)) => Grade::Refused(Stop::Information(e.clone())),
+    };
+    let covariance = composed.ok();
+    let quality = super::quality::Quality {
+        sigma: covariance.as_ref().map(super::quality::Sigma::of),
+        covariance,
+        information: information.as_ref().ok().cloned(),
+        optima: Some(optima),
+        region,
+        grade,
+        mi: match (pooling, mi.first()) {
+            (crate::localize::mi::smooth::Pooling::Joint, Some(v)) => *v,
+            _ => grid.quality.mi,
+        },
+        ..grid.quality
+    };
+    let mut stats = grid.stats;
+    stats.poses += work.poses;
+    stats.point_evaluations += work.point_evaluations;
     Ok((
-        r,
+        super::rounds::Refinement {
+            pose,
+            offsets: crate::pose::offsets_between(init, &pose),
+            stats,
+            quality,
+            ..grid
+        },
         SmoothRefinement {
             pooling,
             ascents,
@@ -275,10 +278,24 @@ pub(crate) fn smooth_stage<'a>(
     ))
 }
 
+/// Work done by the local stage, added to the grid's counters.
+#[derive(Debug, Default)]
+struct Work {
+    poses: u64,
+    point_evaluations: u64,
+}
+
+impl Work {
+    fn add(&mut self, poses: usize, point_evaluations: u64) {
+        self.poses += poses as u64;
+        self.point_evaluations += point_evaluations;
+    }
+}
+
 /// The local stage's rounds from `pose` (moved to the answer): an ascent in the box of `acfg`
 /// ([`ASCENT_ROUNDS`] at most, re-centred while it ends on the edge), then the information at
-/// the answer over the axes of `free`, and the MI per histogram there. The work goes into `r`'s
-/// counters, the ascents into `ascents`.
+/// the answer over the axes of `free`, and the MI per histogram there. The work goes into
+/// `work`, the ascents into `ascents`.
 #[allow(clippy::too_many_arguments)]
 fn climb<'a>(
     cam: &crate::camera::Camera,
@@ -288,7 +305,7 @@ fn climb<'a>(
     free: SmoothFree,
     pose: &mut CamFromMap,
     ascents: &mut Vec<Ascent>,
-    r: &mut super::rounds::Refinement,
+    work: &mut Work,
     cache: &crate::localize::mi::objective::ImageCache<'a>,
 ) -> crate::error::Result<(std::result::Result<Information, InformationError>, Vec<f64>)> {
     let pooling = local.mi.pooling;
@@ -305,8 +322,7 @@ fn climb<'a>(
         let h = est.hessian(pose, &acfg.free, &HESSIAN_STEP);
         let a = ascend_with(&est, pose, acfg, Some(&h));
         let spent = a.evaluations + Smooth::hessian_evaluations(&acfg.free);
-        r.stats.poses += spent as u64;
-        r.stats.point_evaluations += (spent * est.n()) as u64;
+        work.add(spent, (spent * est.n()) as u64);
         *pose = a.pose;
         let edge = a.stop == "edge";
         ascents.push(a);
@@ -314,8 +330,7 @@ fn climb<'a>(
             let info = information(&est, pose, &free.information());
             // The Hessian's evaluations (and the value below) are work done too.
             let spent = 1 + info.as_ref().map_or(0, |i| i.evaluations);
-            r.stats.poses += spent as u64;
-            r.stats.point_evaluations += (spent * est.n()) as u64;
+            work.add(spent, (spent * est.n()) as u64);
             let v = est.evaluate(pose, false);
             last = Some((info, v.mi));
             break;
@@ -335,168 +350,4 @@ fn climb<'a>(
             Vec::new(),
         )
     }))
-}
-
-/// Add the spread of the optima the data cannot tell apart ([`super::optima::Optima::spread`])
-/// to the reported covariance `u`, on the axes the two share.
-fn add_spread(
-    u: &mut crate::localize::refine::uncertainty::Uncertainty,
-    o: &super::optima::Optima,
-) {
-    let at = |a: &String| u.axes.iter().position(|b| b == a);
-    for (i, ai) in o.axes.iter().enumerate() {
-        for (j, aj) in o.axes.iter().enumerate() {
-            if let (Some(p), Some(q)) = (at(ai), at(aj)) {
-                u.matrix[p][q] += o.spread[i][j];
-            }
-        }
-    }
-    for (k, s) in u.sigma.iter_mut().enumerate() {
-        *s = u.matrix[k][k].max(0.0).sqrt();
-    }
-}
-
-/// The σ per axis of `info` that the gate judges: the largest of the Cramér–Rao bound, the
-/// patch sandwich, the region sandwich, the frame sandwich (when there is one) and the floor
-/// ([`crate::localize::refine::uncertainty::sigma_floor`]). Each sandwich sees error shared over
-/// a wider scale than the one before: a point's with its neighbours in the same pixels, a
-/// patch's with its neighbours over a region of ground (a long shadow, a reflectance change), a
-/// frame's over its whole view (its light, its sweep). The floor stands for what every frame
-/// shares; pooled frames do not shrink it.
-fn judged_sigma(info: &Information, cfg: &crate::localize::mi::space::SearchConfig) -> Vec<f64> {
-    let frame = |i: usize| info.frame_sigma.as_ref().map_or(0.0, |f| f[i]);
-    let region = |i: usize| info.region_sigma.get(i).copied().unwrap_or(0.0);
-    info.axes
-        .iter()
-        .zip(info.sigma.iter().zip(&info.sandwich_sigma))
-        .enumerate()
-        .map(|(i, (a, (s, w)))| {
-            let floor = crate::localize::refine::uncertainty::sigma_floor(cfg, a);
-            s.max(*w).max(region(i)).max(frame(i)).max(floor)
-        })
-        .collect()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The reported covariance is the sandwich's shape at the judged σ:
-    /// every axis at least its judged σ (the search's floor included), correlations kept, widened
-    /// by the sandwich's Student-t factor, and the intrinsics' part added on top.
-    #[test]
-    fn the_reported_covariance_is_the_sandwich_s_shape_at_the_judged_sigma() {
-        use super::super::quality::Sigma;
-        let axes: Vec<String> = ["x", "y", "z", "yaw", "pitch", "roll"]
-            .map(String::from)
-            .to_vec();
-        let sd = [0.004, 0.02, 0.003, 0.01, 0.05, 0.03];
-        let sandwich: Vec<Vec<f64>> = (0..6)
-            .map(|i| {
-                (0..6)
-                    .map(|j| match (i, j) {
-                        _ if i == j => sd[i] * sd[i],
-                        (0, 4) | (4, 0) => -0.9 * sd[0] * sd[4],
-                        _ => 0.0,
-                    })
-                    .collect()
-            })
-            .collect();
-        let info = Information {
-            axes,
-            units: ["m", "m", "m", "deg", "deg", "deg"]
-                .map(String::from)
-                .to_vec(),
-            sigma: vec![0.001; 6],
-            matrix: sandwich.clone(),
-            points: 1000,
-            evaluations: 13,
-            sandwich_sigma: sd.to_vec(),
-            sandwich_matrix: sandwich,
-            clusters: 32,
-            region_sigma: Vec::new(),
-            region_matrix: Vec::new(),
-            regions: 0,
-            frame_sigma: None,
-            frame_matrix: None,
-            frames: 0,
-            hessian: [[0.0; 6]; 6],
-        };
-        let judged = judged_sigma(&info, &crate::localize::mi::space::SearchConfig::default());
-        // The default search's floor: half of 2 cm on x, y and z, none on the angles.
-        assert_eq!(judged, vec![0.01, 0.02, 0.01, 0.01, 0.05, 0.03]);
-        let t = (super::super::uncertainty::student_t_3sigma(31) / 3.0).powi(2);
-        let u = information_covariance(&info, &judged, None);
-        assert_eq!(u.gate_sigma, judged);
-        for i in 0..6 {
-            assert!(
-                (u.matrix[i][i] - judged[i] * judged[i] * t).abs() < 1e-15,
-                "{i}"
-            );
-        }
-        let rho = u.matrix[0][4] / (u.sigma[0] * u.sigma[4]);
-        assert!((rho + 0.9).abs() < 1e-12, "{rho}");
-        let d = [[0.0, 0.0, 0.02, 0.0, 0.0, 0.0]; 1];
-        let w = information_covariance(&info, &judged, Some(&d));
-        assert!((w.matrix[2][2] - (u.matrix[2][2] + 4e-4)).abs() < 1e-15);
-        assert_eq!(Sigma::of(&w).x, u.sigma[0]);
-    }
-
-    /// With region and frame sandwiches each estimate is widened by its own degrees of freedom:
-    /// the frames' (K − 1) or the regions' (7) where they decide the axis, the patches' (31, the
-    /// floor's too) elsewhere; the floor stays.
-    #[test]
-    fn each_sandwich_widens_by_its_own_clusters_above_the_floor() {
-        let axes: Vec<String> = ["x", "y", "z", "yaw"].map(String::from).to_vec();
-        let diag = |sd: &[f64]| -> Vec<Vec<f64>> {
-            (0..4)
-                .map(|i| {
-                    (0..4)
-                        .map(|j| if i == j { sd[i] * sd[i] } else { 0.0 })
-                        .collect()
-                })
-                .collect()
-        };
-        let patch = [0.003, 0.004, 0.006, 0.007];
-        let frame = [0.008, 0.001, 0.001, 0.004];
-        let region = [0.002, 0.009, 0.001, 0.012];
-        let info = |frames: usize| Information {
-            axes: axes.clone(),
-            units: ["m", "m", "m", "deg"].map(String::from).to_vec(),
-            sigma: vec![0.0005; 4],
-            matrix: diag(&[0.0005; 4]),
-            points: 100_000,
-            evaluations: 9,
-            sandwich_sigma: patch.to_vec(),
-            sandwich_matrix: diag(&patch),
-            clusters: 32,
-            region_sigma: region.to_vec(),
-            region_matrix: diag(&region),
-            regions: 8,
-            frame_sigma: Some(frame.to_vec()),
-            frame_matrix: Some(diag(&frame)),
-            frames,
-            hessian: [[0.0; 6]; 6],
-        };
-        let cfg = crate::localize::mi::space::SearchConfig::default();
-        let judged = judged_sigma(&info(6), &cfg);
-        // x, y and z at the default floor (1 cm); yaw, which has none, at its region σ.
-        assert_eq!(judged, vec![0.01, 0.01, 0.01, 0.012]);
-        let t = |dof: usize| super::super::uncertainty::student_t_3sigma(dof) / 3.0;
-        // Six frames: x's frame σ widened by t₅ (1.46 cm) passes the floor widened by t₃₁
-        // (1.09 cm). Twelve: by t₁₁ (1.03 cm) it does not. y's and yaw's region σ widened by
-        // t₇ pass their judged σ widened by t₃₁.
-        for (frames, x) in [(6, 0.008 * t(5)), (12, 0.01 * t(31))] {
-            let u = information_covariance(&info(frames), &judged, None);
-            assert_eq!(u.gate_sigma, judged);
-            let want = [x, 0.009 * t(7), 0.01 * t(31), 0.012 * t(7)];
-            for i in 0..4 {
-                assert!(
-                    (u.sigma[i] - want[i]).abs() < 1e-12,
-                    "{frames} {i}: {:?}",
-                    u.sigma
-                );
-            }
-        }
-    }
 }

@@ -11,9 +11,11 @@ pub mod local;
 pub mod optima;
 pub mod polish;
 pub mod quality;
+pub mod region;
 pub mod rounds;
 pub mod search;
 pub mod uncertainty;
+pub mod verdict;
 
 pub use local::{refine, refine_smooth};
 pub use rounds::*;

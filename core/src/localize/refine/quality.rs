@@ -21,12 +21,13 @@
 // Axis-indexed loops over parallel fixed-size arrays ([_; 6]) read clearer with the index.
 #![allow(clippy::needless_range_loop)]
 
-use crate::localize::error::{InformationError, QualityConfigError, Refusal};
+use crate::localize::error::{QualityConfigError, Refusal};
 use crate::localize::mi::objective::Evaluator;
 use crate::localize::mi::objective::Scored;
 use crate::localize::mi::space::{Cell, AXES};
 use crate::localize::refine::search::SearchResult;
 use crate::localize::refine::uncertainty::Uncertainty;
+use crate::localize::refine::verdict::{Grade, Stop};
 pub use crate::pose::Sigma;
 use serde::{Deserialize, Serialize};
 
@@ -63,6 +64,15 @@ pub struct QualityConfig {
     pub max_sigma_yaw_deg: f64,
     /// Largest accepted σ of pitch and roll when they are estimated (deg).
     pub max_sigma_tilt_deg: f64,
+    /// Largest σ of x and y of a coarse result (m): beyond `max-sigma-xy-m` and within this,
+    /// the result is served graded `coarse` ([`crate::localize::refine::verdict::judge`]).
+    pub coarse_max_sigma_xy_m: f64,
+    /// Largest σ of z of a coarse result (m).
+    pub coarse_max_sigma_z_m: f64,
+    /// Largest σ of yaw of a coarse result (deg).
+    pub coarse_max_sigma_yaw_deg: f64,
+    /// Largest σ of pitch and roll of a coarse result (deg).
+    pub coarse_max_sigma_tilt_deg: f64,
     /// `jackknife-folds`, a key of the retired nearest-pixel σ: still read, so that an older
     /// config keeps its node running, and named by `validate`'s warnings; never written.
     #[serde(rename = "jackknife-folds", skip_serializing)]
@@ -87,6 +97,10 @@ impl Default for QualityConfig {
             max_sigma_z_m: 0.05,
             max_sigma_yaw_deg: 0.15,
             max_sigma_tilt_deg: 0.5,
+            coarse_max_sigma_xy_m: 0.5,
+            coarse_max_sigma_z_m: 0.5,
+            coarse_max_sigma_yaw_deg: 1.0,
+            coarse_max_sigma_tilt_deg: 2.0,
             retired_jackknife_folds: None,
             intrinsics_sigma: None,
         }
@@ -94,6 +108,24 @@ impl Default for QualityConfig {
 }
 
 impl QualityConfig {
+    /// The σ limits results are graded by ([`crate::localize::refine::verdict::judge`]).
+    pub fn limits(&self) -> crate::localize::refine::verdict::Limits {
+        crate::localize::refine::verdict::Limits {
+            precise: [
+                self.max_sigma_xy_m,
+                self.max_sigma_z_m,
+                self.max_sigma_yaw_deg,
+                self.max_sigma_tilt_deg,
+            ],
+            coarse: [
+                self.coarse_max_sigma_xy_m,
+                self.coarse_max_sigma_z_m,
+                self.coarse_max_sigma_yaw_deg,
+                self.coarse_max_sigma_tilt_deg,
+            ],
+        }
+    }
+
     /// Check the values a config file may set; the message names the key.
     pub fn validate(&self) -> std::result::Result<(), QualityConfigError> {
         let positive = [
@@ -105,6 +137,42 @@ impl QualityConfig {
         for (key, v) in positive {
             if !(v.is_finite() && v > 0.0) {
                 return Err(QualityConfigError::NotPositive { key, value: v });
+            }
+        }
+        let coarse = [
+            (
+                "coarse-max-sigma-xy-m",
+                self.coarse_max_sigma_xy_m,
+                "max-sigma-xy-m",
+                self.max_sigma_xy_m,
+            ),
+            (
+                "coarse-max-sigma-z-m",
+                self.coarse_max_sigma_z_m,
+                "max-sigma-z-m",
+                self.max_sigma_z_m,
+            ),
+            (
+                "coarse-max-sigma-yaw-deg",
+                self.coarse_max_sigma_yaw_deg,
+                "max-sigma-yaw-deg",
+                self.max_sigma_yaw_deg,
+            ),
+            (
+                "coarse-max-sigma-tilt-deg",
+                self.coarse_max_sigma_tilt_deg,
+                "max-sigma-tilt-deg",
+                self.max_sigma_tilt_deg,
+            ),
+        ];
+        for (key, v, precise_key, precise) in coarse {
+            if !(v.is_finite() && v >= precise) {
+                return Err(QualityConfigError::CoarseBelowPrecise {
+                    key,
+                    value: v,
+                    precise_key,
+                    precise,
+                });
             }
         }
         let fractions = [
@@ -166,7 +234,7 @@ pub struct AxisQuality {
     pub on_edge: bool,
 }
 
-/// Which of the gate's checks refused a result ([`Quality::reason`] says it in words). The
+/// Which of the grid's checks refused a result ([`Refusal`] says it in words). The
 /// checks run in this order and the first failing one refuses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum GateCheck {
@@ -183,9 +251,6 @@ pub enum GateCheck {
     /// A separate second peak reaches too close to the optimum's height: every other check
     /// passed, so the optimum itself is a clear peak.
     Ambiguous,
-    /// The marginal uncertainty (applied after the checks above passed): no peak over all free
-    /// axes together, a covariance that is not finite, or a σ over its limit.
-    Uncertain,
 }
 
 impl Refusal {
@@ -198,13 +263,12 @@ impl Refusal {
             Refusal::NoBasin { .. } => GateCheck::NoBasin,
             Refusal::NoPeak { .. } => GateCheck::NoPeak,
             Refusal::Ambiguous { .. } => GateCheck::Ambiguous,
-            Refusal::NoInformation { .. } | Refusal::Sigma { .. } => GateCheck::Uncertain,
         }
     }
 }
 
 /// Quality of one result.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Quality {
     /// MI at the optimum (nats).
     pub mi: f64,
@@ -239,13 +303,34 @@ pub struct Quality {
     /// ([`crate::localize::refine::optima`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub optima: Option<crate::localize::refine::optima::Optima>,
-    /// Gate verdict.
-    pub accepted: bool,
-    /// Why the gate rejected (None when accepted).
-    pub reason: Option<String>,
-    /// Which check rejected (None when accepted); not serialized, `reason` is its words.
-    #[serde(skip)]
-    pub refused_by: Option<GateCheck>,
+    /// The set of poses the data cannot tell from the answer, followed where the local stage's
+    /// Hessian has no basin ([`crate::localize::refine::region`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub region: Option<crate::localize::refine::region::Region>,
+    /// The verdict: the grid's checks alone ([`assess`]), or the smooth stage's grade from the
+    /// covariance ([`crate::localize::refine::verdict::judge`]).
+    #[serde(flatten)]
+    pub grade: Grade,
+}
+
+impl Quality {
+    /// Graded precise.
+    pub fn precise(&self) -> bool {
+        self.grade == Grade::Precise
+    }
+
+    /// Served: precise or coarse.
+    pub fn served(&self) -> bool {
+        self.grade.served()
+    }
+
+    /// The grid check that refused it, if one did.
+    pub fn grid_refusal(&self) -> Option<&Refusal> {
+        match &self.grade {
+            Grade::Refused(Stop::Grid(r)) => Some(r),
+            _ => None,
+        }
+    }
 }
 
 impl Sigma {
@@ -346,10 +431,9 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
         }
         None => (None, None, None),
     };
-    let refusal = gate(ev, res, cfg, &axes, &basin_cells, contrast.zip(offset));
-    let (refused_by, reason) = match refusal {
-        Some(r) => (Some(r.check()), Some(r.to_string())),
-        None => (None, None),
+    let grade = match gate(ev, res, cfg, &axes, &basin_cells, contrast.zip(offset)) {
+        Some(r) => Grade::Refused(Stop::Grid(r)),
+        None => Grade::Precise,
     };
     Quality {
         mi: res.best.value.mi,
@@ -365,9 +449,8 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
         covariance: None,
         information: None,
         optima: None,
-        accepted: reason.is_none(),
-        reason,
-        refused_by,
+        region: None,
+        grade,
     }
 }
 
@@ -557,81 +640,6 @@ fn gate(
         contrast: c,
         max: cfg.max_second_peak_contrast,
     })
-}
-
-/// The smooth stage's gate ([`crate::localize::refine::local::smooth_stage`]) on `q`: the grid's global checks stand, its local ones are replaced
-/// by `information`'s (a finite, negative-definite Hessian; the largest of the bound's, the
-/// sandwiches' and, on x, y and z, the search's floor, with the competing optima's spread, within
-/// the limits).
-/// `judged`: `judged_sigma` of the local stage of `information` when it is `Ok` (unread otherwise).
-pub(crate) fn smooth_gate(
-    q: &mut Quality,
-    information: &std::result::Result<
-        crate::localize::refine::information::Information,
-        InformationError,
-    >,
-    judged: &[f64],
-    qcfg: &QualityConfig,
-    optima: Option<&crate::localize::refine::optima::Optima>,
-) {
-    // The gate: the grid's global checks stand, the local ones are the information's. The
-    // grid's second peak is no verdict of its own: it was one of the starts of the search for
-    // competing optima, and whether the data tells it apart from the answer is that test's.
-    let global = matches!(
-        q.refused_by,
-        Some(GateCheck::TooFewPoints | GateCheck::PointsLost | GateCheck::OnEdge)
-    );
-    if !global {
-        q.accepted = true;
-        q.reason = None;
-        q.refused_by = None;
-        match information {
-            Err(m) => {
-                let refusal = Refusal::NoInformation {
-                    information: m.clone(),
-                    optima: optima.and_then(|o| o.describe()),
-                };
-                q.accepted = false;
-                q.reason = Some(refusal.to_string());
-                q.refused_by = Some(refusal.check());
-            }
-            Ok(info) => {
-                let limit = |axis: &str| match axis {
-                    "x" | "y" => (qcfg.max_sigma_xy_m, "xy"),
-                    "z" => (qcfg.max_sigma_z_m, "z"),
-                    "yaw" => (qcfg.max_sigma_yaw_deg, "yaw"),
-                    _ => (qcfg.max_sigma_tilt_deg, "tilt"),
-                };
-                // The Cramér–Rao σ counts every point as independent; on real frames it was
-                // 40–90× smaller than the answers' scatter. The gate judges the largest of it,
-                // the sandwich σs, with the competing optima's spread.
-                if let Some((i, (lim, key))) = info
-                    .axes
-                    .iter()
-                    .enumerate()
-                    .map(|(i, a)| (i, limit(a)))
-                    .find(|(i, (lim, _))| !(judged[*i] <= *lim))
-                {
-                    let axis = &info.axes[i];
-                    let refusal = Refusal::Sigma {
-                        axis: axis.clone(),
-                        sigma: judged[i],
-                        unit: info.units[i].clone(),
-                        limit_key: key,
-                        limit: lim,
-                        information_sigma: info.sigma[i],
-                        sandwich_sigma: info.sandwich_sigma[i],
-                        region_sigma: info.region_sigma.get(i).copied().unwrap_or(0.0),
-                        frame_sigma: info.frame_sigma.as_ref().map(|f| f[i]),
-                        optima: optima.and_then(|o| o.describe().map(|d| (o.sigma(axis), d))),
-                    };
-                    q.accepted = false;
-                    q.reason = Some(refusal.to_string());
-                    q.refused_by = Some(refusal.check());
-                }
-            }
-        }
-    }
 }
 
 #[cfg(test)]

@@ -398,7 +398,7 @@ pub(crate) fn refine_polished_cached<'a>(
             }
         }
         let moved = polish_moved(&polish);
-        let edge = !r.quality.accepted && r.quality.axes.iter().any(|a| a.on_edge);
+        let edge = r.quality.grid_refusal().is_some() && r.quality.axes.iter().any(|a| a.on_edge);
         rounds.push(Round {
             start: why,
             settle: settle.take(),

@@ -1,23 +1,25 @@
 //! The reported uncertainty of a refined pose: the marginal covariance of [x, y, z, yaw(, pitch,
-//! roll)] in the map frame that the pose file carries ([`Uncertainty`]). The smooth estimator's
-//! stage fills it from its observed information
-//! ([`crate::localize::refine::information::information_covariance`]) and adds the spread of the
-//! optima the data cannot tell apart ([`crate::localize::refine::optima`]); this module adds the
-//! part no resampling of the points can see, the camera file's stated intrinsics uncertainty
-//! ([`intrinsics_deltas`]), and holds the small pieces of statistics they share.
+//! roll)] in the map frame that the pose file carries ([`Uncertainty`]), composed in one place
+//! ([`compose`]) from the local stage's [`Evidence`]; docs/refine.md "Uncertainty" names each
+//! part. The grade is judged from it ([`crate::localize::refine::verdict::judge`]).
 
 use crate::camera::import::IntrinsicsSigma;
 use crate::camera::{Camera, CameraModel};
+use crate::localize::error::InformationError;
 use crate::localize::mi::objective::View;
+use crate::localize::mi::space::Axis;
 use crate::localize::mi::space::{SearchConfig, AXES};
 use crate::localize::pnp::{refine_lm, Correspondence};
+use crate::localize::refine::information::{Information, FRAME_CLUSTERS_MIN};
+use crate::localize::refine::optima::Optima;
+use crate::localize::refine::region::Region;
 use crate::pose::angle_difference;
 use crate::pose::CamFromMap;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// The reported covariance of an answer.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Uncertainty {
     /// Axis names, in the order of `sigma` and `matrix` (x, y, z, yaw, then pitch, roll when
     /// free).
@@ -36,12 +38,17 @@ pub struct Uncertainty {
     pub points: usize,
     /// Poses scored for the estimate (the information's Hessian and cluster scores).
     pub poses: usize,
-    /// The σ the gate judges (same axes): the largest of the information's bound, its
-    /// sandwiches and the translation floor, with the competing optima's spread; without the Student-t
-    /// widening that makes the reported `sigma`'s 3σ bounds cover and without the intrinsics'
-    /// part.
+    /// The σ the grade is judged by (same axes): the data's, the local σ or the indifference
+    /// set's with the competing optima's spread, before the Student-t widening that makes the
+    /// reported `sigma`'s 3σ bounds cover and without the intrinsics' part
+    /// ([`crate::localize::refine::verdict::judge`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub gate_sigma: Vec<f64>,
+    /// The axis along which the poses the data cannot tell from the answer reach the search
+    /// box, and how far they were followed (m or deg): σ is unbounded there
+    /// ([`crate::localize::refine::region`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unbounded: Option<(Axis, f64)>,
 }
 
 impl Uncertainty {
@@ -57,6 +64,199 @@ impl Uncertainty {
     pub(crate) fn is_finite(&self) -> bool {
         self.sigma.iter().all(|v| v.is_finite())
             && self.matrix.iter().flatten().all(|v| v.is_finite())
+    }
+}
+
+/// What the local stage measured at the answer, from which [`compose`] makes its covariance.
+#[derive(Debug, Clone, Copy)]
+pub struct Evidence<'a> {
+    /// The observed information and its sandwiches, or why there is none.
+    pub information: &'a std::result::Result<Information, InformationError>,
+    /// The poses the data cannot tell from the answer, followed where the Hessian has no basin.
+    pub region: Option<&'a Region>,
+    /// The optima that compete with the answer.
+    pub optima: Option<&'a Optima>,
+    /// The search whose finest step sets the floor ([`sigma_floor`]).
+    pub search: &'a SearchConfig,
+    /// The answer's change per 1σ intrinsics mode the camera file states ([`intrinsics_deltas`]).
+    pub intrinsics: Option<&'a [[f64; 6]]>,
+}
+
+/// The answer's covariance from its evidence, each part named once:
+/// - **local σ**, per axis the largest of the Cramér–Rao bound, the patch, region and frame
+///   sandwiches and the floor ([`local_sigma`]), in the patch sandwich's shape, each widened by
+///   its clusters' Student-t ([`information_covariance`]);
+/// - or, where the Hessian has no basin, **the indifference set**: the extent of the poses the
+///   data cannot tell from the answer ([`crate::localize::refine::region`]), raised to the floor;
+/// - **the optima's spread**: the optima the data cannot tell apart, as a mixture about the
+///   answer ([`crate::localize::refine::optima`]);
+/// - **the intrinsics**: the camera file's stated uncertainty ([`intrinsics_deltas`]).
+///
+/// Why there is no covariance, when there is none: the information failed otherwise than for
+/// want of a basin, or had none and no set was followed.
+pub fn compose(e: &Evidence<'_>) -> std::result::Result<Uncertainty, InformationError> {
+    let (mut u, data) = match (e.information, e.region) {
+        (Ok(info), _) => {
+            let local = local_sigma(info, e.search);
+            (information_covariance(info, &local), local)
+        }
+        (Err(InformationError::NoBasin { .. }), Some(r)) => {
+            let u = region_covariance(r, e.search);
+            let s = u.sigma.clone();
+            (u, s)
+        }
+        (Err(err), _) => return Err(err.clone()),
+    };
+    let spread = |a: &String| e.optima.map_or(0.0, |o| o.sigma(a));
+    u.gate_sigma = u
+        .axes
+        .iter()
+        .zip(&data)
+        .map(|(a, s)| s.hypot(spread(a)))
+        .collect();
+    if let Some(o) = e.optima {
+        add_spread(&mut u, o);
+    }
+    if let Some(d) = e.intrinsics {
+        add_intrinsics(&mut u, d);
+    }
+    u.unbounded = e.region.and_then(|r| r.unbounded);
+    Ok(u)
+}
+
+/// The local σ per axis of `info`: the largest of the Cramér–Rao bound, the patch sandwich, the
+/// region sandwich, the frame sandwich (when there is one) and the floor ([`sigma_floor`]).
+/// Each sandwich sees error shared over a wider scale than the one before: a point's with its
+/// neighbours in the same pixels, a patch's with its neighbours over a region of ground (a long
+/// shadow, a reflectance change), a frame's over its whole view (its light, its sweep). The
+/// floor stands for what every frame shares; pooled frames do not shrink it.
+pub(crate) fn local_sigma(info: &Information, cfg: &SearchConfig) -> Vec<f64> {
+    let frame = |i: usize| info.frame_sigma.as_ref().map_or(0.0, |f| f[i]);
+    let region = |i: usize| info.region_sigma.get(i).copied().unwrap_or(0.0);
+    info.axes
+        .iter()
+        .zip(info.sigma.iter().zip(&info.sandwich_sigma))
+        .enumerate()
+        .map(|(i, (a, (s, w)))| {
+            s.max(*w)
+                .max(region(i))
+                .max(frame(i))
+                .max(sigma_floor(cfg, a))
+        })
+        .collect()
+}
+
+/// The local part of the reported covariance: the patch sandwich's, each axis scaled up to its
+/// local σ (`judged`, [`local_sigma`]; correlations kept)
+/// and widened to a Student-t 3σ quantile. Each estimate is widened by its own degrees of
+/// freedom: the patch sandwich's (and the bound's with it) by its clusters − 1, the region
+/// sandwich's by its regions − 1, the frame sandwich's by its frames − 1, and an axis takes the
+/// widest.
+pub(crate) fn information_covariance(info: &Information, judged: &[f64]) -> Uncertainty {
+    let d = info.axes.len();
+    let base = &info.sandwich_matrix;
+    let have: Vec<f64> = (0..d).map(|i| base[i][i].max(0.0).sqrt()).collect();
+    let f: Vec<f64> = (0..d)
+        .map(|i| {
+            if have[i] > 0.0 && judged[i] > have[i] {
+                judged[i] / have[i]
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let t = |dof: usize| student_t_3sigma(dof.max(1)) / 3.0;
+    let patches = t(info.clusters.saturating_sub(1));
+    let regions = t(info.regions.saturating_sub(1));
+    let frames = t(info.frames.max(FRAME_CLUSTERS_MIN).saturating_sub(1));
+    // Per axis, the widening that takes the judged σ to the widest of the widened estimates.
+    let tau: Vec<f64> = (0..d)
+        .map(|i| {
+            let by_regions = info.region_sigma.get(i).map_or(0.0, |s| s * regions);
+            let by_frames = info.frame_sigma.as_ref().map_or(0.0, |f| f[i] * frames);
+            let widest = (judged[i] * patches).max(by_regions).max(by_frames);
+            if judged[i] > 0.0 && widest > judged[i] * patches {
+                widest / judged[i]
+            } else {
+                patches
+            }
+        })
+        .collect();
+    let matrix: Vec<Vec<f64>> = (0..d)
+        .map(|i| {
+            (0..d)
+                .map(|j| match (have[i] > 0.0, have[j] > 0.0) {
+                    (true, true) => base[i][j] * f[i] * f[j] * (tau[i] * tau[j]),
+                    // An axis the patches left without scatter still carries its judged σ.
+                    _ if i == j => judged[i] * judged[i] * (tau[i] * tau[i]),
+                    _ => 0.0,
+                })
+                .collect()
+        })
+        .collect();
+    Uncertainty {
+        axes: info.axes.clone(),
+        units: info.units.clone(),
+        sigma: (0..d).map(|i| matrix[i][i].max(0.0).sqrt()).collect(),
+        matrix,
+        points: info.points,
+        poses: info.evaluations,
+        ..Default::default()
+    }
+}
+
+/// The indifference set's covariance, each axis raised to at least its floor (correlations
+/// kept).
+fn region_covariance(r: &Region, cfg: &SearchConfig) -> Uncertainty {
+    let d = r.axes.len();
+    let floor: Vec<f64> = r.axes.iter().map(|a| sigma_floor(cfg, a)).collect();
+    let f: Vec<f64> = (0..d)
+        .map(|i| {
+            if r.sigma[i] > 0.0 {
+                (floor[i] / r.sigma[i]).max(1.0)
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let matrix: Vec<Vec<f64>> = (0..d)
+        .map(|i| {
+            (0..d)
+                .map(|j| match (r.sigma[i] > 0.0, i == j) {
+                    (false, true) => floor[i] * floor[i],
+                    _ => r.matrix[i][j] * f[i] * f[j],
+                })
+                .collect()
+        })
+        .collect();
+    Uncertainty {
+        axes: r.axes.clone(),
+        units: r
+            .axes
+            .iter()
+            .map(|a| Axis::from_name(a).map_or("m", Axis::unit).to_string())
+            .collect(),
+        sigma: (0..d).map(|i| matrix[i][i].max(0.0).sqrt()).collect(),
+        matrix,
+        points: r.points,
+        poses: r.evaluations,
+        ..Uncertainty::default()
+    }
+}
+
+/// Add the spread of the optima the data cannot tell apart ([`Optima::spread`]) to `u`, on the
+/// axes the two share.
+fn add_spread(u: &mut Uncertainty, o: &Optima) {
+    let at = |a: &String| u.axes.iter().position(|b| b == a);
+    for (i, ai) in o.axes.iter().enumerate() {
+        for (j, aj) in o.axes.iter().enumerate() {
+            if let (Some(p), Some(q)) = (at(ai), at(aj)) {
+                u.matrix[p][q] += o.spread[i][j];
+            }
+        }
+    }
+    for (k, s) in u.sigma.iter_mut().enumerate() {
+        *s = u.matrix[k][k].max(0.0).sqrt();
     }
 }
 
@@ -146,7 +346,7 @@ pub(crate) fn intrinsics_deltas(
 }
 
 /// Add the intrinsics' part ([`intrinsics_deltas`]) to an estimate's covariance and σ.
-pub(crate) fn add_intrinsics(u: &mut Uncertainty, deltas: &[[f64; 6]]) {
+fn add_intrinsics(u: &mut Uncertainty, deltas: &[[f64; 6]]) {
     let d = u.sigma.len();
     for (a, row) in u.matrix.iter_mut().enumerate() {
         for (b, v) in row.iter_mut().enumerate() {
@@ -209,16 +409,207 @@ mod tests {
             matrix: (0..6)
                 .map(|a| (0..6).map(|b| if a == b { 1e-4 } else { 0.0 }).collect())
                 .collect(),
-            intrinsics: Vec::new(),
             points: points.len(),
-            poses: 0,
-            gate_sigma: Vec::new(),
+            ..Uncertainty::default()
         };
         add_intrinsics(&mut u, &d);
         assert!(
             (u.sigma[2] - (1e-4 + d.iter().map(|e| e[2] * e[2]).sum::<f64>()).sqrt()).abs() < 1e-12
         );
         assert_eq!(u.intrinsics.len(), 3);
+    }
+
+    /// The reported covariance is the sandwich's shape at the judged σ:
+    /// every axis at least its judged σ (the search's floor included), correlations kept, widened
+    /// by the sandwich's Student-t factor, and the intrinsics' part added on top.
+    #[test]
+    fn the_reported_covariance_is_the_sandwich_s_shape_at_the_judged_sigma() {
+        use crate::localize::refine::quality::Sigma;
+        let axes: Vec<String> = ["x", "y", "z", "yaw", "pitch", "roll"]
+            .map(String::from)
+            .to_vec();
+        let sd = [0.004, 0.02, 0.003, 0.01, 0.05, 0.03];
+        let sandwich: Vec<Vec<f64>> = (0..6)
+            .map(|i| {
+                (0..6)
+                    .map(|j| match (i, j) {
+                        _ if i == j => sd[i] * sd[i],
+                        (0, 4) | (4, 0) => -0.9 * sd[0] * sd[4],
+                        _ => 0.0,
+                    })
+                    .collect()
+            })
+            .collect();
+        let info = Information {
+            axes,
+            units: ["m", "m", "m", "deg", "deg", "deg"]
+                .map(String::from)
+                .to_vec(),
+            sigma: vec![0.001; 6],
+            matrix: sandwich.clone(),
+            points: 1000,
+            evaluations: 13,
+            sandwich_sigma: sd.to_vec(),
+            sandwich_matrix: sandwich,
+            clusters: 32,
+            region_sigma: Vec::new(),
+            region_matrix: Vec::new(),
+            regions: 0,
+            frame_sigma: None,
+            frame_matrix: None,
+            frames: 0,
+            hessian: [[0.0; 6]; 6],
+        };
+        let search = SearchConfig::default();
+        let judged = local_sigma(&info, &search);
+        // The default search's floor: half of 2 cm on x, y and z, none on the angles.
+        assert_eq!(judged, vec![0.01, 0.02, 0.01, 0.01, 0.05, 0.03]);
+        let t = (student_t_3sigma(31) / 3.0).powi(2);
+        let information = Ok(info.clone());
+        let evidence = Evidence {
+            information: &information,
+            region: None,
+            optima: None,
+            search: &search,
+            intrinsics: None,
+        };
+        let u = compose(&evidence).expect("a covariance");
+        assert_eq!(u.gate_sigma, judged);
+        for i in 0..6 {
+            assert!(
+                (u.matrix[i][i] - judged[i] * judged[i] * t).abs() < 1e-15,
+                "{i}"
+            );
+        }
+        let rho = u.matrix[0][4] / (u.sigma[0] * u.sigma[4]);
+        assert!((rho + 0.9).abs() < 1e-12, "{rho}");
+        let d = [[0.0, 0.0, 0.02, 0.0, 0.0, 0.0]; 1];
+        let w = compose(&Evidence {
+            intrinsics: Some(&d),
+            ..evidence
+        })
+        .expect("a covariance");
+        assert!((w.matrix[2][2] - (u.matrix[2][2] + 4e-4)).abs() < 1e-15);
+        assert_eq!(Sigma::of(&w).x, u.sigma[0]);
+    }
+
+    /// With region and frame sandwiches each estimate is widened by its own degrees of freedom:
+    /// the frames' (K − 1) or the regions' (7) where they decide the axis, the patches' (31, the
+    /// floor's too) elsewhere; the floor stays.
+    #[test]
+    fn each_sandwich_widens_by_its_own_clusters_above_the_floor() {
+        let axes: Vec<String> = ["x", "y", "z", "yaw"].map(String::from).to_vec();
+        let diag = |sd: &[f64]| -> Vec<Vec<f64>> {
+            (0..4)
+                .map(|i| {
+                    (0..4)
+                        .map(|j| if i == j { sd[i] * sd[i] } else { 0.0 })
+                        .collect()
+                })
+                .collect()
+        };
+        let patch = [0.003, 0.004, 0.006, 0.007];
+        let frame = [0.008, 0.001, 0.001, 0.004];
+        let region = [0.002, 0.009, 0.001, 0.012];
+        let info = |frames: usize| Information {
+            axes: axes.clone(),
+            units: ["m", "m", "m", "deg"].map(String::from).to_vec(),
+            sigma: vec![0.0005; 4],
+            matrix: diag(&[0.0005; 4]),
+            points: 100_000,
+            evaluations: 9,
+            sandwich_sigma: patch.to_vec(),
+            sandwich_matrix: diag(&patch),
+            clusters: 32,
+            region_sigma: region.to_vec(),
+            region_matrix: diag(&region),
+            regions: 8,
+            frame_sigma: Some(frame.to_vec()),
+            frame_matrix: Some(diag(&frame)),
+            frames,
+            hessian: [[0.0; 6]; 6],
+        };
+        let cfg = SearchConfig::default();
+        let judged = local_sigma(&info(6), &cfg);
+        // x, y and z at the default floor (1 cm); yaw, which has none, at its region σ.
+        assert_eq!(judged, vec![0.01, 0.01, 0.01, 0.012]);
+        let t = |dof: usize| student_t_3sigma(dof) / 3.0;
+        // Six frames: x's frame σ widened by t₅ (1.46 cm) passes the floor widened by t₃₁
+        // (1.09 cm). Twelve: by t₁₁ (1.03 cm) it does not. y's and yaw's region σ widened by
+        // t₇ pass their judged σ widened by t₃₁.
+        for (frames, x) in [(6, 0.008 * t(5)), (12, 0.01 * t(31))] {
+            let u = information_covariance(&info(frames), &judged);
+            let want = [x, 0.009 * t(7), 0.01 * t(31), 0.012 * t(7)];
+            for i in 0..4 {
+                assert!(
+                    (u.sigma[i] - want[i]).abs() < 1e-12,
+                    "{frames} {i}: {:?}",
+                    u.sigma
+                );
+            }
+        }
+    }
+
+    /// Without a basin the indifference set is the local part, raised to the floor where it
+    /// is narrower, and its open axis travels with it; an information failure other than the
+    /// basin's, or no basin and no set, is the stop.
+    #[test]
+    fn without_a_basin_the_indifference_set_is_the_covariance() {
+        let search = SearchConfig::default();
+        let no_basin = Err(InformationError::NoBasin {
+            along: "x".into(),
+            curvature: 1.0,
+        });
+        let region = Region {
+            axes: ["x", "y", "z", "yaw"].map(String::from).to_vec(),
+            rays: Vec::new(),
+            sigma: vec![0.2, 0.004, 0.0, 0.3],
+            matrix: vec![
+                vec![0.04, 0.0, 0.0, 0.054],
+                vec![0.0, 0.004f64.powi(2), 0.0, 0.0],
+                vec![0.0; 4],
+                vec![0.054, 0.0, 0.0, 0.09],
+            ],
+            unbounded: None,
+            points: 5000,
+            evaluations: 40,
+        };
+        let e = Evidence {
+            information: &no_basin,
+            region: Some(&region),
+            optima: None,
+            search: &search,
+            intrinsics: None,
+        };
+        let u = compose(&e).expect("a covariance");
+        // x and yaw as the set gives them (correlation 0.9 kept); y and z at the 1 cm floor.
+        assert_eq!(u.sigma[0], 0.2);
+        assert!((u.sigma[3] - 0.3).abs() < 1e-12);
+        assert!((u.matrix[0][3] / (u.sigma[0] * u.sigma[3]) - 0.9).abs() < 1e-12);
+        assert!((u.sigma[1] - 0.01).abs() < 1e-12 && (u.sigma[2] - 0.01).abs() < 1e-12);
+        assert_eq!(u.units, vec!["m", "m", "m", "deg"]);
+        let open = Region {
+            unbounded: Some((Axis::Yaw, 3.0)),
+            ..region.clone()
+        };
+        let u = compose(&Evidence {
+            region: Some(&open),
+            ..e
+        })
+        .expect("a covariance");
+        assert_eq!(u.unbounded, Some((Axis::Yaw, 3.0)));
+        assert_eq!(
+            compose(&Evidence { region: None, ..e }),
+            Err(no_basin.clone().unwrap_err())
+        );
+        let edge = Err(InformationError::OnEdge { rounds: 3 });
+        assert!(matches!(
+            compose(&Evidence {
+                information: &edge,
+                ..e
+            }),
+            Err(InformationError::OnEdge { .. })
+        ));
     }
 
     #[test]
