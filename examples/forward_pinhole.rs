@@ -136,7 +136,7 @@ fn main() {
                     o[2],
                     o[3],
                     acc,
-                    r.quality.grade.to_string()
+                    r.quality.grade
                 );
                 eh.push((o[0] * o[0] + o[1] * o[1]).sqrt());
                 ez.push(o[2].abs());

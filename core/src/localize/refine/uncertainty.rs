@@ -360,6 +360,8 @@ fn add_intrinsics(u: &mut Uncertainty, deltas: &[[f64; 6]]) {
 }
 
 #[cfg(test)]
+// Per-axis checks over parallel arrays read clearer with the index.
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
 
