@@ -145,8 +145,67 @@ pub fn read_layout<R: Read + Seek>(r: &mut R, len: u64) -> Result<LasLayout, Str
     };
     let mut crs_records = Vec::new();
     // The VLR table lies between the header and the point data.
-    let mut at = header_size;
     let n_vlrs = h.number_of_variable_length_records;
+    read_vlrs(r, (header_size, offset, len), n_vlrs, &mut crs_records)?;
+    let record_len = u64::from(h.point_data_record_length);
+    let points_end = if compressed {
+        None
+    } else {
+        let end = points
+            .checked_mul(record_len)
+            .and_then(|b| b.checked_add(offset))
+            .filter(|&e| e <= len);
+        Some(end.ok_or_else(|| {
+            format!(
+                "number of point records {points}: {points} records of {record_len} bytes from \
+                 byte {offset} run past the end of the file ({len} bytes)"
+            )
+        })?)
+    };
+    let mut n_evlrs = 0;
+    if minor >= 4 {
+        let mut raw = [0u8; 4];
+        read_at(r, NUMBER_OF_EVLRS_AT as u64, &mut raw).map_err(|e| io("number of EVLRs", e))?;
+        n_evlrs = u32::from_le_bytes(raw);
+        let start = h.evlr.map_or(0, |e| e.start_of_first_evlr);
+        if n_evlrs > 0 {
+            if start == 0 {
+                return Err(format!(
+                    "number of EVLRs {n_evlrs}: the start of the first EVLR is 0"
+                ));
+            }
+            let floor = points_end.unwrap_or(offset);
+            if start < floor {
+                return Err(format!(
+                    "start of first EVLR {start}: inside the point data (which ends at byte {floor})"
+                ));
+            }
+            read_evlrs(r, start, n_evlrs, len, &mut crs_records)?;
+        }
+    }
+    Ok(LasLayout {
+        version: (major, minor),
+        point_format,
+        compressed,
+        global_encoding: h.global_encoding,
+        points,
+        bounds: [h.min_x, h.min_y, h.min_z, h.max_x, h.max_y, h.max_z],
+        vlrs: n_vlrs,
+        evlrs: n_evlrs,
+        crs_records,
+    })
+}
+
+/// Walk the VLR table of `n_vlrs` records from byte `header_size` (`(header_size, offset, len)`:
+/// it must end by the point data's `offset` and the file's `len`), keeping its CRS records.
+fn read_vlrs<R: Read + Seek>(
+    r: &mut R,
+    (header_size, offset, len): (u64, u64, u64),
+    n_vlrs: u32,
+    crs_records: &mut Vec<CrsRecord>,
+) -> Result<(), String> {
+    let io = |what: &str, e: std::io::Error| format!("{what}: {e}");
+    let mut at = header_size;
     for i in 0..n_vlrs {
         let mut vh = [0u8; VLR_HEADER as usize];
         let end = at + VLR_HEADER;
@@ -181,89 +240,57 @@ pub fn read_layout<R: Read + Seek>(r: &mut R, len: u64) -> Result<LasLayout, Str
             at + VLR_HEADER,
             rec_len,
             false,
-            &mut crs_records,
+            crs_records,
         )?;
         at = end;
     }
-    let record_len = u64::from(h.point_data_record_length);
-    let points_end = if compressed {
-        None
-    } else {
-        let end = points
-            .checked_mul(record_len)
-            .and_then(|b| b.checked_add(offset))
-            .filter(|&e| e <= len);
-        Some(end.ok_or_else(|| {
-            format!(
-                "number of point records {points}: {points} records of {record_len} bytes from \
-                 byte {offset} run past the end of the file ({len} bytes)"
-            )
-        })?)
-    };
-    let mut n_evlrs = 0;
-    if minor >= 4 {
-        let mut raw = [0u8; 4];
-        read_at(r, NUMBER_OF_EVLRS_AT as u64, &mut raw).map_err(|e| io("number of EVLRs", e))?;
-        n_evlrs = u32::from_le_bytes(raw);
-        let start = h.evlr.map_or(0, |e| e.start_of_first_evlr);
-        if n_evlrs > 0 {
-            if start == 0 {
-                return Err(format!(
-                    "number of EVLRs {n_evlrs}: the start of the first EVLR is 0"
-                ));
-            }
-            let floor = points_end.unwrap_or(offset);
-            if start < floor {
-                return Err(format!(
-                    "start of first EVLR {start}: inside the point data (which ends at byte {floor})"
-                ));
-            }
-            let mut at = start;
-            for i in 0..n_evlrs {
-                let mut eh = [0u8; EVLR_HEADER as usize];
-                if at + EVLR_HEADER > len {
-                    return Err(format!(
-                        "number of EVLRs {n_evlrs}: EVLR {} of them at byte {at} runs past the end \
-                         of the file ({len} bytes)",
-                        i + 1
-                    ));
-                }
-                read_at(r, at, &mut eh).map_err(|e| io("EVLR table", e))?;
-                let rec_len = u64::from_le_bytes(eh[20..28].try_into().unwrap_or([0xff; 8]));
-                let end = (at + EVLR_HEADER)
-                    .checked_add(rec_len)
-                    .filter(|&e| e <= len)
-                    .ok_or_else(|| {
-                        format!(
-                            "EVLR {} of {n_evlrs} (at byte {at}, {rec_len} bytes of data): runs past \
-                             the end of the file ({len} bytes)",
-                            i + 1
-                        )
-                    })?;
-                keep_crs(
-                    r,
-                    &eh[2..18],
-                    u16::from_le_bytes([eh[18], eh[19]]),
-                    at + EVLR_HEADER,
-                    rec_len,
-                    true,
-                    &mut crs_records,
-                )?;
-                at = end;
-            }
+    Ok(())
+}
+
+/// Walk the EVLR table of `n_evlrs` records from byte `start` of a file of `len` bytes, keeping
+/// its CRS records.
+fn read_evlrs<R: Read + Seek>(
+    r: &mut R,
+    start: u64,
+    n_evlrs: u32,
+    len: u64,
+    crs_records: &mut Vec<CrsRecord>,
+) -> Result<(), String> {
+    let io = |what: &str, e: std::io::Error| format!("{what}: {e}");
+    let mut at = start;
+    for i in 0..n_evlrs {
+        let mut eh = [0u8; EVLR_HEADER as usize];
+        if at + EVLR_HEADER > len {
+            return Err(format!(
+                "number of EVLRs {n_evlrs}: EVLR {} of them at byte {at} runs past the end \
+                 of the file ({len} bytes)",
+                i + 1
+            ));
         }
+        read_at(r, at, &mut eh).map_err(|e| io("EVLR table", e))?;
+        let rec_len = u64::from_le_bytes(eh[20..28].try_into().unwrap_or([0xff; 8]));
+        let end = (at + EVLR_HEADER)
+            .checked_add(rec_len)
+            .filter(|&e| e <= len)
+            .ok_or_else(|| {
+                format!(
+                    "EVLR {} of {n_evlrs} (at byte {at}, {rec_len} bytes of data): runs past \
+                     the end of the file ({len} bytes)",
+                    i + 1
+                )
+            })?;
+        keep_crs(
+            r,
+            &eh[2..18],
+            u16::from_le_bytes([eh[18], eh[19]]),
+            at + EVLR_HEADER,
+            rec_len,
+            true,
+            crs_records,
+        )?;
+        at = end;
     }
-    Ok(LasLayout {
-        version: (major, minor),
-        point_format,
-        compressed,
-        global_encoding: h.global_encoding,
-        points,
-        bounds: [h.min_x, h.min_y, h.min_z, h.max_x, h.max_y, h.max_z],
-        vlrs: n_vlrs,
-        evlrs: n_evlrs,
-        crs_records,
-    })
+    Ok(())
 }
 
 /// Keep the record at `data_at` if it is a CRS record (its length already checked).

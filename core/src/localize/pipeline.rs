@@ -409,22 +409,16 @@ fn refine_at(
     Ok((r, rounds))
 }
 
-/// [`localize`] without the quality gate: the outcome whatever the gate would say, so that an
-/// evaluation can still see the stages of a rejected run (`examples/pipeline_accuracy.rs`);
-/// `progress` as there, and `earlier` as [`localize_pooled`] pools them.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn localize_ungated(
+/// Every earlier frame the camera's size, and a usable prior: one line naming the frame or the
+/// prior otherwise.
+fn check_inputs(
     frame: &Frame<'_>,
     earlier: &[Frame<'_>],
-    tile: &Tile,
     prior_xy: (f64, f64),
     prior_sigma_m: f64,
-    p: &Params,
-    now: &dyn Fn() -> f64,
-    progress: &dyn Fn(StageName),
-) -> Result<Outcome> {
+) -> Result<()> {
     use crate::camera::CameraModel;
-    let (camera, image) = (frame.camera(), frame.gray());
+    let camera = frame.camera();
     if let Some((i, f)) = earlier.iter().enumerate().find(|(_, f)| {
         (f.camera().width(), f.camera().height()) != (camera.width(), camera.height())
     }) {
@@ -446,6 +440,25 @@ pub(crate) fn localize_ungated(
             format!("unusable prior {prior_xy:?} σ {prior_sigma_m}"),
         ));
     }
+    Ok(())
+}
+
+/// [`localize`] without the quality gate: the outcome whatever the gate would say, so that an
+/// evaluation can still see the stages of a rejected run (`examples/pipeline_accuracy.rs`);
+/// `progress` as there, and `earlier` as [`localize_pooled`] pools them.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn localize_ungated(
+    frame: &Frame<'_>,
+    earlier: &[Frame<'_>],
+    tile: &Tile,
+    prior_xy: (f64, f64),
+    prior_sigma_m: f64,
+    p: &Params,
+    now: &dyn Fn() -> f64,
+    progress: &dyn Fn(StageName),
+) -> Result<Outcome> {
+    let (camera, image) = (frame.camera(), frame.gray());
+    check_inputs(frame, earlier, prior_xy, prior_sigma_m)?;
     let radius = p.search_radius_m(prior_sigma_m);
     let mut stages = vec![Stage {
         name: StageName::Prior,

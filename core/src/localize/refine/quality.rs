@@ -646,6 +646,40 @@ fn gate(
 mod tests {
     use super::*;
 
+    /// The limits come from the keys in the order the verdict reads them (xy, z, yaw, tilt).
+    #[test]
+    fn the_limits_follow_the_keys() {
+        let q = QualityConfig {
+            max_sigma_xy_m: 0.01,
+            max_sigma_z_m: 0.02,
+            max_sigma_yaw_deg: 0.03,
+            max_sigma_tilt_deg: 0.04,
+            coarse_max_sigma_xy_m: 0.1,
+            coarse_max_sigma_z_m: 0.2,
+            coarse_max_sigma_yaw_deg: 0.3,
+            coarse_max_sigma_tilt_deg: 0.4,
+            ..QualityConfig::default()
+        };
+        let l = q.limits();
+        assert_eq!(l.precise, [0.01, 0.02, 0.03, 0.04]);
+        assert_eq!(l.coarse, [0.1, 0.2, 0.3, 0.4]);
+        let d = QualityConfig::default().limits();
+        assert_eq!(
+            (d.precise, d.coarse),
+            ([0.05, 0.05, 0.15, 0.5], [0.5, 0.5, 1.0, 2.0])
+        );
+        assert!(q.validate().is_ok());
+        let bad = QualityConfig {
+            coarse_max_sigma_z_m: 0.01,
+            ..q
+        };
+        assert!(bad
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .starts_with("coarse-max-sigma-z-m = 0.01"));
+    }
+
     #[test]
     fn parabola_fit_recovers_coefficients() {
         let pts: Vec<(f64, f64)> = (-3..=3)

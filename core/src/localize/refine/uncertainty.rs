@@ -426,7 +426,7 @@ mod tests {
     /// by the sandwich's Student-t factor, and the intrinsics' part added on top.
     #[test]
     fn the_reported_covariance_is_the_sandwich_s_shape_at_the_judged_sigma() {
-        use crate::localize::refine::quality::Sigma;
+        use crate::pose::Sigma;
         let axes: Vec<String> = ["x", "y", "z", "yaw", "pitch", "roll"]
             .map(String::from)
             .to_vec();

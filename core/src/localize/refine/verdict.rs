@@ -267,7 +267,13 @@ pub fn judge(u: &Uncertainty, q: &Limits) -> Grade {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::localize::refine::quality::QualityConfig;
+
+    /// The default `[quality]` limits (`QualityConfig::default().limits()`, spelled out: the
+    /// config's module imports this one).
+    const DEFAULT: Limits = Limits {
+        precise: [0.05, 0.05, 0.15, 0.5],
+        coarse: [0.5, 0.5, 1.0, 2.0],
+    };
 
     fn cov(sigma: [f64; 4]) -> Uncertainty {
         Uncertainty {
@@ -289,7 +295,7 @@ mod tests {
     /// farthest over relative to its limit), refused beyond them, naming that axis.
     #[test]
     fn the_grade_follows_the_sigma_against_both_limits() {
-        let q = QualityConfig::default().limits();
+        let q = DEFAULT;
         assert_eq!(judge(&cov([0.01, 0.02, 0.03, 0.1]), &q), Grade::Precise);
         // Exactly at the limit is within it.
         assert_eq!(judge(&cov([0.05, 0.05, 0.05, 0.15]), &q), Grade::Precise);
@@ -318,7 +324,7 @@ mod tests {
     /// finite refuses too.
     #[test]
     fn an_unbounded_axis_or_a_non_finite_sigma_refuses() {
-        let q = QualityConfig::default().limits();
+        let q = DEFAULT;
         let mut u = cov([0.01, 0.01, 0.01, 0.01]);
         u.unbounded = Some((Axis::Y, 1.0));
         let g = judge(&u, &q);
@@ -335,7 +341,7 @@ mod tests {
     /// for the clusters' few degrees of freedom and with the intrinsics' part, may lie beyond.
     #[test]
     fn the_data_s_sigma_is_judged_when_given() {
-        let q = QualityConfig::default().limits();
+        let q = DEFAULT;
         let mut u = cov([0.06, 0.01, 0.01, 0.1]);
         assert!(matches!(judge(&u, &q), Grade::Coarse(_)));
         u.gate_sigma = vec![0.045, 0.01, 0.01, 0.1];
@@ -350,16 +356,15 @@ mod tests {
         let mut u = cov([0.01, 0.01, 0.01, 0.01]);
         u.axes.extend(["pitch".into(), "roll".into()]);
         u.sigma.extend([1.0, 0.1]);
-        let q = QualityConfig::default().limits();
+        let q = DEFAULT;
         let Grade::Coarse(o) = judge(&u, &q) else {
             panic!()
         };
         assert_eq!(o.axis, Axis::Pitch);
-        let strict = QualityConfig {
-            coarse_max_sigma_tilt_deg: 0.8,
-            ..QualityConfig::default()
-        }
-        .limits();
+        let strict = Limits {
+            coarse: [0.5, 0.5, 1.0, 0.8],
+            ..DEFAULT
+        };
         assert_eq!(judge(&u, &strict).stop().map(Stop::kind), Some("sigma"));
     }
 
