@@ -9,6 +9,7 @@
 //! `quality.score` (higher is better; the pipeline documents what it puts there).
 
 use crate::error::{Error, Result};
+use crate::localize::refine::verdict::rank_of;
 use crate::persist::write_atomic;
 use crate::posefile::{PoseFile, SCHEMA_V1};
 use serde::{Deserialize, Serialize};
@@ -46,15 +47,6 @@ pub struct HistoryEntry {
     /// The result's grade (`precise` or `coarse`), when it made a pose.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub grade: Option<String>,
-}
-
-/// A served grade's rank: precise over coarse (an unknown name ranks lowest).
-pub(crate) fn grade_rank(grade: &str) -> u8 {
-    match grade {
-        "precise" => 2,
-        "coarse" => 1,
-        _ => 0,
-    }
 }
 
 /// What [`PoseStore::offer`] decided.
@@ -152,7 +144,7 @@ impl PoseStore {
                     Decision::Replaced("served pose was not ok".into())
                 }
                 Some(cur) if candidate.grade() != cur.grade() => {
-                    if grade_rank(candidate.grade()) > grade_rank(cur.grade()) {
+                    if rank_of(candidate.grade()) > rank_of(cur.grade()) {
                         Decision::Replaced(format!(
                             "{} replaces the served {} pose",
                             candidate.grade(),

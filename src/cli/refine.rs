@@ -13,7 +13,7 @@ use crate::localize::refine::optima::{
     disagreement as disagreement_of, self_check_starts, START_SPREAD,
 };
 use crate::localize::refine::quality::QualityConfig;
-use crate::localize::refine::verdict::{Axis, Grade, Stop};
+use crate::localize::refine::verdict::{Grade, Stop};
 use crate::localize::refine::{finish_name, refine_polished, Refinement};
 use crate::map::{cache, Crs};
 use crate::points_io::read_points;
@@ -552,7 +552,7 @@ impl SelfCheck {
                 };
                 if let Some((axis, d, z)) = disagreement_of(&a.pose, &sa, &b.pose, &sb) {
                     disagreement = Some(Stop::Disagree {
-                        axis: Axis::from_name(axis).unwrap_or(Axis::X),
+                        axis,
                         difference: d,
                         sigmas: z,
                     });

@@ -1021,8 +1021,8 @@ fn cross_check(run: &Run, served: &PoseFile, cfg: &Config) -> Option<CrossCheck>
         return None;
     }
     // A better grade is better evidence than the served pose's MI peak on one frame.
-    let new = run.outcome.refinement.quality.grade.name();
-    if crate::store::grade_rank(new) > crate::store::grade_rank(served.grade()) {
+    let new = run.outcome.refinement.quality.grade.rank();
+    if new > crate::localize::refine::verdict::rank_of(served.grade()) {
         return None;
     }
     if served.tile_id != run.tile.id {

@@ -540,7 +540,9 @@ pub(crate) fn localize_ungated(
         !refinement.quality.precise() && outside_box(&p.search.spec, &init.pose, &a.pose)
     }) {
         match refine(&alt) {
-            Ok((second, second_rounds)) if rank(&second) > rank(&refinement) => {
+            Ok((second, second_rounds))
+                if second.quality.grade.rank() > refinement.quality.grade.rank() =>
+            {
                 other = Some(OtherHypothesis::new(&init, refusal(&refinement), true));
                 (init, refinement, rounds) = (*alt, second, second_rounds);
                 init.runner_up = None;
@@ -584,16 +586,6 @@ fn refusal(r: &Refinement) -> String {
     match &r.quality.grade {
         crate::localize::refine::verdict::Grade::Refused(s) => s.to_string(),
         g => g.to_string(),
-    }
-}
-
-/// A grade's rank for choosing between two hypotheses' refinements: precise over coarse over
-/// refused.
-fn rank(r: &Refinement) -> u8 {
-    match r.quality.grade {
-        crate::localize::refine::verdict::Grade::Precise => 2,
-        crate::localize::refine::verdict::Grade::Coarse(_) => 1,
-        crate::localize::refine::verdict::Grade::Refused(_) => 0,
     }
 }
 

@@ -218,9 +218,12 @@ pub(crate) fn smooth_stage<'a>(
         }
         _ => None,
     };
+    // The intrinsics' part only where there will be a covariance to add it to.
+    let composable = information.is_ok() || region.is_some();
     let deltas = qcfg
         .intrinsics_sigma
         .as_ref()
+        .filter(|_| composable)
         .map(|s| super::uncertainty::intrinsics_deltas(cam, views, &pose, s));
     let evidence = Evidence {
         information: &information,

@@ -28,7 +28,7 @@ use crate::camera::Camera;
 use crate::error::Result;
 use crate::localize::mi::objective::{Evaluator, ImageCache, View};
 use crate::localize::mi::smooth::{Pooling, Smooth};
-use crate::localize::mi::space::{pose_at, SearchConfig};
+use crate::localize::mi::space::{pose_at, Axis, SearchConfig};
 use crate::pose::{offsets_between, CamFromMap};
 use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
@@ -574,20 +574,20 @@ pub fn disagreement(
     sa: &crate::pose::Sigma,
     b: &CamFromMap,
     sb: &crate::pose::Sigma,
-) -> Option<(&'static str, f64, f64)> {
+) -> Option<(Axis, f64, f64)> {
     let d = offsets_between(a, b);
     let pairs = [
-        ("x", sa.x, sb.x),
-        ("y", sa.y, sb.y),
-        ("z", sa.z, sb.z),
-        ("yaw", sa.yaw, sb.yaw),
+        (Axis::X, sa.x, sb.x),
+        (Axis::Y, sa.y, sb.y),
+        (Axis::Z, sa.z, sb.z),
+        (Axis::Yaw, sa.yaw, sb.yaw),
         (
-            "pitch",
+            Axis::Pitch,
             sa.pitch.unwrap_or(f64::NAN),
             sb.pitch.unwrap_or(f64::NAN),
         ),
         (
-            "roll",
+            Axis::Roll,
             sa.roll.unwrap_or(f64::NAN),
             sb.roll.unwrap_or(f64::NAN),
         ),
@@ -742,7 +742,7 @@ mod tests {
         };
         // 13 cm apart with σ 3 cm each: 3.06 combined σ.
         let (axis, d, z) = disagreement(&a, &sig(0.03), &b, &sig(0.03)).expect("3.06σ apart");
-        assert_eq!(axis, "x");
+        assert_eq!(axis, Axis::X);
         assert!((d - 0.13).abs() < 1e-12 && (z - 0.13 / 0.03f64.hypot(0.03)).abs() < 1e-9);
         assert!(disagreement(&a, &sig(0.05), &b, &sig(0.03)).is_none());
         assert!(disagreement(&a, &sig(0.0), &a, &sig(0.0)).is_none());

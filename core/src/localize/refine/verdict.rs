@@ -164,6 +164,11 @@ impl Grade {
         }
     }
 
+    /// Its rank for choosing between results: precise 2, coarse 1, refused 0 ([`rank_of`]).
+    pub fn rank(&self) -> u8 {
+        rank_of(self.name())
+    }
+
     /// Served (precise or coarse).
     pub fn served(&self) -> bool {
         !matches!(self, Grade::Refused(_))
@@ -209,6 +214,16 @@ impl Serialize for Grade {
             )?;
         }
         m.end()
+    }
+}
+
+/// A grade's rank by its name, as pose files spell it: `precise` 2, `coarse` 1, anything else
+/// (`refused`, an unknown name) 0.
+pub fn rank_of(name: &str) -> u8 {
+    match name {
+        "precise" => 2,
+        "coarse" => 1,
+        _ => 0,
     }
 }
 
