@@ -17,30 +17,44 @@ this writes into OUT:
   on (the truth, then ±0.2 m along world x with ±0.1 m height, +1° yaw: the tool's own spread,
   core/src/localize/refine/optima.rs `self_check_starts`), for runs one start at a time;
 - `pair.json`: what was made and measured (distances, point counts, how many map points the
-  query camera sees at the truth, the scans' nearest-neighbour distance in the world frame).
+  query camera sees at the truth, the scans' nearest-neighbour distance in the world frame; with
+  `--via tiles` the tile's id, CRS, offset, resolution and its `tile scans` command).
 
 Points: the whole sweep is kept (walls, cars and trees too), as `kitti import --drive …
 --pairs-out` and `refine --points FILE.bin` keep every point of a sweep (docs/kitti.md "Points"),
 so the cross-pass runs differ from the single-frame runs only in the map. `--ground` keeps only
 the points within 0.25 m of the lowest point of their 1 m × 1 m cell instead (a crude ground
-filter, for comparison; not what the product's tile path will do).
+filter, for comparison; not the tile path's filter).
 
-The product's own path (the scans to `tile build` in a projected CRS, then `refine --tiles`)
-waits for `tile build` from scans with poses (branch survey-tiles): `--via tiles` is the hook,
-see `tile_inputs()`; today it stops with a message.
+`--via tiles`: the product's own path. In place of `map.csv`, M's sweep goes to `infraloc tile
+scans` (docs/map.md "From a drive's scans to a tile"): posed by `poses/poses.txt` with
+`--calib` (the same chain as above, the product's own reading of it), placed in `--crs`
+(EPSG:32632, UTM 32N) by `--offset` (458265.478, 5425872.189, 0: the devkit's world origin in
+UTM 32N, so map = world + offset), ground-filtered and rasterised at `--tile-res` (0.25 m) into
+`OUT/tiles/kitti360-M`, a LiDAR-only tile. Its box is the sweep's extent and both cameras,
+widened by 30 m, so `refine --tiles` finds a tile holding the query camera's whole --radius disc.
+`truth.json` and `start-*.json` are then in the tile's frame: `"crs": "EPSG:32632"`, the camera
+centre moved by the offset (the rotation orthonormalised first, as `refine` would, so the centre
+is exact at UTM magnitudes). The tile keeps only the ground, at its resolution: no walls, cars
+or trees, unlike `map.csv`.
 
 Usage:
   kitti360_cross_pass.py KITTI360_DIR OUT --query 947 --map 1134 [--bin target/release/infraloc]
-      [--ground] [--via points|tiles]
+      [--ground | --via tiles [--crs EPSG:N] [--offset E,N,H] [--tile-res M]]
 Then:
   infraloc refine --camera OUT/camera.yaml --image KITTI360_DIR/image_00/0000000947.png \\
       --points OUT/map.csv --init OUT/truth.json --starts 3 --report OUT/report.json
+or, with --via tiles (refine's default --radius 25 m holds too little of one front-half sweep's
+ground for the tile check, which wants 10 % of the disc valid; 20 m passes for 947↔1134):
+  infraloc refine --camera OUT/camera.yaml --image KITTI360_DIR/image_00/0000000947.png \\
+      --tiles OUT/tiles --radius 20 --init OUT/truth.json --starts 3 --report OUT/report.json
 Needs numpy and cv2 (cv2 only for the nearest-neighbour figure; without it that figure is
 left out).
 """
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -49,6 +63,16 @@ import numpy as np
 # `refine --starts 3`'s starts as offsets from --init: x, y, z (m, map frame), yaw (deg).
 # START_SPREAD = (0.2 m on a circle, 0.1 m height alternately, 1° yaw) at phases 0 and π.
 STARTS = [(0.0, 0.0, 0.0, 0.0), (0.2, 0.0, 0.1, 1.0), (-0.2, 0.0, -0.1, 1.0)]
+# --via tiles: KITTI-360's world origin (the devkit's origin_oxts, lat 48.9843445, lon 8.4295857)
+# in UTM 32N by pyproj, as docs/map.md and tests/it/tile_scans.rs place it; heights kept.
+CRS = "EPSG:32632"
+OFFSET = (458265.478, 5425872.189, 0.0)
+# The tile box's margin around the scan and the two cameras, m: more than refine's default
+# --radius (25 m) plus its search box (1 m).
+TILE_MARGIN_M = 30.0
+# The tile's resolution, m (`tile scans --res`): at the default 0.1 m one sweep's rings leave
+# ~97 % of the cells within 25 m of the camera empty (tests/it/tile_scans.rs uses 0.25 m too).
+TILE_RES = 0.25
 
 
 def read_kv(path):
@@ -70,11 +94,11 @@ def h(m34):
     return np.vstack([np.asarray(m34, float).reshape(3, 4), [0.0, 0.0, 0.0, 1.0]])
 
 
-def orthonormal(r):
+def orthonormal(r, what="R_rect_00"):
     u, _, vt = np.linalg.svd(r)
     q = u @ vt
     if np.linalg.det(q) < 0:
-        sys.exit("R_rect_00 is not near a rotation")
+        sys.exit(f"{what} is not near a rotation")
     return q
 
 
@@ -106,11 +130,11 @@ def velodyne(kdir, frame):
     return a.reshape(-1, 4).astype(np.float64)
 
 
-def pose_json(cam_from_map, note):
+def pose_json(cam_from_map, note, crs="LOCAL"):
     """An infraloc.pose.v1 pose-like JSON (what `refine --init` reads) for a 4×4 cam←map."""
     return {
         "schema": "infraloc.pose.v1",
-        "crs": "LOCAL",
+        "crs": crs,
         "rotation_cam_from_map": cam_from_map[:3, :3].tolist(),
         "translation_cam_from_map": cam_from_map[:3, 3].tolist(),
         "note": note,
@@ -162,22 +186,34 @@ def nn_median(a, b):
     return float(np.median(np.sqrt(d2)))
 
 
-def tile_inputs(out, scan_world, args):
-    """Hook for the product's path: M's scan → `tile build` in a projected CRS → `refine --tiles`.
+def tile_inputs(a, xyz_world, cams_xy_world):
+    """M's scan → `infraloc tile scans` → OUT/tiles/kitti360-M, in `--crs` with `--offset`.
 
-    Not implemented here: it waits for `tile build` from scans with poses (branch survey-tiles).
-    What it needs: the scan (world frame here) in a projected CRS (KITTI-360's world frame is a
-    local metric frame with z up near Karlsruhe; an offset into UTM 32N, EPSG:32632, applied
-    alike to the points, truth.json and the starts, serves), `tile build` into OUT/tiles (id
-    e.g. `kitti360-M`), and truth.json / start-*.json rewritten with that `crs`; real_views.py
-    --cross-via tiles then runs `refine --tiles OUT/tiles` in place of `--points OUT/map.csv`.
-    Today's `tile build CLOUD.pcd --crs EPSG:N` already rasterises a cloud given in a map CRS;
-    note that a tile keeps only the ground its filter finds (--ground-*), at --res, so the tile
-    path compares with `--ground` here more than with every point."""
-    sys.exit(
-        "--via tiles: not yet; needs `tile build` from scans with poses (branch survey-tiles). "
-        "See tile_inputs() in docs/scripts/kitti360_cross_pass.py."
-    )
+    The product places KITTI-360's world frame in the projected CRS by adding the offset to every
+    point (docs/map.md "From a drive's scans to a tile"): map = world + offset. The box is the
+    scan's extent and both cameras' positions, widened by `TILE_MARGIN_M` on every side, so that
+    `refine --tiles` finds the tile covering the query camera with its whole --radius disc inside
+    (the scan itself sees only ahead of the map car). Returns the command and the tile's id."""
+    off = np.array(a.offset)
+    xy = np.vstack([xyz_world[:, :2], cams_xy_world]) + off[:2]
+    lo, hi = xy.min(axis=0) - TILE_MARGIN_M, xy.max(axis=0) + TILE_MARGIN_M
+    # Whole multiples of --res, so the grid's edges are round numbers in the CRS.
+    lo, hi = np.floor(lo / a.tile_res) * a.tile_res, np.ceil(hi / a.tile_res) * a.tile_res
+    tid = f"kitti360-{a.map}"
+    tiles = os.path.join(a.out, "tiles")
+    # A fresh cache: a tile left from another map in OUT would compete for the camera.
+    if os.path.isdir(tiles):
+        shutil.rmtree(tiles)
+    k = a.kitti360
+    cmd = [a.bin, "tile", "scans", "--out", tiles, "--id", tid,
+           "--poses", os.path.join(k, "poses", "poses.txt"), "--calib", os.path.join(k, "calibration"),
+           "--crs", a.crs, "--offset", ",".join(f"{v:.3f}" for v in off),
+           "--bbox", ",".join(f"{v:.2f}" for v in (lo[0], lo[1], hi[0], hi[1])),
+           "--res", f"{a.tile_res:g}",
+           os.path.join(k, "velodyne", f"{a.map:010d}.bin")]
+    print("+ " + " ".join(cmd), file=sys.stderr)
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+    return cmd, tid
 
 
 def main():
@@ -188,8 +224,21 @@ def main():
     ap.add_argument("--map", type=int, required=True, help="frame whose scan is the map")
     ap.add_argument("--bin", default="target/release/infraloc")
     ap.add_argument("--ground", action="store_true", help="keep only a crude ground band of the scan")
-    ap.add_argument("--via", choices=["points", "tiles"], default="points")
+    ap.add_argument("--via", choices=["points", "tiles"], default="points",
+                    help="the map as a world-frame CSV for `refine --points` (default) or as a "
+                         "tile by `tile scans` for `refine --tiles`")
+    ap.add_argument("--crs", default=CRS, help=f"--via tiles: the tile's CRS (default {CRS})")
+    ap.add_argument("--offset", default=",".join(f"{v:.3f}" for v in OFFSET),
+                    type=lambda v: tuple(float(x) for x in v.split(",")),
+                    help="--via tiles: the world frame's origin in --crs, E,N,H "
+                         f"(default {','.join(f'{v:.3f}' for v in OFFSET)})")
+    ap.add_argument("--tile-res", type=float, default=TILE_RES,
+                    help=f"--via tiles: the tile's resolution, m (default {TILE_RES:g})")
     a = ap.parse_args()
+    if a.via == "tiles" and a.ground:
+        sys.exit("--ground is for --via points: a tile keeps the ground its own filter finds")
+    if len(a.offset) != 3:
+        sys.exit("--offset: three numbers E,N,H")
     k = a.kitti360
     os.makedirs(a.out, exist_ok=True)
     image = os.path.join(k, "image_00", f"{a.query:010d}.png")
@@ -228,19 +277,31 @@ def main():
         sys.exit("reflectance above 1: not a KITTI sweep")
     keep = ground_only(xyz) if a.ground else np.ones(len(xyz), bool)
     xyz, refl = xyz[keep], refl[keep]
+    cam_m_world = (ps[a.map] @ c2p @ np.linalg.inv(rect))[:3, 3]
     if a.via == "tiles":
-        tile_inputs(a.out, xyz, a)
-    with open(os.path.join(a.out, "map.csv"), "w") as f:
-        f.write("x,y,z,reflectivity\n")
-        for (x, y, z), r in zip(xyz, refl):
-            f.write(f"{x:.4f},{y:.4f},{z:.4f},{r}\n")
+        # The map frame is the tile's: world + offset, the camera centre moved by it. The rotation
+        # is orthonormalised first (KITTI-360's 10 digits leave ~1e-10): with a translation of
+        # ~5e6 m, `refine`'s own orthonormalisation would otherwise move the centre by ~0.1 mm.
+        tile_cmd, tile_id = tile_inputs(a, xyz, np.array([cam_to_world[:2, 3], cam_m_world[:2]]))
+        r = orthonormal(truth[:3, :3], "the query camera's rotation")
+        truth_map, crs = np.eye(4), a.crs
+        truth_map[:3, :3] = r
+        truth_map[:3, 3] = -r @ (cam_to_world[:3, 3] + np.array(a.offset))
+        frame = f"{a.crs}, KITTI-360's world frame + ({', '.join(f'{v:.3f}' for v in a.offset)})"
+    else:
+        with open(os.path.join(a.out, "map.csv"), "w") as f:
+            f.write("x,y,z,reflectivity\n")
+            for (x, y, z), r in zip(xyz, refl):
+                f.write(f"{x:.4f},{y:.4f},{z:.4f},{r}\n")
+        truth_map, crs, frame = truth, "LOCAL", "the world frame"
 
-    note = (f"KITTI-360 drive 0000 frame {a.query}'s rectified image_00 in the world frame "
+    note = (f"KITTI-360 drive 0000 frame {a.query}'s rectified image_00 in {frame} "
             f"(cam0_to_world); map from frame {a.map}'s scan")
-    json.dump(pose_json(truth, note), open(os.path.join(a.out, "truth.json"), "w"), indent=2)
+    json.dump(pose_json(truth_map, note, crs), open(os.path.join(a.out, "truth.json"), "w"), indent=2)
     for n, (dx, dy, dz, dyaw) in enumerate(STARTS, 1):
-        s = pose_json(perturbed(truth, dx, dy, dz, dyaw),
-                      f"{note}; start {n}: truth moved ({dx:+.2f}, {dy:+.2f}, {dz:+.2f}) m, yaw {dyaw:+.1f}°")
+        s = pose_json(perturbed(truth_map, dx, dy, dz, dyaw),
+                      f"{note}; start {n}: truth moved ({dx:+.2f}, {dy:+.2f}, {dz:+.2f}) m, yaw {dyaw:+.1f}°",
+                      crs)
         json.dump(s, open(os.path.join(a.out, f"start-{n}.json"), "w"), indent=2)
 
     # What the query camera has to work with.
@@ -255,7 +316,7 @@ def main():
     own_world = own[:, :3] @ own_to_world[:3, :3].T + own_to_world[:3, 3]
     view_own, depth_own = in_view(truth, own_world, fx, fy, cx, cy, w, hgt)
     near = view_map & (depth_map <= 40.0)
-    cq, cm = cam_to_world[:3, 3], (ps[a.map] @ c2p @ np.linalg.inv(rect))[:3, 3]
+    cq, cm = cam_to_world[:3, 3], cam_m_world
     fq, fm = cam_to_world[:3, 2], (ps[a.map] @ c2p)[:3, 2]
     d = cm - cq
     heading = np.degrees(np.arctan2(fm[1], fm[0]) - np.arctan2(fq[1], fq[0]))
@@ -264,6 +325,8 @@ def main():
     info = {
         "query": a.query,
         "map": a.map,
+        "via": a.via,
+        # The sweep's points (the figures below); with --via tiles the map is its tile instead.
         "points_kept": "ground band" if a.ground else "all",
         "map_points": int(len(xyz)),
         "map_points_in_view": int(view_map.sum()),
@@ -284,6 +347,9 @@ def main():
         "check_chain_vs_kitti_import": float(gap),
         "intrinsics_model": intr.get("model"),
     }
+    if a.via == "tiles":
+        info["tile"] = {"id": tile_id, "crs": a.crs, "offset": list(a.offset), "res_m": a.tile_res,
+                        "command": tile_cmd[1:]}
     json.dump(info, open(os.path.join(a.out, "pair.json"), "w"), indent=2)
     print(
         f"query {a.query} in map {a.map}: map camera {info['camera_distance_m']:.1f} m away "

@@ -17,7 +17,8 @@ real data, never copied into the repository):
   `refine --pairs`); kitti360-NNNN: each frame alone (frame 100 has no vehicle pose but needs
   none here: the map is its own sweep);
 - cross-Q-in-M: frame Q's camera in a map made from frame M's scan in KITTI-360's world frame
-  (docs/scripts/kitti360_cross_pass.py), 947↔1134 and 1280↔1338, both directions.
+  (docs/scripts/kitti360_cross_pass.py), 947↔1134 and 1280↔1338, both directions; with
+  `--cross-via tiles`, cross-Q-in-M-tiles: the same through `tile scans` and `refine --tiles`.
 
 Per start the row gives the verdict as the report states it (`grade` when the report has one;
 else `accepted` → precise, refused → refused), σ per axis (`sigma`), the answer's error against
@@ -34,8 +35,11 @@ BIN defaults to target/release/infraloc, OUT to /tmp/real-views, DATA to ../shar
 Writes OUT/real_views.json (every run of the sets selected, and their summary; --json names
 another file, e.g. for an --only or --cross-ground subset) and prints the table (Markdown).
 `--cross-ground` runs the cross-pass sets on the map scan's ground band instead (sets
-cross-Q-in-M-ground); `--cross-via tiles` is the hook for the product's tile path (not yet);
-`--extra` adds refine flags to every run (then not the default settings: give another OUT).
+cross-Q-in-M-ground); `--cross-via tiles` runs them through the product's tile path instead (sets
+cross-Q-in-M-tiles): M's sweep to `tile scans` in EPSG:32632 at 0.25 m, then `refine --tiles` with
+`--radius 20` (CROSS_TILES_RADIUS_M: the default 25 m disc holds too little of one sweep's ground
+for the tile check); `--extra` adds refine flags to every run (then not the default settings: give
+another OUT).
 Needs Python 3 and numpy (cv2 optional, see kitti360_cross_pass.py).
 """
 import argparse
@@ -55,6 +59,11 @@ CROSS_PAIRS = [(947, 1134), (1134, 947), (1280, 1338), (1338, 1280)]
 KITTI360_FRAMES = [100, 250, 360, 570, 644, 729, 947, 1134, 1280, 1338]
 # Tolerance added to 3σ: metres on x, y, z; degrees on the angles.
 TOL_M, TOL_M_KITTI360, TOL_DEG = 0.10, 0.15, 0.3
+# `--cross-via tiles`: refine's --radius (m) on the one-sweep tiles. One front-half sweep's tile
+# (0.25 m, kitti360_cross_pass.py's --tile-res) has valid ground in 7.5–7.7 % of the default 25 m
+# disc around 947's and 1134's cameras, below the 10 % `refine --tiles` asks of a tile before it
+# uses it (src/map/cache.rs MIN_VALID_FRACTION); 20 m is the widest disc above it for both.
+CROSS_TILES_RADIUS_M = 20
 AXES = ["x", "y", "z", "yaw", "pitch", "roll"]
 STARTS = 3
 
@@ -66,9 +75,10 @@ def sh(cmd, **kw):
 
 def prepare(bin_, data, inp, cross_via="points", cross_ground=False):
     """The inputs of every set (each made once). Returns {set name: (refine args, tolerance m)}.
-    `cross_via`: the cross-pass map as `--points` (a world-frame CSV) or, once `tile build` takes
-    scans with poses, as `--tiles` (kitti360_cross_pass.py --via tiles, the hook); `cross_ground`:
-    the map scan's crude ground band only (kitti360_cross_pass.py --ground), for comparison."""
+    `cross_via`: the cross-pass map as `--points` (a world-frame CSV) or as `--tiles` (a tile of
+    the map scan by `tile scans` in EPSG:32632, kitti360_cross_pass.py --via tiles; refine with
+    `--radius CROSS_TILES_RADIUS_M`); `cross_ground`: the map scan's crude ground band only
+    (kitti360_cross_pass.py --ground, points only), for comparison."""
     sets = {}
     g = os.path.join(data, "tumtraf_s110_south1")
     gdir = os.path.join(inp, "gantry")
@@ -120,8 +130,11 @@ def prepare(bin_, data, inp, cross_via="points", cross_ground=False):
             sh([sys.executable, os.path.join(HERE, "kitti360_cross_pass.py"), k3, d,
                 "--query", q, "--map", m, "--bin", bin_, "--via", cross_via]
                + (["--ground"] if cross_ground else []), check=True)
-        source = (["--tiles", os.path.join(d, "tiles")] if cross_via == "tiles"
-                  else ["--points", os.path.join(d, "map.csv")])
+        # Both ways truth.json (the --init, and the reference the errors are taken against) is
+        # in the map's own frame: KITTI-360's world frame (LOCAL) for --points, the tile's CRS
+        # (the world frame + kitti360_cross_pass.py's --offset) for --tiles.
+        source = (["--tiles", os.path.join(d, "tiles"), "--radius", str(CROSS_TILES_RADIUS_M)]
+                  if cross_via == "tiles" else ["--points", os.path.join(d, "map.csv")])
         sets[f"cross-{q}-in-{m}{suffix}"] = (
             ["--camera", os.path.join(d, "camera.yaml"),
              "--image", os.path.join(k3, "image_00", f"{q:010d}.png")] + source
@@ -381,8 +394,8 @@ def main():
     ap.add_argument("--data", default=os.path.join(HERE, "..", "..", "..", "shared", "data", "real"))
     ap.add_argument("--only", nargs="*", help="run only sets whose name contains one of these")
     ap.add_argument("--cross-via", choices=["points", "tiles"], default="points",
-                    help="the cross-pass maps as --points CSV (default) or --tiles (not yet: needs "
-                         "`tile build` from scans with poses)")
+                    help="the cross-pass maps as --points CSV (default) or as a tile of the map "
+                         "scan by `tile scans`, for refine --tiles (sets cross-Q-in-M-tiles)")
     ap.add_argument("--cross-ground", action="store_true",
                     help="the cross-pass maps from the scan's ground band only (a comparison; the "
                          "default keeps every point, as `refine --points FILE.bin` does)")
@@ -392,6 +405,8 @@ def main():
     ap.add_argument("--json", help="where to write the runs and summary (default OUT/real_views.json)")
     ap.add_argument("--summary-only", action="store_true", help="tabulate the runs already made")
     a = ap.parse_args()
+    if a.cross_ground and a.cross_via == "tiles":
+        sys.exit("--cross-ground is for --cross-via points: a tile keeps the ground its own filter finds")
     bin_ = os.path.abspath(a.bin)
     out = os.path.abspath(a.out)
     data = os.path.abspath(a.data)
