@@ -60,6 +60,9 @@ pub(crate) struct PnpResult {
     pub rms_px: f64,
     /// The pose's tilt σ, degrees ([`tilt_sigma_deg`]); NaN when it cannot be had.
     pub tilt_sigma_deg: f64,
+    /// The pose's covariance over its offsets ([`pose_covariance`]); `None` when it cannot be
+    /// had.
+    pub covariance: Option<PoseCovariance>,
 }
 
 /// Grunert's P3P: up to four poses mapping the three world points onto the three bearings.
@@ -262,6 +265,8 @@ pub(crate) fn solve_pnp_ransac<R: Rng>(
     let sel: Vec<Correspondence> = inliers.iter().map(|&i| local[i]).collect();
     // The rotation does not depend on the re-centring.
     let tilt_sigma_deg = tilt_sigma_deg(cam, &pose, &sel, rms_px);
+    // Offsets do not depend on the re-centring either.
+    let covariance = pose_covariance(cam, &pose, &sel, rms_px, params.lm_iterations);
     // Undo the re-centring: X_c = R(X − o) + t = R X + (t − R o).
     let pose = CamFromMap::new(pose.rotation, pose.translation - pose.rotation * origin);
     Ok(PnpResult {
@@ -269,6 +274,7 @@ pub(crate) fn solve_pnp_ransac<R: Rng>(
         inliers,
         rms_px,
         tilt_sigma_deg,
+        covariance,
     })
 }
 
@@ -288,15 +294,7 @@ pub(crate) fn tilt_sigma_deg(
     if m <= 6 || !rms_px.is_finite() {
         return f64::NAN;
     }
-    let residuals = |p: &CamFromMap| -> Option<DVector<f64>> {
-        let mut r = DVector::zeros(m);
-        for (i, c) in corr.iter().enumerate() {
-            let px = cam.project(&p.transform(&c.world).coords).ok()?;
-            r[2 * i] = px.x - c.pixel.x;
-            r[2 * i + 1] = px.y - c.pixel.y;
-        }
-        Some(r)
-    };
+    let residuals = |p: &CamFromMap| reprojection_residuals(cam, p, corr);
     let mut j = DMatrix::zeros(m, 6);
     for k in 0..6 {
         let h = if k < 3 { 1e-6 } else { 1e-5 };
@@ -328,6 +326,150 @@ pub(crate) fn tilt_sigma_deg(
     } else {
         f64::NAN
     }
+}
+
+/// The parts of a PnP pose's covariance over the pose chart's offsets
+/// ([`crate::pose::offsets_between`]: x, y, z of the camera centre in m, then yaw, pitch and
+/// roll in degrees), row-major, as [`pose_covariance`] measures them; composed into the
+/// initializer's σ by [`crate::localize::refine::uncertainty::initializer`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseCovariance {
+    /// The residuals' Gauss–Newton bound σ²·(JᵀJ)⁻¹.
+    pub bound: [[f64; 6]; 6],
+    /// The delete-one-sector jackknife's covariance.
+    pub jackknife: [[f64; 6]; 6],
+    /// Sectors that held matches (the jackknife's K).
+    pub sectors: usize,
+}
+
+/// Azimuth sectors of the matches around the camera for [`pose_covariance`]'s jackknife.
+const SECTORS: usize = 8;
+
+/// The covariance parts of a PnP pose fitted to the inliers `corr` with RMS reprojection
+/// distance `rms_px`: the residuals' scatter through the Gauss–Newton bound σ²·(JᵀJ)⁻¹ (σ from
+/// `rms_px`, corrected for the six fitted parameters), and a delete-one-sector jackknife: the
+/// pose refitted ([`refine_lm`], `iterations`) without the matches of each of [`SECTORS`]
+/// azimuth sectors around the camera. The bound sees only independent pixel noise; the
+/// jackknife also sees an error the matches of one part of the view share (a template matched
+/// a pixel off over a whole patch of road, a building's lean in the orthophoto), which is what
+/// a satellite match's error mostly is. An error every match shares alike (the orthophoto's
+/// own registration) neither sees. `None` when the fit has no more residuals than parameters,
+/// JᵀJ is singular, fewer than four sectors hold matches, or a value is not finite.
+pub(crate) fn pose_covariance(
+    cam: &dyn CameraModel,
+    pose: &CamFromMap,
+    corr: &[Correspondence],
+    rms_px: f64,
+    iterations: usize,
+) -> Option<PoseCovariance> {
+    let bound = residual_bound(cam, pose, corr, rms_px)?;
+    let (jackknife, sectors) = sector_jackknife(cam, pose, corr, iterations)?;
+    let rows = |m: &DMatrix<f64>| std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]));
+    (bound.iter().chain(jackknife.iter()).all(|v| v.is_finite())).then(|| PoseCovariance {
+        bound: rows(&bound),
+        jackknife: rows(&jackknife),
+        sectors,
+    })
+}
+
+/// The Gauss–Newton bound σ²·(JᵀJ)⁻¹ of [`pose_covariance`], over the pose chart's offsets;
+/// `None` with no more residuals than parameters, a match that does not project, or JᵀJ
+/// singular.
+fn residual_bound(
+    cam: &dyn CameraModel,
+    pose: &CamFromMap,
+    corr: &[Correspondence],
+    rms_px: f64,
+) -> Option<DMatrix<f64>> {
+    let m = 2 * corr.len();
+    if m <= 6 || !rms_px.is_finite() {
+        return None;
+    }
+    let c0 = pose.center();
+    let (y0, p0, r0) = pose.yaw_pitch_roll();
+    let at = |o: &[f64; 6]| {
+        CamFromMap::from_center_ypr(
+            &(c0 + Vector3::new(o[0], o[1], o[2])),
+            y0 + o[3].to_radians(),
+            p0 + o[4].to_radians(),
+            r0 + o[5].to_radians(),
+        )
+    };
+    let residuals = |p: &CamFromMap| reprojection_residuals(cam, p, corr);
+    let mut j = DMatrix::zeros(m, 6);
+    for k in 0..6 {
+        let h = if k < 3 { 1e-5 } else { 1e-4 };
+        let mut o = [0.0; 6];
+        o[k] = h;
+        let rp = residuals(&at(&o))?;
+        o[k] = -h;
+        let rm = residuals(&at(&o))?;
+        j.set_column(k, &((rp - rm) / (2.0 * h)));
+    }
+    // As in `tilt_sigma_deg`: each of the 2n residuals has half the squared distance.
+    let sigma2 = 0.5 * rms_px * rms_px * m as f64 / (m - 6) as f64;
+    Some((j.transpose() * &j).try_inverse()? * sigma2)
+}
+
+/// The delete-one-sector jackknife covariance of [`pose_covariance`]: (K − 1)/K · Σ (o_k − ō)
+/// (o_k − ō)ᵀ over the K sectors that hold matches, o_k the offsets of the pose refitted
+/// without sector k's, and K. `None` below four such sectors or where a refit leaves fewer than
+/// six matches.
+fn sector_jackknife(
+    cam: &dyn CameraModel,
+    pose: &CamFromMap,
+    corr: &[Correspondence],
+    iterations: usize,
+) -> Option<(DMatrix<f64>, usize)> {
+    let c = pose.center();
+    let sector = |w: &Point3<f64>| {
+        let a = (w.y - c.y).atan2(w.x - c.x) + std::f64::consts::PI;
+        ((a / std::f64::consts::TAU * SECTORS as f64) as usize).min(SECTORS - 1)
+    };
+    let of: Vec<usize> = corr.iter().map(|m| sector(&m.world)).collect();
+    let held: Vec<usize> = (0..SECTORS).filter(|k| of.contains(k)).collect();
+    if held.len() < 4 {
+        return None;
+    }
+    let mut offsets = Vec::with_capacity(held.len());
+    for &k in &held {
+        let rest: Vec<Correspondence> = corr
+            .iter()
+            .zip(&of)
+            .filter(|(_, s)| **s != k)
+            .map(|(m, _)| *m)
+            .collect();
+        if rest.len() < 6 {
+            return None;
+        }
+        let refit = refine_lm(cam, pose, &rest, iterations);
+        offsets.push(DVector::from_row_slice(&crate::pose::offsets_between(
+            pose, &refit,
+        )));
+    }
+    let n = offsets.len() as f64;
+    let mean = offsets.iter().fold(DVector::zeros(6), |a, o| a + o) / n;
+    let scatter = offsets.iter().fold(DMatrix::zeros(6, 6), |a, o| {
+        let d = o - &mean;
+        a + &d * d.transpose()
+    });
+    Some((scatter * ((n - 1.0) / n), offsets.len()))
+}
+
+/// The 2n reprojection residuals (pixel x, then y, per match) of `corr` under `pose`; `None`
+/// where a match does not project.
+fn reprojection_residuals(
+    cam: &dyn CameraModel,
+    pose: &CamFromMap,
+    corr: &[Correspondence],
+) -> Option<DVector<f64>> {
+    let mut r = DVector::zeros(2 * corr.len());
+    for (i, c) in corr.iter().enumerate() {
+        let px = cam.project(&pose.transform(&c.world).coords).ok()?;
+        r[2 * i] = px.x - c.pixel.x;
+        r[2 * i + 1] = px.y - c.pixel.y;
+    }
+    Some(r)
 }
 
 /// `pose` with a left rotation increment (axis-angle, `d[0..3]`) and a translation increment
@@ -613,6 +755,102 @@ mod tests {
             })
             .collect();
         assert!(tilt_sigma_deg(&cam, &truth, &three, 1.0).is_nan());
+    }
+
+    /// The pose covariance's 3σ covers PnP's real error on every axis, both under independent
+    /// pixel noise (the bound's part) and when the matches of each part of the view share an
+    /// error (each 60° of azimuth shifted by its own 0.15 m on the ground: the jackknife's part,
+    /// which the bound alone misses), as [`crate::localize::refine::uncertainty::initializer`]
+    /// composes them (no orthophoto part: the map points are exact but for those shifts).
+    #[test]
+    fn pose_covariance_covers_independent_and_shared_match_errors() {
+        let cam = fisheye();
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let center = Point3::new(100.0, -50.0, 6.0);
+        let truth = CamFromMap::from_center_ypr(&center, 0.7, 0.03, -0.02);
+        let gauss = |rng: &mut ChaCha8Rng, s: f64| -> f64 {
+            let (u, v): (f64, f64) = (rng.random_range(1e-12..1.0), rng.random_range(0.0..1.0));
+            s * (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+        };
+        for shared_m in [0.0, 0.15] {
+            let (mut covered, mut bound_only, trials) = ([0usize; 4], [0usize; 4], 200);
+            for _ in 0..trials {
+                // Per 60° sector of azimuth, one ground shift shared by its matches.
+                let shifts: Vec<(f64, f64)> = (0..6)
+                    .map(|_| (gauss(&mut rng, shared_m), gauss(&mut rng, shared_m)))
+                    .collect();
+                let corr: Vec<Correspondence> = (0..48)
+                    .map(|_| {
+                        let w = Point3::new(
+                            center.x + rng.random_range(-15.0..15.0),
+                            center.y + rng.random_range(-15.0..15.0),
+                            rng.random_range(-0.1..0.1),
+                        );
+                        let a = (w.y - center.y).atan2(w.x - center.x) + std::f64::consts::PI;
+                        let (dx, dy) = shifts[((a / std::f64::consts::TAU * 6.0) as usize).min(5)];
+                        let p = cam.project(&truth.transform(&w).coords).unwrap();
+                        Correspondence {
+                            pixel: Point2::new(
+                                p.x + gauss(&mut rng, 1.0),
+                                p.y + gauss(&mut rng, 1.0),
+                            ),
+                            // The map point is off by the sector's shift: the match's error.
+                            world: Point3::new(w.x + dx, w.y + dy, w.z),
+                        }
+                    })
+                    .collect();
+                let est = refine_lm(&cam, &truth, &corr, 50);
+                let sse: f64 = corr.iter().filter_map(|c| reproj2(&cam, &est, c)).sum();
+                let rms = (sse / corr.len() as f64).sqrt();
+                let parts = pose_covariance(&cam, &est, &corr, rms, 50).expect("a covariance");
+                let cov = crate::localize::refine::uncertainty::initializer(&parts, 0.0, 48).matrix;
+                let bound = parts.bound;
+                let err = crate::pose::offsets_between(&truth, &est);
+                for k in 0..4 {
+                    covered[k] += usize::from(err[k].abs() <= 3.0 * cov[k][k].sqrt());
+                    bound_only[k] += usize::from(err[k].abs() <= 3.0 * bound[k][k].sqrt());
+                }
+            }
+            for (k, c) in covered.iter().enumerate() {
+                assert!(
+                    *c as f64 >= 0.95 * trials as f64,
+                    "shared {shared_m} m, axis {k}: 3σ covers {c} of {trials}"
+                );
+            }
+            // With shared errors the bound alone misses them on x and y.
+            if shared_m > 0.0 {
+                for (k, b) in bound_only.iter().take(2).enumerate() {
+                    assert!(
+                        (*b as f64) < 0.8 * trials as f64,
+                        "axis {k}: the bound alone covers {b} of {trials}"
+                    );
+                }
+            }
+        }
+    }
+
+    /// Matches in three sectors of azimuth only: no jackknife, no covariance.
+    #[test]
+    fn a_pose_covariance_needs_four_sectors() {
+        let cam = fisheye();
+        let center = Point3::new(100.0, -50.0, 6.0);
+        let truth = CamFromMap::from_center_ypr(&center, 0.7, 0.03, -0.02);
+        let corr = |sectors: usize| -> Vec<Correspondence> {
+            (0..40)
+                .map(|i| {
+                    let a = (i % sectors) as f64 * std::f64::consts::TAU / sectors as f64 + 0.1;
+                    let r = 4.0 + (i / sectors) as f64;
+                    let w = Point3::new(center.x + r * a.cos(), center.y + r * a.sin(), 0.0);
+                    Correspondence {
+                        pixel: cam.project(&truth.transform(&w).coords).unwrap(),
+                        world: w,
+                    }
+                })
+                .collect()
+        };
+        assert!(pose_covariance(&cam, &truth, &corr(3), 1.0, 50).is_none());
+        let c = pose_covariance(&cam, &truth, &corr(8), 1.0, 50).expect("eight sectors");
+        assert_eq!(c.sectors, 8);
     }
 
     #[test]

@@ -395,6 +395,9 @@ pub struct InitResult {
     /// The last PnP's tilt σ from its residuals, degrees
     /// ([`crate::localize::pnp::tilt_sigma_deg`]; NaN when the pose is a verified sweep pose).
     pub tilt_sigma_deg: f64,
+    /// The last PnP's covariance ([`crate::localize::pnp::pose_covariance`]; `None` when the
+    /// pose is a verified sweep pose or it cannot be had).
+    pub covariance: Option<crate::localize::pnp::PoseCovariance>,
     /// Candidates whose fine stage ran (fewer than the sweep kept when one was convincing early).
     pub candidates_tried: usize,
     /// Rank of [`Self::candidate`] in the sweep's list, 0 = the sweep's best.
@@ -420,6 +423,7 @@ impl InitResult {
             inliers: f.inliers,
             rms_px: f.rms_px,
             tilt_sigma_deg: f.tilt_sigma_deg,
+            covariance: f.covariance,
             candidates_tried: 0,
             candidate_rank: rank,
             mi: mi.map(|m| (m, None)),
@@ -442,6 +446,8 @@ pub struct FineOutcome {
     pub rms_px: f64,
     /// Its tilt σ, degrees ([`crate::localize::pnp::tilt_sigma_deg`]).
     pub tilt_sigma_deg: f64,
+    /// Its covariance ([`crate::localize::pnp::pose_covariance`]).
+    pub covariance: Option<crate::localize::pnp::PoseCovariance>,
     /// A later, finer iteration failed: this is the last iteration that gave a PnP pose.
     pub partial: bool,
 }
@@ -542,6 +548,7 @@ fn fine_stage_partial<R: rand::Rng>(
                     inliers: r.inliers.len(),
                     rms_px: r.rms_px,
                     tilt_sigma_deg: r.tilt_sigma_deg,
+                    covariance: r.covariance,
                     partial: false,
                 });
             }
@@ -921,6 +928,7 @@ fn sweep_result(
         inliers: 0,
         rms_px: f64::NAN,
         tilt_sigma_deg: f64::NAN,
+        covariance: None,
         candidates_tried: 0,
         candidate_rank: rank,
         mi: Some((s.mi, None)),

@@ -248,6 +248,7 @@ pub(crate) fn initialize_with<R: rand::Rng>(
         inliers: r.inliers.len(),
         rms_px: r.rms_px,
         tilt_sigma_deg: r.tilt_sigma_deg,
+        covariance: r.covariance,
         candidates_tried: 1,
         candidate_rank: 0,
         mi,
