@@ -372,16 +372,22 @@ fn init_only(
         json!({ "seed": scene.settings.seed, "seconds": { "simulate": sim_s, "init": secs } });
     let stages = match init {
         Ok(r) => {
-            rec["init"] = json!({ "candidates": r.candidates_tried, "candidate_rank": r.candidate_rank,
-                "inliers": r.inliers, "matches": r.matches, "rms_px": r.rms_px,
-                "mi": r.mi.map(|m| m.0), "mi_runner_up": r.mi.and_then(|m| m.1) });
+            rec["init"] = json!(PnpDetail::new(
+                &r,
+                "dense-sweep",
+                p.quality.orthophoto_sigma_m
+            ));
             vec![
                 prior,
                 pipeline::Stage {
                     name: StageName::Pnp,
                     pose: Some(r.pose),
                     seconds: secs,
-                    detail: StageDetail::Pnp(PnpDetail::new(&r, "dense-sweep")),
+                    detail: StageDetail::Pnp(PnpDetail::new(
+                        &r,
+                        "dense-sweep",
+                        p.quality.orthophoto_sigma_m,
+                    )),
                 },
             ]
         }

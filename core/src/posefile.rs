@@ -120,6 +120,34 @@ impl PoseFile {
         self.quality.grade.as_deref().unwrap_or("precise")
     }
 
+    /// Why the pose is not precise, in one line, when it is not: `quality.reason`, and where the
+    /// pose is the initializer's own (`quality.source` = `initializer`) the refinement's
+    /// refusal behind it.
+    pub fn grade_reason(&self) -> Option<String> {
+        if self.grade() == "precise" {
+            return None;
+        }
+        let reason = self.quality.reason.clone();
+        let refused = (self.quality.rest.get("source").and_then(Value::as_str)
+            == Some("initializer"))
+        .then(|| {
+            self.quality
+                .rest
+                .get("refinement_refused")
+                .and_then(Value::as_str)
+                .unwrap_or("no reason given")
+        });
+        match (reason, refused) {
+            (Some(r), Some(x)) => Some(format!(
+                "{r}; the initializer's pose, the refinement refused: {x}"
+            )),
+            (r, None) => r,
+            (None, Some(x)) => Some(format!(
+                "the initializer's pose, the refinement refused: {x}"
+            )),
+        }
+    }
+
     /// The pose store's comparison score, `quality.score`, if the file has a numeric one.
     pub fn score(&self) -> Option<f64> {
         self.quality.score

@@ -125,6 +125,13 @@ pub(super) fn run(a: Args) -> Result<i32> {
     if let crate::localize::refine::verdict::Grade::Coarse(o) = &q.grade {
         println!("coarse: {o} (precise)");
     }
+    if let Some(i) = &q.initializer {
+        println!(
+            "the initializer's pose, σ {}: the refinement refused: {}",
+            q.sigma.map_or_else(|| "unknown".into(), |s| s.describe()),
+            i.0
+        );
+    }
     if let Some(t) = r.report.get("truth") {
         println!("vs truth: {t}");
     }

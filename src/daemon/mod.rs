@@ -933,7 +933,7 @@ impl Daemon {
                     "ok: serving pose from {} (tile {}, coarse: {}); re-localizing to make it precise",
                     p.timestamp_utc,
                     p.tile_id,
-                    p.quality.reason.as_deref().unwrap_or("σ over the precise limits")
+                    p.grade_reason().as_deref().unwrap_or("σ over the precise limits")
                 ),
             ),
             (Some(p), _) => (

@@ -123,9 +123,7 @@ impl Served {
             score: p.score(),
             sigma: p.sigma(),
             grade: p.grade().to_string(),
-            grade_reason: (p.grade() != "precise")
-                .then(|| p.quality.reason.clone())
-                .flatten(),
+            grade_reason: p.grade_reason(),
         }
     }
 }

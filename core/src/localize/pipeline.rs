@@ -140,6 +140,10 @@ pub struct PnpDetail {
     /// whose 3σ exceeds the re-search threshold has its tilt polished
     /// before the first search ([`PolishedSearch::settle_uncertain_tilt`]).
     pub tilt_sigma_deg: f64,
+    /// Its σ per axis ([`crate::localize::refine::uncertainty::initializer`]; absent for a
+    /// verified sweep pose or where it cannot be had).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sigma: Option<crate::pose::Sigma>,
     /// Sweep candidates whose fine stage ran.
     pub candidates: usize,
     /// Rank of the chosen candidate in the sweep's list.
@@ -177,13 +181,21 @@ impl PriorDetail {
 }
 
 impl PnpDetail {
-    /// The figures of initialization result `init`, made by the matcher named `matcher`.
-    pub fn new(init: &InitResult, matcher: &str) -> Self {
+    /// The figures of initialization result `init`, made by the matcher named `matcher`, its σ
+    /// with the orthophoto's registration σ `orthophoto_sigma_m` (`[quality]`).
+    pub fn new(init: &InitResult, matcher: &str, orthophoto_sigma_m: f64) -> Self {
         PnpDetail {
             matches: init.matches,
             inliers: init.inliers,
             rms_px: init.rms_px,
             tilt_sigma_deg: init.tilt_sigma_deg,
+            sigma: init.covariance.as_ref().map(|c| {
+                crate::pose::Sigma::of(&crate::localize::refine::uncertainty::initializer(
+                    c,
+                    orthophoto_sigma_m,
+                    init.inliers,
+                ))
+            }),
             candidates: init.candidates_tried,
             candidate_rank: init.candidate_rank,
             matcher: matcher.to_string(),
@@ -552,9 +564,11 @@ pub(crate) fn localize_ungated(
         }
     }
     let t2 = now();
+    let served = serve_initializer(&init, &refinement, &p.quality);
     let mut pnp = PnpDetail::new(
         &init,
         p.matcher.as_ref().map_or("dense-sweep", |m| m.name()),
+        p.quality.orthophoto_sigma_m,
     );
     pnp.runner_up = other.as_ref().is_some_and(|o| o.accepted_instead);
     stages.push(Stage {
@@ -573,11 +587,77 @@ pub(crate) fn localize_ungated(
             other_hypothesis: other,
         })),
     });
+    let refinement = served.unwrap_or(refinement);
     Ok(Outcome {
         pose: refinement.pose,
         init,
         refinement,
         stages,
+    })
+}
+
+/// The initializer's own pose as the served result, when the refinement was refused and the
+/// initializer's σ ([`crate::localize::refine::uncertainty::initializer`]) grades it served:
+/// its quality carries that σ, its grade and the refinement's refusal
+/// ([`crate::localize::refine::quality::Quality::initializer`]); its score (NMI) is 0, below
+/// any refined result's. `None` when the refinement was served, the initializer has no
+/// covariance (a verified sweep pose), its σ is refused too, the refinement's optimum lay on
+/// its search box's edge, or the refused refinement's answer lies beyond its 3σ on x, y, z or
+/// yaw.
+fn serve_initializer(
+    init: &InitResult,
+    refinement: &Refinement,
+    q: &crate::localize::refine::quality::QualityConfig,
+) -> Option<Refinement> {
+    use crate::localize::refine::quality::{FromInitializer, Quality, Sigma};
+    let stop = refinement.quality.grade.stop()?.clone();
+    // An optimum on the search box's edge says the data prefer a pose beyond it: the start is
+    // off, and its own σ cannot say by how much.
+    if matches!(
+        stop,
+        crate::localize::refine::verdict::Stop::Grid(
+            crate::localize::error::Refusal::OnEdge { .. }
+        )
+    ) {
+        return None;
+    }
+    let u = crate::localize::refine::uncertainty::initializer(
+        init.covariance.as_ref()?,
+        q.orthophoto_sigma_m,
+        init.inliers,
+    );
+    let grade = crate::localize::refine::verdict::judge(&u, &q.limits());
+    // The refused refinement is no proof, but where its answer lies beyond the initializer's
+    // 3σ the two disagree, and a wrong hypothesis (a matching that fits itself well in the
+    // wrong place) is what that disagreement most often is.
+    let d = crate::pose::offsets_between(&init.pose, &refinement.pose);
+    let agree = (0..4).all(|k| d[k].abs() <= 3.0 * u.sigma[k]);
+    if !grade.served() || !agree {
+        return None;
+    }
+    Some(Refinement {
+        pose: init.pose,
+        offsets: [0.0; 6],
+        quality: Quality {
+            mi: 0.0,
+            nmi: 0.0,
+            points: init.inliers as u64,
+            background: 0.0,
+            second_peak_ratio: None,
+            second_peak_contrast: None,
+            second_peak_offset: None,
+            axes: Vec::new(),
+            poses: 0,
+            sigma: Some(Sigma::of(&u)),
+            covariance: Some(u),
+            information: None,
+            optima: None,
+            region: None,
+            grade,
+            initializer: Some(FromInitializer(stop)),
+        },
+        peaks: Vec::new(),
+        ..refinement.clone()
     })
 }
 

@@ -254,6 +254,7 @@ pub(crate) fn smooth_stage<'a>(
         optima: Some(optima),
         region,
         grade,
+        initializer: None,
         mi: match (pooling, mi.first()) {
             (crate::localize::mi::smooth::Pooling::Joint, Some(v)) => *v,
             _ => grid.quality.mi,

@@ -73,6 +73,11 @@ pub struct QualityConfig {
     pub coarse_max_sigma_yaw_deg: f64,
     /// Largest σ of pitch and roll of a coarse result (deg).
     pub coarse_max_sigma_tilt_deg: f64,
+    /// The orthophoto's registration σ against the LiDAR map, per horizontal axis (m): the part
+    /// of the initializer's σ that no statistic of one view sees, since every satellite match
+    /// shares it ([`crate::localize::refine::uncertainty::initializer`]). Set it from the
+    /// orthophoto's stated positional accuracy.
+    pub orthophoto_sigma_m: f64,
     /// `jackknife-folds`, a key of the retired nearest-pixel σ: still read, so that an older
     /// config keeps its node running, and named by `validate`'s warnings; never written.
     #[serde(rename = "jackknife-folds", skip_serializing)]
@@ -101,6 +106,7 @@ impl Default for QualityConfig {
             coarse_max_sigma_z_m: 0.5,
             coarse_max_sigma_yaw_deg: 1.0,
             coarse_max_sigma_tilt_deg: 2.0,
+            orthophoto_sigma_m: 0.3,
             retired_jackknife_folds: None,
             intrinsics_sigma: None,
         }
@@ -133,6 +139,7 @@ impl QualityConfig {
             ("max-sigma-z-m", self.max_sigma_z_m),
             ("max-sigma-yaw-deg", self.max_sigma_yaw_deg),
             ("max-sigma-tilt-deg", self.max_sigma_tilt_deg),
+            ("orthophoto-sigma-m", self.orthophoto_sigma_m),
         ];
         for (key, v) in positive {
             if !(v.is_finite() && v > 0.0) {
@@ -311,6 +318,25 @@ pub struct Quality {
     /// covariance ([`crate::localize::refine::verdict::judge`]).
     #[serde(flatten)]
     pub grade: Grade,
+    /// Present when the served pose is the initializer's own, graded by its own σ
+    /// ([`crate::localize::refine::uncertainty::initializer`]) because the refinement was
+    /// refused: why it was. Serialized as `source` (`initializer`) and `refinement_refused`.
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub initializer: Option<FromInitializer>,
+}
+
+/// The refinement's refusal behind a pose served from the initializer ([`Quality::initializer`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FromInitializer(pub Stop);
+
+impl Serialize for FromInitializer {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut m = s.serialize_map(Some(2))?;
+        m.serialize_entry("source", "initializer")?;
+        m.serialize_entry("refinement_refused", &self.0.to_string())?;
+        m.end()
+    }
 }
 
 impl Quality {
@@ -451,6 +477,7 @@ pub fn assess(ev: &Evaluator, res: &SearchResult, cfg: &QualityConfig) -> Qualit
         optima: None,
         region: None,
         grade,
+        initializer: None,
     }
 }
 

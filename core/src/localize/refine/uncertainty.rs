@@ -18,6 +18,51 @@ use crate::pose::CamFromMap;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+/// The uncertainty of the initializer's own pose (x, y, z, yaw, pitch, roll; m, deg), for
+/// serving it when the refinement is refused. Three parts, each named once:
+/// - the PnP residuals' Gauss–Newton bound (`pnp.bound`): independent pixel noise;
+/// - the sectors' jackknife (`pnp.jackknife`), widened by the Student-t factor of its K − 1
+///   degrees of freedom so that its 3σ holds with so few groups: an error the matches of one
+///   part of the view share;
+/// - the orthophoto's registration σ on x and y (`orthophoto_sigma_m`): an error every
+///   satellite match shares, which neither of the others can see.
+///
+/// `inliers`: the matches fitted.
+pub fn initializer(
+    pnp: &crate::localize::pnp::PoseCovariance,
+    orthophoto_sigma_m: f64,
+    inliers: usize,
+) -> Uncertainty {
+    let widen = (student_t_3sigma(pnp.sectors.saturating_sub(1).max(1)) / 3.0).powi(2);
+    let mut matrix: Vec<Vec<f64>> = (0..6)
+        .map(|r| {
+            (0..6)
+                .map(|c| pnp.bound[r][c] + widen * pnp.jackknife[r][c])
+                .collect()
+        })
+        .collect();
+    for (k, row) in matrix.iter_mut().enumerate().take(2) {
+        row[k] += orthophoto_sigma_m * orthophoto_sigma_m;
+    }
+    Uncertainty {
+        axes: ["x", "y", "z", "yaw", "pitch", "roll"]
+            .iter()
+            .map(|a| a.to_string())
+            .collect(),
+        units: ["m", "m", "m", "deg", "deg", "deg"]
+            .iter()
+            .map(|u| u.to_string())
+            .collect(),
+        sigma: (0..6).map(|k| matrix[k][k].max(0.0).sqrt()).collect(),
+        matrix,
+        intrinsics: Vec::new(),
+        points: inliers,
+        poses: 0,
+        gate_sigma: Vec::new(),
+        unbounded: None,
+    }
+}
+
 /// The reported covariance of an answer.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Uncertainty {
