@@ -10,7 +10,7 @@ use crate::localize::mi::space::{Mode, SearchConfig, SearchSpec};
 use crate::localize::mi::MiValue;
 use crate::localize::refine::local::{refine_smooth, SmoothRefinement};
 use crate::localize::refine::optima::{
-    disagreement as disagreement_of, self_check_starts, START_SPREAD,
+    disagreement as disagreement_of, self_check_starts, SEPARATION, START_SPREAD,
 };
 use crate::localize::refine::quality::QualityConfig;
 use crate::localize::refine::verdict::{Grade, Stop};
@@ -506,7 +506,8 @@ struct StartOutcome {
 }
 
 /// The truth-free self-check of `--starts`: every start's outcome and whether the served
-/// answers (precise or coarse) agree within their combined 3σ.
+/// answers (precise or coarse) agree within their combined 3σ, and each lies within a served
+/// answer's 3σ of a refused one whose MI is at least its own.
 #[derive(Debug, Clone, serde::Serialize)]
 struct SelfCheck {
     /// Per start, in order (the first is `--init`).
@@ -558,6 +559,48 @@ impl SelfCheck {
                     });
                     pair = Some((i + 1, j + 1));
                     break 'pairs;
+                }
+            }
+        }
+        // A refused answer is an answer too: one the data scores as high as a served one (its
+        // refusal being about its evidence, e.g. a few points short, not its place) must lie
+        // within the served one's 3σ.
+        if disagreement.is_none() {
+            let none = crate::pose::Sigma {
+                x: 0.0,
+                y: 0.0,
+                z: 0.0,
+                yaw: 0.0,
+                pitch: None,
+                roll: None,
+            };
+            'refused: for &i in &ok {
+                let a = &runs[i].0;
+                let Some(sa) = a.quality.sigma else { continue };
+                // "At least as high" within what the data can tell: the answer's own test
+                // against its competing optima (SEPARATION standard errors, the median of theirs).
+                let mut se: Vec<f64> = a
+                    .quality
+                    .optima
+                    .iter()
+                    .flat_map(|o| o.found.iter().map(|f| f.se))
+                    .filter(|v| v.is_finite())
+                    .collect();
+                se.sort_by(f64::total_cmp);
+                let tolerance = se.get(se.len() / 2).map_or(0.0, |v| SEPARATION * v);
+                for (j, (b, _)) in runs.iter().enumerate() {
+                    if ok.contains(&j) || !(b.quality.mi >= a.quality.mi - tolerance) {
+                        continue;
+                    }
+                    if let Some((axis, d, z)) = disagreement_of(&a.pose, &sa, &b.pose, &none) {
+                        disagreement = Some(Stop::Disagree {
+                            axis,
+                            difference: d,
+                            sigmas: z,
+                        });
+                        pair = Some((i + 1, j + 1));
+                        break 'refused;
+                    }
                 }
             }
         }
