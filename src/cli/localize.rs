@@ -127,8 +127,8 @@ pub(super) fn run(a: Args) -> Result<i32> {
     }
     if let Some(i) = &q.initializer {
         println!(
-            "the initializer's pose, σ {}: the refinement refused: {}",
-            q.sigma.map_or_else(|| "unknown".into(), |s| s.describe()),
+            "the initializer's pose, {}: the refinement refused: {}",
+            q.sigma.map_or_else(|| "σ unknown".into(), |s| s.describe()),
             i.0
         );
     }

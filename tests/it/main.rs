@@ -30,6 +30,7 @@ mod gnss_gpsd;
 mod gnss_prior;
 mod gnss_robust;
 mod gnss_serial;
+mod initializer_served;
 mod kitti_layouts;
 mod las_versions;
 mod layering;
