@@ -562,9 +562,9 @@ impl SelfCheck {
                 }
             }
         }
-        // A refused answer is an answer too: one the data scores as high as a served one (its
-        // refusal being about its evidence, e.g. a few points short, not its place) must lie
-        // within the served one's 3σ.
+        // A refused answer is an answer too: one the data scores as high as a served one must
+        // agree with it within their combined 3σ (the served one's alone where the refused one
+        // has none).
         if disagreement.is_none() {
             let none = crate::pose::Sigma {
                 x: 0.0,
@@ -592,7 +592,8 @@ impl SelfCheck {
                     if ok.contains(&j) || !(b.quality.mi >= a.quality.mi - tolerance) {
                         continue;
                     }
-                    if let Some((axis, d, z)) = disagreement_of(&a.pose, &sa, &b.pose, &none) {
+                    let sb = b.quality.sigma.unwrap_or(none);
+                    if let Some((axis, d, z)) = disagreement_of(&a.pose, &sa, &b.pose, &sb) {
                         disagreement = Some(Stop::Disagree {
                             axis,
                             difference: d,
