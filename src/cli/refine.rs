@@ -566,43 +566,20 @@ impl SelfCheck {
         // agree with it within their combined 3σ (the served one's alone where the refused one
         // has none).
         if disagreement.is_none() {
-            let none = crate::pose::Sigma {
-                x: 0.0,
-                y: 0.0,
-                z: 0.0,
-                yaw: 0.0,
-                pitch: None,
-                roll: None,
-            };
-            'refused: for &i in &ok {
-                let a = &runs[i].0;
-                let Some(sa) = a.quality.sigma else { continue };
-                // "At least as high" within what the data can tell: the answer's own test
-                // against its competing optima (SEPARATION standard errors, the median of theirs).
-                let mut se: Vec<f64> = a
-                    .quality
-                    .optima
-                    .iter()
-                    .flat_map(|o| o.found.iter().map(|f| f.se))
-                    .filter(|v| v.is_finite())
-                    .collect();
-                se.sort_by(f64::total_cmp);
-                let tolerance = se.get(se.len() / 2).map_or(0.0, |v| SEPARATION * v);
-                for (j, (b, _)) in runs.iter().enumerate() {
-                    if ok.contains(&j) || !(b.quality.mi >= a.quality.mi - tolerance) {
-                        continue;
-                    }
-                    let sb = b.quality.sigma.unwrap_or(none);
-                    if let Some((axis, d, z)) = disagreement_of(&a.pose, &sa, &b.pose, &sb) {
-                        disagreement = Some(Stop::Disagree {
-                            axis,
-                            difference: d,
-                            sigmas: z,
-                        });
-                        pair = Some((i + 1, j + 1));
-                        break 'refused;
-                    }
-                }
+            let answers: Vec<Answer> = runs
+                .iter()
+                .enumerate()
+                .map(|(i, (r, _))| Answer {
+                    pose: r.pose,
+                    sigma: r.quality.sigma,
+                    mi: r.quality.mi,
+                    tolerance: tolerance_of(r),
+                    served: ok.contains(&i),
+                })
+                .collect();
+            if let Some((i, j, stop)) = refused_disagreement(&answers) {
+                disagreement = Some(stop);
+                pair = Some((i + 1, j + 1));
             }
         }
         let key = |i: usize| (runs[i].0.quality.precise(), runs[i].0.quality.mi);
@@ -662,6 +639,67 @@ impl SelfCheck {
     }
 }
 
+/// One start's answer as the self-check weighs it against a refused one.
+#[derive(Debug, Clone, Copy)]
+struct Answer {
+    pose: CamFromMap,
+    sigma: Option<crate::pose::Sigma>,
+    mi: f64,
+    /// How much lower an MI still scores "as high" as this answer's (nats).
+    tolerance: f64,
+    served: bool,
+}
+
+/// "As high" within what the data can tell: [`SEPARATION`] standard errors of the answer's own
+/// test against its competing optima (the median of theirs), 0 without any.
+fn tolerance_of(r: &Refinement) -> f64 {
+    let mut se: Vec<f64> = r
+        .quality
+        .optima
+        .iter()
+        .flat_map(|o| o.found.iter().map(|f| f.se))
+        .filter(|v| v.is_finite())
+        .collect();
+    se.sort_by(f64::total_cmp);
+    se.get(se.len() / 2).map_or(0.0, |v| SEPARATION * v)
+}
+
+/// A refused answer is an answer too: the first served answer (with a σ) that a refused one
+/// scoring as high (its MI at least the served one's less its tolerance) disagrees with beyond
+/// their combined 3σ (the served one's alone where the refused one has none), as (served index,
+/// refused index, the stop).
+fn refused_disagreement(answers: &[Answer]) -> Option<(usize, usize, Stop)> {
+    let none = crate::pose::Sigma {
+        x: 0.0,
+        y: 0.0,
+        z: 0.0,
+        yaw: 0.0,
+        pitch: None,
+        roll: None,
+    };
+    for (i, a) in answers.iter().enumerate().filter(|(_, a)| a.served) {
+        let Some(sa) = a.sigma else { continue };
+        for (j, b) in answers.iter().enumerate() {
+            if b.served || !(b.mi >= a.mi - a.tolerance) {
+                continue;
+            }
+            let sb = b.sigma.unwrap_or(none);
+            if let Some((axis, difference, sigmas)) = disagreement_of(&a.pose, &sa, &b.pose, &sb) {
+                return Some((
+                    i,
+                    j,
+                    Stop::Disagree {
+                        axis,
+                        difference,
+                        sigmas,
+                    },
+                ));
+            }
+        }
+    }
+    None
+}
+
 /// Every `--image` as gray, each checked to be the camera's size.
 fn load_grays(a: &Args, cam: &crate::camera::Camera) -> Result<Vec<Vec<u8>>> {
     let mut grays = Vec::with_capacity(a.image.len());
@@ -681,4 +719,70 @@ fn load_grays(a: &Args, cam: &crate::camera::Camera) -> Result<Vec<Vec<u8>>> {
         grays.push(gray);
     }
     Ok(grays)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Point3;
+
+    fn answer(x: f64, sigma_x: Option<f64>, mi: f64, served: bool) -> Answer {
+        Answer {
+            pose: CamFromMap::from_center_ypr(&Point3::new(x, 0.0, 10.0), 0.0, 0.0, 0.0),
+            sigma: sigma_x.map(|s| crate::pose::Sigma {
+                x: s,
+                y: s,
+                z: s,
+                yaw: 0.1,
+                pitch: None,
+                roll: None,
+            }),
+            mi,
+            tolerance: 0.002,
+            served,
+        }
+    }
+
+    /// A refused answer the data scores as high must agree with a served one; one it scores
+    /// lower, or one within the combined 3σ, is no objection.
+    #[test]
+    fn a_refused_answer_scoring_as_high_must_agree_with_the_served_one() {
+        // Served at 0 (σ 0.1 m); refused 1.5 m away without a σ, at the same MI within the
+        // tolerance: they disagree on x by 1.5 m, 15 σ.
+        let (i, j, stop) = refused_disagreement(&[
+            answer(0.0, Some(0.1), 0.2065, true),
+            answer(1.5, None, 0.2060, false),
+        ])
+        .expect("a disagreement");
+        assert_eq!((i, j), (0, 1));
+        match stop {
+            Stop::Disagree {
+                axis,
+                difference,
+                sigmas,
+            } => {
+                assert_eq!(axis, crate::localize::mi::space::Axis::X);
+                assert!((difference - 1.5).abs() < 1e-9 && (sigmas - 15.0).abs() < 1e-6);
+            }
+            other => panic!("{other}"),
+        }
+        // Scored lower than the tolerance: the data tells it apart, no objection.
+        assert!(refused_disagreement(&[
+            answer(0.0, Some(0.1), 0.2065, true),
+            answer(1.5, None, 0.2040, false),
+        ])
+        .is_none());
+        // With a σ of its own (0.5 m): 1.5 m is within 3·√(0.1² + 0.5²) = 1.53 m.
+        assert!(refused_disagreement(&[
+            answer(0.0, Some(0.1), 0.2065, true),
+            answer(1.5, Some(0.5), 0.2070, false),
+        ])
+        .is_none());
+        // Two served answers are the served pairs' check, not this one's.
+        assert!(refused_disagreement(&[
+            answer(0.0, Some(0.1), 0.2065, true),
+            answer(1.5, Some(0.1), 0.2070, true),
+        ])
+        .is_none());
+    }
 }
