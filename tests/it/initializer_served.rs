@@ -4,6 +4,7 @@
 //! the PnP pose is written graded coarse with the initializer's σ, says where it came from and
 //! why, exits 5, and covers the truth within 3σ on x, y, z and yaw.
 
+use crate::common;
 use std::process::Command;
 
 const BIN: &str = env!("CARGO_BIN_EXE_infraloc");
@@ -16,24 +17,10 @@ fn json(path: &std::path::Path) -> serde_json::Value {
 fn a_refused_refinement_serves_the_initializer_s_pose_coarse() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    let out = Command::new(BIN)
-        .args([
-            "simulate",
-            "--seed",
-            "1",
-            "--preset",
-            "small",
-            "--difficulty",
-            "hard",
-        ])
-        .arg("--out")
-        .arg(dir)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    common::simulate(
+        BIN,
+        dir,
+        &["--seed", "1", "--preset", "small", "--difficulty", "hard"],
     );
     let cfg = std::fs::read_to_string(dir.join("infraloc.toml")).unwrap();
     assert!(
